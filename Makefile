@@ -1,0 +1,55 @@
+# MEMS hardware emulator on ROS 2 Kilted (PyPI wheels).
+#   make demo   set up if needed, run the default scenario, print its table, write runs/
+#   make test   set up if needed, run the whole test suite
+#   make bench  set up if needed, run the benchmarks (ratios measured in one run)
+# Setup: venv at .venv/ with the pinned wheels of requirements.lock, the
+# interface package msg_defs/ (mems_msgs) built with rosidl into the venv, and
+# this package installed (editable) with its executables in .venv/bin.
+
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+
+# The graph never leaves this machine; each target has a domain of its own.
+export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
+export NUMBA_CACHE_DIR := $(CURDIR)/$(VENV)/numba-cache
+export MPLBACKEND := Agg
+DEMO_DOMAIN ?= 61
+BENCH_DOMAIN ?= 62
+TEST_DOMAIN ?= 63
+
+DEPS_STAMP := $(VENV)/.stamp-deps
+MSGS_STAMP := $(VENV)/.stamp-msgs
+PKG_STAMP := $(VENV)/.stamp-pkg
+MSG_FILES := $(wildcard msg_defs/msg/*.msg)
+
+.PHONY: setup demo test bench clean
+
+setup: $(PKG_STAMP)
+
+$(DEPS_STAMP): requirements.lock tools/bootstrap_system.sh
+	bash tools/bootstrap_system.sh
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --disable-pip-version-check -q -r requirements.lock
+	touch $@
+
+$(MSGS_STAMP): $(DEPS_STAMP) msg_defs/package.xml msg_defs/CMakeLists.txt $(MSG_FILES) tools/build_msgs.sh tools/fix_ros_wheel_cmake.py
+	VENV=$(VENV) bash tools/build_msgs.sh
+	touch $@
+
+$(PKG_STAMP): $(MSGS_STAMP) setup.py setup.cfg package.xml
+	$(PY) -m pip install --disable-pip-version-check -q --no-build-isolation --no-deps -e .
+	touch $@
+
+demo: setup
+	ROS_DOMAIN_ID=$(DEMO_DOMAIN) $(VENV)/bin/run_scenario imu_noise --seed 1
+
+test: setup
+	ROS_DOMAIN_ID=$(TEST_DOMAIN) $(PY) -m pytest test
+
+bench: setup
+	ROS_DOMAIN_ID=$(BENCH_DOMAIN) $(PY) bench/run_all.py
+
+clean:
+	rm -rf build install log runs .pytest_cache

@@ -1,0 +1,157 @@
+"""ROS 2 node of the IMU stochastic-noise emulator (thin wrapper of mems_sim.imu_noise).
+
+Topics (relative to the node namespace, default ``/imu``):
+    ``adc``   mems_msgs/AdcFrame   6 channels gyro_x..z [rad/s], accel_x..z [m/s^2], 14-bit codes
+    ``truth`` mems_msgs/SignalFrame true angular rate and specific force, same channels
+    ``data``  sensor_msgs/Imu      one message per sample, SI, model covariances
+    ``/diagnostics``               frames, saturated samples
+Parameters: the table ``mems_sim.imu_noise.IMU_SPECS`` (units, ranges, sources),
+``EMULATOR_SPECS`` and the motion parameters below.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from rclpy.node import Node
+from sensor_msgs.msg import Imu
+
+from mems_msgs.msg import AdcFrame, SignalFrame
+from mems_sim import imu_noise
+from mems_sim.diagnostics import DiagnosticsReporter
+from mems_sim.node_common import EMULATOR_SPECS, run_node
+from mems_sim.params import ParameterError, ParamSpec
+from mems_sim.qos import FRAME_QOS
+from mems_sim.ros_frames import index_to_ns, make_adc_frame, make_signal_frame, ns_to_time
+from mems_sim.ros_params import declare_specs
+
+MOTION_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("motion", "static", "-", "true motion: at rest, constant rate or sinusoidal "
+              "rate about z", "", choices=("static", "constant_rate", "sinusoid")),
+    ParamSpec("motion_rate", 0.1, "rad/s", "rate of 'constant_rate'", "", min=-30.0, max=30.0),
+    ParamSpec("motion_amplitude", 0.5, "rad/s", "amplitude of 'sinusoid'", "", min=0.0, max=30.0),
+    ParamSpec("motion_frequency", 1.0, "Hz", "frequency of 'sinusoid'", "", min=0.0, max=1.0e4),
+    ParamSpec("publish_imu", True, "-", "also publish sensor_msgs/Imu, one message per sample",
+              "design.md principle 6"),
+)
+
+CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
+UNITS = ("rad/s",) * 3 + ("m/s^2",) * 3
+
+
+class ImuNoiseNode(Node):
+    """Emulated 3-axis gyro + 3-axis accelerometer publishing ADC frames and truth.
+
+    Args:
+        drive_externally: if True no timer is created; the owner calls :meth:`step`
+            (the scenario runner does this to run faster than real time without loss).
+        **node_kwargs: passed to rclpy's Node (context, namespace, parameter_overrides).
+    """
+
+    def __init__(self, *, drive_externally: bool = False, **node_kwargs) -> None:
+        node_kwargs.setdefault("namespace", "imu")
+        super().__init__("imu_noise", **node_kwargs)
+        self.p = declare_specs(self, imu_noise.IMU_SPECS + EMULATOR_SPECS + MOTION_SPECS)
+        fs = self.p["sample_rate_hz"]
+        if self.p["motion"] == "sinusoid" and self.p["motion_frequency"] >= fs / 2:
+            raise ParameterError(
+                f"parameter 'motion_frequency' = {self.p['motion_frequency']!r} is out of range: "
+                f"allowed [0.0, {fs / 2!r}) Hz (below Nyquist of sample_rate_hz)")
+        device = {k: self.p[k] for k in (s.name for s in imu_noise.IMU_SPECS)}
+        self.model = imu_noise.ImuNoiseModel(device, seed=self.p["seed"])
+        self.fs = fs
+        self.t0_ns = 0 if self.p["stamp_origin"] == "zero" else time.time_ns()
+        self.total_samples = (int(round(self.p["duration_s"] * fs))
+                              if self.p["duration_s"] > 0 else None)
+        self.next_index = 0
+        self.frames_published = 0
+        gyro_var, accel_var = imu_noise.imu_covariances(device)
+        self._gyro_cov = imu_noise.covariance9(gyro_var)
+        self._accel_cov = imu_noise.covariance9(accel_var)
+        bits = self.p["bits"]
+        self._adc_static = dict(
+            bits=bits, channel_names=CHANNELS, channel_units=UNITS,
+            lsb=[self.p["gyro_lsb"]] * 3 + [self.p["accel_lsb"]] * 3,
+            full_scale=[self.p["gyro_lsb"] * 2 ** (bits - 1)] * 3
+            + [self.p["accel_lsb"] * 2 ** (bits - 1)] * 3,
+            frame_id=self.p["frame_id"], t0_ns=self.t0_ns)
+        self.pub_adc = self.create_publisher(AdcFrame, "adc", FRAME_QOS)
+        self.pub_truth = self.create_publisher(SignalFrame, "truth", FRAME_QOS)
+        self.pub_imu = self.create_publisher(Imu, "data", FRAME_QOS) if self.p["publish_imu"] else None
+        self.diag = DiagnosticsReporter(self, f"{self.get_name()}: IMU emulator",
+                                        hardware_id=self.get_fully_qualified_name())
+        self._wall_start = None
+        if not drive_externally:
+            period = self.p["frame_size"] / fs / self.p["realtime_factor"]
+            self._timer = self.create_timer(min(period, 0.05), self._on_timer)
+
+    @property
+    def finished(self) -> bool:
+        """True once ``duration_s`` worth of samples has been published."""
+        return self.total_samples is not None and self.next_index >= self.total_samples
+
+    def _on_timer(self) -> None:
+        """Publish every frame whose last sample is due at the pacing (catches up on lag)."""
+        now = time.monotonic()
+        if self._wall_start is None:
+            self._wall_start = now
+        due = (now - self._wall_start) * self.p["realtime_factor"] * self.fs
+        while not self.finished and self.next_index + self.p["frame_size"] <= due:
+            self.step()
+
+    def _truth(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        p = self.p
+        return imu_noise.truth_motion(p["motion"], self.next_index, n, self.fs,
+                                      rate=p["motion_rate"], amplitude=p["motion_amplitude"],
+                                      frequency=p["motion_frequency"])
+
+    def step(self) -> int:
+        """Generate and publish the next frame; return the number of samples (0 when done)."""
+        n = self.p["frame_size"]
+        if self.total_samples is not None:
+            n = min(n, self.total_samples - self.next_index)
+        if n <= 0:
+            return 0
+        first = self.next_index
+        truth_gyro, truth_accel = self._truth(n)
+        frame = self.model.generate(n, truth_gyro, truth_accel)
+        codes = np.hstack([frame.gyro_codes, frame.accel_codes])
+        sat = int(frame.saturated.sum())
+        if sat:
+            self.diag.count("saturated_samples", sat)
+            self.diag.warn(f"{sat} samples clipped at full scale in frame starting at {first}")
+        self.pub_adc.publish(make_adc_frame(codes, first, self.fs, saturated_count=sat,
+                                            **self._adc_static))
+        self.pub_truth.publish(make_signal_frame(
+            np.hstack([truth_gyro, truth_accel]), first, self.fs, channel_names=CHANNELS,
+            channel_units=UNITS, frame_id=self.p["frame_id"], t0_ns=self.t0_ns))
+        if self.pub_imu is not None:
+            self._publish_imu(first, frame.gyro_si, frame.accel_si)
+        self.next_index += n
+        self.frames_published += 1
+        self.diag.count("frames")
+        return n
+
+    def _publish_imu(self, first: int, gyro: np.ndarray, accel: np.ndarray) -> None:
+        for i in range(gyro.shape[0]):
+            msg = Imu()
+            msg.header.stamp = ns_to_time(index_to_ns(first + i, self.fs, self.t0_ns))
+            msg.header.frame_id = self.p["frame_id"]
+            msg.orientation_covariance[0] = -1.0
+            g, a = gyro[i], accel[i]
+            msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = \
+                float(g[0]), float(g[1]), float(g[2])
+            msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = \
+                float(a[0]), float(a[1]), float(a[2])
+            msg.angular_velocity_covariance = self._gyro_cov
+            msg.linear_acceleration_covariance = self._accel_cov
+            self.pub_imu.publish(msg)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point ``imu_noise_node`` (``ros2 run mems_emulator imu_noise_node``)."""
+    return run_node(ImuNoiseNode, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

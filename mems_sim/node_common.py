@@ -1,0 +1,68 @@
+"""Parameters and the main() wrapper shared by the emulator and estimator nodes."""
+from __future__ import annotations
+
+import sys
+from typing import Callable
+
+from mems_sim.params import ParameterError, ParamSpec
+from mems_sim.ros_env import apply_defaults
+
+#: Parameters every emulator node has, besides its device table.
+EMULATOR_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("seed", 0, "-", "run seed of every random source of the device",
+              "design.md principle 4 (deterministic)", min=0, max=2**62),
+    ParamSpec("frame_size", 10, "samples", "samples per published frame", "design.md principle 2",
+              min=1, max=1_000_000),
+    ParamSpec("realtime_factor", 1.0, "-",
+              "pacing of the standalone node: simulated seconds per wall-clock second",
+              "", min=0.0, max=1.0e6, min_exclusive=True),
+    ParamSpec("duration_s", 0.0, "s", "simulated duration after which the node stops "
+              "publishing; 0 runs until shut down", "", min=0.0, max=1.0e9),
+    ParamSpec("stamp_origin", "zero", "-",
+              "time of sample 0: 'zero' (simulated time from 0, bit-identical runs) or "
+              "'wall' (wall-clock time at start)", "design.md principle 5",
+              choices=("zero", "wall")),
+    ParamSpec("frame_id", "imu_link", "-", "frame_id of published headers", "REP-103/105"),
+)
+
+
+def _raise_interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> int:
+    """Init rclpy, spin the node made by ``factory`` until shutdown; clean exit codes.
+
+    An invalid parameter ends the process with exit code 2 and one line on
+    stderr naming the parameter, the value and the allowed range.
+    """
+    import signal
+
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.signals import SignalHandlerOptions
+
+    apply_defaults()
+    # Our own SIGINT/SIGTERM handling: the node publishes its final results
+    # before the context shuts down.
+    rclpy.init(args=argv if argv is not None else sys.argv,
+               signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGTERM, _raise_interrupt)
+    node = None
+    try:
+        node = factory()
+        rclpy.spin(node)
+    except ParameterError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            close = getattr(node, "close", None)
+            if close is not None:
+                close()
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return 0

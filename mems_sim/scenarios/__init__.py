@@ -1,0 +1,13 @@
+"""Scenarios runnable with ``run_scenario NAME``: name -> module with NAME, DESCRIPTION,
+DEFAULT_DURATION_S and ``run(ScenarioOptions) -> dict``."""
+import importlib
+
+#: Registered scenarios, in the order ``run_scenario --list`` shows them.
+SCENARIOS = {
+    "imu_noise": "mems_sim.scenarios.imu_noise",
+}
+
+
+def load(name: str):
+    """The module of scenario ``name`` (KeyError if unknown)."""
+    return importlib.import_module(SCENARIOS[name])

@@ -1,0 +1,139 @@
+"""Scenario machinery: one process, one rclpy context, emulator + consumers + recorder.
+
+A scenario builds its node graph in a private rclpy context, runs it either
+as fast as the machine allows (the runner steps the emulators itself and waits
+for every consumer to take each frame, so nothing is dropped and runs are
+bit-identical) or paced to the wall clock (``--realtime``, the emulators' own
+timers), records it to MCAP, and reports a results table and figures.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rosgraph_msgs.msg import Clock
+
+
+class ScenarioError(RuntimeError):
+    """A scenario could not run (bad option, lost frames, missing result)."""
+
+
+@dataclass
+class ScenarioOptions:
+    """Options common to every scenario (``run_scenario`` command line).
+
+    Attributes:
+        duration_s: simulated duration [s] (None: the scenario's default).
+        seed: run seed.
+        realtime: pace the graph to the wall clock.
+        out: MCAP output path (None: ``runs/<scenario>-<seed>.mcap``).
+        domain_id: ROS domain of the private context.
+        progress: show a progress bar (default: when stderr is a terminal).
+        plots: write PNG figures next to the MCAP file.
+    """
+
+    duration_s: float | None = None
+    seed: int = 0
+    realtime: bool = False
+    out: Path | None = None
+    domain_id: int | None = None
+    progress: bool | None = None
+    plots: bool = True
+    extra: dict = field(default_factory=dict)
+
+
+def default_domain_id() -> int:
+    """ROS_DOMAIN_ID from the environment, or one derived from the process id (1..100)."""
+    env = os.environ.get("ROS_DOMAIN_ID")
+    if env:
+        return int(env)
+    return 1 + os.getpid() % 100
+
+
+class Graph:
+    """A private rclpy context with a single-threaded executor and its nodes."""
+
+    def __init__(self, domain_id: int) -> None:
+        os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain_id,
+                   signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.nodes: list = []
+        self._clock_node = rclpy.create_node("scenario_clock", context=self.context)
+        self._clock_pub = self._clock_node.create_publisher(Clock, "/clock", 10)
+        self.add(self._clock_node)
+
+    def add(self, node):
+        """Add ``node`` to the executor and return it."""
+        self.nodes.append(node)
+        self.executor.add_node(node)
+        return node
+
+    def publish_clock(self, ns: int) -> None:
+        """Publish simulated time on /clock."""
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = int(ns // 10**9), int(ns % 10**9)
+        self._clock_pub.publish(msg)
+
+    def spin_until(self, predicate: Callable[[], bool], timeout_s: float, what: str) -> None:
+        """Spin the executor until ``predicate()``; raise ScenarioError after ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            if time.monotonic() > deadline:
+                raise ScenarioError(f"timed out after {timeout_s:.0f} s waiting for {what}")
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def close(self) -> None:
+        """Destroy nodes and shut the context down."""
+        for node in self.nodes:
+            try:
+                self.executor.remove_node(node)
+                node.destroy_node()
+            except Exception:  # noqa: BLE001 - best effort at teardown
+                pass
+        self.executor.shutdown()
+        if self.context.ok():
+            rclpy.shutdown(context=self.context)
+
+
+class Progress:
+    """Progress over simulated seconds: a tqdm bar on a terminal, silent otherwise."""
+
+    def __init__(self, total_s: float, enabled: bool | None, label: str) -> None:
+        if enabled is None:
+            enabled = sys.stderr.isatty()
+        self._bar = None
+        if enabled:
+            from tqdm import tqdm
+            self._bar = tqdm(total=round(total_s, 3), unit="sim s", desc=label, file=sys.stderr,
+                             dynamic_ncols=True, bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} "
+                             "sim s [{elapsed}<{remaining}, {rate_fmt}]")
+        self._done = 0.0
+
+    def update_to(self, done_s: float) -> None:
+        """Set the simulated seconds done."""
+        if self._bar is not None and done_s > self._done:
+            self._bar.update(round(done_s - self._done, 3))
+        self._done = max(self._done, done_s)
+
+    def close(self) -> None:
+        """Finish the bar."""
+        if self._bar is not None:
+            self._bar.close()
+
+
+def format_table(header: list[str], rows: list[list[str]]) -> str:
+    """Plain-text table with right-aligned columns."""
+    widths = [max(len(str(r[i])) for r in [header] + rows) for i in range(len(header))]
+    line = "  ".join(h.rjust(w) for h, w in zip(header, widths))
+    sep = "  ".join("-" * w for w in widths)
+    body = ["  ".join(str(c).rjust(w) for c, w in zip(r, widths)) for r in rows]
+    return "\n".join([line, sep] + body)

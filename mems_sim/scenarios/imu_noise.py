@@ -1,0 +1,209 @@
+"""Scenario ``imu_noise``: IMU noise emulator -> Allan noise identification -> MCAP.
+
+Graph (one process): ``/imu/imu_noise`` (mems_sim.imu_noise_node) publishes
+``/imu/adc``, ``/imu/truth`` (and ``/imu/data`` in --realtime runs);
+``/imu/noise_identifier`` identifies N, B, K, T per axis from ``/imu/adc`` and
+publishes ``/imu/noise_model``; the recorder writes everything to MCAP.
+Prints configured vs identified N, B, K, T per axis and writes an Allan
+deviation figure with the fitted terms.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from rclpy.parameter import Parameter
+
+from mems_estimation.noise_id import avar_gm
+from mems_estimation.noise_identifier_node import NoiseIdentifierNode
+from mems_sim import imu_noise
+from mems_sim.bag.recorder import RecorderNode
+from mems_sim.imu_noise_node import ImuNoiseNode
+from mems_sim.ros_frames import index_to_ns
+from mems_sim.scenarios.base import (Graph, Progress, ScenarioError, ScenarioOptions,
+                                     default_domain_id, format_table)
+
+NAME = "imu_noise"
+DESCRIPTION = ("ADIS16350-like IMU at rest (Petkov): emulator -> Allan-variance identification "
+               "of N, B, K, T per axis -> MCAP")
+DEFAULT_DURATION_S = 10000.0
+#: Frame size in fast runs (1 s of data per frame at 100 Hz) and in real-time runs.
+FAST_FRAME = 100
+REALTIME_FRAME = 10
+#: Frames the emulator may run ahead of the slowest consumer in fast runs.
+WINDOW = 50
+TOPICS = ["/imu/adc", "/imu/truth", "/imu/noise_model", "/diagnostics"]
+
+PARAM_NAMES = (("N", "noise_density"), ("B", "bias_instability"), ("K", "random_walk"),
+               ("T", "correlation_time"))
+FIELD = {"N": "white_noise_density", "B": "bias_instability", "K": "random_walk",
+         "T": "correlation_time"}
+
+
+def _overrides(values: dict) -> list[Parameter]:
+    return [Parameter(k, value=v) for k, v in values.items()]
+
+
+def build_graph(options: ScenarioOptions, out: Path, duration_s: float):
+    """Create the context, nodes and recorder of the scenario."""
+    graph = Graph(options.domain_id if options.domain_id is not None else default_domain_id())
+    emu_params = {"seed": int(options.seed), "duration_s": float(duration_s),
+                  "frame_size": REALTIME_FRAME if options.realtime else FAST_FRAME,
+                  "publish_imu": bool(options.realtime)}
+    emu_params.update(options.extra.get("emulator", {}))
+    emu = graph.add(ImuNoiseNode(context=graph.context, drive_externally=not options.realtime,
+                                 parameter_overrides=_overrides(emu_params)))
+    ident = graph.add(NoiseIdentifierNode(
+        context=graph.context, namespace="imu",
+        parameter_overrides=_overrides({"publish_period_s": 0.0 if duration_s < 7200 else 3600.0})))
+    topics = TOPICS + (["/imu/data"] if options.realtime else [])
+    rec = graph.add(RecorderNode(str(out), topics=topics, context=graph.context))
+    return graph, emu, ident, rec
+
+
+def _wait_matched(graph: Graph, emu: ImuNoiseNode, rec) -> None:
+    def matched() -> bool:
+        return (emu.pub_adc.get_subscription_count() >= 2
+                and emu.pub_truth.get_subscription_count() >= 1
+                and rec.subscribed_count() >= 3)
+    graph.spin_until(matched, 20.0, "the recorder and identifier to subscribe")
+
+
+def run_fast(graph: Graph, emu: ImuNoiseNode, ident, rec, progress: Progress) -> None:
+    """Step the emulator as fast as the consumers take its frames (no loss, deterministic)."""
+    while not emu.finished:
+        emu.step()
+        graph.publish_clock(index_to_ns(emu.next_index, emu.fs))
+        published = emu.frames_published
+
+        def caught_up() -> bool:
+            return (published - rec.received("/imu/adc") < WINDOW
+                    and published - ident.frames_received < WINDOW)
+        if not caught_up():
+            graph.spin_until(caught_up, 60.0, "consumers to take the emulator's frames")
+        graph.executor.spin_once(timeout_sec=0)
+        progress.update_to(emu.next_index / emu.fs)
+
+
+def run_realtime(graph: Graph, emu: ImuNoiseNode, progress: Progress) -> None:
+    """Spin with the emulator's own wall-clock timer until its duration is published."""
+    while not emu.finished:
+        graph.executor.spin_once(timeout_sec=0.05)
+        graph.publish_clock(index_to_ns(emu.next_index, emu.fs))
+        progress.update_to(emu.next_index / emu.fs)
+
+
+def drain(graph: Graph, emu: ImuNoiseNode, ident, rec) -> None:
+    """Wait until every frame reached the identifier and the recorder; publish the final model."""
+    published = emu.frames_published
+    graph.spin_until(lambda: rec.received("/imu/adc") >= published
+                     and rec.received("/imu/truth") >= published
+                     and ident.frames_received >= published, 60.0,
+                     "the last frames to be delivered")
+    before = rec.received("/imu/noise_model")
+    final = ident.publish_result(final=True)
+    ident._finalised = True
+    if final is None:
+        raise ScenarioError("no noise model: too little data (use --duration of at least "
+                            f"{ident.p['min_duration_s']:.0f} s)")
+    graph.spin_until(lambda: rec.received("/imu/noise_model") > before, 20.0,
+                     "the recorder to receive the final noise model")
+
+
+def configured_values(emu: ImuNoiseNode) -> dict:
+    """Configured N, B, K, T of the gyro and accelerometer (SI)."""
+    return {s: {sym: emu.p[f"{s}_{name}"] for sym, name in PARAM_NAMES} for s in ("gyro", "accel")}
+
+
+def results_table(model, configured: dict) -> tuple[str, list[dict]]:
+    """Configured vs identified N, B, K, T per axis with relative errors."""
+    rows, records = [], []
+    for axis in model.axes:
+        sensor = "gyro" if axis.axis.startswith("gyro") else "accel"
+        for sym, _ in PARAM_NAMES:
+            term = getattr(axis, FIELD[sym])
+            conf = configured[sensor][sym]
+            rel = (term.value - conf) / conf if conf else math.nan
+            unit = {"N": f"{axis.unit}/sqrt(Hz)", "B": axis.unit, "K": f"{axis.unit}/sqrt(s)",
+                    "T": "s"}[sym]
+            rows.append([axis.axis, sym, unit, f"{conf:.4g}", f"{term.value:.4g}",
+                         f"[{term.ci_low:.3g}, {term.ci_high:.3g}]", f"{100 * rel:+.1f} %"])
+            records.append(dict(axis=axis.axis, param=sym, configured=conf,
+                                identified=term.value, rel_error=rel))
+    header = ["axis", "param", "unit", "configured", "identified", "95 % CI", "rel. error"]
+    return format_table(header, rows), records
+
+
+def plot_allan(model, path: Path) -> None:
+    """Allan deviation per axis with confidence bars, the fitted model and its terms."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, panels = plt.subplots(1, 2, figsize=(13, 5.2))
+    for panel, prefix, unit in ((panels[0], "gyro", "rad/s"), (panels[1], "accel", "m/s²")):
+        axes = [a for a in model.axes if a.axis.startswith(prefix)]
+        for k, axis in enumerate(axes):
+            tau, adev = np.asarray(axis.tau), np.asarray(axis.adev)
+            err = [adev - np.asarray(axis.adev_ci_low), np.asarray(axis.adev_ci_high) - adev]
+            line = panel.errorbar(tau, adev, yerr=err, fmt="o", ms=3, capsize=2,
+                                  label=f"{axis.axis} measured")[0]
+            n, b, kk, t, q = (axis.white_noise_density.value, axis.bias_instability.value,
+                              axis.random_walk.value, axis.correlation_time.value,
+                              axis.quantization.value)
+            gm = avar_gm(tau, b, t) if b > 0 and math.isfinite(t) else 0 * tau
+            total = n**2 / tau + kk**2 * tau / 3 + gm + 3 * q**2 / tau**2
+            panel.loglog(tau, np.sqrt(total), "-", color=line.get_color(), lw=1,
+                         label=f"{axis.axis} fit")
+            if k == 0:
+                panel.loglog(tau, n / np.sqrt(tau), "k--", lw=0.8, label=f"N/√τ, N={n:.3g}")
+                panel.loglog(tau, kk * np.sqrt(tau / 3), "k-.", lw=0.8,
+                             label=f"K√(τ/3), K={kk:.3g}")
+                panel.loglog(tau, np.sqrt(np.maximum(gm, 1e-300)), "k:", lw=1,
+                             label=f"Gauss-Markov B={b:.3g}, T={t:.0f} s")
+        panel.set_xscale("log")
+        panel.set_yscale("log")
+        lo = min(np.min(np.asarray(a.adev)) for a in axes)
+        panel.set_ylim(lo / 3, None)
+        panel.set_xlabel("averaging time τ [s]")
+        panel.set_ylabel(f"Allan deviation [{unit}]")
+        panel.set_title(f"{prefix}: overlapping Allan deviation ({model.tau_grid} τ)")
+        panel.grid(True, which="both", alpha=0.3)
+        panel.legend(fontsize=7)
+    fig.suptitle(f"imu_noise: {model.num_samples} samples at {model.sample_rate_hz:g} Hz, "
+                 f"identified noise model")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run(options: ScenarioOptions) -> dict:
+    """Run the scenario; return a dict with the table, records, paths and counts."""
+    duration = DEFAULT_DURATION_S if options.duration_s is None else options.duration_s
+    out = options.out or Path("runs") / f"{NAME}-{options.seed}.mcap"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    graph, emu, ident, rec = build_graph(options, out, duration)
+    progress = Progress(duration, options.progress, NAME)
+    try:
+        _wait_matched(graph, emu, rec)
+        if options.realtime:
+            run_realtime(graph, emu, progress)
+        else:
+            run_fast(graph, emu, ident, rec, progress)
+        progress.close()
+        drain(graph, emu, ident, rec)
+        configured = configured_values(emu)
+        model = ident.results[-1]
+        published = {"/imu/adc": emu.frames_published, "/imu/truth": emu.frames_published}
+    finally:
+        progress.close()
+        summary = rec.close()
+        graph.close()
+    table, records = results_table(model, configured)
+    figure = None
+    if options.plots:
+        figure = out.with_name(out.stem + "-allan.png")
+        plot_allan(model, figure)
+    return dict(table=table, records=records, mcap=out, figure=figure, model=model,
+                recorder=summary, published=published, duration_s=duration)

@@ -1,0 +1,32 @@
+"""ament_python package of the MEMS hardware emulator (mems_sim + mems_estimation)."""
+from setuptools import find_packages, setup
+
+PACKAGE = "mems_emulator"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(include=["mems_sim", "mems_sim.*", "mems_estimation", "mems_estimation.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="MEMS emulator maintainers",
+    maintainer_email="maintainers@mems-emulator.org",
+    description="Emulated MEMS sensor hardware with estimators and calibration, on ROS 2.",
+    license="Apache-2.0",
+    python_requires=">=3.10",
+    entry_points={
+        "console_scripts": [
+            "run_scenario = mems_sim.scenarios.cli:main",
+            "imu_noise_node = mems_sim.imu_noise_node:main",
+            "noise_identifier_node = mems_estimation.noise_identifier_node:main",
+            "identify_noise = mems_estimation.identify_noise_cli:main",
+            "mcap_record = mems_sim.bag.recorder:main",
+            "mcap_play = mems_sim.bag.player:main",
+            "mcap_info = mems_sim.bag.info:main",
+        ],
+    },
+)

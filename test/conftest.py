@@ -1,0 +1,44 @@
+"""Shared fixtures: localhost-only discovery, a private rclpy context per test."""
+import itertools
+import os
+
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+import pytest  # noqa: E402
+
+_BASE = int(os.environ.get("ROS_DOMAIN_ID", "63"))
+_domains = itertools.count(0)
+
+
+def next_domain_id() -> int:
+    """A domain id for one test, distinct from the other tests of this run (1..232)."""
+    return 1 + (_BASE * 7 + next(_domains)) % 200
+
+
+@pytest.fixture
+def domain_id():
+    """A ROS domain id of this test's own."""
+    return next_domain_id()
+
+
+@pytest.fixture
+def ros_context(domain_id):
+    """An initialised rclpy context on a domain of its own, shut down after the test."""
+    import rclpy
+    from rclpy.context import Context
+
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=domain_id)
+    yield ctx
+    if ctx.ok():
+        rclpy.shutdown(context=ctx)
+
+
+@pytest.fixture
+def subprocess_env(domain_id):
+    """Environment for a console script started by a test: localhost, its own domain."""
+    env = dict(os.environ)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["ROS_DOMAIN_ID"] = str(domain_id)
+    return env

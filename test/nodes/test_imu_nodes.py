@@ -1,0 +1,158 @@
+"""IMU emulator and noise-identifier nodes through real topics (rclpy executors)."""
+import array
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+
+from diagnostic_msgs.msg import DiagnosticArray
+from mems_estimation.noise_identifier_node import NoiseIdentifierNode
+from mems_msgs.msg import AdcFrame, NoiseModel, SignalFrame
+from mems_sim import imu_noise
+from mems_sim.imu_noise_node import ImuNoiseNode
+from mems_sim.params import ParameterError
+from mems_sim.qos import FRAME_QOS, RESULT_QOS
+from sensor_msgs.msg import Imu
+
+
+def _spin_until(executor, predicate, timeout=10.0):
+    deadline = time.monotonic() + timeout
+    while not predicate() and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.02)
+    return predicate()
+
+
+def _params(**kw):
+    return [Parameter(k, value=v) for k, v in kw.items()]
+
+
+@pytest.fixture
+def graph(ros_context):
+    import rclpy
+    ex = SingleThreadedExecutor(context=ros_context)
+    probe = rclpy.create_node("probe", context=ros_context)
+    ex.add_node(probe)
+    yield ros_context, ex, probe
+    ex.shutdown()
+
+
+def test_emulator_publishes_consecutive_frames_truth_and_imu(graph):
+    ctx, ex, probe = graph
+    emu = ImuNoiseNode(context=ctx, drive_externally=True,
+                       parameter_overrides=_params(seed=3, frame_size=20))
+    ex.add_node(emu)
+    got = {"adc": [], "truth": [], "imu": []}
+    probe.create_subscription(AdcFrame, "/imu/adc", got["adc"].append, FRAME_QOS)
+    probe.create_subscription(SignalFrame, "/imu/truth", got["truth"].append, FRAME_QOS)
+    probe.create_subscription(Imu, "/imu/data", got["imu"].append, FRAME_QOS)
+    assert _spin_until(ex, lambda: emu.pub_adc.get_subscription_count() == 1
+                       and emu.pub_imu.get_subscription_count() == 1)
+    for _ in range(5):
+        emu.step()
+    assert _spin_until(ex, lambda: len(got["adc"]) == 5 and len(got["imu"]) == 100)
+    first = [m.first_sample_index for m in got["adc"]]
+    assert first == [0, 20, 40, 60, 80]
+    m = got["adc"][1]
+    assert m.sample_rate_hz == 100.0 and m.num_samples == 20 and m.bits == 14
+    assert list(m.channel_names) == ["gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"]
+    # header.stamp is the time of the first sample: index 20 at 100 Hz = 0.2 s
+    assert (m.header.stamp.sec, m.header.stamp.nanosec) == (0, 200_000_000)
+    codes = np.asarray(m.codes).reshape(20, 6)
+    # at rest the accelerometer z reads +g within noise: codes * lsb ~ 9.8 m/s^2
+    assert abs(np.mean(codes[:, 5]) * m.lsb[5] - 9.80665) < 0.2
+    truth = np.asarray(got["truth"][0].data).reshape(20, 6)
+    assert np.all(truth[:, :5] == 0) and np.all(truth[:, 5] == 9.80665)
+    # Imu messages carry the same values as the ADC codes, in SI, with the model covariances
+    imu = got["imu"][20]
+    assert imu.angular_velocity.x == pytest.approx(codes[0, 0] * m.lsb[0], abs=1e-12)
+    assert imu.linear_acceleration.z == pytest.approx(codes[0, 5] * m.lsb[5], abs=1e-12)
+    gyro_var, accel_var = imu_noise.imu_covariances()
+    assert imu.angular_velocity_covariance[0] == pytest.approx(gyro_var[0])
+    assert imu.linear_acceleration_covariance[8] == pytest.approx(accel_var[2])
+    assert imu.orientation_covariance[0] == -1.0
+
+
+def test_emulator_frames_equal_core_model_output(graph):
+    """The node adds nothing to the core: its codes are ImuNoiseModel's for the same seed."""
+    ctx, ex, probe = graph
+    emu = ImuNoiseNode(context=ctx, drive_externally=True,
+                       parameter_overrides=_params(seed=11, frame_size=50, publish_imu=False))
+    ex.add_node(emu)
+    got = []
+    probe.create_subscription(AdcFrame, "/imu/adc", got.append, FRAME_QOS)
+    assert _spin_until(ex, lambda: emu.pub_adc.get_subscription_count() == 1)
+    for _ in range(4):
+        emu.step()
+    assert _spin_until(ex, lambda: len(got) == 4)
+    codes = np.concatenate([np.asarray(m.codes).reshape(-1, 6) for m in got])
+    frame = imu_noise.ImuNoiseModel(seed=11).generate(200)
+    np.testing.assert_array_equal(codes, np.hstack([frame.gyro_codes, frame.accel_codes]))
+
+
+def test_invalid_parameter_refused_with_name_value_range(ros_context):
+    with pytest.raises(ParameterError) as err:
+        ImuNoiseNode(context=ros_context, drive_externally=True,
+                     parameter_overrides=_params(gyro_correlation_time=-5.0))
+    text = str(err.value)
+    assert "gyro_correlation_time" in text and "-5.0" in text and "allowed" in text
+
+
+def test_node_executable_refuses_invalid_parameter(subprocess_env):
+    exe = subprocess.run(
+        [sys.executable, "-m", "mems_sim.imu_noise_node", "--ros-args", "-p",
+         "sample_rate_hz:=-100.0"], env=subprocess_env, capture_output=True, text=True, timeout=60)
+    assert exe.returncode == 2
+    lines = exe.stderr.strip().splitlines()
+    assert len(lines) == 1 and "sample_rate_hz" in lines[0] and "-100.0" in lines[0]
+
+
+def _frame(first, n=100, fs=100.0, value=0.0):
+    m = AdcFrame(first_sample_index=first, sample_rate_hz=fs, num_samples=n, bits=14,
+                 channel_names=["gyro_x"], channel_units=["rad/s"])
+    m.lsb = array.array("d", [1e-3])
+    m.offset = array.array("d", [0.0])
+    m.full_scale = array.array("d", [8.192])
+    rng = np.random.default_rng(first)
+    m.codes = array.array("i", np.rint(rng.normal(0, 50, n) + value).astype(np.int32).tolist())
+    return m
+
+
+def test_identifier_rejects_malformed_frames_and_counts_gaps(graph):
+    ctx, ex, probe = graph
+    ident = NoiseIdentifierNode(context=ctx, namespace="imu",
+                                parameter_overrides=_params(min_duration_s=5.0,
+                                                            publish_period_s=0.0))
+    ex.add_node(ident)
+    pub = probe.create_publisher(AdcFrame, "/imu/adc", FRAME_QOS)
+    models, diags = [], []
+    probe.create_subscription(NoiseModel, "/imu/noise_model", models.append, RESULT_QOS)
+    probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+    assert _spin_until(ex, lambda: pub.get_subscription_count() == 1)
+    bad_size = _frame(100)
+    bad_size.num_samples = 99                      # 100 codes for 99 samples
+    bad_lsb = _frame(100)
+    bad_lsb.lsb = array.array("d", [float("nan")])  # non-finite scale
+    frames = [_frame(0), bad_size, bad_lsb] + [_frame(i * 100) for i in range(1, 10)]
+    frames += [_frame(i * 100) for i in range(11, 20)]  # frame 10 missing: one gap
+    for f in frames:
+        pub.publish(f)
+    assert _spin_until(ex, lambda: ident.frames_received == len(frames))
+    assert ident.diag.counters["rejected_frames"] == 2
+    assert ident.diag.counters["gaps"] == 1
+    assert ident.acc.tracker.missing_samples == 100
+    ident.close()
+    assert _spin_until(ex, lambda: len(models) == 1)
+    assert models[0].final and models[0].num_samples == 1900
+    # the counters reach /diagnostics with level WARN
+    ident.diag.publish()
+    assert _spin_until(ex, lambda: any(
+        s.name.startswith("noise_identifier") and s.level == b"\x01" or
+        s.name.startswith("noise_identifier") and s.level == 1
+        for d in diags for s in d.status))
+    status = [s for d in diags for s in d.status if s.name.startswith("noise_identifier")][-1]
+    values = {kv.key: kv.value for kv in status.values}
+    assert values["rejected_frames"] == "2" and values["gaps"] == "1"
