@@ -46,6 +46,10 @@ class ParamSpec:
         """Human-readable allowed range, e.g. ``(0, 1e3] s``."""
         if self.choices is not None:
             return "one of " + ", ".join(repr(c) for c in self.choices)
+        if isinstance(self.default, bool):
+            return "true or false"
+        if isinstance(self.default, str):
+            return "any string"
         lo = "-inf" if self.min is None else repr(self.min)
         hi = "inf" if self.max is None else repr(self.max)
         left = "(" if (self.min is None or self.min_exclusive) else "["

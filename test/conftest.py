@@ -4,6 +4,9 @@ import os
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("MPLBACKEND", "Agg")
+from mems_sim.ros_env import apply_defaults  # noqa: E402  (AMENT_PREFIX_PATH for in-process use)
+
+apply_defaults()
 
 import pytest  # noqa: E402
 

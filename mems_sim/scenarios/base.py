@@ -20,6 +20,8 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rosgraph_msgs.msg import Clock
 
+from mems_sim.ros_env import apply_defaults
+
 
 class ScenarioError(RuntimeError):
     """A scenario could not run (bad option, lost frames, missing result)."""
@@ -61,7 +63,7 @@ class Graph:
     """A private rclpy context with a single-threaded executor and its nodes."""
 
     def __init__(self, domain_id: int) -> None:
-        os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+        apply_defaults()
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_id,
                    signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)

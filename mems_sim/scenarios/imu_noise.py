@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from rclpy.parameter import Parameter
 
-from mems_estimation.noise_id import avar_gm
+from mems_estimation.noise_plots import plot_allan
 from mems_estimation.noise_identifier_node import NoiseIdentifierNode
 from mems_sim import imu_noise
 from mems_sim.bag.recorder import RecorderNode
@@ -62,11 +62,12 @@ def build_graph(options: ScenarioOptions, out: Path, duration_s: float):
     return graph, emu, ident, rec
 
 
-def _wait_matched(graph: Graph, emu: ImuNoiseNode, rec) -> None:
+def _wait_matched(graph: Graph, emu: ImuNoiseNode, ident, rec) -> None:
     def matched() -> bool:
         return (emu.pub_adc.get_subscription_count() >= 2
                 and emu.pub_truth.get_subscription_count() >= 1
-                and rec.subscribed_count() >= 3)
+                and (emu.pub_imu is None or emu.pub_imu.get_subscription_count() >= 1)
+                and ident.pub.get_subscription_count() >= 1)
     graph.spin_until(matched, 20.0, "the recorder and identifier to subscribe")
 
 
@@ -135,49 +136,6 @@ def results_table(model, configured: dict) -> tuple[str, list[dict]]:
     return format_table(header, rows), records
 
 
-def plot_allan(model, path: Path) -> None:
-    """Allan deviation per axis with confidence bars, the fitted model and its terms."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, panels = plt.subplots(1, 2, figsize=(13, 5.2))
-    for panel, prefix, unit in ((panels[0], "gyro", "rad/s"), (panels[1], "accel", "m/s²")):
-        axes = [a for a in model.axes if a.axis.startswith(prefix)]
-        for k, axis in enumerate(axes):
-            tau, adev = np.asarray(axis.tau), np.asarray(axis.adev)
-            err = [adev - np.asarray(axis.adev_ci_low), np.asarray(axis.adev_ci_high) - adev]
-            line = panel.errorbar(tau, adev, yerr=err, fmt="o", ms=3, capsize=2,
-                                  label=f"{axis.axis} measured")[0]
-            n, b, kk, t, q = (axis.white_noise_density.value, axis.bias_instability.value,
-                              axis.random_walk.value, axis.correlation_time.value,
-                              axis.quantization.value)
-            gm = avar_gm(tau, b, t) if b > 0 and math.isfinite(t) else 0 * tau
-            total = n**2 / tau + kk**2 * tau / 3 + gm + 3 * q**2 / tau**2
-            panel.loglog(tau, np.sqrt(total), "-", color=line.get_color(), lw=1,
-                         label=f"{axis.axis} fit")
-            if k == 0:
-                panel.loglog(tau, n / np.sqrt(tau), "k--", lw=0.8, label=f"N/√τ, N={n:.3g}")
-                panel.loglog(tau, kk * np.sqrt(tau / 3), "k-.", lw=0.8,
-                             label=f"K√(τ/3), K={kk:.3g}")
-                panel.loglog(tau, np.sqrt(np.maximum(gm, 1e-300)), "k:", lw=1,
-                             label=f"Gauss-Markov B={b:.3g}, T={t:.0f} s")
-        panel.set_xscale("log")
-        panel.set_yscale("log")
-        lo = min(np.min(np.asarray(a.adev)) for a in axes)
-        panel.set_ylim(lo / 3, None)
-        panel.set_xlabel("averaging time τ [s]")
-        panel.set_ylabel(f"Allan deviation [{unit}]")
-        panel.set_title(f"{prefix}: overlapping Allan deviation ({model.tau_grid} τ)")
-        panel.grid(True, which="both", alpha=0.3)
-        panel.legend(fontsize=7)
-    fig.suptitle(f"imu_noise: {model.num_samples} samples at {model.sample_rate_hz:g} Hz, "
-                 f"identified noise model")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
 def run(options: ScenarioOptions) -> dict:
     """Run the scenario; return a dict with the table, records, paths and counts."""
     duration = DEFAULT_DURATION_S if options.duration_s is None else options.duration_s
@@ -186,7 +144,7 @@ def run(options: ScenarioOptions) -> dict:
     graph, emu, ident, rec = build_graph(options, out, duration)
     progress = Progress(duration, options.progress, NAME)
     try:
-        _wait_matched(graph, emu, rec)
+        _wait_matched(graph, emu, ident, rec)
         if options.realtime:
             run_realtime(graph, emu, progress)
         else:
@@ -195,10 +153,14 @@ def run(options: ScenarioOptions) -> dict:
         drain(graph, emu, ident, rec)
         configured = configured_values(emu)
         model = ident.results[-1]
-        published = {"/imu/adc": emu.frames_published, "/imu/truth": emu.frames_published}
+        published = {"/imu/adc": emu.frames_published, "/imu/truth": emu.frames_published,
+                     "/imu/noise_model": len(ident.results)}
+        if emu.pub_imu is not None:
+            published["/imu/data"] = emu.next_index
     finally:
         progress.close()
-        summary = rec.close()
+        rec.close()
+        summary = dict(counts=rec.counts(), gaps=rec.gaps(), text=rec.summary())
         graph.close()
     table, records = results_table(model, configured)
     figure = None

@@ -1,0 +1,431 @@
+"""MCAP player: ``mcap_play FILE [--rate R | --as-fast-as-possible] [--loop] [--clock [HZ]] ...``.
+
+Publishes the serialised bytes stored in the file (no deserialisation) with
+publishers created from the file's schemas (``pkg/msg/Type`` imported via
+importlib) and the recorded ``offered_qos_profiles`` (fallback FRAME_QOS),
+paced by ``log_time`` scaled by ``--rate``; optionally publishes ``/clock``.
+
+ROS-free readers for other code:
+
+* :func:`iter_messages` -- ``(topic, type_name, log_time_ns, publish_time_ns, data)``
+  in log-time order, also from files whose Summary is missing (crashed recorder).
+* :func:`read_messages` -- ``(topic, type_name, log_time_ns, msg)`` with the
+  message deserialised into its real Python class (``rclpy.serialization``),
+  so equality tests against published messages are exact.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+import time
+from typing import Dict, Iterable, Iterator, List, NamedTuple, Optional, Tuple
+
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
+
+from ..ros_env import apply_defaults
+
+
+class BagReadError(Exception):
+    """The file is missing, unreadable or not an MCAP file (message is one line)."""
+
+
+class BagMessage(NamedTuple):
+    """One stored message: topic, type ``pkg/msg/Type``, times [ns] and CDR bytes."""
+
+    topic: str
+    type_name: str
+    log_time_ns: int
+    publish_time_ns: int
+    data: bytes
+
+
+def open_bag(path: str):
+    """Open ``path`` for binary reading; raise :class:`BagReadError` (one line) if impossible or not MCAP."""
+    try:
+        handle = open(path, "rb")
+    except FileNotFoundError:
+        raise BagReadError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise BagReadError(f"{path}: is a directory, not an MCAP file") from None
+    except OSError as exc:
+        raise BagReadError(f"{path}: cannot open ({exc.strerror})") from None
+    magic = handle.read(8)
+    handle.seek(0)
+    if magic != b"\x89MCAP0\r\n":
+        handle.close()
+        raise BagReadError(f"{path}: not an MCAP file (bad magic)")
+    return handle
+
+
+def _summary_or_none(reader):
+    """The file's Summary, or None when it is missing or damaged (e.g. recorder killed)."""
+    try:
+        return reader.get_summary()
+    except Exception:  # noqa: BLE001 - any damage means: no usable summary
+        return None
+
+
+def iter_stream_records(handle) -> Iterator[Tuple[object, bool]]:
+    """Yield ``(record, False)`` for every readable record of an MCAP stream, in file order.
+
+    Stops quietly at a truncated or damaged record (a file whose writer was
+    killed) and then yields ``(None, True)`` once. Chunks are decompressed;
+    a chunk that cannot be read completely contributes nothing.
+    """
+    reader = StreamReader(handle, skip_magic=False, emit_chunks=False)
+    try:
+        for record in reader.records:
+            yield record, False
+    except (McapError, EOFError, ValueError, OSError, IndexError, KeyError):  # truncated
+        yield None, True
+    except Exception:  # noqa: BLE001 - zstd/struct errors of a torn chunk
+        yield None, True
+
+
+def iter_raw(path: str, topics: Optional[Iterable[str]] = None, start_time_ns: Optional[int] = None,
+             end_time_ns: Optional[int] = None) -> Iterator[Tuple[Optional[Schema], Channel, Message]]:
+    """``(schema, channel, message)`` of the file in log-time order (file order without a Summary)."""
+    topics = None if topics is None else set(topics)
+    handle = open_bag(path)
+    with handle:
+        reader = make_reader(handle)
+        summary = _summary_or_none(reader)
+        if summary is not None and summary.chunk_indexes:
+            yield from reader.iter_messages(topics=topics, start_time=start_time_ns,
+                                            end_time=end_time_ns, log_time_order=True)
+            return
+        handle.seek(0)
+        schemas: Dict[int, Schema] = {}
+        channels: Dict[int, Channel] = {}
+        for record, _truncated in iter_stream_records(handle):
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                channels[record.id] = record
+            elif isinstance(record, Message):
+                channel = channels.get(record.channel_id)
+                if channel is None or (topics is not None and channel.topic not in topics):
+                    continue
+                if start_time_ns is not None and record.log_time < start_time_ns:
+                    continue
+                if end_time_ns is not None and record.log_time >= end_time_ns:
+                    continue
+                yield schemas.get(channel.schema_id), channel, record
+
+
+def bag_start_time_ns(path: str) -> Optional[int]:
+    """log_time of the first message [ns] (from Statistics, else by scanning), None if empty."""
+    handle = open_bag(path)
+    with handle:
+        summary = _summary_or_none(make_reader(handle))
+    if summary is not None and summary.statistics is not None and summary.statistics.message_count:
+        return summary.statistics.message_start_time
+    for _, _, message in iter_raw(path):
+        return message.log_time
+    return None
+
+
+def iter_messages(path: str, topics: Optional[Iterable[str]] = None,
+                  start_offset_s: float = 0.0) -> Iterator[BagMessage]:
+    """Iterate the stored messages as :class:`BagMessage` in log-time order.
+
+    :param topics: only these topics (None: all).
+    :param start_offset_s: skip messages logged earlier than start + offset [s].
+    Raises :class:`BagReadError` for a missing or non-MCAP file.
+    """
+    start = None
+    if start_offset_s:
+        first = bag_start_time_ns(path)
+        start = None if first is None else first + int(round(start_offset_s * 1e9))
+    for schema, channel, message in iter_raw(path, topics, start_time_ns=start):
+        type_name = schema.name if schema is not None else ""
+        yield BagMessage(channel.topic, type_name, message.log_time, message.publish_time,
+                         message.data)
+
+
+def read_messages(path: str, topics: Optional[Iterable[str]] = None
+                  ) -> Iterator[Tuple[str, str, int, object]]:
+    """Iterate ``(topic, type_name, log_time_ns, msg)`` with ``msg`` deserialised into its real class.
+
+    Uses ``rclpy.serialization.deserialize_message`` (no rclpy.init needed);
+    the message package must be importable.
+    """
+    from rclpy.serialization import deserialize_message
+
+    from .schema import message_class
+    classes: Dict[str, type] = {}
+    for item in iter_messages(path, topics):
+        cls = classes.get(item.type_name)
+        if cls is None:
+            cls = classes[item.type_name] = message_class(item.type_name)
+        yield item.topic, item.type_name, item.log_time_ns, deserialize_message(item.data, cls)
+
+
+def recorded_topics(path: str) -> Dict[str, Tuple[str, str]]:
+    """``{topic: (type_name, offered_qos_profiles_yaml)}`` of the file's channels."""
+    handle = open_bag(path)
+    out: Dict[str, Tuple[str, str]] = {}
+    with handle:
+        summary = _summary_or_none(make_reader(handle))
+        if summary is not None and summary.channels:
+            for channel in summary.channels.values():
+                schema = summary.schemas.get(channel.schema_id)
+                out[channel.topic] = (schema.name if schema else "",
+                                      channel.metadata.get("offered_qos_profiles", ""))
+            return out
+        handle.seek(0)
+        schemas: Dict[int, Schema] = {}
+        for record, _ in iter_stream_records(handle):
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel) and record.topic not in out:
+                schema = schemas.get(record.schema_id)
+                out[record.topic] = (schema.name if schema else "",
+                                     record.metadata.get("offered_qos_profiles", ""))
+    return out
+
+
+# -------------------------------------------------------------------- playback
+
+
+def playback_qos(qos_yaml: str):
+    """Publisher QoS from the recorded offered profiles (rosbag2's adaptation); FRAME_QOS if none.
+
+    The first offered profile's reliability and durability are used, with a
+    KEEP_LAST history at least FRAME_DEPTH deep.
+    """
+    from rclpy.qos import HistoryPolicy, QoSProfile
+
+    from ..qos import FRAME_DEPTH, FRAME_QOS
+    from .schema import qos_profiles_from_yaml
+    try:
+        profiles = qos_profiles_from_yaml(qos_yaml)
+    except Exception:  # noqa: BLE001 - unparsable metadata: fall back
+        profiles = []
+    if not profiles:
+        return FRAME_QOS
+    first = profiles[0]
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(FRAME_DEPTH, int(first.depth)),
+                      reliability=first.reliability, durability=first.durability)
+
+
+def parse_remaps(remaps: Iterable[str]) -> Dict[str, str]:
+    """``['FROM:=TO', ...]`` -> ``{FROM: TO}``; raises ValueError on a malformed entry."""
+    out = {}
+    for item in remaps or ():
+        src, sep, dst = item.partition(":=")
+        if not sep or not src or not dst:
+            raise ValueError(f"bad remap {item!r} (expected FROM:=TO)")
+        out[src] = dst
+    return out
+
+
+class Player:
+    """Publishes a bag's messages on a node (used by :func:`main`; usable in-process).
+
+    :param node: rclpy node to create publishers on.
+    :param path: MCAP file.
+    :param topics: topics to play (None: all).
+    :param remap: ``{recorded_topic: published_topic}``.
+    """
+
+    def __init__(self, node, path: str, topics: Optional[Iterable[str]] = None,
+                 remap: Optional[Dict[str, str]] = None):
+        from .schema import message_class
+        self.node = node
+        self.path = path
+        self.topics = None if topics is None else list(topics)
+        self.remap = dict(remap or {})
+        self.publishers: Dict[str, object] = {}
+        self._pending: Dict[str, int] = {}
+        self.published = 0
+        for topic, (type_name, qos_yaml) in recorded_topics(path).items():
+            if self.topics is not None and topic not in self.topics:
+                continue
+            try:
+                cls = message_class(type_name)
+            except Exception as exc:  # noqa: BLE001
+                node.get_logger().warning(f"{topic}: not played, {exc}")
+                continue
+            self.publishers[topic] = node.create_publisher(
+                cls, self.remap.get(topic, topic), playback_qos(qos_yaml))
+
+    def wait_for_subscribers(self, count: int, timeout_s: float, stop=lambda: False) -> bool:
+        """Wait until every publisher has at least ``count`` matched subscriptions; False on timeout."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and not stop():
+            if all(p.get_subscription_count() >= count for p in self.publishers.values()):
+                return True
+            time.sleep(0.02)
+        return all(p.get_subscription_count() >= count for p in self.publishers.values())
+
+    def play(self, rate: float = 1.0, fast: bool = False, start_offset_s: float = 0.0,
+             duration_s: Optional[float] = None, clock_publisher=None, clock_hz: float = 0.0,
+             stop=lambda: False) -> int:
+        """Publish the messages once, paced by log_time / rate (or as fast as possible).
+
+        :param duration_s: play only this much bag time after the start offset [s].
+        :param clock_publisher: publisher of rosgraph_msgs/Clock, published at ``clock_hz`` [Hz].
+        Returns the number of messages published.
+        """
+        from rosgraph_msgs.msg import Clock
+        wall0 = bag0 = None
+        clock_period = 1.0 / clock_hz if clock_publisher is not None and clock_hz > 0 else None
+        next_clock = time.monotonic()
+        end_ns = None
+        count = 0
+
+        def publish_clock(bag_ns: int):
+            msg = Clock()
+            msg.clock.sec, msg.clock.nanosec = divmod(int(bag_ns), 1_000_000_000)
+            clock_publisher.publish(msg)
+
+        for item in iter_messages(self.path, self.publishers.keys(), start_offset_s):
+            if stop():
+                break
+            if wall0 is None:
+                wall0, bag0 = time.monotonic(), item.log_time_ns
+                if duration_s is not None:
+                    end_ns = bag0 + int(duration_s * 1e9)
+            if end_ns is not None and item.log_time_ns > end_ns:
+                break
+            if not fast:
+                target = wall0 + (item.log_time_ns - bag0) / 1e9 / rate
+                while not stop():
+                    now = time.monotonic()
+                    if clock_period is not None and now >= next_clock:
+                        publish_clock(bag0 + (now - wall0) * rate * 1e9)
+                        next_clock += clock_period
+                    if now >= target:
+                        break
+                    wake = target if clock_period is None else min(target, next_clock)
+                    time.sleep(max(0.0, min(wake - now, 0.05)))
+            elif clock_period is not None and time.monotonic() >= next_clock:
+                publish_clock(item.log_time_ns)
+                next_clock = time.monotonic() + clock_period
+            self._publish(item.topic, item.data)
+            count += 1
+        self.published += count
+        return count
+
+    #: Messages published on one topic between two waits for acknowledgement.
+    ACK_BATCH = 250
+
+    def _publish(self, topic: str, data: bytes) -> None:
+        """Publish, and every ACK_BATCH messages wait until reliable readers acknowledged.
+
+        A KEEP_LAST writer overwrites unacknowledged samples once its history
+        (FRAME_DEPTH) is full, i.e. silently drops frames when playback
+        outruns the subscribers; waiting every quarter history prevents that.
+        """
+        self.publishers[topic].publish(data)
+        pending = self._pending.get(topic, 0) + 1
+        if pending >= self.ACK_BATCH:
+            self.wait_acked(topic)
+            pending = 0
+        self._pending[topic] = pending
+
+    def wait_acked(self, topic: Optional[str] = None, timeout_s: float = 5.0) -> bool:
+        """Wait until reliable subscribers acknowledged everything published (one topic or all)."""
+        from rclpy.duration import Duration
+        topics = [topic] if topic is not None else list(self.publishers)
+        ok = True
+        for name in topics:
+            try:
+                ok &= bool(self.publishers[name].wait_for_all_acked(Duration(seconds=timeout_s)))
+            except Exception:  # noqa: BLE001 - best-effort publishers
+                pass
+        return ok
+
+
+def _parse_args(argv: List[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="mcap_play", description=__doc__.splitlines()[0])
+    parser.add_argument("file", help="MCAP file to play")
+    parser.add_argument("--rate", "-r", type=float, default=1.0, help="playback rate factor (> 0)")
+    parser.add_argument("--as-fast-as-possible", action="store_true",
+                        help="ignore timing, publish as fast as possible")
+    parser.add_argument("--loop", "-l", action="store_true", help="play in a loop")
+    parser.add_argument("--clock", nargs="?", type=float, const=40.0, default=None, metavar="HZ",
+                        help="publish /clock at HZ (default 40 Hz)")
+    parser.add_argument("--start-offset", type=float, default=0.0, help="skip this much of the bag [s]")
+    parser.add_argument("--duration", type=float, default=None, help="play this much bag time [s]")
+    parser.add_argument("--topics", nargs="+", default=None, help="play only these topics")
+    parser.add_argument("--remap", nargs="+", default=[], metavar="FROM:=TO", help="topic remaps")
+    parser.add_argument("--wait-for-subscribers", type=int, default=0, metavar="N",
+                        help="wait until each topic has N subscribers before playing")
+    parser.add_argument("--wait-timeout", type=float, default=10.0,
+                        help="give up waiting for subscribers after this long [s]")
+    parser.add_argument("--delay", type=float, default=0.0, help="sleep before playing [s]")
+    args = parser.parse_args(argv)
+    if not args.rate > 0 or args.rate == float("inf"):
+        parser.error("--rate must be a finite number > 0 (use --as-fast-as-possible)")
+    return args
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    """Entry point of ``mcap_play``; returns the process exit code (2 for a bad file)."""
+    apply_defaults()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    from rclpy.utilities import remove_ros_args
+    args = _parse_args(remove_ros_args(["mcap_play"] + argv)[1:])
+    try:
+        remap = parse_remaps(args.remap)
+        if recorded_topics(args.file) is None:
+            raise BagReadError(f"{args.file}: no channels")
+    except (BagReadError, ValueError) as exc:
+        print(f"mcap_play: error: {exc}", file=sys.stderr)
+        return 2
+
+    import rclpy
+    from rclpy.node import Node
+    from rclpy.signals import SignalHandlerOptions
+    from rosgraph_msgs.msg import Clock
+
+    stop = {"flag": False}
+
+    def request_stop(signum, _frame):
+        stop["flag"] = True
+
+    rclpy.init(args=["mcap_play"] + argv, signal_handler_options=SignalHandlerOptions.NO)
+    previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    node = None
+    try:
+        node = Node("mcap_player")
+        player = Player(node, args.file, args.topics, remap)
+        if not player.publishers:
+            print(f"mcap_play: error: {args.file}: no playable topics", file=sys.stderr)
+            return 2
+        clock_pub = node.create_publisher(Clock, "/clock", 10) if args.clock else None
+        if args.wait_for_subscribers > 0 and not player.wait_for_subscribers(
+                args.wait_for_subscribers, args.wait_timeout, lambda: stop["flag"]):
+            node.get_logger().warning("not every topic has its subscribers; playing anyway")
+        if args.delay > 0:
+            time.sleep(args.delay)
+        while not stop["flag"]:
+            player.play(rate=args.rate, fast=args.as_fast_as_possible,
+                        start_offset_s=args.start_offset, duration_s=args.duration,
+                        clock_publisher=clock_pub, clock_hz=args.clock or 0.0,
+                        stop=lambda: stop["flag"])
+            if not args.loop:
+                break
+        player.wait_acked(timeout_s=max(1.0, args.wait_timeout))  # deliver the tail before exit
+        print(f"mcap_play: published {player.published} messages", flush=True)
+    except BagReadError as exc:
+        print(f"mcap_play: error: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,296 @@
+"""MCAP recorder node: ``mcap_record -o FILE.mcap [-a | TOPIC ...] [--regex RE] [--exclude RE] [--duration S]``.
+
+:class:`RecorderNode` discovers topics periodically, subscribes with
+``raw=True`` (the serialised CDR bytes go to the file untouched, no
+deserialise/serialise round trip) and a QoS adapted to the publishers
+(rosbag2's rule: reliable only if every publisher offers reliable,
+transient-local only if every publisher offers it; depth at least
+:data:`~mems_sim.qos.FRAME_DEPTH`). It records the publishers' offered QoS as
+``offered_qos_profiles``. ``log_time`` is the receive time (wall clock, ns
+since the epoch); ``publish_time`` is the message's ``header.stamp`` when the
+type starts with a ``std_msgs/Header``, else the receive time. Frame-index
+gaps of frame topics are counted (and logged as warnings when they appear).
+
+In-process users (the scenario runner) create a RecorderNode with their own
+context and executor and use :meth:`RecorderNode.received` to throttle.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import signal
+import sys
+import time
+from typing import Dict, Iterable, List, Optional
+
+from rclpy.node import Node
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile,
+                       ReliabilityPolicy)
+
+from ..qos import FRAME_DEPTH
+from ..ros_env import apply_defaults
+from .schema import (SchemaError, has_header, message_class,
+                     normalize_type_name, peek_header_stamp_ns,
+                     qos_profiles_yaml, schema_text, type_hash)
+from .writer import McapBagWriter, gap_summary
+
+#: Topics skipped unless listed explicitly.
+DEFAULT_EXCLUDED = ("/rosout", "/parameter_events")
+
+
+def adapt_qos(offered: List[QoSProfile]) -> QoSProfile:
+    """Subscription QoS that matches every offered publisher QoS (rosbag2's rule).
+
+    Reliable if all offer reliable, else best effort; transient-local if all
+    offer it, else volatile; KEEP_LAST with depth max(FRAME_DEPTH, offered depths).
+    """
+    reliable = bool(offered) and all(q.reliability == ReliabilityPolicy.RELIABLE for q in offered)
+    latched = bool(offered) and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
+    depth = max([FRAME_DEPTH] + [int(q.depth) for q in offered if q.history == HistoryPolicy.KEEP_LAST])
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
+    )
+
+
+class RecorderNode(Node):
+    """Record topics into an MCAP file (rosbag2-compatible ``ros2`` profile).
+
+    :param output: path of the ``.mcap`` file to write (truncated if present).
+    :param topics: topic names to record (recorded even if in DEFAULT_EXCLUDED).
+    :param all_topics: record every discovered topic (except DEFAULT_EXCLUDED).
+    :param regex: also record topics whose name matches this regular expression.
+    :param exclude: never record topics matching this regular expression.
+    :param discovery_period_s: period of the topic discovery timer [s].
+    :param compression: chunk compression ``'zstd'``, ``'lz4'`` or ``'none'``.
+    :param chunk_size: uncompressed chunk size [bytes].
+    :param node_name: ROS node name.
+    :param kwargs: passed to ``rclpy.node.Node`` (e.g. ``context=ctx``).
+
+    The constructor arguments can be overridden by ROS parameters of the same
+    names (``output``, ``topics``, ``all``, ``regex``, ``exclude``).
+    """
+
+    def __init__(self, output: str = "", topics: Iterable[str] = (), all_topics: bool = False,
+                 regex: Optional[str] = None, exclude: Optional[str] = None,
+                 discovery_period_s: float = 0.25, compression: str = "zstd",
+                 chunk_size: int = 1 << 20, node_name: str = "mcap_recorder", **kwargs):
+        super().__init__(node_name, **kwargs)
+        output = self.declare_parameter("output", str(output)).value
+        topics = list(self.declare_parameter("topics", list(topics) or [""]).value or [])
+        all_topics = bool(self.declare_parameter("all", bool(all_topics)).value)
+        regex = self.declare_parameter("regex", regex or "").value or None
+        exclude = self.declare_parameter("exclude", exclude or "").value or None
+        if not output:
+            raise ValueError("RecorderNode needs an output path")
+        self._explicit = {t for t in topics if t}
+        self._all = all_topics
+        self._regex = re.compile(regex) if regex else None
+        self._exclude = re.compile(exclude) if exclude else None
+        self._bag = McapBagWriter(output, chunk_size=chunk_size, compression=compression,
+                                     on_gap=self._log_gap)
+        self._topic_subs: Dict[str, object] = {}
+        self._unusable: Dict[str, str] = {}
+        self._rx_counts: Dict[str, int] = {}
+        self._stamped: Dict[str, bool] = {}
+        self._rec_closed = False
+        self._discovery_timer = self.create_timer(discovery_period_s, self.discover)
+        self.discover()
+
+    # ---------------------------------------------------------------- selection
+
+    def wants(self, topic: str) -> bool:
+        """True when ``topic`` is selected by the topic list / all / regex and not excluded."""
+        if topic in self._explicit:
+            return True
+        if self._exclude is not None and self._exclude.search(topic):
+            return False
+        if topic in DEFAULT_EXCLUDED:
+            return False
+        if self._all:
+            return True
+        return bool(self._regex is not None and self._regex.search(topic))
+
+    # ---------------------------------------------------------------- discovery
+
+    def discover(self) -> None:
+        """Subscribe to newly appeared selected topics that have at least one publisher."""
+        if self._rec_closed:
+            return
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self._topic_subs or topic in self._unusable or not self.wants(topic):
+                continue
+            if len(types) != 1:
+                self._mark_unusable(topic, f"has {len(types)} types {types}; not recorded")
+                continue
+            publishers = self.get_publishers_info_by_topic(topic)
+            if not publishers:
+                continue  # only subscribers so far: try again when a publisher appears
+            self._subscribe(topic, types[0], [p.qos_profile for p in publishers])
+
+    def _subscribe(self, topic: str, type_name: str, offered: List[QoSProfile]) -> None:
+        try:
+            type_name = normalize_type_name(type_name)
+            msg_type = message_class(type_name)
+            text = schema_text(type_name)
+            stamped = has_header(type_name)
+        except SchemaError as exc:
+            self._mark_unusable(topic, str(exc))
+            return
+        self._bag.add_topic(topic, type_name, text, qos_profiles_yaml(offered),
+                               type_hash(type_name))
+        self._rx_counts[topic] = 0
+        self._stamped[topic] = stamped
+        qos = adapt_qos(offered)
+        self._topic_subs[topic] = self.create_subscription(
+            msg_type, topic, lambda data, t=topic: self._on_message(t, data), qos, raw=True)
+        self.get_logger().info(
+            f"recording {topic} [{type_name}] ({qos.reliability.name.lower()}, "
+            f"{qos.durability.name.lower()}, depth {qos.depth})")
+
+    def _mark_unusable(self, topic: str, reason: str) -> None:
+        self._unusable[topic] = reason
+        self.get_logger().warning(f"{topic}: {reason}")
+
+    # ---------------------------------------------------------------- data
+
+    def _on_message(self, topic: str, data: bytes) -> None:
+        if self._rec_closed:
+            return
+        now = time.time_ns()
+        stamp = peek_header_stamp_ns(data) if self._stamped[topic] else None
+        self._bag.write(topic, data, now, now if stamp is None else stamp)
+        self._rx_counts[topic] += 1
+
+    def _log_gap(self, topic: str, expected: int, first: int) -> None:
+        self.get_logger().warning(
+            f"{topic}: frame-index gap, expected first_sample_index {expected}, got {first} "
+            f"({first - expected} samples missing)")
+
+    # ---------------------------------------------------------------- queries
+
+    def received(self, topic: str) -> int:
+        """Messages received (and written) on ``topic`` so far (0 if not subscribed)."""
+        return self._rx_counts.get(topic, 0)
+
+    def counts(self) -> Dict[str, int]:
+        """Messages written per recorded topic."""
+        return self._bag.counts()
+
+    def gaps(self) -> Dict[str, int]:
+        """Frame-index gaps per recorded frame topic."""
+        return self._bag.gaps()
+
+    def gap_details(self) -> Dict[str, Dict[str, int]]:
+        """Per frame topic: gaps, missing_samples, resets, frames, samples."""
+        return self._bag.gap_details()
+
+    def recorded_topics(self) -> Dict[str, str]:
+        """Type name per recorded topic."""
+        return self._bag.topic_types()
+
+    @property
+    def output(self) -> str:
+        """Path of the MCAP file."""
+        return self._bag.path
+
+    # ---------------------------------------------------------------- end
+
+    def close(self) -> None:
+        """Stop recording and finalise the file (Summary, Statistics). Idempotent."""
+        if self._rec_closed:
+            return
+        self._rec_closed = True
+        self._discovery_timer.cancel()
+        self._bag.close()
+
+    def summary(self) -> str:
+        """Multi-line human-readable summary: topics, counts, gaps, file size."""
+        counts, details = self.counts(), self.gap_details()
+        size = os.path.getsize(self.output) if os.path.exists(self.output) else 0
+        lines = [f"{self.output}: {sum(counts.values())} messages, {len(counts)} topics, "
+                 f"{size / 1e6:.3f} MB"]
+        for topic, type_name in sorted(self.recorded_topics().items()):
+            line = f"  {topic} [{type_name}]: {counts.get(topic, 0)} messages"
+            if topic in details:
+                d = details[topic]
+                line += f", {d['samples']} samples, {d['gaps']} gaps ({d['missing_samples']} samples missing)"
+            lines.append(line)
+        total_gaps, missing = gap_summary(details)
+        lines.append(f"  frame-index gaps: {total_gaps} ({missing} samples missing)")
+        return "\n".join(lines)
+
+    def destroy_node(self) -> None:
+        """Close the file, then destroy the node."""
+        self.close()
+        super().destroy_node()
+
+
+# -------------------------------------------------------------------- CLI
+
+
+def _parse_args(argv: List[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="mcap_record", description=__doc__.splitlines()[0])
+    parser.add_argument("topics", nargs="*", help="topics to record")
+    parser.add_argument("-o", "--output", required=True, help="output file (.mcap)")
+    parser.add_argument("-a", "--all", action="store_true", help="record all topics")
+    parser.add_argument("--regex", "-e", default=None, help="record topics matching this regex")
+    parser.add_argument("--exclude", "-x", default=None, help="exclude topics matching this regex")
+    parser.add_argument("--duration", "-d", type=float, default=None,
+                        help="stop after this many seconds [s]")
+    parser.add_argument("--compression", choices=["zstd", "lz4", "none"], default="zstd")
+    parser.add_argument("--chunk-size", type=int, default=1 << 20, help="chunk size [bytes]")
+    args = parser.parse_args(argv)
+    if not (args.topics or args.all or args.regex):
+        parser.error("give topics, -a/--all or --regex")
+    return args
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    """Entry point of ``mcap_record``; returns the process exit code."""
+    apply_defaults()
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
+    from rclpy.utilities import remove_ros_args
+
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = _parse_args(remove_ros_args(["mcap_record"] + argv)[1:])
+    out_dir = os.path.dirname(os.path.abspath(args.output))
+    if not os.path.isdir(out_dir):
+        print(f"mcap_record: error: output directory {out_dir} does not exist", file=sys.stderr)
+        return 2
+
+    stop = {"flag": False}
+
+    def request_stop(signum, _frame):
+        stop["flag"] = True
+
+    rclpy.init(args=["mcap_record"] + argv, signal_handler_options=SignalHandlerOptions.NO)
+    previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    recorder = None
+    try:
+        recorder = RecorderNode(args.output, topics=args.topics, all_topics=args.all,
+                                regex=args.regex, exclude=args.exclude,
+                                compression=args.compression, chunk_size=args.chunk_size)
+        executor = SingleThreadedExecutor()
+        executor.add_node(recorder)
+        deadline = None if args.duration is None else time.monotonic() + args.duration
+        while not stop["flag"] and (deadline is None or time.monotonic() < deadline):
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if recorder is not None:
+            recorder.close()
+            print(recorder.summary(), flush=True)
+            recorder.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,259 @@
+"""ROS-free MCAP writer for rosbag2-compatible ``ros2`` profile files.
+
+:class:`McapBagWriter` wraps :class:`mcap.writer.Writer`: header profile
+``ros2``, schemas ``ros2msg``, channels ``cdr`` with ``offered_qos_profiles``
+(and ``topic_type_hash``) metadata; on close the Summary section is written
+with a Statistics record (mcap's Writer does that in ``finish()``).
+
+Crash safety: mcap's Writer keeps the open chunk in memory and writes a chunk
+(then its message indexes) to the output stream only when the chunk is
+complete. The output here is an unbuffered write-through stream
+(:class:`_WriteThroughFile`, ``os.write`` on the file descriptor), so every
+complete chunk is in the OS the moment it is finished: a SIGKILL of the
+process loses at most the chunk in progress (up to ``chunk_size`` bytes), and
+the file reads back up to the last complete chunk with a streaming reader.
+(Power loss is another matter: nothing is fsync'ed except at close.)
+
+The writer also counts messages per topic and, for frame types
+(:data:`~mems_sim.bag.schema.GAP_CHECKED_TYPES`), gaps of the frame index
+(``first_sample_index`` of a frame differs from ``first + num_samples`` of the
+previous frame on the same topic), peeked from the CDR bytes.
+"""
+from __future__ import annotations
+
+import os
+import threading
+from typing import Dict, Optional, Tuple
+
+from mcap.writer import CompressionType, Writer
+
+from .schema import GAP_CHECKED_TYPES, normalize_type_name, peek_frame_index
+
+_COMPRESSION = {
+    "zstd": CompressionType.ZSTD,
+    "lz4": CompressionType.LZ4,
+    "none": CompressionType.NONE,
+    "": CompressionType.NONE,
+    None: CompressionType.NONE,
+}
+
+
+class _WriteThroughFile:
+    """Minimal binary output stream that hands every write straight to the OS.
+
+    Deliberately not an ``io.RawIOBase`` (mcap's Writer would wrap that in a
+    ``BufferedWriter``, which is exactly what must not happen here).
+    """
+
+    def __init__(self, path: str):
+        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        self._pos = 0
+
+    def write(self, data) -> int:
+        view = memoryview(data)
+        while view:
+            written = os.write(self._fd, view)
+            view = view[written:]
+        self._pos += len(data)
+        return len(data)
+
+    def tell(self) -> int:
+        return self._pos
+
+    def flush(self) -> None:
+        """Nothing is buffered in user space."""
+
+    def fsync(self) -> None:
+        os.fsync(self._fd)
+
+    def close(self) -> None:
+        if self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1
+
+
+class FrameGapCounter:
+    """Counts frame-index gaps of one frame stream.
+
+    A gap is a frame whose ``first_sample_index`` is larger than the expected
+    one (``first + num_samples`` of the previous frame): samples were dropped.
+    A smaller index (device restarted, or replayed data) is counted as a
+    ``reset``, not a gap.
+    """
+
+    def __init__(self):
+        self.expected: Optional[int] = None
+        self.gaps = 0
+        self.missing_samples = 0
+        self.resets = 0
+        self.frames = 0
+        self.samples = 0
+
+    def update(self, first: int, num: int) -> int:
+        """Account one frame; return the number of missing samples before it (0 = contiguous)."""
+        missing = 0
+        if self.expected is not None and first != self.expected:
+            if first > self.expected:
+                missing = first - self.expected
+                self.gaps += 1
+                self.missing_samples += missing
+            else:
+                self.resets += 1
+        self.expected = first + num
+        self.frames += 1
+        self.samples += num
+        return missing
+
+
+class McapBagWriter:
+    """Write serialised ROS 2 messages into an MCAP file that rosbag2, rosbags,
+    Foxglove and PlotJuggler read.
+
+    :param path: output file (``.mcap``); created or truncated.
+    :param chunk_size: target uncompressed chunk size [bytes].
+    :param compression: ``'zstd'`` (default), ``'lz4'`` or ``'none'``.
+    :param on_gap: optional callback ``(topic, expected_index, first_index)``
+        called when a frame-index gap appears.
+    """
+
+    def __init__(self, path: str, chunk_size: int = 1 << 20, compression: str = "zstd",
+                 on_gap=None):
+        if compression not in _COMPRESSION:
+            raise ValueError(f"unknown compression {compression!r} (zstd, lz4 or none)")
+        self.path = str(path)
+        self.compression = compression or "none"
+        self._stream = _WriteThroughFile(self.path)
+        self._writer = Writer(self._stream, chunk_size=chunk_size,
+                              compression=_COMPRESSION[compression])
+        self._writer.start(profile="ros2", library="mems_sim.bag/mcap-python")
+        self._lock = threading.Lock()
+        self._schema_ids: Dict[str, int] = {}
+        self._channels: Dict[str, int] = {}
+        self._types: Dict[str, str] = {}
+        self._counts: Dict[str, int] = {}
+        self._gap_counters: Dict[str, FrameGapCounter] = {}
+        self._on_gap = on_gap
+        self._closed = False
+
+    # ---------------------------------------------------------------- setup
+
+    def has_topic(self, topic: str) -> bool:
+        """True once :meth:`add_topic` was called for ``topic``."""
+        return topic in self._channels
+
+    def add_topic(self, topic: str, type_name: str, schema_text: str, qos_yaml: str,
+                  type_hash: Optional[str] = None) -> int:
+        """Register a topic (channel) and its type's schema; return the channel id.
+
+        ``qos_yaml`` is the ``offered_qos_profiles`` string, ``type_hash`` the
+        ``RIHS01_...`` hash (omitted from the metadata when None).
+        Registering the same topic again returns the existing channel.
+        """
+        type_name = normalize_type_name(type_name)
+        with self._lock:
+            self._check_open()
+            if topic in self._channels:
+                return self._channels[topic]
+            schema_id = self._schema_ids.get(type_name)
+            if schema_id is None:
+                schema_id = self._writer.register_schema(
+                    name=type_name, encoding="ros2msg", data=schema_text.encode("utf-8"))
+                self._schema_ids[type_name] = schema_id
+            metadata = {"offered_qos_profiles": qos_yaml}
+            if type_hash:
+                metadata["topic_type_hash"] = type_hash
+            channel_id = self._writer.register_channel(
+                topic=topic, message_encoding="cdr", schema_id=schema_id, metadata=metadata)
+            self._channels[topic] = channel_id
+            self._types[topic] = type_name
+            self._counts[topic] = 0
+            if type_name in GAP_CHECKED_TYPES:
+                self._gap_counters[topic] = FrameGapCounter()
+            return channel_id
+
+    # ---------------------------------------------------------------- data
+
+    def write(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int) -> None:
+        """Append one serialised (CDR) message of a registered topic.
+
+        :param log_time_ns: receive time [ns since the epoch].
+        :param publish_time_ns: send time [ns], e.g. the message's header stamp.
+        """
+        with self._lock:
+            self._check_open()
+            channel_id = self._channels.get(topic)
+            if channel_id is None:
+                raise KeyError(f"topic {topic} was not added to the bag")
+            counter = self._gap_counters.get(topic)
+            gap = None
+            if counter is not None:
+                peek = peek_frame_index(data)
+                if peek is not None:
+                    expected = counter.expected
+                    if counter.update(*peek):
+                        gap = (expected, peek[0])
+            sequence = self._counts[topic]
+            self._writer.add_message(channel_id=channel_id, log_time=int(log_time_ns),
+                                     data=bytes(data), publish_time=int(publish_time_ns),
+                                     sequence=sequence & 0xFFFFFFFF)
+            self._counts[topic] = sequence + 1
+        if gap is not None and self._on_gap is not None:
+            self._on_gap(topic, gap[0], gap[1])
+
+    # ---------------------------------------------------------------- stats
+
+    def counts(self) -> Dict[str, int]:
+        """Messages written per topic."""
+        with self._lock:
+            return dict(self._counts)
+
+    def gaps(self) -> Dict[str, int]:
+        """Frame-index gaps per frame topic (topics of other types are absent)."""
+        with self._lock:
+            return {t: c.gaps for t, c in self._gap_counters.items()}
+
+    def gap_details(self) -> Dict[str, Dict[str, int]]:
+        """Per frame topic: gaps, missing_samples, resets, frames, samples."""
+        with self._lock:
+            return {t: {"gaps": c.gaps, "missing_samples": c.missing_samples,
+                        "resets": c.resets, "frames": c.frames, "samples": c.samples}
+                    for t, c in self._gap_counters.items()}
+
+    def topic_types(self) -> Dict[str, str]:
+        """Type name (``pkg/msg/Type``) per registered topic."""
+        return dict(self._types)
+
+    @property
+    def closed(self) -> bool:
+        """True after :meth:`close`."""
+        return self._closed
+
+    # ---------------------------------------------------------------- end
+
+    def close(self) -> None:
+        """Write the last chunk and the Summary (with Statistics), fsync and close. Idempotent."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            try:
+                self._writer.finish()
+                self._stream.fsync()
+            finally:
+                self._stream.close()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise ValueError(f"bag {self.path} is closed")
+
+    def __enter__(self) -> "McapBagWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def gap_summary(details: Dict[str, Dict[str, int]]) -> Tuple[int, int]:
+    """Total (gaps, missing_samples) over all topics of :meth:`McapBagWriter.gap_details`."""
+    return (sum(d["gaps"] for d in details.values()),
+            sum(d["missing_samples"] for d in details.values()))

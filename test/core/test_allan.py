@@ -1,0 +1,87 @@
+"""Tests of the overlapping Allan deviation (mems_estimation.allan), no ROS."""
+import os
+import sys
+
+import allantools
+import numpy as np
+import pytest
+
+sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..")))
+
+from mems_estimation.allan import (allan_analysis, chi2_interval, edf_from_slope,  # noqa: E402
+                                   edf_oadev, oadev, tau_grid)
+
+
+def _datasets():
+    rng = np.random.default_rng(7)
+    yield "white", rng.standard_normal(5000) * 0.3 + 1.7, 100.0
+    yield "random_walk", np.cumsum(rng.standard_normal(4097)) * 1e-3, 50.0
+    yield "mixed_odd", rng.standard_normal(20001) + np.cumsum(rng.standard_normal(20001)) * 0.01, 100.0
+    yield "tiny", rng.standard_normal(9), 1.0
+
+
+@pytest.mark.parametrize("kind", ["octave", "decade", "all"])
+def test_equals_allantools(kind):
+    for name, y, fs in _datasets():
+        ref = allantools.oadev(y, rate=fs, data_type="freq", taus=kind)
+        got = oadev(y, fs, kind)
+        assert np.array_equal(got[0], ref[0]), (name, got[0], ref[0])
+        assert np.array_equal(got[3], ref[3]), name
+        assert np.max(np.abs(got[1] / ref[1] - 1.0)) < 1e-9, name
+        assert np.max(np.abs(got[2] / ref[2] - 1.0)) < 1e-9, name
+
+
+def test_equals_allantools_explicit_taus():
+    rng = np.random.default_rng(3)
+    y = rng.standard_normal(3000)
+    taus = np.array([0.01, 0.013, 0.5, 0.5, 2.0, 14.99, 15.0, 40.0])
+    ref = allantools.oadev(y, rate=100.0, data_type="freq", taus=taus)
+    got = oadev(y, 100.0, taus)
+    assert np.array_equal(got[0], ref[0])
+    assert np.max(np.abs(got[1] / ref[1] - 1.0)) < 1e-9
+
+
+@pytest.mark.parametrize("n", [9, 1000, 1023, 1024, 12345, 10 ** 6])
+@pytest.mark.parametrize("kind", ["octave", "decade", "all"])
+def test_tau_grid_matches_allantools(n, kind):
+    if kind == "all" and n > 20000:
+        pytest.skip("allantools 'all' on 1e6 is slow")
+    fs = 100.0
+    y = np.zeros(n)
+    y[::2] = 1.0
+    ref = allantools.oadev(y, rate=fs, data_type="freq", taus=kind)[0]
+    assert np.array_equal(tau_grid(n, fs, kind), ref)
+
+
+def test_tau_grid_octave_limit():
+    taus = tau_grid(10 ** 6, 100.0, "octave")
+    m = np.round(taus * 100.0)
+    assert m[0] == 1 and m[-1] == 2 ** 18 and np.all(np.diff(np.log2(m)) == 1)
+    with pytest.raises(ValueError, match="tau grid"):
+        tau_grid(100, 1.0, "weekly")
+
+
+def test_white_noise_analytic():
+    """White rate noise of density N: AVAR = N^2 / tau (IEEE 952 Annex C)."""
+    fs, n, N = 100.0, 400_000, 2e-3
+    y = np.random.default_rng(5).standard_normal(n) * N * np.sqrt(fs)
+    res = allan_analysis(y, fs, "octave", confidence=0.95)
+    theory = N / np.sqrt(res.taus)
+    sel = res.edf > 20
+    assert sel.sum() >= 12
+    tol = 4.0 * np.sqrt(1.0 / (2.0 * res.edf[sel]))      # 4 sd of an ADEV estimate
+    assert np.all(np.abs(res.adev[sel] / theory[sel] - 1) < tol)
+    inside = (res.ci_low <= theory) & (theory <= res.ci_high)
+    assert inside.mean() >= 0.8
+
+
+def test_edf_and_chi2_interval():
+    N = 10001
+    # white FM at m = 1: about 3(N-1)/2 * 4/9
+    assert edf_oadev(N, 1, 0) == pytest.approx((1.5 * (N - 1) - 2 * (N - 2) / N) * 4 / 9)
+    assert edf_from_slope(N, np.array([1, 10]), np.array([-1.0, -1.0])) == pytest.approx(
+        edf_oadev(N, np.array([1, 10]), 0))
+    mid = edf_from_slope(N, np.array([100]), np.array([-0.5]))[0]
+    assert mid == pytest.approx(0.5 * (edf_oadev(N, 100, 0) + edf_oadev(N, 100, -1)))
+    lo, hi = chi2_interval(1.0, 10.0, 0.95)
+    assert lo < 1.0 < hi and lo == pytest.approx(10 / 20.483, rel=1e-3)
