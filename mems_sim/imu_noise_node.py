@@ -45,10 +45,13 @@ class ImuNoiseNode(Node):
     Args:
         drive_externally: if True no timer is created; the owner calls :meth:`step`
             (the scenario runner does this to run faster than real time without loss).
+        autostart: start the wall-clock timer at once; if False the owner calls
+            :meth:`start` once its subscribers are matched (no frame is lost to discovery).
         **node_kwargs: passed to rclpy's Node (context, namespace, parameter_overrides).
     """
 
-    def __init__(self, *, drive_externally: bool = False, **node_kwargs) -> None:
+    def __init__(self, *, drive_externally: bool = False, autostart: bool = True,
+                 **node_kwargs) -> None:
         node_kwargs.setdefault("namespace", "imu")
         super().__init__("imu_noise", **node_kwargs)
         self.p = declare_specs(self, imu_noise.IMU_SPECS + EMULATOR_SPECS + MOTION_SPECS)
@@ -81,8 +84,14 @@ class ImuNoiseNode(Node):
         self.diag = DiagnosticsReporter(self, f"{self.get_name()}: IMU emulator",
                                         hardware_id=self.get_fully_qualified_name())
         self._wall_start = None
-        if not drive_externally:
-            period = self.p["frame_size"] / fs / self.p["realtime_factor"]
+        self._timer = None
+        if not drive_externally and autostart:
+            self.start()
+
+    def start(self) -> None:
+        """Start publishing paced to the wall clock (``realtime_factor``)."""
+        if self._timer is None:
+            period = self.p["frame_size"] / self.fs / self.p["realtime_factor"]
             self._timer = self.create_timer(min(period, 0.05), self._on_timer)
 
     @property

@@ -242,7 +242,6 @@ class Player:
         self.topics = None if topics is None else list(topics)
         self.remap = dict(remap or {})
         self.publishers: Dict[str, object] = {}
-        self._pending: Dict[str, int] = {}
         self.published = 0
         for topic, (type_name, qos_yaml) in recorded_topics(path).items():
             if self.topics is not None and topic not in self.topics:
@@ -313,22 +312,9 @@ class Player:
         self.published += count
         return count
 
-    #: Messages published on one topic between two waits for acknowledgement.
-    ACK_BATCH = 250
-
     def _publish(self, topic: str, data: bytes) -> None:
-        """Publish, and every ACK_BATCH messages wait until reliable readers acknowledged.
-
-        A KEEP_LAST writer overwrites unacknowledged samples once its history
-        (FRAME_DEPTH) is full, i.e. silently drops frames when playback
-        outruns the subscribers; waiting every quarter history prevents that.
-        """
+        """Publish the serialised bytes on the (possibly remapped) topic."""
         self.publishers[topic].publish(data)
-        pending = self._pending.get(topic, 0) + 1
-        if pending >= self.ACK_BATCH:
-            self.wait_acked(topic)
-            pending = 0
-        self._pending[topic] = pending
 
     def wait_acked(self, topic: Optional[str] = None, timeout_s: float = 5.0) -> bool:
         """Wait until reliable subscribers acknowledged everything published (one topic or all)."""

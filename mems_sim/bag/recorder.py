@@ -39,17 +39,20 @@ from .writer import McapBagWriter, gap_summary
 DEFAULT_EXCLUDED = ("/rosout", "/parameter_events")
 
 
-def adapt_qos(offered: List[QoSProfile]) -> QoSProfile:
+def adapt_qos(offered: List[QoSProfile], keep_all: bool = True) -> QoSProfile:
     """Subscription QoS that matches every offered publisher QoS (rosbag2's rule).
 
     Reliable if all offer reliable, else best effort; transient-local if all
-    offer it, else volatile; KEEP_LAST with depth max(FRAME_DEPTH, offered depths).
+    offer it, else volatile. History: KEEP_ALL for reliable topics (with
+    ``keep_all``), so that a recorder that falls behind applies back-pressure
+    through DDS flow control instead of dropping from a full KEEP_LAST reader
+    history; otherwise KEEP_LAST with depth max(FRAME_DEPTH, offered depths).
     """
     reliable = bool(offered) and all(q.reliability == ReliabilityPolicy.RELIABLE for q in offered)
     latched = bool(offered) and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
     depth = max([FRAME_DEPTH] + [int(q.depth) for q in offered if q.history == HistoryPolicy.KEEP_LAST])
     return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
+        history=HistoryPolicy.KEEP_ALL if (reliable and keep_all) else HistoryPolicy.KEEP_LAST,
         depth=depth,
         reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
         durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,

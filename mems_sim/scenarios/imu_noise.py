@@ -53,7 +53,7 @@ def build_graph(options: ScenarioOptions, out: Path, duration_s: float):
                   "publish_imu": bool(options.realtime)}
     emu_params.update(options.extra.get("emulator", {}))
     emu = graph.add(ImuNoiseNode(context=graph.context, drive_externally=not options.realtime,
-                                 parameter_overrides=_overrides(emu_params)))
+                                 autostart=False, parameter_overrides=_overrides(emu_params)))
     ident = graph.add(NoiseIdentifierNode(
         context=graph.context, namespace="imu",
         parameter_overrides=_overrides({"publish_period_s": 0.0 if duration_s < 7200 else 3600.0})))
@@ -89,6 +89,7 @@ def run_fast(graph: Graph, emu: ImuNoiseNode, ident, rec, progress: Progress) ->
 
 def run_realtime(graph: Graph, emu: ImuNoiseNode, progress: Progress) -> None:
     """Spin with the emulator's own wall-clock timer until its duration is published."""
+    emu.start()
     while not emu.finished:
         graph.executor.spin_once(timeout_sec=0.05)
         graph.publish_clock(index_to_ns(emu.next_index, emu.fs))
@@ -100,7 +101,8 @@ def drain(graph: Graph, emu: ImuNoiseNode, ident, rec) -> None:
     published = emu.frames_published
     graph.spin_until(lambda: rec.received("/imu/adc") >= published
                      and rec.received("/imu/truth") >= published
-                     and ident.frames_received >= published, 60.0,
+                     and ident.frames_received >= published
+                     and (emu.pub_imu is None or rec.received("/imu/data") >= emu.next_index), 60.0,
                      "the last frames to be delivered")
     before = rec.received("/imu/noise_model")
     final = ident.publish_result(final=True)

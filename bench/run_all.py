@@ -1,0 +1,10 @@
+"""`make bench`: every benchmark of the project, each reporting ratios measured in one run."""
+import runpy
+from pathlib import Path
+
+HERE = Path(__file__).parent
+
+for name in ("bench_allan.py", "bench_recorder.py"):
+    print(f"== {name}")
+    runpy.run_path(str(HERE / name), run_name="__main__")
+    print()
