@@ -16,7 +16,6 @@ ROS-free readers for other code:
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 import sys
 import time

@@ -1,4 +1,4 @@
-"""MCAP recorder node: ``mcap_record -o FILE.mcap [-a | TOPIC ...] [--regex RE] [--exclude RE] [--duration S]``.
+"""MCAP recorder node: ``mcap_record -o FILE.mcap [-a | TOPIC ...] [--regex RE] [--exclude RE]``.
 
 :class:`RecorderNode` discovers topics periodically, subscribes with
 ``raw=True`` (the serialised CDR bytes go to the file untouched, no

@@ -413,7 +413,7 @@ def peek_frame_fields(serialized: bytes, layout: str = "frame") -> Optional[Tupl
     pos = (pos + max_align - 1) // max_align * max_align
     offset = 4 + pos
     if layout == "frame":
-        if len(serialized) < offset + 20 + (0 if max_align == 4 else 0):
+        if len(serialized) < offset + 20:
             return None
         first, rate, num = _FRAME[little].unpack_from(serialized, offset)
         return first, num, rate
