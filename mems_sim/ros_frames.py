@@ -14,6 +14,8 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 
+from mems_sim.bag.writer import FrameGapCounter as IndexTracker  # noqa: F401 (re-export)
+
 
 class FrameError(ValueError):
     """A malformed or non-finite frame (rejected and counted, never used)."""
@@ -53,6 +55,17 @@ def _float64_array(values: np.ndarray) -> array.array:
     return out
 
 
+def _fill_frame(msg, first_index: int, sample_rate_hz: float, num_samples: int,
+                frame_id: str, t0_ns: int):
+    """Set header (stamp of the first sample), first_sample_index, sample_rate_hz, num_samples."""
+    msg.header.stamp = ns_to_time(index_to_ns(first_index, sample_rate_hz, t0_ns))
+    msg.header.frame_id = frame_id
+    msg.first_sample_index = int(first_index)
+    msg.sample_rate_hz = float(sample_rate_hz)
+    msg.num_samples = int(num_samples)
+    return msg
+
+
 def make_adc_frame(codes: np.ndarray, first_index: int, sample_rate_hz: float, *,
                    bits: int, channel_names: Sequence[str], channel_units: Sequence[str],
                    lsb: Sequence[float], full_scale: Sequence[float],
@@ -62,12 +75,7 @@ def make_adc_frame(codes: np.ndarray, first_index: int, sample_rate_hz: float, *
     codes = np.asarray(codes)
     if codes.ndim != 2 or codes.shape[1] != len(channel_names):
         raise FrameError(f"codes shape {codes.shape} does not match {len(channel_names)} channels")
-    msg = AdcFrame()
-    msg.header.stamp = ns_to_time(index_to_ns(first_index, sample_rate_hz, t0_ns))
-    msg.header.frame_id = frame_id
-    msg.first_sample_index = int(first_index)
-    msg.sample_rate_hz = float(sample_rate_hz)
-    msg.num_samples = int(codes.shape[0])
+    msg = _fill_frame(AdcFrame(), first_index, sample_rate_hz, codes.shape[0], frame_id, t0_ns)
     msg.bits = int(bits)
     msg.channel_names = list(channel_names)
     msg.channel_units = list(channel_units)
@@ -87,12 +95,7 @@ def make_signal_frame(data: np.ndarray, first_index: int, sample_rate_hz: float,
     data = np.asarray(data, dtype=float)
     if data.ndim != 2 or data.shape[1] != len(channel_names):
         raise FrameError(f"data shape {data.shape} does not match {len(channel_names)} channels")
-    msg = SignalFrame()
-    msg.header.stamp = ns_to_time(index_to_ns(first_index, sample_rate_hz, t0_ns))
-    msg.header.frame_id = frame_id
-    msg.first_sample_index = int(first_index)
-    msg.sample_rate_hz = float(sample_rate_hz)
-    msg.num_samples = int(data.shape[0])
+    msg = _fill_frame(SignalFrame(), first_index, sample_rate_hz, data.shape[0], frame_id, t0_ns)
     msg.channel_names = list(channel_names)
     msg.channel_units = list(channel_units)
     msg.data = _float64_array(data)
@@ -109,12 +112,8 @@ def make_state_estimate(states: np.ndarray, variances: np.ndarray, first_index: 
     if states.shape != variances.shape or states.ndim != 2 or states.shape[1] != len(state_names):
         raise FrameError(f"states {states.shape} / variances {variances.shape} do not match "
                          f"{len(state_names)} states")
-    msg = StateEstimate()
-    msg.header.stamp = ns_to_time(index_to_ns(first_index, sample_rate_hz, t0_ns))
-    msg.header.frame_id = frame_id
-    msg.first_sample_index = int(first_index)
-    msg.sample_rate_hz = float(sample_rate_hz)
-    msg.num_samples = int(states.shape[0])
+    msg = _fill_frame(StateEstimate(), first_index, sample_rate_hz, states.shape[0], frame_id,
+                      t0_ns)
     msg.estimator = estimator
     msg.state_names = list(state_names)
     msg.state_units = list(state_units)
@@ -167,32 +166,3 @@ def signal_data(msg: SignalFrame) -> np.ndarray:
     if not np.all(np.isfinite(data)):
         raise FrameError("SignalFrame: non-finite samples")
     return data.reshape(msg.num_samples, channels)
-
-
-class IndexTracker:
-    """Follows first_sample_index of one frame stream and counts gaps (drops).
-
-    A gap is a frame whose first index is not the previous frame's end; a
-    frame that goes backwards (overlap, replay restart) is counted separately.
-    """
-
-    def __init__(self) -> None:
-        self.expected: int | None = None
-        self.gaps = 0
-        self.missing_samples = 0
-        self.overlaps = 0
-        self.frames = 0
-
-    def update(self, first_index: int, num_samples: int) -> int:
-        """Register a frame; return the number of samples missing before it (0 if none)."""
-        missing = 0
-        if self.expected is not None and first_index != self.expected:
-            if first_index > self.expected:
-                missing = first_index - self.expected
-                self.gaps += 1
-                self.missing_samples += missing
-            else:
-                self.overlaps += 1
-        self.expected = first_index + num_samples
-        self.frames += 1
-        return missing

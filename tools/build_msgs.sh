@@ -6,6 +6,7 @@ set -euo pipefail
 VENV=${VENV:-.venv}
 VENV=$(cd "$VENV" && pwd)
 BUILD=${BUILD_DIR:-build/mems_msgs}
+mkdir -p "$(dirname "$BUILD")"
 "$VENV/bin/python" tools/fix_ros_wheel_cmake.py
 export CMAKE_PREFIX_PATH="$VENV" AMENT_PREFIX_PATH="$VENV" PATH="$VENV/bin:$PATH"
 cmake -S msg_defs -B "$BUILD" -DCMAKE_INSTALL_PREFIX="$VENV" \
