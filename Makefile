@@ -38,7 +38,7 @@ $(MSGS_STAMP): $(DEPS_STAMP) msg_defs/package.xml msg_defs/CMakeLists.txt $(MSG_
 	VENV=$(VENV) bash tools/build_msgs.sh
 	touch $@
 
-$(PKG_STAMP): $(MSGS_STAMP) setup.py setup.cfg package.xml
+$(PKG_STAMP): $(MSGS_STAMP) setup.py package.xml
 	$(PY) -m pip install --disable-pip-version-check -q --no-build-isolation --no-deps -e .
 	touch $@
 

@@ -1,7 +1,19 @@
 """ament_python package of the MEMS hardware emulator (mems_sim + mems_estimation)."""
+import sys
+
 from setuptools import find_packages, setup
 
 PACKAGE = "mems_emulator"
+
+# `ros2 run` looks for executables in <prefix>/lib/<package>. colcon builds an
+# ament_python package with `setup.py ... install` (or `develop` with
+# --symlink-install): for those commands the scripts go there, as a setup.cfg
+# [install]/[develop] section would do. pip's editable/wheel installs (make
+# setup) keep console scripts in the venv's bin/, so no setup.cfg is used.
+SCRIPT_DIR = f"$base/lib/{PACKAGE}"
+OPTIONS = {}
+if {"install", "develop"} & set(sys.argv[1:]):
+    OPTIONS = {"install": {"install_scripts": SCRIPT_DIR}, "develop": {"script_dir": SCRIPT_DIR}}
 
 setup(
     name=PACKAGE,
@@ -13,6 +25,7 @@ setup(
     ],
     install_requires=["setuptools"],
     zip_safe=True,
+    options=OPTIONS,
     maintainer="MEMS emulator maintainers",
     maintainer_email="maintainers@mems-emulator.org",
     description="Emulated MEMS sensor hardware with estimators and calibration, on ROS 2.",
