@@ -19,6 +19,7 @@ DEMO_DOMAIN ?= 61
 BENCH_DOMAIN ?= 62
 TEST_DOMAIN ?= 63
 
+PIP_VERSION := 26.3
 DEPS_STAMP := $(VENV)/.stamp-deps
 MSGS_STAMP := $(VENV)/.stamp-msgs
 PKG_STAMP := $(VENV)/.stamp-pkg
@@ -31,6 +32,7 @@ setup: $(PKG_STAMP)
 $(DEPS_STAMP): requirements.lock tools/bootstrap_system.sh
 	bash tools/bootstrap_system.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --disable-pip-version-check -q pip==$(PIP_VERSION)
 	$(PY) -m pip install --disable-pip-version-check -q -r requirements.lock
 	touch $@
 
@@ -38,7 +40,7 @@ $(MSGS_STAMP): $(DEPS_STAMP) msg_defs/package.xml msg_defs/CMakeLists.txt $(MSG_
 	VENV=$(VENV) bash tools/build_msgs.sh
 	touch $@
 
-$(PKG_STAMP): $(MSGS_STAMP) setup.py package.xml
+$(PKG_STAMP): $(MSGS_STAMP) setup.py pyproject.toml package.xml
 	$(PY) -m pip install --disable-pip-version-check -q --no-build-isolation --no-deps -e .
 	touch $@
 
