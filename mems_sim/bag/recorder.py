@@ -252,6 +252,24 @@ def _parse_args(argv: List[str]) -> argparse.Namespace:
     return args
 
 
+def drain(executor, recorder: RecorderNode, idle_s: float = 0.3, limit_s: float = 10.0) -> None:
+    """Write what the middleware already delivered before stopping.
+
+    Messages acknowledged by the subscription but not yet taken by the
+    executor would be lost on an immediate stop; spin until nothing has
+    arrived for ``idle_s`` seconds (at most ``limit_s``).
+    """
+    deadline = time.monotonic() + limit_s
+    last_total, last_change = -1, time.monotonic()
+    while time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.05)
+        total = sum(recorder._rx_counts.values())
+        if total != last_total:
+            last_total, last_change = total, time.monotonic()
+        elif time.monotonic() - last_change >= idle_s:
+            return
+
+
 def main(argv: Optional[List[str]] = None) -> int:
     """Entry point of ``mcap_record``; returns the process exit code."""
     apply_defaults()
@@ -284,6 +302,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         deadline = None if args.duration is None else time.monotonic() + args.duration
         while not stop["flag"] and (deadline is None or time.monotonic() < deadline):
             executor.spin_once(timeout_sec=0.1)
+        drain(executor, recorder)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
