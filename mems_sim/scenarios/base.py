@@ -21,6 +21,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rosgraph_msgs.msg import Clock
 
 from mems_sim.ros_env import apply_defaults
+from mems_sim.ros_frames import index_to_ns
 
 
 class ScenarioError(RuntimeError):
@@ -139,3 +140,65 @@ def format_table(header: list[str], rows: list[list[str]]) -> str:
     sep = "  ".join("-" * w for w in widths)
     body = ["  ".join(str(c).rjust(w) for c, w in zip(r, widths)) for r in rows]
     return "\n".join([line, sep] + body)
+
+
+def drive_fast(graph: Graph, devices: list, delivered: Callable[[object], int],
+               progress: "Progress | None" = None, window: int = 50) -> None:
+    """Step every device as fast as its consumers take the frames (lossless, deterministic).
+
+    Args:
+        devices: emulator nodes with ``step()``, ``finished``, ``frames_published``,
+            ``next_index`` and ``fs``.
+        delivered: frames of ``device`` taken by its slowest consumer so far.
+        window: frames a device may run ahead of that consumer.
+    """
+    while not all(d.finished for d in devices):
+        for d in devices:
+            if not d.finished:
+                d.step()
+        lead = max(devices, key=lambda d: d.next_index)
+        graph.publish_clock(index_to_ns(lead.next_index, lead.fs))
+
+        def caught_up() -> bool:
+            return all(d.frames_published - delivered(d) < window for d in devices)
+        if not caught_up():
+            graph.spin_until(caught_up, 60.0, "consumers to take the emulators' frames")
+        graph.executor.spin_once(timeout_sec=0)
+        if progress is not None:
+            progress.update_to(min(d.next_index / d.fs for d in devices))
+
+
+def topic_frames(path, topic: str) -> dict:
+    """Concatenate the frames of one topic of an MCAP file into arrays.
+
+    Returns:
+        dict with ``first_index`` (first sample index), ``names``, ``units``,
+        ``data`` (n, channels) — SignalFrame data, StateEstimate states or AdcFrame
+        physical values — and, for StateEstimate, ``variances`` (n, channels).
+    """
+    import numpy as np
+
+    from mems_sim.bag.player import read_messages
+    from mems_sim.ros_frames import adc_physical, signal_data
+
+    chunks, variances, first, names, units = [], [], None, (), ()
+    for _, type_name, _, msg in read_messages(str(path), [topic]):
+        if first is None:
+            first = int(msg.first_sample_index)
+        if type_name.endswith("/StateEstimate"):
+            k = len(msg.state_names)
+            names, units = tuple(msg.state_names), tuple(msg.state_units)
+            chunks.append(np.asarray(msg.states).reshape(-1, k))
+            variances.append(np.asarray(msg.variances).reshape(-1, k))
+        elif type_name.endswith("/AdcFrame"):
+            names, units = tuple(msg.channel_names), tuple(msg.channel_units)
+            chunks.append(adc_physical(msg))
+        else:
+            names, units = tuple(msg.channel_names), tuple(msg.channel_units)
+            chunks.append(signal_data(msg))
+    if not chunks:
+        raise ScenarioError(f"{path}: no frames on {topic}")
+    out = dict(first_index=first, names=names, units=units, data=np.concatenate(chunks))
+    if variances:
+        out["variances"] = np.concatenate(variances)
+    return out

@@ -22,7 +22,7 @@ from mems_sim.bag.recorder import RecorderNode
 from mems_sim.imu_noise_node import ImuNoiseNode
 from mems_sim.ros_frames import index_to_ns
 from mems_sim.scenarios.base import (Graph, Progress, ScenarioError, ScenarioOptions,
-                                     default_domain_id, format_table)
+                                     default_domain_id, drive_fast, format_table)
 
 NAME = "imu_noise"
 DESCRIPTION = ("ADIS16350-like IMU at rest (Petkov): emulator -> Allan-variance identification "
@@ -73,18 +73,8 @@ def _wait_matched(graph: Graph, emu: ImuNoiseNode, ident, rec) -> None:
 
 def run_fast(graph: Graph, emu: ImuNoiseNode, ident, rec, progress: Progress) -> None:
     """Step the emulator as fast as the consumers take its frames (no loss, deterministic)."""
-    while not emu.finished:
-        emu.step()
-        graph.publish_clock(index_to_ns(emu.next_index, emu.fs))
-        published = emu.frames_published
-
-        def caught_up() -> bool:
-            return (published - rec.received("/imu/adc") < WINDOW
-                    and published - ident.frames_received < WINDOW)
-        if not caught_up():
-            graph.spin_until(caught_up, 60.0, "consumers to take the emulator's frames")
-        graph.executor.spin_once(timeout_sec=0)
-        progress.update_to(emu.next_index / emu.fs)
+    drive_fast(graph, [emu], lambda _: min(rec.received("/imu/adc"), ident.frames_received),
+               progress, WINDOW)
 
 
 def run_realtime(graph: Graph, emu: ImuNoiseNode, progress: Progress) -> None:
