@@ -36,6 +36,8 @@ setup(
             "run_scenario = mems_sim.scenarios.cli:main",
             "imu_noise_node = mems_sim.imu_noise_node:main",
             "noise_identifier_node = mems_estimation.noise_identifier_node:main",
+            "sd_resonator_node = mems_sim.sd_resonator_node:main",
+            "sd_observer_node = mems_estimation.sd_observer_node:main",
             "identify_noise = mems_estimation.identify_noise_cli:main",
             "mcap_record = mems_sim.bag.recorder:main",
             "mcap_play = mems_sim.bag.player:main",

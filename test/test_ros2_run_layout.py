@@ -52,7 +52,7 @@ def _sourced(install: Path, command: str, env: dict) -> list[str]:
 def test_colcon_layout_has_executables_in_lib_pkg(colcon_install):
     lib = colcon_install / "mems_emulator" / "lib" / "mems_emulator"
     for exe in ("run_scenario", "imu_noise_node", "noise_identifier_node", "mcap_record",
-                "mcap_play", "mcap_info", "identify_noise"):
+                "mcap_play", "mcap_info", "identify_noise", "sd_resonator_node", "sd_observer_node"):
         assert (lib / exe).is_file(), exe
     assert (colcon_install / "mems_emulator" / "share" / "ament_index" / "resource_index"
             / "packages" / "mems_emulator").is_file()

@@ -5,6 +5,7 @@ import importlib
 #: Registered scenarios, in the order ``run_scenario --list`` shows them.
 SCENARIOS = {
     "imu_noise": "mems_sim.scenarios.imu_noise",
+    "sd_resonator": "mems_sim.scenarios.sd_resonator",
 }
 
 

@@ -1,0 +1,62 @@
+"""Benchmark: sigma-delta resonator device with its in-loop observer, and the observers alone.
+
+Run:  .venv/bin/python bench/bench_sd_resonator.py [n_samples]
+Prints samples/s and the real-time factor (samples/s / fs) of
+SdResonatorDevice at fs = 1 MHz in observer mode (fast = steady-state gain, and
+the exact time-varying gain), frames of 10,000 samples, output noise on; then
+samples/s of KalmanObserver alone (time-varying and steady-state) and of
+AdaptiveObserver (7 and 8 states).  Numba compile / cache load is done before timing.
+"""
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")))
+
+from mems_estimation.adaptive_observer import AdaptiveObserver  # noqa: E402
+from mems_estimation.kalman_observer import KalmanObserver  # noqa: E402
+from mems_sim.sd_resonator import SdResonatorDevice  # noqa: E402
+
+FS, F0, Q = 1e6, 5e4, 100.0
+
+
+def _rate(fn, n):
+    fn(1000)                                            # warm-up (numba cache / compile)
+    t0 = time.perf_counter()
+    fn(n)
+    return n / (time.perf_counter() - t0)
+
+
+def bench_device(n: int, fast: bool, frame: int = 10_000) -> float:
+    d = SdResonatorDevice({"output_noise_std": 0.5, "fast": fast}, seed=0)
+
+    def run(m):
+        for _ in range(max(1, m // frame)):
+            d.step(min(frame, m))
+    return _rate(run, n)
+
+
+def main() -> None:
+    n = int(sys.argv[1]) if len(sys.argv) > 1 else 5_000_000
+    for fast in (True, False):
+        r = bench_device(n if fast else n // 5, fast)
+        print(f"device, observer in the loop, fast={fast!s:5}: {r / 1e6:7.2f} Msamples/s = "
+              f"{r / FS:6.1f} x real time at fs = 1 MHz"
+              + ("  (target >= 10x)" if fast else ""))
+    fr = SdResonatorDevice({"output_noise_std": 0.5}, seed=1).step(2_000_000)
+    for ss in (False, True):
+        ko = KalmanObserver(F0, Q, FS, 0.5, 1e-4, steady_state=ss)
+        r = _rate(lambda m: ko.step(fr.bits[:m], fr.pulses[:m]), 2_000_000 if ss else 1_000_000)
+        print(f"KalmanObserver alone, steady_state={ss!s:5}: {r / 1e6:7.2f} Msamples/s "
+              f"({r / FS:5.2f} x real time)")
+    for eq in (False, True):
+        ao = AdaptiveObserver(F0, Q, FS, 0.5, 1e-4, estimate_q=eq)
+        r = _rate(lambda m: ao.step(fr.bits[:m], fr.pulses[:m]), 500_000)
+        print(f"AdaptiveObserver alone ({8 if eq else 7} states): {r / 1e6:7.2f} Msamples/s "
+              f"({r / FS:5.2f} x real time)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,118 @@
+"""Sigma-delta resonator device node and observer node through real topics."""
+import array
+import time
+
+import numpy as np
+import pytest
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+
+from diagnostic_msgs.msg import DiagnosticArray
+from mems_estimation.sd_observer_node import SdObserverNode
+from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
+from mems_sim.params import ParameterError
+from mems_sim.qos import FRAME_QOS
+from mems_sim.sd_resonator import SdResonatorDevice
+from mems_sim.sd_resonator_node import SdResonatorNode
+
+
+def _spin_until(ex, predicate, timeout=15.0):
+    deadline = time.monotonic() + timeout
+    while not predicate() and time.monotonic() < deadline:
+        ex.spin_once(timeout_sec=0.02)
+    return predicate()
+
+
+def _params(**kw):
+    return [Parameter(k, value=v) for k, v in kw.items()]
+
+
+@pytest.fixture
+def graph(ros_context):
+    import rclpy
+    ex = SingleThreadedExecutor(context=ros_context)
+    probe = rclpy.create_node("probe", context=ros_context)
+    ex.add_node(probe)
+    yield ros_context, ex, probe
+    ex.shutdown()
+
+
+def test_device_publishes_bits_pulses_truth_and_loop_estimate(graph):
+    ctx, ex, probe = graph
+    dev = SdResonatorNode(context=ctx, drive_externally=True,
+                          parameter_overrides=_params(seed=4, frame_size=500,
+                                                      output_noise_std=0.5))
+    ex.add_node(dev)
+    got = {"adc": [], "drive": [], "truth": [], "loop_estimate": []}
+    for name, typ in (("adc", AdcFrame), ("drive", SignalFrame), ("truth", SignalFrame),
+                      ("loop_estimate", StateEstimate)):
+        probe.create_subscription(typ, f"/resonator/{name}", got[name].append, FRAME_QOS)
+    assert _spin_until(ex, lambda: dev.pub_adc.get_subscription_count() == 1
+                       and dev.pub_estimate.get_subscription_count() == 1)
+    for _ in range(6):
+        dev.step()
+    assert _spin_until(ex, lambda: all(len(v) == 6 for v in got.values()))
+    assert [m.first_sample_index for m in got["adc"]] == list(range(0, 3000, 500))
+    m = got["adc"][0]
+    assert m.bits == 1 and list(m.channel_names) == ["sd_bit"] and m.sample_rate_hz == 1e6
+    bits = np.concatenate([np.asarray(x.codes) for x in got["adc"]])
+    assert set(np.unique(bits)) <= {-1, 1}
+    ref = SdResonatorDevice({"output_noise_std": 0.5}, seed=4).step(3000)
+    np.testing.assert_array_equal(bits, ref.bits)
+    pulses = np.concatenate([np.asarray(x.data) for x in got["drive"]])
+    np.testing.assert_array_equal(pulses, ref.pulses)
+    truth = np.concatenate([np.asarray(x.data).reshape(-1, 3) for x in got["truth"]])
+    np.testing.assert_array_equal(truth[:, 0], ref.position)
+    assert list(got["truth"][0].channel_units) == ["V", "V/s", "Hz"]
+
+
+def test_device_refuses_f0_above_nyquist_and_bad_q(ros_context):
+    with pytest.raises(ParameterError, match="f0_hz"):
+        SdResonatorNode(context=ros_context, drive_externally=True,
+                        parameter_overrides=_params(f0_hz=6e5))
+    with pytest.raises(ParameterError, match="quality_factor"):
+        SdResonatorNode(context=ros_context, drive_externally=True,
+                        parameter_overrides=_params(quality_factor=0.0))
+
+
+def _bit_frame(first, codes, fs=1e6):
+    m = AdcFrame(first_sample_index=first, sample_rate_hz=fs, num_samples=len(codes), bits=1,
+                 channel_names=["sd_bit"], channel_units=["V"])
+    m.lsb, m.offset, m.full_scale = (array.array("d", [v]) for v in (1.0, 0.0, 1.0))
+    m.codes = array.array("i", [int(c) for c in codes])
+    return m
+
+
+def _pulse_frame(first, n, fs=1e6):
+    m = SignalFrame(first_sample_index=first, sample_rate_hz=fs, num_samples=n,
+                    channel_names=["pulse"], channel_units=["V"])
+    m.data = array.array("d", [0.0] * n)
+    return m
+
+
+def test_observer_node_rejects_bad_bit_streams_on_diagnostics(graph):
+    ctx, ex, probe = graph
+    obs = SdObserverNode(context=ctx, parameter_overrides=_params(output_noise_std=0.5))
+    ex.add_node(obs)
+    pub_b = probe.create_publisher(AdcFrame, "/resonator/adc", FRAME_QOS)
+    pub_p = probe.create_publisher(SignalFrame, "/resonator/drive", FRAME_QOS)
+    estimates, diags = [], []
+    probe.create_subscription(StateEstimate, "/resonator/estimate", estimates.append, FRAME_QOS)
+    probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+    assert _spin_until(ex, lambda: pub_b.get_subscription_count() == 1
+                       and pub_p.get_subscription_count() == 1)
+    rng = np.random.default_rng(0)
+    good = rng.choice([-1, 1], size=100)
+    pub_b.publish(_bit_frame(0, good))
+    pub_p.publish(_pulse_frame(0, 100))
+    pub_b.publish(_bit_frame(100, [0, 2] + [1] * 98))     # values other than -1/+1
+    pub_b.publish(_bit_frame(200, good, fs=2e6))            # another sample rate
+    assert _spin_until(ex, lambda: len(estimates) == 1
+                       and obs.diag.counters.get("rejected_frames", 0) == 2)
+    assert estimates[0].num_samples == 100 and np.all(np.isfinite(estimates[0].states))
+    assert any("-1/+1" in w for w in obs.diag.warnings)
+    obs.diag.publish()
+    assert _spin_until(ex, lambda: any(s.name.startswith("sd_observer") and
+                                       {kv.key: kv.value for kv in s.values}
+                                       .get("rejected_frames") == "2"
+                                       for d in diags for s in d.status))
