@@ -15,7 +15,7 @@ from mems_estimation.identify_noise_cli import identify_bag
 from mems_estimation.noise_identifier_node import NoiseIdentifierNode
 from mems_msgs.msg import NoiseModel
 from mems_sim.bag.info import bag_info
-from mems_sim.bag.player import Player, iter_messages
+from mems_sim.bag.player import Player, iter_messages, read_messages
 from mems_sim.scenarios import imu_noise
 from mems_sim.scenarios.base import ScenarioOptions
 
@@ -24,9 +24,15 @@ DATA_TOPICS = ("/imu/adc", "/imu/truth", "/imu/noise_model")
 
 
 def _payloads(path):
+    """Decoded messages per data topic.
+
+    Compared as messages, field by field: the CDR bytes themselves are not
+    reproducible, because Fast CDR leaves alignment padding (after strings, before
+    8-byte fields) uninitialised, so two runs' payloads can differ in those bytes only.
+    """
     out = {t: [] for t in DATA_TOPICS}
-    for m in iter_messages(str(path), DATA_TOPICS):
-        out[m.topic].append(m.data)
+    for topic, _, _, msg in read_messages(str(path), DATA_TOPICS):
+        out[topic].append(msg)
     return out
 
 
