@@ -36,8 +36,17 @@ SAMPLES = 1000
 def stage(rate_hz: float, seconds: float, out: Path, domain: int) -> dict:
     """Publish at ``rate_hz`` for ``seconds`` to a recorder process; return counts."""
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
-    rec = subprocess.Popen([str(Path(sys.executable).parent / "mcap_record"), "-o", str(out), TOPIC],
+    topic = f"{TOPIC}_{os.getpid()}_{int(rate_hz)}"   # no cross-talk with any other recorder
+    rec = subprocess.Popen([str(Path(sys.executable).parent / "mcap_record"), "-o", str(out), topic],
                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        return _publish(rec, topic, rate_hz, seconds, out, domain)
+    finally:
+        if rec.poll() is None:
+            rec.kill()
+
+
+def _publish(rec, topic: str, rate_hz: float, seconds: float, out: Path, domain: int) -> dict:
     ctx = Context()
     rclpy.init(context=ctx, domain_id=domain)
     node = rclpy.create_node("bench_pub", context=ctx)
@@ -45,7 +54,7 @@ def stage(rate_hz: float, seconds: float, out: Path, domain: int) -> dict:
     # so the achieved rate is the recorder's sustained rate and any loss is the recorder's.
     qos = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_ALL,
                      depth=FRAME_QOS.depth)
-    pub = node.create_publisher(SignalFrame, TOPIC, qos)
+    pub = node.create_publisher(SignalFrame, topic, qos)
     deadline = time.monotonic() + 30
     while pub.get_subscription_count() < 1 and time.monotonic() < deadline:
         time.sleep(0.05)
