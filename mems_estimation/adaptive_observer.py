@@ -47,7 +47,7 @@ import math
 import numba
 import numpy as np
 
-from mems_estimation.kalman_observer import (BUSSGANG_GAIN, BUSSGANG_VAR,
+from mems_estimation.kalman_observer import (BUSSGANG_GAIN, BUSSGANG_VAR, cov_predict,
                                              DEFAULT_QUANTIZATION_VAR, _sd_blocks, check_bits)
 from mems_sim.sd_models import resonator_zoh
 
@@ -203,20 +203,7 @@ def _ekf_run(bits, pulses, xp, P, f0i, Qi, fs, wref, Asd, C, G, qv, sb2, sf2, rw
             for j in range(n):
                 acc += J[i, j] * PC[j]
             L[i] = (acc + Mv[i]) / S
-        for i in range(n):
-            for j in range(n):
-                acc = 0.0
-                for m in range(n):
-                    acc += J[i, m] * P[m, j]
-                JP[i, j] = acc
-        for i in range(n):
-            for j in range(i, n):
-                acc = 0.0
-                for m in range(n):
-                    acc += JP[i, m] * J[j, m]
-                val = acc + F[i, j] - L[i] * L[j] * S
-                P[i, j] = val
-                P[j, i] = val
+        cov_predict(P, J, F, L, S, JP)
         if frozen:
             for a in range(6, n):
                 for j in range(n):

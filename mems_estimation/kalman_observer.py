@@ -251,6 +251,15 @@ def kf_predict(xp, P, A, B, F, M, u, nu, S, PC, L, AP, tmp):
         tmp[i] = acc
     for i in range(n):
         xp[i] = tmp[i]
+    cov_predict(P, A, F, L, S, AP)
+
+
+@numba.njit(cache=True)
+def cov_predict(P, A, F, L, S, AP):
+    """Covariance time update with the process/measurement cross term, in place:
+    P <- A P A' + F - L L' S (predictor form of the Kalman filter with correlated noises,
+    Colinet et al. eq. 2 with joint covariance M; L = (A P C' + M)/S). AP is scratch (n, n)."""
+    n = P.shape[0]
     for i in range(n):
         for j in range(n):
             acc = 0.0

@@ -19,7 +19,7 @@ from sensor_msgs.msg import Imu
 from mems_msgs.msg import AdcFrame, SignalFrame
 from mems_sim import imu_noise
 from mems_sim.diagnostics import DiagnosticsReporter
-from mems_sim.node_common import EMULATOR_SPECS, run_node
+from mems_sim.node_common import EMULATOR_SPECS, PacedEmulator, run_node
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.qos import FRAME_QOS
 from mems_sim.ros_frames import index_to_ns, make_adc_frame, make_signal_frame, ns_to_time
@@ -39,7 +39,7 @@ CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 UNITS = ("rad/s",) * 3 + ("m/s^2",) * 3
 
 
-class ImuNoiseNode(Node):
+class ImuNoiseNode(PacedEmulator, Node):
     """Emulated 3-axis gyro + 3-axis accelerometer publishing ADC frames and truth.
 
     Args:
@@ -88,25 +88,7 @@ class ImuNoiseNode(Node):
         if not drive_externally and autostart:
             self.start()
 
-    def start(self) -> None:
-        """Start publishing paced to the wall clock (``realtime_factor``)."""
-        if self._timer is None:
-            period = self.p["frame_size"] / self.fs / self.p["realtime_factor"]
-            self._timer = self.create_timer(min(period, 0.05), self._on_timer)
 
-    @property
-    def finished(self) -> bool:
-        """True once ``duration_s`` worth of samples has been published."""
-        return self.total_samples is not None and self.next_index >= self.total_samples
-
-    def _on_timer(self) -> None:
-        """Publish every frame whose last sample is due at the pacing (catches up on lag)."""
-        now = time.monotonic()
-        if self._wall_start is None:
-            self._wall_start = now
-        due = (now - self._wall_start) * self.p["realtime_factor"] * self.fs
-        while not self.finished and self.next_index + self.p["frame_size"] <= due:
-            self.step()
 
     def _truth(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         p = self.p

@@ -26,6 +26,36 @@ EMULATOR_SPECS: tuple[ParamSpec, ...] = (
 )
 
 
+class PacedEmulator:
+    """Mixin of emulator nodes: wall-clock pacing of ``step()`` and the duration limit.
+
+    The node sets ``self.p`` (with ``frame_size``, ``realtime_factor``), ``self.fs``,
+    ``self.next_index``, ``self.total_samples`` (None: unlimited), ``self._timer = None``
+    and ``self._wall_start = None``, and implements ``step()``.
+    """
+
+    @property
+    def finished(self) -> bool:
+        """True once ``duration_s`` worth of samples has been published."""
+        return self.total_samples is not None and self.next_index >= self.total_samples
+
+    def start(self) -> None:
+        """Start publishing paced to the wall clock (``realtime_factor``)."""
+        if self._timer is None:
+            period = self.p["frame_size"] / self.fs / self.p["realtime_factor"]
+            self._timer = self.create_timer(max(min(period, 0.05), 0.001), self._on_timer)
+
+    def _on_timer(self) -> None:
+        """Publish every frame whose last sample is due at the pacing (catches up on lag)."""
+        import time
+        now = time.monotonic()
+        if self._wall_start is None:
+            self._wall_start = now
+        due = (now - self._wall_start) * self.p["realtime_factor"] * self.fs
+        while not self.finished and self.next_index + self.p["frame_size"] <= due:
+            self.step()
+
+
 def _raise_interrupt(signum, frame):
     raise KeyboardInterrupt
 

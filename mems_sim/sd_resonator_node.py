@@ -19,7 +19,7 @@ from rclpy.node import Node
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim import sd_resonator
 from mems_sim.diagnostics import DiagnosticsReporter
-from mems_sim.node_common import EMULATOR_SPECS, run_node
+from mems_sim.node_common import EMULATOR_SPECS, PacedEmulator, run_node
 from mems_sim.params import ParamSpec
 from mems_sim.qos import FRAME_QOS
 from mems_sim.ros_frames import make_adc_frame, make_signal_frame, make_state_estimate
@@ -34,7 +34,7 @@ TRUTH_CHANNELS = ("position", "velocity", "f0")
 TRUTH_UNITS = ("V", "V/s", "Hz")
 
 
-class SdResonatorNode(Node):
+class SdResonatorNode(PacedEmulator, Node):
     """Emulated resonator + sigma-delta + pulse loop publishing the bit stream and truth.
 
     Args:
@@ -69,24 +69,8 @@ class SdResonatorNode(Node):
         if not drive_externally and autostart:
             self.start()
 
-    @property
-    def finished(self) -> bool:
-        """True once ``duration_s`` worth of samples has been published."""
-        return self.total_samples is not None and self.next_index >= self.total_samples
 
-    def start(self) -> None:
-        """Start publishing paced to the wall clock (``realtime_factor``)."""
-        if self._timer is None:
-            period = self.p["frame_size"] / self.fs / self.p["realtime_factor"]
-            self._timer = self.create_timer(max(min(period, 0.05), 0.001), self._on_timer)
 
-    def _on_timer(self) -> None:
-        now = time.monotonic()
-        if self._wall_start is None:
-            self._wall_start = now
-        due = (now - self._wall_start) * self.p["realtime_factor"] * self.fs
-        while not self.finished and self.next_index + self.p["frame_size"] <= due:
-            self.step()
 
     def step(self) -> int:
         """Run and publish the next frame; return the number of samples (0 when done)."""

@@ -45,3 +45,30 @@ def subprocess_env(domain_id):
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env["ROS_DOMAIN_ID"] = str(domain_id)
     return env
+
+
+def spin_until(executor, predicate, timeout=15.0):
+    """Spin ``executor`` until ``predicate()`` holds or ``timeout`` s pass; return predicate()."""
+    import time
+    deadline = time.monotonic() + timeout
+    while not predicate() and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.02)
+    return predicate()
+
+
+def params(**kw):
+    """rclpy parameter overrides from keyword arguments."""
+    from rclpy.parameter import Parameter
+    return [Parameter(k, value=v) for k, v in kw.items()]
+
+
+@pytest.fixture
+def graph(ros_context):
+    """(context, executor, probe node) for tests that talk to nodes through real topics."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    ex = SingleThreadedExecutor(context=ros_context)
+    probe = rclpy.create_node("probe", context=ros_context)
+    ex.add_node(probe)
+    yield ros_context, ex, probe
+    ex.shutdown()

@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 import pytest
+from conftest import params, spin_until
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
@@ -19,41 +20,26 @@ from mems_sim.qos import FRAME_QOS, RESULT_QOS
 from sensor_msgs.msg import Imu
 
 
-def _spin_until(executor, predicate, timeout=10.0):
-    deadline = time.monotonic() + timeout
-    while not predicate() and time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.02)
-    return predicate()
 
 
-def _params(**kw):
-    return [Parameter(k, value=v) for k, v in kw.items()]
 
 
-@pytest.fixture
-def graph(ros_context):
-    import rclpy
-    ex = SingleThreadedExecutor(context=ros_context)
-    probe = rclpy.create_node("probe", context=ros_context)
-    ex.add_node(probe)
-    yield ros_context, ex, probe
-    ex.shutdown()
 
 
 def test_emulator_publishes_consecutive_frames_truth_and_imu(graph):
     ctx, ex, probe = graph
     emu = ImuNoiseNode(context=ctx, drive_externally=True,
-                       parameter_overrides=_params(seed=3, frame_size=20))
+                       parameter_overrides=params(seed=3, frame_size=20))
     ex.add_node(emu)
     got = {"adc": [], "truth": [], "imu": []}
     probe.create_subscription(AdcFrame, "/imu/adc", got["adc"].append, FRAME_QOS)
     probe.create_subscription(SignalFrame, "/imu/truth", got["truth"].append, FRAME_QOS)
     probe.create_subscription(Imu, "/imu/data", got["imu"].append, FRAME_QOS)
-    assert _spin_until(ex, lambda: emu.pub_adc.get_subscription_count() == 1
+    assert spin_until(ex, lambda: emu.pub_adc.get_subscription_count() == 1
                        and emu.pub_imu.get_subscription_count() == 1)
     for _ in range(5):
         emu.step()
-    assert _spin_until(ex, lambda: len(got["adc"]) == 5 and len(got["imu"]) == 100)
+    assert spin_until(ex, lambda: len(got["adc"]) == 5 and len(got["imu"]) == 100)
     first = [m.first_sample_index for m in got["adc"]]
     assert first == [0, 20, 40, 60, 80]
     m = got["adc"][1]
@@ -80,14 +66,14 @@ def test_emulator_frames_equal_core_model_output(graph):
     """The node adds nothing to the core: its codes are ImuNoiseModel's for the same seed."""
     ctx, ex, probe = graph
     emu = ImuNoiseNode(context=ctx, drive_externally=True,
-                       parameter_overrides=_params(seed=11, frame_size=50, publish_imu=False))
+                       parameter_overrides=params(seed=11, frame_size=50, publish_imu=False))
     ex.add_node(emu)
     got = []
     probe.create_subscription(AdcFrame, "/imu/adc", got.append, FRAME_QOS)
-    assert _spin_until(ex, lambda: emu.pub_adc.get_subscription_count() == 1)
+    assert spin_until(ex, lambda: emu.pub_adc.get_subscription_count() == 1)
     for _ in range(4):
         emu.step()
-    assert _spin_until(ex, lambda: len(got) == 4)
+    assert spin_until(ex, lambda: len(got) == 4)
     codes = np.concatenate([np.asarray(m.codes).reshape(-1, 6) for m in got])
     frame = imu_noise.ImuNoiseModel(seed=11).generate(200)
     np.testing.assert_array_equal(codes, np.hstack([frame.gyro_codes, frame.accel_codes]))
@@ -96,7 +82,7 @@ def test_emulator_frames_equal_core_model_output(graph):
 def test_invalid_parameter_refused_with_name_value_range(ros_context):
     with pytest.raises(ParameterError) as err:
         ImuNoiseNode(context=ros_context, drive_externally=True,
-                     parameter_overrides=_params(gyro_correlation_time=-5.0))
+                     parameter_overrides=params(gyro_correlation_time=-5.0))
     text = str(err.value)
     assert "gyro_correlation_time" in text and "-5.0" in text and "allowed" in text
 
@@ -124,14 +110,14 @@ def _frame(first, n=100, fs=100.0, value=0.0):
 def test_identifier_rejects_malformed_frames_and_counts_gaps(graph):
     ctx, ex, probe = graph
     ident = NoiseIdentifierNode(context=ctx, namespace="imu",
-                                parameter_overrides=_params(min_duration_s=5.0,
+                                parameter_overrides=params(min_duration_s=5.0,
                                                             publish_period_s=0.0))
     ex.add_node(ident)
     pub = probe.create_publisher(AdcFrame, "/imu/adc", FRAME_QOS)
     models, diags = [], []
     probe.create_subscription(NoiseModel, "/imu/noise_model", models.append, RESULT_QOS)
     probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
-    assert _spin_until(ex, lambda: pub.get_subscription_count() == 1)
+    assert spin_until(ex, lambda: pub.get_subscription_count() == 1)
     bad_size = _frame(100)
     bad_size.num_samples = 99                      # 100 codes for 99 samples
     bad_lsb = _frame(100)
@@ -140,16 +126,16 @@ def test_identifier_rejects_malformed_frames_and_counts_gaps(graph):
     frames += [_frame(i * 100) for i in range(11, 20)]  # frame 10 missing: one gap
     for f in frames:
         pub.publish(f)
-    assert _spin_until(ex, lambda: ident.frames_received == len(frames))
+    assert spin_until(ex, lambda: ident.frames_received == len(frames))
     assert ident.diag.counters["rejected_frames"] == 2
     assert ident.diag.counters["gaps"] == 1
     assert ident.acc.tracker.missing_samples == 100
     ident.close()
-    assert _spin_until(ex, lambda: len(models) == 1)
+    assert spin_until(ex, lambda: len(models) == 1)
     assert models[0].final and models[0].num_samples == 1900
     # the counters reach /diagnostics with level WARN
     ident.diag.publish()
-    assert _spin_until(ex, lambda: any(
+    assert spin_until(ex, lambda: any(
         s.name.startswith("noise_identifier") and s.level == b"\x01" or
         s.name.startswith("noise_identifier") and s.level == 1
         for d in diags for s in d.status))

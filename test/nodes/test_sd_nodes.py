@@ -4,6 +4,7 @@ import time
 
 import numpy as np
 import pytest
+from conftest import params, spin_until
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
@@ -16,42 +17,27 @@ from mems_sim.sd_resonator import SdResonatorDevice
 from mems_sim.sd_resonator_node import SdResonatorNode
 
 
-def _spin_until(ex, predicate, timeout=15.0):
-    deadline = time.monotonic() + timeout
-    while not predicate() and time.monotonic() < deadline:
-        ex.spin_once(timeout_sec=0.02)
-    return predicate()
 
 
-def _params(**kw):
-    return [Parameter(k, value=v) for k, v in kw.items()]
 
 
-@pytest.fixture
-def graph(ros_context):
-    import rclpy
-    ex = SingleThreadedExecutor(context=ros_context)
-    probe = rclpy.create_node("probe", context=ros_context)
-    ex.add_node(probe)
-    yield ros_context, ex, probe
-    ex.shutdown()
 
 
 def test_device_publishes_bits_pulses_truth_and_loop_estimate(graph):
     ctx, ex, probe = graph
     dev = SdResonatorNode(context=ctx, drive_externally=True,
-                          parameter_overrides=_params(seed=4, frame_size=500,
+                          parameter_overrides=params(seed=4, frame_size=500,
                                                       output_noise_std=0.5))
     ex.add_node(dev)
     got = {"adc": [], "drive": [], "truth": [], "loop_estimate": []}
     for name, typ in (("adc", AdcFrame), ("drive", SignalFrame), ("truth", SignalFrame),
                       ("loop_estimate", StateEstimate)):
         probe.create_subscription(typ, f"/resonator/{name}", got[name].append, FRAME_QOS)
-    assert _spin_until(ex, lambda: dev.pub_adc.get_subscription_count() == 1
+    assert spin_until(ex, lambda: dev.pub_adc.get_subscription_count() == 1
                        and dev.pub_estimate.get_subscription_count() == 1)
     for _ in range(6):
         dev.step()
-    assert _spin_until(ex, lambda: all(len(v) == 6 for v in got.values()))
+    assert spin_until(ex, lambda: all(len(v) == 6 for v in got.values()))
     assert [m.first_sample_index for m in got["adc"]] == list(range(0, 3000, 500))
     m = got["adc"][0]
     assert m.bits == 1 and list(m.channel_names) == ["sd_bit"] and m.sample_rate_hz == 1e6
@@ -69,10 +55,10 @@ def test_device_publishes_bits_pulses_truth_and_loop_estimate(graph):
 def test_device_refuses_f0_above_nyquist_and_bad_q(ros_context):
     with pytest.raises(ParameterError, match="f0_hz"):
         SdResonatorNode(context=ros_context, drive_externally=True,
-                        parameter_overrides=_params(f0_hz=6e5))
+                        parameter_overrides=params(f0_hz=6e5))
     with pytest.raises(ParameterError, match="quality_factor"):
         SdResonatorNode(context=ros_context, drive_externally=True,
-                        parameter_overrides=_params(quality_factor=0.0))
+                        parameter_overrides=params(quality_factor=0.0))
 
 
 def _bit_frame(first, codes, fs=1e6):
@@ -92,14 +78,14 @@ def _pulse_frame(first, n, fs=1e6):
 
 def test_observer_node_rejects_bad_bit_streams_on_diagnostics(graph):
     ctx, ex, probe = graph
-    obs = SdObserverNode(context=ctx, parameter_overrides=_params(output_noise_std=0.5))
+    obs = SdObserverNode(context=ctx, parameter_overrides=params(output_noise_std=0.5))
     ex.add_node(obs)
     pub_b = probe.create_publisher(AdcFrame, "/resonator/adc", FRAME_QOS)
     pub_p = probe.create_publisher(SignalFrame, "/resonator/drive", FRAME_QOS)
     estimates, diags = [], []
     probe.create_subscription(StateEstimate, "/resonator/estimate", estimates.append, FRAME_QOS)
     probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
-    assert _spin_until(ex, lambda: pub_b.get_subscription_count() == 1
+    assert spin_until(ex, lambda: pub_b.get_subscription_count() == 1
                        and pub_p.get_subscription_count() == 1)
     rng = np.random.default_rng(0)
     good = rng.choice([-1, 1], size=100)
@@ -107,12 +93,12 @@ def test_observer_node_rejects_bad_bit_streams_on_diagnostics(graph):
     pub_p.publish(_pulse_frame(0, 100))
     pub_b.publish(_bit_frame(100, [0, 2] + [1] * 98))     # values other than -1/+1
     pub_b.publish(_bit_frame(200, good, fs=2e6))            # another sample rate
-    assert _spin_until(ex, lambda: len(estimates) == 1
+    assert spin_until(ex, lambda: len(estimates) == 1
                        and obs.diag.counters.get("rejected_frames", 0) == 2)
     assert estimates[0].num_samples == 100 and np.all(np.isfinite(estimates[0].states))
     assert any("-1/+1" in w for w in obs.diag.warnings)
     obs.diag.publish()
-    assert _spin_until(ex, lambda: any(s.name.startswith("sd_observer") and
+    assert spin_until(ex, lambda: any(s.name.startswith("sd_observer") and
                                        {kv.key: kv.value for kv in s.values}
                                        .get("rejected_frames") == "2"
                                        for d in diags for s in d.status))
