@@ -48,6 +48,7 @@ import numba
 import numpy as np
 
 from mems_estimation.kalman_observer import (BUSSGANG_GAIN, BUSSGANG_VAR, cov_predict,
+                                             predicted_output,
                                              DEFAULT_QUANTIZATION_VAR, _sd_blocks, check_bits)
 from mems_sim.sd_models import resonator_zoh
 
@@ -111,16 +112,7 @@ def _ekf_run(bits, pulses, xp, P, f0i, Qi, fs, wref, Asd, C, G, qv, sb2, sf2, rw
                     P[a, j] = 0.0
                     P[j, a] = 0.0
         # ---- update
-        S = G
-        yhat = 0.0
-        for i in range(n):
-            acc = 0.0
-            for j in range(n):
-                acc += P[i, j] * C[j]
-            PC[i] = acc
-            yhat += C[i] * xp[i]
-        for i in range(n):
-            S += C[i] * PC[i]
+        yhat, S = predicted_output(xp, P, C, G, PC)
         nu = bits[k] - yhat
         # innovation monitor: exponential mean of nu^2/S; a jump of f0 (or Q) shows up as
         # a sustained excess -> re-open the parameter covariance (once per window)

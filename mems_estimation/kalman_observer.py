@@ -209,8 +209,8 @@ def check_bits(bits, pulses) -> tuple[np.ndarray, np.ndarray]:
 
 # ----------------------------------------------------------------- numba kernels
 @numba.njit(cache=True)
-def kf_update(xp, P, C, G, Cp, v, xf, PC):
-    """Measurement update at k; fills xf = X(k|k), PC = P C^T; returns (nu, S, pos, pos_var)."""
+def predicted_output(xp, P, C, G, PC):
+    """Predicted bit yhat = C X(k|k-1) and innovation variance S = C P C' + G; fills PC = P C'."""
     n = xp.shape[0]
     S = G
     yhat = 0.0
@@ -222,6 +222,27 @@ def kf_update(xp, P, C, G, Cp, v, xf, PC):
         yhat += C[i] * xp[i]
     for i in range(n):
         S += C[i] * PC[i]
+    return yhat, S
+
+
+@numba.njit(cache=True)
+def state_predict(xp, A, B, L, u, nu, tmp):
+    """Predictor-form state update in place: X <- A X + B u + L nu (tmp is scratch (n,))."""
+    n = xp.shape[0]
+    for i in range(n):
+        acc = B[i] * u + L[i] * nu
+        for j in range(n):
+            acc += A[i, j] * xp[j]
+        tmp[i] = acc
+    for i in range(n):
+        xp[i] = tmp[i]
+
+
+@numba.njit(cache=True)
+def kf_update(xp, P, C, G, Cp, v, xf, PC):
+    """Measurement update at k; fills xf = X(k|k), PC = P C^T; returns (nu, S, pos, pos_var)."""
+    n = xp.shape[0]
+    yhat, S = predicted_output(xp, P, C, G, PC)
     nu = v - yhat
     pos = 0.0
     cpc = 0.0
@@ -244,13 +265,7 @@ def kf_predict(xp, P, A, B, F, M, u, nu, S, PC, L, AP, tmp):
         for j in range(n):
             acc += A[i, j] * PC[j]
         L[i] = (acc + M[i]) / S
-    for i in range(n):
-        acc = B[i] * u + L[i] * nu
-        for j in range(n):
-            acc += A[i, j] * xp[j]
-        tmp[i] = acc
-    for i in range(n):
-        xp[i] = tmp[i]
+    state_predict(xp, A, B, L, u, nu, tmp)
     cov_predict(P, A, F, L, S, AP)
 
 
@@ -311,13 +326,7 @@ def ss_step(xp, A, B, C, L, cpk, v, u, tmp):
     for i in range(n):
         yhat += C[i] * xp[i]
     nu = v - yhat
-    for i in range(n):
-        acc = B[i] * u + L[i] * nu
-        for j in range(n):
-            acc += A[i, j] * xp[j]
-        tmp[i] = acc
-    for i in range(n):
-        xp[i] = tmp[i]
+    state_predict(xp, A, B, L, u, nu, tmp)
     return pos0 + cpk * nu
 
 

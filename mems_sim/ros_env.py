@@ -8,6 +8,7 @@ interpreter prefix, where the PyPI ROS 2 wheels install their ament index, so
 that message definitions are found without sourcing a setup script.
 """
 import os
+import signal
 import sys
 
 
@@ -16,3 +17,18 @@ def apply_defaults() -> None:
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     if not os.environ.get("AMENT_PREFIX_PATH"):
         os.environ["AMENT_PREFIX_PATH"] = sys.prefix
+
+
+def install_stop_request() -> tuple[dict, dict]:
+    """Turn SIGINT/SIGTERM into a flag (``stop["flag"]``) that a main loop polls.
+
+    Returns:
+        (stop, previous handlers); restore with ``signal.signal(sig, h)`` for each item.
+    """
+    stop = {"flag": False}
+
+    def request_stop(signum, _frame):
+        stop["flag"] = True
+
+    previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    return stop, previous

@@ -26,7 +26,7 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 
-from ..ros_env import apply_defaults
+from ..ros_env import apply_defaults, install_stop_request
 
 
 class BagReadError(Exception):
@@ -371,13 +371,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     from rclpy.signals import SignalHandlerOptions
     from rosgraph_msgs.msg import Clock
 
-    stop = {"flag": False}
-
-    def request_stop(signum, _frame):
-        stop["flag"] = True
-
     rclpy.init(args=["mcap_play"] + argv, signal_handler_options=SignalHandlerOptions.NO)
-    previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    stop, previous = install_stop_request()
     node = None
     try:
         node = Node("mcap_player")

@@ -29,7 +29,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile,
                        ReliabilityPolicy)
 
 from ..qos import FRAME_DEPTH
-from ..ros_env import apply_defaults
+from ..ros_env import apply_defaults, install_stop_request
 from .schema import (SchemaError, has_header, message_class,
                      normalize_type_name, peek_header_stamp_ns,
                      qos_profiles_yaml, schema_text, type_hash)
@@ -285,13 +285,8 @@ def main(argv: Optional[List[str]] = None) -> int:
         print(f"mcap_record: error: output directory {out_dir} does not exist", file=sys.stderr)
         return 2
 
-    stop = {"flag": False}
-
-    def request_stop(signum, _frame):
-        stop["flag"] = True
-
     rclpy.init(args=["mcap_record"] + argv, signal_handler_options=SignalHandlerOptions.NO)
-    previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    stop, previous = install_stop_request()
     recorder = None
     try:
         recorder = RecorderNode(args.output, topics=args.topics, all_topics=args.all,
