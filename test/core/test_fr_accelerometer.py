@@ -1,0 +1,200 @@
+"""Force-rebalance accelerometer core (Zhang 2010): physics against the thesis's equations
+and numbers, the three controller modes, bad input."""
+import math
+
+import numpy as np
+import pytest
+
+from mems_estimation.signal_metrics import coherent_snr_db
+from mems_sim import fr_accelerometer as fra
+from mems_sim.params import ParameterError
+
+G = fra.G0
+P = fra.validate_params({})
+SKIP = 20_000            # 20 ms start-up at 1 MHz
+N = 120_000              # 0.12 s: start-up + one 10 Hz period
+
+
+def run(mode, amp_g, seed=1, n=N, **kw):
+    d = fra.ForceRebalanceAccelerometer(dict(mode=mode, accel_amplitude=amp_g * G, **kw),
+                                        seed=seed)
+    return d, d.step(n)
+
+
+def output(d, f):
+    """The device's acceleration output: readout voltage (open loop) or v_F (closed loops)."""
+    return f.code * d.lsb if d.p["mode"] == "open_loop" else f.v_f
+
+
+def snr(d, f):
+    t = np.arange(f.x.size) / d.fs
+    return coherent_snr_db(output(d, f)[SKIP:], t[SKIP:], d.p["accel_frequency"])
+
+
+def test_table1_derived_numbers():
+    """omega_n = 2.81e4 rad/s and the eigenvalues of A (5-1): -4.39e3, -1.798e5 (eq. 5-4)."""
+    m, k, b = P["mass"], P["stiffness"], P["damping"]
+    assert math.sqrt(k / m) == pytest.approx(2.81e4, rel=2e-3)
+    eig = np.sort(np.linalg.eigvals(np.array([[0, 1], [-k / m, -b / m]])).real)
+    assert eig[1] == pytest.approx(-4.39e3, rel=2e-3)
+    assert eig[0] == pytest.approx(-1.798e5, rel=2e-3)
+
+
+def test_readout_is_eq_2_9_and_linearises_to_2_10():
+    h = fra.readout_gain(P)
+    assert h == pytest.approx(2 * fra.EPS0 * 4 * 1.86e-6 * 0.6 / (20e-12 * 2.3e-6 ** 2))
+    x = 1e-10
+    assert fra.readout_voltage(x, P) == pytest.approx(-h * x, rel=1e-8)
+    x = 0.3 * P["gap"]
+    assert fra.readout_voltage(x, P) == pytest.approx(-h * x / (1 - 0.09), rel=1e-12)
+
+
+def test_electrostatic_force_forms():
+    """(2-12) with v_F = V_B = 0; small-signal (2-16) with the factor 2 on the bias terms."""
+    ea, d0, v1 = fra.eps_area(P), P["gap"], P["carrier_amplitude"]
+    x = 0.2 * d0
+    f212 = ea * v1 ** 2 / 4 * (1 / (d0 - x) ** 2 - 1 / (d0 + x) ** 2)  # <sin^2> = 1/2
+    assert fra.electrostatic_force(x, 0.0, 0.0, P) == pytest.approx(f212, rel=1e-12)
+    vb, vf, x = 0.17, 0.01, 1e-11
+    lin = -2 * ea * vb * vf / d0 ** 2 + ea * x * (v1 ** 2 + 2 * vb ** 2 + 2 * vf ** 2) / d0 ** 3
+    assert fra.electrostatic_force(x, vf, vb, P) == pytest.approx(lin, rel=1e-6)
+    # a positive v_F pushes the mass to negative x (sign convention of the module)
+    assert fra.electrostatic_force(0.0, 0.01, vb, P) < 0
+
+
+def test_bias_voltage_eq_2_18_balances_half_range_at_half_bias():
+    vb = fra.bias_voltage(P)
+    assert vb == pytest.approx(math.sqrt(P["mass"] * 10 * G * P["gap"] ** 2 / fra.eps_area(P)))
+    # (2-17) at v_F = V_B / 2 balances the full 10 g range
+    f = 2 * fra.eps_area(P) * vb * (vb / 2) / P["gap"] ** 2
+    assert f == pytest.approx(P["mass"] * 10 * G, rel=1e-12)
+
+
+def test_squeeze_film_damping_is_even_and_table1_at_rest():
+    x = np.array([-0.3, -0.1, 0.0, 0.1, 0.3]) * P["gap"]
+    b = fra.damping(x, P)
+    assert b[2] == pytest.approx(P["damping"])
+    np.testing.assert_allclose(b, b[::-1])
+    assert b[0] > b[1] > b[2]
+
+
+@pytest.mark.parametrize("name,value", [("mass", 0.0), ("gap", -1e-6), ("stiffness", 0.0),
+                                        ("sample_rate_hz", 1e3), ("mode", "bang_bang")])
+def test_invalid_physical_parameters_refused(name, value):
+    with pytest.raises(ParameterError, match=name):
+        fra.ForceRebalanceAccelerometer({name: value})
+
+
+def test_profile_file_missing_or_bad(tmp_path):
+    with pytest.raises(ParameterError, match="profile_file"):
+        fra.validate_params({"profile": "file"})
+    bad = tmp_path / "p.csv"
+    bad.write_text("0, 1\n0, 2\n")
+    with pytest.raises(ParameterError, match="increase"):
+        fra.ForceRebalanceAccelerometer({"profile": "file", "profile_file": str(bad)})
+
+
+def test_input_profiles(tmp_path):
+    f = tmp_path / "a.csv"
+    f.write_text("# t, a\n0, 0\n1e-3, 9.8\n2e-3, 9.8\n")
+    d = fra.ForceRebalanceAccelerometer({"profile": "file", "profile_file": str(f)})
+    np.testing.assert_allclose(d.input_at(np.array([0.0, 5e-4, 1.5e-3, 5.0])),
+                               [0.0, 4.9, 9.8, 9.8])
+    d = fra.ForceRebalanceAccelerometer({"profile": "step", "step_time": 1e-3,
+                                         "accel_amplitude": 2.0})
+    np.testing.assert_array_equal(d.input_at(np.array([0.0, 0.999e-3, 1e-3])), [0, 0, 2.0])
+    d = fra.ForceRebalanceAccelerometer({"profile": "chirp", "accel_frequency": 10.0,
+                                         "chirp_end_frequency": 30.0, "chirp_duration": 1.0})
+    t = np.linspace(0, 1, 200001)
+    a = d.input_at(t)
+    # linear sweep: the instantaneous frequency at mid-sweep is 20 Hz (zero-crossing spacing)
+    zc = t[np.flatnonzero(np.diff(np.sign(a)) != 0)]
+    mid = zc[np.argmin(np.abs(zc - 0.5)) + np.array([-1, 0, 1])]
+    assert 1 / (2 * np.diff(mid).mean()) == pytest.approx(20.0, rel=0.01)
+
+
+def test_blocks_are_seamless():
+    """Ten blocks of 1000 samples equal one block of 10000 (state and noise carried over)."""
+    a = fra.ForceRebalanceAccelerometer({"mode": "ekf_rebalance"}, seed=3)
+    b = fra.ForceRebalanceAccelerometer({"mode": "ekf_rebalance"}, seed=3)
+    one = a.step(10_000)
+    parts = [b.step(1000) for _ in range(10)]
+    np.testing.assert_array_equal(one.code, np.concatenate([p.code for p in parts]))
+    np.testing.assert_array_equal(one.x, np.concatenate([p.x for p in parts]))
+    np.testing.assert_array_equal(one.estimate, np.concatenate([p.estimate for p in parts]))
+
+
+def test_plant_integration_converges():
+    """Noise-free static response: RK4 with 4 substeps agrees with 32 to 1e-9 relative and
+    settles to the nonlinear static equilibrium k x - F_el(x) = m a."""
+    kw = dict(profile="step", accel_amplitude=G, brownian_accel_std=0.0,
+              electronic_accel_std=0.0, mode="open_loop")
+    d4 = fra.ForceRebalanceAccelerometer(dict(kw, substeps=4))
+    d32 = fra.ForceRebalanceAccelerometer(dict(kw, substeps=32))
+    x4, x32 = d4.step(20_000).x, d32.step(20_000).x
+    assert np.max(np.abs(x4 - x32)) <= 1e-9 * np.max(np.abs(x32))
+    xs = np.linspace(0, 1e-7, 100001)
+    x_eq = xs[np.argmin(np.abs(fra.static_acceleration(xs, P) - G))]
+    assert x4[-1] == pytest.approx(x_eq, rel=1e-4)
+
+
+def test_open_loop_pull_in_from_the_physics():
+    """The open loop has no static equilibrium above a_pi (eq. 2-12 softening); a sinusoid
+    beyond it drives the mass to the stop (contact), one below does not."""
+    a_pi, x_pi = fra.pull_in_acceleration(P)
+    assert 11 * G < a_pi < 13.5 * G          # 12.2 g with Table I
+    assert 0.2 < x_pi / P["gap"] < 0.33
+    _, f = run("open_loop", a_pi / G * 1.2, n=60_000)
+    assert f.contact.any()
+    _, f = run("open_loop", 1.0)
+    assert not f.contact.any()
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "Issue 4 asks the open loop to fail at 5 g (thesis Table III). With Table I's parameters "
+    "and the carrier force (2-12) the open loop's static pull-in is at 12.2 g: a 10 Hz, 5 g "
+    "input is tracked with max displacement 1.8e-7 m = 0.08 d0, no contact. The thesis's "
+    "7e-8 m at 1 g implies a softer loop (0.53 N/m instead of 1.05 N/m) than its own "
+    "Table I gives."))
+def test_open_loop_fails_at_5g_as_in_table_iii():
+    _, f = run("open_loop", 5.0)
+    assert f.contact.any()
+
+
+@pytest.fixture(scope="module")
+def table3():
+    """Seeded Table III runs: (amplitude g, mode) -> (device, frame)."""
+    return {(a, m): run(m, a) for a in (0.1, 1.0, 10.0) for m in fra.MODES}
+
+
+def test_closed_loops_track_10g_without_contact_and_shrink_displacement(table3):
+    for mode in ("pi_rebalance", "ekf_rebalance"):
+        d, f = table3[(10.0, mode)]
+        assert not f.contact.any() and not f.saturated.any()
+        assert snr(d, f) > 25
+        for amp in (0.1, 1.0, 10.0):
+            x_open = np.abs(table3[(amp, "open_loop")][1].x).max()
+            assert np.abs(table3[(amp, mode)][1].x).max() * 10 <= x_open
+
+
+def test_ekf_loop_beats_pi_loop_by_6db_with_the_same_displacement(table3):
+    for amp in (0.1, 1.0):
+        pi = snr(*table3[(amp, "pi_rebalance")])
+        ekf = snr(*table3[(amp, "ekf_rebalance")])
+        assert ekf >= pi + 6.0, (amp, pi, ekf)
+        x_pi = np.abs(table3[(amp, "pi_rebalance")][1].x).max()
+        x_ekf = np.abs(table3[(amp, "ekf_rebalance")][1].x).max()
+        assert x_ekf <= 1.1 * x_pi
+
+
+def test_pi_loop_is_noisier_than_open_loop(table3):
+    """Chapter 3's finding (3-13 vs 3-17): the PI loop's SNR is below the open loop's."""
+    for amp in (0.1, 1.0):
+        assert snr(*table3[(amp, "pi_rebalance")]) < snr(*table3[(amp, "open_loop")]) - 10
+
+
+def test_over_range_input_is_flagged_not_clipped():
+    """50 g against a 10 g range: the feedback saturates and that is reported per sample."""
+    d, f = run("pi_rebalance", 50.0, n=60_000)
+    assert f.saturated.any()
+    assert np.abs(f.v_f).max() == pytest.approx(d.v_b)
