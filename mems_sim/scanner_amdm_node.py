@@ -1,0 +1,111 @@
+"""ROS 2 node of the chapter-5 micro-scanner with shared electrodes and the AMDM read-out
+(thin wrapper of :mod:`mems_sim.scanner_amdm`; Chen 2018 ch. 5).
+
+Topics (relative to the namespace, default ``/scanner_amdm``):
+    ``adc``    mems_msgs/AdcFrame     y_cap codes of the AMDM output (16 bit, +-10 V), decimated
+    ``drive``  mems_msgs/SignalFrame  v_drive [V] (the unipolar drive V_dr at the output instants),
+                                      f_drive [Hz]
+    ``truth``  mems_msgs/SignalFrame  theta [rad], omega [rad/s] at the output instants
+    ``/diagnostics``
+Parameters: ``mems_sim.scanner_amdm.AMDM_SPECS`` and ``EMULATOR_SPECS``; the envelope delay of
+the chain (``chain_delay_s`` of the estimator) is logged at start and published on /diagnostics.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from rclpy.node import Node
+
+from mems_msgs.msg import AdcFrame, SignalFrame
+from mems_sim import scanner_amdm
+from mems_sim.diagnostics import DiagnosticsReporter
+from mems_sim.node_common import EMULATOR_SPECS, PacedEmulator, run_node
+from mems_sim.params import ParamSpec
+from mems_sim.qos import FRAME_QOS
+from mems_sim.ros_frames import make_adc_frame, make_signal_frame
+from mems_sim.ros_params import declare_specs
+
+NODE_SPECS: tuple[ParamSpec, ...] = tuple(
+    ParamSpec(s.name, {"frame_size": 1000, "frame_id": "scanner"}.get(s.name, s.default),
+              s.unit, s.description, s.source, s.min, s.max, s.min_exclusive, s.choices)
+    for s in EMULATOR_SPECS)
+
+ADC_CHANNEL = "y_cap"
+DRIVE_CHANNELS = ("v_drive", "f_drive")
+DRIVE_UNITS = ("V", "Hz")
+TRUTH_CHANNELS = ("theta", "omega")
+TRUTH_UNITS = ("rad", "rad/s")
+
+
+class ScannerAmdmNode(PacedEmulator, Node):
+    """Emulated shared-electrode scanner + AMDM chain publishing ADC, drive and truth frames.
+
+    Args:
+        drive_externally: no timer; the owner calls :meth:`step` (scenario runner).
+        autostart: start the wall-clock timer at once (else call :meth:`start`).
+    """
+
+    def __init__(self, *, drive_externally: bool = False, autostart: bool = True,
+                 **node_kwargs) -> None:
+        node_kwargs.setdefault("namespace", "scanner_amdm")
+        super().__init__("scanner_amdm", **node_kwargs)
+        self.p = declare_specs(self, scanner_amdm.AMDM_SPECS + NODE_SPECS)
+        device = {s.name: self.p[s.name] for s in scanner_amdm.AMDM_SPECS}
+        self.device = scanner_amdm.AmdmScannerDevice(device, seed=self.p["seed"])
+        self.fs = self.device.fs
+        self.t0_ns = 0 if self.p["stamp_origin"] == "zero" else time.time_ns()
+        self.total_samples = (int(round(self.p["duration_s"] * self.fs))
+                              if self.p["duration_s"] > 0 else None)
+        self.next_index = 0
+        self.frames_published = 0
+        self.pub_adc = self.create_publisher(AdcFrame, "adc", FRAME_QOS)
+        self.pub_drive = self.create_publisher(SignalFrame, "drive", FRAME_QOS)
+        self.pub_truth = self.create_publisher(SignalFrame, "truth", FRAME_QOS)
+        self.diag = DiagnosticsReporter(self, f"{self.get_name()}: shared-electrode scanner (AMDM)",
+                                        hardware_id=self.get_fully_qualified_name())
+        self.diag.counters["chain_delay_s"] = f"{self.device.delay:.6e}"
+        self.get_logger().info(f"AMDM chain envelope delay {self.device.delay * 1e6:.4f} us "
+                               f"(estimator parameter chain_delay_s)")
+        self._timer = None
+        self._wall_start = None
+        if not drive_externally and autostart:
+            self.start()
+
+    def step(self) -> int:
+        """Simulate and publish the next frame; return the number of samples (0 when done)."""
+        n = self.p["frame_size"]
+        if self.total_samples is not None:
+            n = min(n, self.total_samples - self.next_index)
+        if n <= 0:
+            return 0
+        first = self.next_index
+        f = self.device.step(n)
+        fs_ = self.p["adc_full_scale"]
+        common = dict(frame_id=self.p["frame_id"], t0_ns=self.t0_ns)
+        self.pub_adc.publish(make_adc_frame(
+            f.codes.reshape(n, 1), first, self.fs, bits=self.p["adc_bits"],
+            channel_names=(ADC_CHANNEL,), channel_units=("V",), lsb=(self.device.lsb,),
+            full_scale=(fs_,), saturated_count=f.saturated, **common))
+        self.pub_drive.publish(make_signal_frame(
+            np.column_stack([f.drive, f.drive_freq]), first, self.fs,
+            channel_names=DRIVE_CHANNELS, channel_units=DRIVE_UNITS, **common))
+        self.pub_truth.publish(make_signal_frame(
+            np.column_stack([f.theta, f.omega]), first, self.fs,
+            channel_names=TRUTH_CHANNELS, channel_units=TRUTH_UNITS, **common))
+        self.diag.count("frames")
+        if f.saturated:
+            self.diag.count("saturated_samples", f.saturated)
+            self.diag.warn(f"ADC saturated on {f.saturated} samples of frame {first}")
+        self.next_index += n
+        self.frames_published += 1
+        return n
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point ``scanner_amdm_node``."""
+    return run_node(ScannerAmdmNode, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
