@@ -64,6 +64,8 @@ class ScannerAmdmEstimatorNode(Node):
                                                  FRAME_QOS) for k in KINDS}
         self.event_rate = 2.0 * math.sqrt(p["spring_constant"] / p["inertia"]) / (2 * math.pi)
         self.events_published = {k: 0 for k in KINDS}
+        self.event_msgs = {k: 0 for k in KINDS}
+        self._low_warned = False
         self._adc: dict[int, tuple[np.ndarray, int]] = {}
         self._drv: dict[int, np.ndarray] = {}
         self.tracker = IndexTracker()
@@ -167,6 +169,7 @@ class ScannerAmdmEstimatorNode(Node):
                 em.header.stamp.sec, em.header.stamp.nanosec = divmod(max(t_ns, 0), 10**9)
                 self.pub_evt[k].publish(em)
                 self.events_published[k] += int(ev.t.size)
+                self.event_msgs[k] += 1
             f = self.filters[k]
             self.diag.counters[f"{k}_tracking"] = str(f.tracking)
             self.diag.counters[f"{k}_pd_failures"] = f.pd_failures
@@ -174,9 +177,12 @@ class ScannerAmdmEstimatorNode(Node):
             self.diag.counters[f"{k}_extrema"] = self.events_published[k]
         snr = su.ac_snr(y, self.est_params["output_noise_var"])
         self.diag.counters["ac_snr"] = f"{snr:.3g}"
-        if not any(f.tracking for f in self.filters.values()):
+        if any(f.tracking for f in self.filters.values()):
+            self._low_warned = False
+        else:
             self.diag.count("low_signal_frames")
-            if self.filters["ekf"].samples >= self.filters["ekf"].window:
+            if self.filters["ekf"].samples >= self.filters["ekf"].window and not self._low_warned:
+                self._low_warned = True       # logged once per loss of motion, counted always
                 self.diag.warn("low signal: no motion observable on the AMDM output (AC SNR "
                                f"< acquire_snr {self.est_params['acquire_snr']}, see ac_snr); "
                                "drive far from parametric resonance? estimates held at 0")
