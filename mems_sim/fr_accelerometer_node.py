@@ -90,9 +90,10 @@ class FrAccelerometerNode(PacedEmulator, Node):
         for key, mask, text in checks:
             k = int(np.count_nonzero(mask))
             if k:
+                if key not in self.diag.counters:   # warn once per kind; then count
+                    i = first + int(np.argmax(mask))
+                    self.diag.warn(f"{text} (first at sample {i}, t = {i / self.fs:.6f} s)")
                 self.diag.count(key, k)
-                i = first + int(np.argmax(mask))
-                self.diag.warn(f"{text} (first at sample {i}, t = {i / self.fs:.6f} s)")
 
     def step(self) -> int:
         """Run and publish the next frame; return the number of samples (0 when done)."""

@@ -1,0 +1,58 @@
+"""End-to-end: scenario accelerometer_snr through the node graph, figures from its MCAP
+(issue 4, Zhang 2010 Tables III and IV)."""
+import pytest
+
+from mems_sim.scenarios import accelerometer_snr as sc
+from mems_sim.scenarios.base import ScenarioOptions
+
+
+@pytest.fixture(scope="module")
+def result(tmp_path_factory):
+    from conftest import next_domain_id
+    out = tmp_path_factory.mktemp("acc") / "accelerometer_snr-2.mcap"
+    return sc.run(ScenarioOptions(seed=2, out=out, domain_id=next_domain_id(), progress=False))
+
+
+def _check(result, prefix):
+    found = [c for c in result["figures"]["checks"] if c[0].startswith(prefix)]
+    assert found, prefix
+    return found
+
+
+def test_recording_complete(result):
+    counts = result["recorder"]["counts"]
+    for ns, n in result["published"].items():
+        for topic in ("adc", "drive", "truth"):
+            assert counts[f"/{ns}/{topic}"] == n == 12
+    assert counts["/acc_pi_1g/hybrid_ekf/estimate"] == 12
+    assert all(g == 0 for g in result["recorder"]["gaps"].values())
+    assert result["figure"].stat().st_size > 20_000
+
+
+def test_table_iii(result):
+    print("\n" + result["table"])
+    dev = result["figures"]["devices"]
+    assert not dev["acc_open_0g1"]["contact"] and not dev["acc_open_1g"]["contact"]
+    assert dev["acc_open_15g"]["contact"]                 # above the open loop's pull-in
+    for m in ("pi", "ekf"):
+        assert not dev[f"acc_{m}_10g"]["contact"] and not dev[f"acc_{m}_10g"]["saturated"]
+        for a in ("0g1", "1g", "10g"):
+            assert dev[f"acc_{m}_{a}"]["x_max"] * 10 <= dev[f"acc_open_{a}"]["x_max"]
+    for a in ("0g1", "1g"):
+        assert dev[f"acc_ekf_{a}"]["snr"] >= dev[f"acc_pi_{a}"]["snr"] + 6.0
+        assert dev[f"acc_ekf_{a}"]["x_max"] <= 1.1 * dev[f"acc_pi_{a}"]["x_max"]
+
+
+def test_table_iv_and_consistency(result):
+    for item in ("Q/R sweep", "covariance positive definite", "in-loop EKF, 1 g",
+                 "downstream EKF on the PI loop"):
+        for c in _check(result, item):
+            assert c[4], c
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "issue 4 asks the open loop to fail at 5 g (thesis Table III); with Table I and the "
+    "carrier force (2-12) the static pull-in is at 12.2 g and the 10 Hz, 5 g input is tracked "
+    "(max |x| 1.8e-7 m, no contact); see test_fr_accelerometer.py"))
+def test_open_loop_fails_at_5g(result):
+    assert result["figures"]["devices"]["acc_open_5g"]["contact"]
