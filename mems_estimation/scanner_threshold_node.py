@@ -13,9 +13,10 @@ Publishes (estimates are *final*: they lag the input by the filter's ``lag`` sam
 ``first_sample_index`` says which samples they are):
     ``<device>/estimate``              StateEstimate "hybrid_ekf": theta [rad], omega [rad/s]
     ``<device>/estimate_plain``        StateEstimate "ekf" (if run_plain)
-    ``<device>/threshold_detections``  SignalFrame used as an event list: one row per detection,
-        channels sample_index, arrival_index, delta [samples], response [V/sample],
-        timing_var [samples^2]; first_sample_index = first sample of the input frame
+    ``<device>/threshold_detections``  SignalFrame aligned with the input frames (one row per
+        input sample k = arrival): channels ref_index (the sample the detection issued at k
+        refers to, -1 if none), delta [samples] (sub-sample offset), timing_var [samples^2]
+        (eq. (65) estimate); zeros where ref_index = -1
     ``/diagnostics``  frames, rejected frames, gaps, detections applied/gated, the running
         SNR of y_cap and a WARN "low signal" when it is below ``low_snr`` (no motion).
 """
@@ -47,8 +48,27 @@ _DET_SPECS = tuple(s for s in DETECTOR_SPECS if s.name != "noise_std")
 
 STATE_NAMES = ("theta", "omega")
 STATE_UNITS = ("rad", "rad/s")
-DET_CHANNELS = ("sample_index", "arrival_index", "delta", "response", "timing_var")
-DET_UNITS = ("-", "-", "samples", "V/sample", "samples^2")
+DET_CHANNELS = ("ref_index", "delta", "timing_var")
+DET_UNITS = ("-", "samples", "samples^2")
+
+
+def detection_rows(det, first: int, n: int) -> np.ndarray:
+    """(n, 3) per-arrival-sample rows [ref_index or -1, delta, timing_var] of a frame."""
+    rows = np.zeros((n, 3))
+    rows[:, 0] = -1.0
+    k = np.asarray(det.arrival, dtype=np.int64) - first
+    rows[k, 0] = det.index
+    rows[k, 1] = det.delta
+    rows[k, 2] = det.timing_var
+    return rows
+
+
+def detections_from_rows(rows: np.ndarray, first: int):
+    """Inverse of :func:`detection_rows` over a concatenated record starting at ``first``."""
+    from mems_estimation.threshold_detector import Detections
+    k = np.flatnonzero(rows[:, 0] >= 0)
+    return Detections(rows[k, 0].astype(np.int64), (k + first).astype(np.int64), rows[k, 1],
+                      np.zeros(k.size), rows[k, 2])
 
 
 class _Pairer:
@@ -173,13 +193,10 @@ class ScannerThresholdNode(Node):
             if self.plain is not None:
                 f2, x2, P2, _ = self.plain.process(y, v)
                 self._publish(self.pub_plain, "ekf", f2, x2, P2)
+            self.pub_det.publish(make_signal_frame(detection_rows(det, first, y.size), first,
+                                                   self.fs, channel_names=DET_CHANNELS,
+                                                   channel_units=DET_UNITS, frame_id="scanner"))
             if det.index.size:
-                rows = np.column_stack([det.index, det.arrival, det.delta, det.response,
-                                        det.timing_var]).astype(float)
-                self.pub_det.publish(make_signal_frame(rows, first, self.fs,
-                                                       channel_names=DET_CHANNELS,
-                                                       channel_units=DET_UNITS,
-                                                       frame_id="scanner"))
                 self.diag.count("detections", int(det.index.size))
             c = self.hybrid.counts
             for key in ("applied", "gated", "too_late"):
@@ -188,6 +205,25 @@ class ScannerThresholdNode(Node):
                 self.diag.warn("covariance lost positive definiteness")
             self.frames_done += 1
             self.diag.count("frames")
+
+    def flush(self) -> None:
+        """Publish the last ``lag`` final estimates (end of the input stream)."""
+        if self.hybrid.next_index == 0:
+            return
+        f, x, P = self.hybrid.flush()
+        self._publish(self.pub_hyb, "hybrid_ekf", f, x, P)
+        if self.plain is not None:
+            f2, x2, P2 = self.plain.flush()
+            self._publish(self.pub_plain, "ekf", f2, x2, P2)
+        self.flushed = True
+
+    def close(self) -> None:
+        """On shutdown: publish the pending estimates."""
+        if not getattr(self, "flushed", False):
+            try:
+                self.flush()
+            except Exception:  # noqa: BLE001 - context may already be shutting down
+                pass
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -7,6 +7,7 @@ SCENARIOS = {
     "imu_noise": "mems_sim.scenarios.imu_noise",
     "sd_resonator": "mems_sim.scenarios.sd_resonator",
     "scanner_shared_electrodes": "mems_sim.scenarios.scanner_shared_electrodes",
+    "scanner_threshold": "mems_sim.scenarios.scanner_threshold",
     "accelerometer_snr": "mems_sim.scenarios.accelerometer_snr",
 }
 

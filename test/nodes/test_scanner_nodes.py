@@ -6,7 +6,7 @@ import pytest
 from conftest import params, spin_until
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from mems_estimation.scanner_threshold_node import ScannerThresholdNode
+from mems_estimation.scanner_threshold_node import ScannerThresholdNode, detections_from_rows
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.micro_scanner import MicroScannerDevice
 from mems_sim.micro_scanner_node import MicroScannerNode, quantize
@@ -69,7 +69,8 @@ def test_threshold_node_tracks_through_topics(graph):
         dev.step()
         ex.spin_once(timeout_sec=0.0)
     assert spin_until(ex, lambda: est.frames_done == n_frames and len(got["estimate"]) == n_frames
-                       and len(got["truth"]) == n_frames, timeout=30)
+                       and len(got["truth"]) == n_frames
+                       and len(got["threshold_detections"]) == n_frames, timeout=30)
     firsts = [m.first_sample_index for m in got["estimate"]]
     lag = est.hybrid.lag
     assert firsts[0] == 0 and firsts[1] == 1000 - lag         # final estimates lag by `lag`
@@ -80,9 +81,12 @@ def test_threshold_node_tracks_through_topics(graph):
     assert n == n_frames * 1000 - lag
     err = x[5000:, 0] - truth[5000:n, 0]
     assert np.sqrt(np.mean(err ** 2)) < 0.01 and np.all(var > 0)
-    det = np.concatenate([np.asarray(m.data).reshape(-1, 5) for m in got["threshold_detections"]])
-    assert det.shape[0] > 20
-    np.testing.assert_array_equal(det[:, 1] - det[:, 0], est.detector.latency)
+    assert len(got["threshold_detections"]) == n_frames
+    rows = np.concatenate([np.asarray(m.data).reshape(-1, 3)
+                           for m in got["threshold_detections"]])
+    D = detections_from_rows(rows, 0)
+    assert D.index.size > 20
+    np.testing.assert_array_equal(D.arrival - D.index, est.detector.latency)
     assert est.diag.counters["detections_applied"] > 10
     assert not est.low_signal
 
