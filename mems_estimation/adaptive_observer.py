@@ -39,6 +39,10 @@ Recursion per sample (a-priori form with the cross term, J = df/dX at X(k|k)):
 
     S = C P C' + G,  nu = v(k) - C Xp,  X(k|k) = Xp + P C'/S nu
     Xp <- f(X(k|k), u(k)) + M nu / S,   L = (J P C' + M)/S,   P <- J P J' + F(k) - L L' S
+
+f includes the exact pulse term of sub-sample pulses (fired at s T, width w T) at the
+current f0 estimate, :func:`mems_sim.sd_models.interval_input`; its f0 (and Q) derivative
+enters J by the same central difference.
 """
 from __future__ import annotations
 
@@ -48,9 +52,9 @@ import numba
 import numpy as np
 
 from mems_estimation.kalman_observer import (BUSSGANG_GAIN, BUSSGANG_VAR, cov_predict,
-                                             predicted_output,
+                                             predicted_output, check_pulse_timing,
                                              DEFAULT_QUANTIZATION_VAR, _sd_blocks, check_bits)
-from mems_sim.sd_models import resonator_zoh
+from mems_sim.sd_models import interval_input, next_spill, resonator_zoh
 
 __all__ = ["AdaptiveObserver"]
 
@@ -70,7 +74,18 @@ def _res_scaled(f0, Q, fs, wref, out, z):
 
 
 @numba.njit(cache=True)
-def _ekf_run(bits, pulses, xp, P, f0i, Qi, fs, wref, Asd, C, G, qv, sb2, sf2, rw2, rq2,
+def _pulse_scaled(f0, Q, fs, wref, r, spill, u, s, w, out, z, g):
+    """Scaled exact pulse term of the interval (see mems_sim.sd_models.interval_input) at
+    the model (f0, Q); r: scaled transition from :func:`_res_scaled` (for Gam(T))."""
+    g[0] = r[4]
+    g[1] = r[5] * wref
+    g[2] = -1.0                        # no width cache: f0 changes every call
+    interval_input(f0, Q, fs, g[0:2], spill[0], spill[1], u, s, w, out, z, g[2:5])
+    out[1] /= wref
+
+
+@numba.njit(cache=True)
+def _ekf_run(bits, pulses, starts, widths, spill, xp, P, f0i, Qi, fs, wref, Asd, C, G, qv, sb2, sf2, rw2, rq2,
              est_q, k0, warm, aux, alpha, thresh, reset_var, pos, pvar, f0o, f0v):
     n = xp.shape[0]
     npar = n - 6
@@ -102,6 +117,10 @@ def _ekf_run(bits, pulses, xp, P, f0i, Qi, fs, wref, Asd, C, G, qv, sb2, sf2, rw
     for i in range(6, n):
         J[i, i] = 1.0
     saved = np.zeros(2)
+    e0 = np.zeros(2)
+    ep = np.zeros(2)
+    em = np.zeros(2)
+    g = np.empty(5)
     for k in range(bits.shape[0]):
         frozen = k0 + k < warm
         if frozen:
@@ -152,18 +171,40 @@ def _ekf_run(bits, pulses, xp, P, f0i, Qi, fs, wref, Asd, C, G, qv, sb2, sf2, rw
         if Qc <= 0.5:
             Qc = 0.5000001
         u = pulses[k]
+        pulse = u != 0.0 or spill[0] != 0.0
+        if not pulse:
+            for i in range(2):
+                e0[i] = 0.0
+                ep[i] = 0.0
+                em[i] = 0.0
         _res_scaled(f0, Qc, fs, wref, r0, z)
+        if pulse:
+            _pulse_scaled(f0, Qc, fs, wref, r0, spill, u, starts[k], widths[k], e0, z, g)
         y0 = xf[0]
         y1 = xf[1]
         _res_scaled(f0 + f0i * _H, Qc, fs, wref, rp, z)
+        if pulse:
+            _pulse_scaled(f0 + f0i * _H, Qc, fs, wref, rp, spill, u, starts[k], widths[k], ep,
+                          z, g)
         _res_scaled(f0 - f0i * _H, Qc, fs, wref, rm, z)
-        J[0, 6] = ((rp[0] - rm[0]) * y0 + (rp[1] - rm[1]) * y1 + (rp[4] - rm[4]) * u) / (2 * _H)
-        J[1, 6] = ((rp[2] - rm[2]) * y0 + (rp[3] - rm[3]) * y1 + (rp[5] - rm[5]) * u) / (2 * _H)
+        if pulse:
+            _pulse_scaled(f0 - f0i * _H, Qc, fs, wref, rm, spill, u, starts[k], widths[k], em,
+                          z, g)
+        J[0, 6] = ((rp[0] - rm[0]) * y0 + (rp[1] - rm[1]) * y1 + (ep[0] - em[0])) / (2 * _H)
+        J[1, 6] = ((rp[2] - rm[2]) * y0 + (rp[3] - rm[3]) * y1 + (ep[1] - em[1])) / (2 * _H)
         if est_q:
             _res_scaled(f0, Qc + Qi * _H, fs, wref, rp, z)
+            if pulse:
+                _pulse_scaled(f0, Qc + Qi * _H, fs, wref, rp, spill, u, starts[k], widths[k],
+                              ep, z, g)
             _res_scaled(f0, Qc - Qi * _H, fs, wref, rm, z)
-            J[0, 7] = ((rp[0] - rm[0]) * y0 + (rp[1] - rm[1]) * y1 + (rp[4] - rm[4]) * u) / (2 * _H)
-            J[1, 7] = ((rp[2] - rm[2]) * y0 + (rp[3] - rm[3]) * y1 + (rp[5] - rm[5]) * u) / (2 * _H)
+            if pulse:
+                _pulse_scaled(f0, Qc - Qi * _H, fs, wref, rm, spill, u, starts[k], widths[k],
+                              em, z, g)
+            J[0, 7] = ((rp[0] - rm[0]) * y0 + (rp[1] - rm[1]) * y1 + (ep[0] - em[0])) / (2 * _H)
+            J[1, 7] = ((rp[2] - rm[2]) * y0 + (rp[3] - rm[3]) * y1 + (ep[1] - em[1])) / (2 * _H)
+        if pulse:
+            next_spill(u, starts[k], widths[k], spill)
         J[0, 0] = r0[0]
         J[0, 1] = r0[1]
         J[1, 0] = r0[2]
@@ -179,8 +220,8 @@ def _ekf_run(bits, pulses, xp, P, f0i, Qi, fs, wref, Asd, C, G, qv, sb2, sf2, rw
         if est_q:
             F[7, 7] = rq2
         # ---- mean prediction
-        xp[0] = r0[0] * y0 + r0[1] * y1 + r0[4] * u
-        xp[1] = r0[2] * y0 + r0[3] * y1 + r0[5] * u
+        xp[0] = r0[0] * y0 + r0[1] * y1 + e0[0]
+        xp[1] = r0[2] * y0 + r0[3] * y1 + e0[1]
         t2 = xf[2]
         t4 = xf[4]
         xp[2] = Asd[0, 0] * t2 + Asd[0, 1] * xf[3] + y0
@@ -287,6 +328,7 @@ class AdaptiveObserver:
         self.thresh = float(reset_threshold)
         self.reset_var = np.full(2, float(reset_std) ** 2)
         self._aux = np.array([1.0, 0.0, 0.0])
+        self._spill = np.zeros(2)       # tail of a pulse outlasting its sample interval
         self.next_index = 0
 
     @property
@@ -304,11 +346,14 @@ class AdaptiveObserver:
         """Current Q estimate (the fixed Q unless estimate_q)."""
         return self.Q * (1.0 + self.x[7]) if self.estimate_q else self.Q
 
-    def step(self, bits, pulses):
+    def step(self, bits, pulses, starts=None, widths=None):
         """Process n samples.
 
         Args:
-            bits: (n,) +1/-1 bit stream. pulses: (n,) applied u(k), V.
+            bits: (n,) +1/-1 bit stream. pulses: (n,) heights of the pulses fired in
+            [k T, (k+1) T), V.  starts, widths: (n,) their firing offsets and widths, s
+            (None: 0 and T, the one-sample ZOH pulses of eq. (8)); the pulse term is exact
+            at the current f0 estimate (:func:`mems_sim.sd_models.interval_input`).
         Returns:
             (position (n,) V, position variance (n,) V^2, f0 (n,) Hz, f0 variance (n,) Hz^2),
             all a-posteriori at k.
@@ -316,9 +361,10 @@ class AdaptiveObserver:
             ValueError: bits not in {+1, -1} (message names the convention) or bad shape.
         """
         b, u = check_bits(bits, pulses)
+        s, w = check_pulse_timing(u, starts, widths, self.fs)
         n = b.shape[0]
         pos, pv, f0, f0v = (np.empty(n) for _ in range(4))
-        _ekf_run(b, u, self.x, self.P, self.f0_init, self.Q, self.fs, self.wref, self.Asd,
+        _ekf_run(b, u, s, w, self._spill, self.x, self.P, self.f0_init, self.Q, self.fs, self.wref, self.Asd,
                  self.C, self.qv, self.qv, self.sb2, self.sf2, self.rw2, self.rq2,
                  self.estimate_q, self.next_index, self.warm, self._aux, self.alpha,
                  self.thresh, self.reset_var, pos, pv, f0, f0v)

@@ -43,6 +43,10 @@ Recursion (predictor form with the cross term, per sample k):
     L = (A P C^T + M) / S
     Xp <- A Xp + B u(k) + L nu,          P <- A P A^T + F - L L^T S
 
+with B u(k) generalised to the exact term of sub-sample pulses (height u, fired at s T,
+width w T; :func:`mems_sim.sd_models.interval_input`), the same function the device
+uses, so the known input stays exact whatever the pulse timing (:func:`add_pulse_input`).
+
 The steady-state path uses the a-priori P of the filter DARE
 (``scipy.linalg.solve_discrete_are(A^T, C^T, F, G, s=M)``) and fixed gains.
 """
@@ -55,9 +59,10 @@ import numba
 import numpy as np
 import scipy.linalg
 
-from mems_sim.sd_models import SD_DEN, resonator_zoh_np
+from mems_sim.sd_models import SD_DEN, interval_input, next_spill, resonator_zoh_np
 
 __all__ = ["ss_step6", "ObserverModel", "observer_model", "KalmanObserver", "check_bits",
+           "check_pulse_timing", "add_pulse_input",
            "steady_state_gains", "DEFAULT_QUANTIZATION_VAR", "bussgang_quantizer",
            "BUSSGANG_GAIN", "BUSSGANG_VAR", "BUSSGANG_Q_STD"]
 
@@ -96,6 +101,8 @@ class ObserverModel:
         F (6,6) process covariance, G (scalar) measurement variance, M (6,) cross-covariance.
         quantization_var: variance of w, V^2. f0 (Hz), Q, fs (Hz), w0 (rad/s, velocity scale),
         sd_feedforward: STF feed-in c (see :mod:`mems_sim.sd_models`).
+        gam: (2,) one-sample ZOH input vector Gam(T) of the resonator in physical
+        coordinates [V/V, V/s/V] (the pulse term before velocity scaling).
     """
 
     A: np.ndarray
@@ -113,6 +120,7 @@ class ObserverModel:
     fs: float
     w0: float
     sd_feedforward: float
+    gam: np.ndarray | None = None
 
 
 def _sd_blocks(c: float, kappa: float = 1.0):
@@ -181,7 +189,7 @@ def observer_model(f0: float, Q: float, fs: float, output_noise_std: float = 0.0
     M = Gn[:, 2] * qv
     return ObserverModel(A=A, B=B, C=C, C_pos=C_pos, Gn=Gn, Qn=Qn, F=F, G=qv, M=M,
                          quantization_var=qv, f0=float(f0), Q=float(Q), fs=float(fs), w0=w0,
-                         sd_feedforward=float(sd_feedforward))
+                         sd_feedforward=float(sd_feedforward), gam=Gam.copy())
 
 
 def check_bits(bits, pulses) -> tuple[np.ndarray, np.ndarray]:
@@ -207,7 +215,54 @@ def check_bits(bits, pulses) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(bf), np.ascontiguousarray(u)
 
 
+def check_pulse_timing(pulses: np.ndarray, starts, widths, fs: float
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Validate the sub-sample timing of the pulses and express it in sample periods T.
+
+    Args:
+        pulses: (n,) heights, V (validated by :func:`check_bits`).
+        starts: (n,) firing offset of each pulse after its sample instant, s (None: 0,
+            pulses on the sample instants).
+        widths: (n,) pulse widths, s (None: T = 1/fs, the one-sample ZOH pulse of eq. (8)).
+        fs: sample rate, Hz.
+    Returns:
+        (starts, widths) as float64 fractions of T.
+    Raises:
+        ValueError: bad shape, non-finite values, or s outside [0, 1) / w outside (0, 1]
+            where a pulse is fired.
+    """
+    n = pulses.shape[0]
+    s = np.zeros(n) if starts is None else np.asarray(starts, dtype=float) * fs
+    w = np.ones(n) if widths is None else np.asarray(widths, dtype=float) * fs
+    if s.shape != (n,) or w.shape != (n,):
+        raise ValueError(f"pulse starts/widths must have the pulses' shape ({n},); got "
+                         f"{s.shape} and {w.shape}")
+    on = pulses != 0.0
+    if not (np.all(np.isfinite(s)) and np.all(np.isfinite(w))):
+        raise ValueError("pulse starts/widths must be finite (fractions of the sample period)")
+    if np.any(on & ((s < 0.0) | (s >= 1.0))) or np.any(on & ((w <= 0.0) | (w > 1.0))):
+        raise ValueError("pulse start must be in [0, T) and width in (0, T] (T = 1/fs)")
+    return np.ascontiguousarray(s), np.ascontiguousarray(w)
+
+
 # ----------------------------------------------------------------- numba kernels
+@numba.njit(cache=True)
+def add_pulse_input(xp, f0, Q, fs, w0s, gam, spill, u, s, w, eff, z, wc):
+    """Add the exact sub-sample pulse term to the predicted resonator states, in place.
+
+    xp[0:2] += [e0, e1/w0s] with e = :func:`mems_sim.sd_models.interval_input` (the
+    tail of the previous pulse carried in ``spill`` plus the pulse u fired at s T,
+    width w T); ``spill`` is then advanced.  w0s: velocity scale of the state, rad/s.
+    wc: (3,) width cache of ``interval_input`` (wc[0] = -1 initially).
+    """
+    if u == 0.0 and spill[0] == 0.0:
+        return
+    interval_input(f0, Q, fs, gam, spill[0], spill[1], u, s, w, eff, z, wc)
+    xp[0] += eff[0]
+    xp[1] += eff[1] / w0s
+    next_spill(u, s, w, spill)
+
+
 @numba.njit(cache=True)
 def predicted_output(xp, P, C, G, PC):
     """Predicted bit yhat = C X(k|k-1) and innovation variance S = C P C' + G; fills PC = P C'."""
@@ -292,29 +347,44 @@ def cov_predict(P, A, F, L, S, AP):
 
 
 @numba.njit(cache=True)
-def _kf_run(bits, pulses, xp, P, A, B, C, Cp, F, G, M, pos, var, innov):
+def _kf_run(bits, pulses, starts, widths, xp, P, A, B, C, Cp, F, G, M, res, gam, spill,
+            pos, var, innov):
+    # res = [f0, Q, fs, w0 velocity scale] of the model
     n = xp.shape[0]
     xf = np.empty(n)
     PC = np.empty(n)
     L = np.empty(n)
     AP = np.empty((n, n))
     tmp = np.empty(n)
+    eff = np.empty(2)
+    z = np.empty(6)
+    wc = np.full(3, -1.0)
     for k in range(bits.shape[0]):
         nu, S, p, pv = kf_update(xp, P, C, G, Cp, bits[k], xf, PC)
         pos[k] = p
         var[k] = pv
         innov[k] = nu / math.sqrt(S)
-        kf_predict(xp, P, A, B, F, M, pulses[k], nu, S, PC, L, AP, tmp)
+        kf_predict(xp, P, A, B, F, M, 0.0, nu, S, PC, L, AP, tmp)
+        if pulses[k] != 0.0 or spill[0] != 0.0:       # (call guarded: array-argument
+            add_pulse_input(xp, res[0], res[1], res[2], res[3], gam, spill, pulses[k],  # refcounts
+                            starts[k], widths[k], eff, z, wc)
 
 
 @numba.njit(cache=True)
-def _ss_run_innov(bits, pulses, xp, A, B, C, L, cpk, sqrtS, pos, innov):
+def _ss_run_innov(bits, pulses, starts, widths, xp, A, B, C, L, cpk, sqrtS, res, gam, spill,
+                  pos, innov):
+    eff = np.empty(2)
+    z = np.empty(6)
+    wc = np.full(3, -1.0)
     for k in range(bits.shape[0]):
         yhat = 0.0
         for i in range(xp.shape[0]):
             yhat += C[i] * xp[i]
         innov[k] = (bits[k] - yhat) / sqrtS
-        pos[k] = ss_step6(xp, A, B, C, L, cpk, bits[k], pulses[k])
+        pos[k] = ss_step6(xp, A, B, C, L, cpk, bits[k], 0.0)
+        if pulses[k] != 0.0 or spill[0] != 0.0:       # (call guarded: array-argument
+            add_pulse_input(xp, res[0], res[1], res[2], res[3], gam, spill, pulses[k],  # refcounts
+                            starts[k], widths[k], eff, z, wc)
 
 
 @numba.njit(cache=True)
@@ -349,12 +419,6 @@ def ss_step6(xp, A, B, C, L, cpk, v, u):
     xp[4] = A[4, 4] * x4 + A[4, 5] * x5 + L[4] * nu
     xp[5] = x4 + L[5] * nu
     return x0 + cpk * nu
-
-
-@numba.njit(cache=True)
-def _ss_run(bits, pulses, xp, A, B, C, L, cpk, pos):
-    for k in range(bits.shape[0]):
-        pos[k] = ss_step6(xp, A, B, C, L, cpk, bits[k], pulses[k])
 
 
 @numba.njit(cache=True)
@@ -447,6 +511,8 @@ class KalmanObserver:
             self.L = np.ascontiguousarray(ss["L"])
             self.cpk = float(self.model.C_pos @ ss["K"])
             self.P = ss["P"].copy()
+        self._res = np.array([self.model.f0, self.model.Q, self.model.fs, self.model.w0])
+        self._spill = np.zeros(2)       # tail of a pulse outlasting its sample interval
         self.next_index = 0
         #: normalised innovations nu/sqrt(S) of the last step() call (white, unit variance
         #: if the model is right).
@@ -457,30 +523,36 @@ class KalmanObserver:
         """Steady-state position variance, V^2 (steady_state mode only)."""
         return self.ss["pos_var"] if self.steady_state else None
 
-    def step(self, bits, pulses) -> tuple[np.ndarray, np.ndarray]:
+    def step(self, bits, pulses, starts=None, widths=None) -> tuple[np.ndarray, np.ndarray]:
         """Process n samples.
 
         Args:
             bits: (n,) bit stream, values +1/-1 only.
-            pulses: (n,) applied pulses u(k), V (u(k) acts from k to k+1).
+            pulses: (n,) heights u(k) of the pulses fired in [k T, (k+1) T), V.
+            starts: (n,) firing offsets after the sample instant, s (None: 0).
+            widths: (n,) pulse widths, s (None: T = 1/fs, i.e. u(k) held from k to k+1
+                as in eq. (8)).  The known-input term is exact for any timing
+                (:func:`add_pulse_input`).
         Returns:
             (position estimate y(k|k) (n,) V, its variance (n,) V^2).
         Raises:
-            ValueError: bits not in {+1, -1} (message names the convention) or bad shape.
+            ValueError: bits not in {+1, -1} (message names the convention), bad shape or
+                bad pulse timing.
         """
         b, u = check_bits(bits, pulses)
+        s, w = check_pulse_timing(u, starts, widths, self.model.fs)
         n = b.shape[0]
         pos = np.empty(n)
         m = self.model
         innov = np.empty(n)
         if self.steady_state:
-            _ss_run_innov(b, u, self.x, m.A, m.B, m.C, self.L, self.cpk,
-                          math.sqrt(self.ss["S"]), pos, innov)
+            _ss_run_innov(b, u, s, w, self.x, m.A, m.B, m.C, self.L, self.cpk,
+                          math.sqrt(self.ss["S"]), self._res, m.gam, self._spill, pos, innov)
             var = np.full(n, self.ss["pos_var"])
         else:
             var = np.empty(n)
-            _kf_run(b, u, self.x, self.P, m.A, m.B, m.C, m.C_pos, m.F, m.G, m.M, pos, var,
-                    innov)
+            _kf_run(b, u, s, w, self.x, self.P, m.A, m.B, m.C, m.C_pos, m.F, m.G, m.M, self._res,
+                    m.gam, self._spill, pos, var, innov)
         self.last_innovations = innov
         self.next_index += n
         return pos, var

@@ -1,7 +1,9 @@
 """ROS 2 node: Kalman observer (or adaptive observer) on a sigma-delta resonator's bit stream.
 
 Subscribes ``<device>/adc`` (one-bit AdcFrame, codes -1/+1) and ``<device>/drive``
-(the known pulses, SignalFrame), pairs the frames by ``first_sample_index``,
+(the known pulses, SignalFrame: channel ``pulse`` [V] and, for sub-sample pulses,
+``pulse_start`` [s] and ``pulse_width`` [s]; without them the pulses are one-sample ZOH
+values), pairs the frames by ``first_sample_index``,
 runs :class:`mems_estimation.kalman_observer.KalmanObserver` (6 states: resonator,
 STF, NTF; Colinet et al. eqs. 1-13) or, with ``adaptive: true``,
 :class:`mems_estimation.adaptive_observer.AdaptiveObserver` (state augmented
@@ -56,11 +58,34 @@ class FramePairer:
         self.bits: dict[int, np.ndarray] = {}
         self.pulses: dict[int, np.ndarray] = {}
 
-    def add(self, kind: str, first: int, values: np.ndarray) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    def add(self, kind: str, first: int, values) -> list[tuple[int, np.ndarray, object]]:
         """Store one frame; return the pairs now complete, ordered by index."""
         (self.bits if kind == "bits" else self.pulses)[first] = values
         ready = sorted(set(self.bits) & set(self.pulses))
         return [(k, self.bits.pop(k), self.pulses.pop(k)) for k in ready]
+
+
+def pulses_of(msg: SignalFrame) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """(heights V, starts s or None, widths s or None) of a drive frame.
+
+    Raises:
+        FrameError: non-finite data, no ``pulse`` channel, or only one of the two timing
+            channels.
+    """
+    data = signal_data(msg)
+    names = list(msg.channel_names)
+    if "pulse" not in names:
+        raise FrameError(f"drive frame at {msg.first_sample_index}: no 'pulse' channel "
+                         f"(channels {names})")
+    timing = [c in names for c in ("pulse_start", "pulse_width")]
+    if any(timing) and not all(timing):
+        raise FrameError(f"drive frame at {msg.first_sample_index}: 'pulse_start' and "
+                         "'pulse_width' must come together")
+    u = np.ascontiguousarray(data[:, names.index("pulse")])
+    if not all(timing):
+        return u, None, None
+    return (u, np.ascontiguousarray(data[:, names.index("pulse_start")]),
+            np.ascontiguousarray(data[:, names.index("pulse_width")]))
 
 
 def bits_of(msg: AdcFrame) -> np.ndarray:
@@ -138,14 +163,14 @@ class SdObserverNode(Node):
         """Validate a pulse frame and process the pairs it completes."""
         try:
             self._check_rate(msg)
-            values = signal_data(msg)[:, 0]
+            values = pulses_of(msg)
         except FrameError as exc:
             self._reject(str(exc))
             return
         self._process(self.pairer.add("pulses", msg.first_sample_index, values))
 
     def _process(self, pairs) -> None:
-        for first, bits, pulses in pairs:
+        for first, bits, (pulses, starts, widths) in pairs:
             if bits.shape != pulses.shape:
                 self._reject(f"frames at {first}: {bits.size} bits for {pulses.size} pulses")
                 continue
@@ -154,7 +179,12 @@ class SdObserverNode(Node):
                 self.diag.count("gaps")
                 self.diag.warn(f"gap of {missing} samples before index {first}: the estimate "
                                "continues without those samples")
-            out = self.observer.step(bits, pulses)
+            try:
+                out = self.observer.step(bits, pulses, starts, widths)
+            except ValueError as exc:          # pulse timing outside [0, T) / (0, T]
+                self.stamps.pop(first, None)
+                self._reject(f"frames at {first}: {exc}")
+                continue
             if self.p["adaptive"]:
                 pos, pos_var, f0, f0_var = out
                 states, var = np.column_stack([pos, f0]), np.column_stack([pos_var, f0_var])

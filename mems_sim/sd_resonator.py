@@ -14,10 +14,39 @@ Per sample k (all carried across frames)::
     v(k), q(k) = modulator(x(k))                 eqs. (10)-(12), v in {-1, +1}
     s(k)   = position signal used by the controller (see below)
     u(k)   = pulse_amplitude * sign(s(k) - s(k-1))   if sign s(k) != sign s(k-1), else 0
-             (one pulse per zero crossing, lasting one sample, sign = direction of motion;
-             sign(z) = +1 for z >= 0)
-    [y, dy/dt](k+1) = Phi(f0(k)) [y, dy/dt](k) + Gam(f0(k)) (u(k) + f(k)),
+             (``on_sample`` timing: one pulse per zero crossing fired at the sample
+             instant, sign = direction of motion; sign(z) = +1 for z >= 0)
+    [y, dy/dt](k+1) = Phi(f0(k)) [y, dy/dt](k) + g(k) + Gam(f0(k)) f(k),
                                                  f ~ N(0, state_noise_std^2) [V]
+
+where g(k) is the exact effect of the pulse force (height u, width pulse_width_s, fired
+at t_p = k T + s(k) T) over the interval: :func:`mems_sim.sd_models.interval_input`
+(the impulse response integrated over the part of the pulse inside the interval, the
+tail outlasting it carried into the next one).  With pulse_width_s = T and s = 0 this is
+the one-sample ZOH pulse Gam u(k) of eqs. (8)-(9).
+
+Pulse timing (``pulse_timing``, observer mode; the comparator loop is always
+``on_sample`` since the naive loop has no predictor):
+
+* ``"sub_sample"`` (default): the pulse driver is timed by a clock much faster than
+  the ADC (taken as continuous).  At each sample the controller takes the observer's
+  a-posteriori estimate [y, dy/dt](k|k), predicts its free response with the model
+  (eq. (7)) and, if it crosses zero within (w/2, 1 + w/2] T (w = pulse width / T),
+  fires the pulse at s = t_c - w/2 so that the pulse is centred on the predicted
+  crossing t_c (closed-form zero of the damped sinusoid,
+  :func:`mems_sim.sd_models.next_crossing`).  A crossing that an estimate update has
+  moved before the window (sign of the prediction at w/2 differs from the sign expected
+  at the end of the previous window) fires at once (s = 0).  This is the paper's claim
+  that "the generated pulses happen exactly at the equilibrium position instants"
+  (Sec. 6), which one-sample pulses at 20 samples per period cannot achieve (|x| up to
+  sin(2 pi f0/fs) = 31 % of the amplitude at the first sample after a crossing).
+* ``"on_sample"``: the rule above on s(k) = y(k|k), the pulse fired at the sample
+  instant (s = 0); with pulse_width_s = 1/fs this is the original one-sample loop.
+
+The observer's known-input model uses the same exact pulse term (model f0), so with
+the exact model the estimate stays exact.  Truth also records the position at each
+pulse's start (firing instant, at the start sample) and at its centre (at the sample
+whose interval contains the centre).
 
 Start-up (both modes): the resonator and the modulator start at rest (all
 states 0) and a single kick u(0) = +pulse_amplitude is applied at k = 0 of the
@@ -41,10 +70,14 @@ Controller ``mode``:
 f0(t) = f0_hz * (1 + f0_drift_ppm_per_s*1e-6*t) * (1 + f0_step_fraction if t >= f0_step_time_s),
 t = k/fs; the resonator is re-discretised (closed-form ZOH) whenever f0 changes.
 
-Default pulse amplitude: with one pulse per half period, the steady amplitude A
-obeys A = A exp(-pi/(2Q)) + U cos(phi) (phi: the phase lag of the sampled
-crossing, ~pi f0/fs on average) -> U = A (1 - exp(-pi/(2Q)))/cos(pi f0/fs) ~ 0.0079 V
-for A = 0.5 V at Q = 100 (measured steady amplitude: see tests).
+Default pulse amplitude: a pulse of height U and width w T adds about U w (V) to the
+amplitude (the velocity jump fs w0 U w T over w0); with one pulse per half period the
+steady amplitude A obeys A = A exp(-pi/(2Q)) + U w cos(phi) (phi: the phase of the pulse
+centre from the crossing: 0 for sub-sample timing, ~pi f0/fs on average on sample
+instants) -> U = A (1 - exp(-pi/(2Q)))/(w cos(phi)): 0.156 V for A = 0.5 V, Q = 100,
+w = 0.05 (the default 50 ns pulses at 1 MHz), sub-sample.  Default width: short pulses
+(the paper's premise, Sec. 1) so that the position stays within 0.8 % of the amplitude
+over the whole pulse (pi f0/fs w = 0.008).
 
 Determinism: ``np.random.SeedSequence(seed).spawn(2)`` -> one PCG64 stream for b,
 one for f; drawn frame by frame, so frames concatenate bit-identically.
@@ -58,9 +91,10 @@ import numba
 import numpy as np
 
 from mems_sim.params import ParameterError, ParamSpec, resolve
-from mems_sim.sd_models import resonator_zoh, sd_step
-from mems_estimation.kalman_observer import (DEFAULT_QUANTIZATION_VAR, kf_predict, kf_update,
-                                             observer_model, ss_step6,
+from mems_sim.sd_models import (interval_input, next_crossing, next_spill, resonator_zoh,
+                                resonator_zoh_dt, sd_step, segment_response)
+from mems_estimation.kalman_observer import (DEFAULT_QUANTIZATION_VAR, add_pulse_input,
+                                             kf_predict, kf_update, observer_model, ss_step6,
                                              steady_state_gains)
 
 __all__ = ["RESONATOR_SPECS", "validate_params", "SdFrame", "SdResonatorDevice",
@@ -72,10 +106,22 @@ _Q = 100.0
 _A_TARGET = 0.5
 
 
+_WIDTH = 0.05           # default pulse width, fraction of T
+
+
 def default_pulse_amplitude(amplitude: float = _A_TARGET, Q: float = _Q,
-                            f0_over_fs: float = 0.05) -> float:
-    """U = A (1 - exp(-pi/(2Q))) / cos(pi f0/fs), V (see module doc)."""
-    return amplitude * -math.expm1(-math.pi / (2.0 * Q)) / math.cos(math.pi * f0_over_fs)
+                            f0_over_fs: float = 0.05, width: float = _WIDTH,
+                            timing: str = "sub_sample") -> float:
+    """U = A (1 - exp(-pi/(2Q))) / (w cos(phi)), V (see module doc).
+
+    Args:
+        amplitude: target steady amplitude A, V. Q: quality factor. f0_over_fs: f0/fs.
+        width: pulse width w, fraction of the sample period. timing: "sub_sample" (pulse
+            centred on the crossing, phi = 0) or "on_sample" (fired at the first sample
+            after the crossing: phi = pi f0/fs on average, plus half the width).
+    """
+    phi = 0.0 if timing == "sub_sample" else math.pi * f0_over_fs * (1.0 + width)
+    return amplitude * -math.expm1(-math.pi / (2.0 * Q)) / (width * math.cos(phi))
 
 
 _U = round(default_pulse_amplitude(), 6)
@@ -90,9 +136,20 @@ RESONATOR_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("quality_factor", _Q, "-", "quality factor Q of eq. (7) (> 0.5: underdamped)",
               "Colinet Sec. 6: Q = 100", min=0.5, max=1.0e7, min_exclusive=True),
     ParamSpec("pulse_amplitude", _U, "V",
-              "pulse height U (one sample long), normalised input volts of eq. (7)",
-              "chosen for a steady amplitude ~0.5 V: U = A(1-exp(-pi/2Q))/cos(pi f0/fs), A = 0.5 V",
+              "pulse height U, normalised input volts of eq. (7)",
+              "chosen for a steady amplitude ~0.5 V with the default 50 ns sub-sample pulses: "
+              "U = A(1-exp(-pi/2Q))/w, A = 0.5 V, w = 0.05 (default_pulse_amplitude)",
+              min=0.0, max=100.0, min_exclusive=True),
+    ParamSpec("pulse_width_s", _WIDTH / _FS, "s", "width of the force pulse (<= 1/fs)",
+              "short-pulse actuation (Colinet Sec. 1); 50 ns = 0.05 T at 1 MHz keeps |x| "
+              "over the pulse within 0.8 % of the amplitude; 1/fs = one-sample ZOH pulse",
               min=0.0, max=1.0, min_exclusive=True),
+    ParamSpec("pulse_timing", "sub_sample", "-", "observer mode: pulses centred on the "
+              "crossing predicted from the estimate (sub_sample, fast timing clock) or fired at "
+              "the first sample after the estimate's crossing (on_sample); the comparator "
+              "loop is always on_sample", "Colinet Sec. 6 ('pulses happen exactly at the "
+              "equilibrium position instants'); see module doc",
+              choices=("sub_sample", "on_sample")),
     ParamSpec("output_noise_std", 0.0, "V", "std of white noise b added at the resonator output "
               "(modulator input)", "Colinet Sec. 6: 'of the order of the signal' (scenarios set "
               "~0.5 V); default 0", min=0.0, max=10.0),
@@ -142,7 +199,8 @@ def validate_params(p: Mapping[str, Any]) -> None:
     """Cross-parameter checks of a resolved parameter dict.
 
     Raises:
-        ParameterError: f0 (or f0 after the step) >= fs/2, or an even comparator window.
+        ParameterError: f0 (or f0 after the step) >= fs/2, a pulse longer than 1/fs, or an
+            even comparator window.
     """
     fs, f0 = p["sample_rate_hz"], p["f0_hz"]
     if not f0 < fs / 2:
@@ -157,6 +215,9 @@ def validate_params(p: Mapping[str, Any]) -> None:
     if not fm < fs / 2:
         raise ParameterError(f"parameter 'observer_f0_error' = {p['observer_f0_error']!r} is out "
                              f"of range: the observer's f0 ({fm!r} Hz) must be below fs/2")
+    if not p["pulse_width_s"] * fs <= 1.0 + 1e-12:
+        raise ParameterError(f"parameter 'pulse_width_s' = {p['pulse_width_s']!r} is out of "
+                             f"range: must be in (0, 1/sample_rate_hz = {1.0 / fs!r}] s")
     if p["comparator_window"] % 2 == 0:
         raise ParameterError(f"parameter 'comparator_window' = {p['comparator_window']!r} is "
                              f"invalid: must be odd (so the decoded signal is never 0)")
@@ -165,36 +226,103 @@ def validate_params(p: Mapping[str, Any]) -> None:
 class SdFrame(NamedTuple):
     """One frame of the device.
 
-    bits: (n,) int8 in {-1, +1} modulator output.  pulses: (n,) applied u(k), V
-    (0 or +-pulse_amplitude; u(k) acts from k to k+1).  position: (n,) true y(k), V.
-    velocity: (n,) true dy/dt(k), V/s.  f0: (n,) true f0 used from k to k+1, Hz.
-    estimate: (n,) observer position estimate y(k|k), V (NaN in comparator mode).
-    estimate_var: (n,) its variance, V^2 (NaN in comparator mode).
+    bits: (n,) int8 in {-1, +1} modulator output.  pulses: (n,) height u(k) of the pulse
+    fired in [k T, (k+1) T), V (0 or +-pulse_amplitude).  pulse_start: (n,) its firing
+    offset after the sample instant, s (0 where no pulse).  pulse_width: (n,) its width, s
+    (0 where no pulse).  position: (n,) true y(k), V.  velocity: (n,) true dy/dt(k), V/s.
+    f0: (n,) true f0 used from k to k+1, Hz.  estimate: (n,) observer position estimate
+    y(k|k), V (NaN in comparator mode).  estimate_var: (n,) its variance, V^2 (NaN in
+    comparator mode).  x_pulse_start: (n,) true position at the firing instant of the
+    pulse fired in interval k, V (0 where none).  x_pulse_center: (n,) true position at the
+    centre of a pulse whose centre falls in [k T, (k+1) T), V (0 where none).
     """
 
     bits: np.ndarray
     pulses: np.ndarray
+    pulse_start: np.ndarray
+    pulse_width: np.ndarray
     position: np.ndarray
     velocity: np.ndarray
     f0: np.ndarray
     estimate: np.ndarray
     estimate_var: np.ndarray
+    x_pulse_start: np.ndarray
+    x_pulse_center: np.ndarray
 
 
 @numba.njit(cache=True)
-def _device_run(k0, n, fs, f0_base, Q, drift, step_frac, step_time, U, c_ff,
-                out_noise, force_noise, st, zoh, sd, win, xp, P, A, B, C, Cp, F, G, M,
-                Lss, cpk, ss_var, obs_mode, fast,
-                bits, pulses, pos, vel, f0o, est, estv):
-    # st = [y, ydot, s_prev, f0_cur, win_sum, win_pos]
+def _position_at(f0, Q, fs, y, yd, t, spill_u, spill_end, u, s, w, f, o2, z):
+    """True position at t*T (0 <= t <= 1) inside an interval from the state [y, yd] at its
+    start: free response Phi(t T) plus the force segments acting in it (previous pulse's
+    tail, the new pulse, the ZOH force noise f), each by :func:`segment_response`."""
+    resonator_zoh_dt(f0, Q, fs, t / fs, z)
+    pos = z[0] * y + z[1] * yd
+    if spill_u != 0.0:
+        segment_response(f0, Q, fs, 0.0, spill_end, t, o2, z)
+        pos += spill_u * o2[0]
+    if u != 0.0:
+        segment_response(f0, Q, fs, s, min(s + w, 1.0), t, o2, z)
+        pos += u * o2[0]
+    if f != 0.0:
+        segment_response(f0, Q, fs, 0.0, 1.0, t, o2, z)
+        pos += f * o2[0]
+    return pos
+
+
+@numba.njit(cache=True)
+def _pulse_cache(f0, Q, fs, width, zoh, hc, z):
+    """Per-f0 constants of a pulse of width w T (exact, closed-form exponentials):
+    hc = [f0, Phi(w/2 T) (4), Gam(w/2 T) (2), Phi(T) Phi(-w T) (4), Phi((1 - w) T) Gam(w T) (2)].
+    zoh: the one-sample [Phi(T), Gam(T)] at f0. z: (6,) scratch."""
+    resonator_zoh_dt(f0, Q, fs, 0.5 * width / fs, z)
+    hc[0] = f0
+    for m in range(6):
+        hc[m + 1] = z[m]
+    resonator_zoh_dt(f0, Q, fs, width / fs, z)
+    det = z[0] * z[3] - z[1] * z[2]
+    i11, i12, i21, i22 = z[3] / det, -z[1] / det, -z[2] / det, z[0] / det
+    hc[7] = zoh[0] * i11 + zoh[1] * i21
+    hc[8] = zoh[0] * i12 + zoh[1] * i22
+    hc[9] = zoh[2] * i11 + zoh[3] * i21
+    hc[10] = zoh[2] * i12 + zoh[3] * i22
+    g1, g2 = z[4], z[5]
+    resonator_zoh_dt(f0, Q, fs, (1.0 - width) / fs, z)
+    hc[11] = z[0] * g1 + z[1] * g2
+    hc[12] = z[2] * g1 + z[3] * g2
+
+
+@numba.njit(cache=True)
+def _device_run(k0, n, fs, f0_base, Q, drift, step_frac, step_time, U, width, sub_sample,
+                c_ff, out_noise, force_noise, st, zoh, sd, win, xp, P, A, B, C, Cp, F, G, M,
+                Lss, Kss, ss_var, obs_mode, fast, res_m, gam_m, pred, carry,
+                bits, pulses, starts, pos, vel, f0o, est, estv, x_start, x_center):
+    # st = [y, ydot, s_prev (sign state in sub-sample mode), f0_cur, win_sum, win_pos]
+    # carry = [truth spill u, truth spill end, observer spill u, observer spill end,
+    #          pending pulse centre in the next interval (T, -1 none)]
+    # pred = [Phi11(w/2), Phi12(w/2), Phi11(1 + w/2), Phi12(1 + w/2)] of the observer model
     nx = xp.shape[0]
     xf = np.empty(nx)
     PC = np.empty(nx)
     L = np.empty(nx)
     AP = np.empty((nx, nx))
     tmp = np.empty(nx)
+    eff = np.empty(2)
+    o2 = np.empty(2)
+    z = np.empty(6)
+    gam_t = np.empty(2)
+    ospill = np.empty(2)
+    tspill = np.empty(2)
+    hc = np.full(13, -1.0)         # truth pulse cache, see _pulse_cache
+    hm = np.full(13, -1.0)         # the same for the observer model (f0 fixed)
+    zs = np.empty(6)
+    zm = np.empty(6)
+    o6 = np.empty(6)
+    det = 1.0
+    wct = np.full(3, -1.0)
+    wcm = np.full(3, -1.0)         # width cache of the observer model (f0 fixed)
     W = win.shape[0]
     varying = drift != 0.0 or step_frac != 0.0
+    f0m, Qm, w0m = res_m[0], res_m[1], res_m[3]
     nu = 0.0
     S = 1.0
     for i in range(n):
@@ -214,12 +342,16 @@ def _device_run(k0, n, fs, f0_base, Q, drift, step_frac, step_time, U, c_ff,
         x_in = y + out_noise[i]
         v, q = sd_step(x_in, sd, c_ff)
         # position signal used by the controller
+        xf1 = 0.0
         if obs_mode:
             if fast:
-                s_sig = ss_step6(xp, A, B, C, Lss, cpk, v, 0.0)
+                nu = v - (C[2] * xp[2] + C[3] * xp[3] + C[4] * xp[4] + C[5] * xp[5])
+                s_sig = xp[0] + Kss[0] * nu
+                xf1 = xp[1] + Kss[1] * nu
                 sv = ss_var
             else:
                 nu, S, s_sig, sv = kf_update(xp, P, C, G, Cp, v, xf, PC)
+                xf1 = xf[1]
             est[i] = s_sig
             estv[i] = sv
         elif W == 0:
@@ -234,26 +366,138 @@ def _device_run(k0, n, fs, f0_base, Q, drift, step_frac, step_time, U, c_ff,
             s_sig = st[4]
             est[i] = np.nan
             estv[i] = np.nan
+        # ---- pulse decision: height u, firing offset s0 (fraction of T)
         u = 0.0
+        s0 = 0.0
         if k == 0:
             u = U
+            st[2] = 1.0
+        elif obs_mode and sub_sample:
+            # predict the estimate's free response over the window (w/2, 1 + w/2] T whose
+            # crossing puts the centre of a pulse fired in [k, k+1) T on the crossing
+            vd = xf1 * w0m
+            up_lo = pred[0] * s_sig + pred[1] * vd >= 0.0
+            up_hi = pred[2] * s_sig + pred[3] * vd >= 0.0
+            was_up = st[2] > 0.0
+            if up_lo != was_up:
+                # the crossing moved before this window (estimate update): fire at once
+                u = U if up_lo else -U
+            elif up_hi != up_lo:
+                tc = next_crossing(f0m, Qm, fs, s_sig, vd, 0.5 * width, 1.0 + 0.5 * width)
+                if tc >= 0.0:
+                    s0 = min(max(tc - 0.5 * width, 0.0), 1.0 - 1e-12)
+                u = U if up_hi else -U
+            st[2] = 1.0 if up_hi else -1.0
         else:
             sp = st[2]
             if (s_sig >= 0.0) != (sp >= 0.0):
                 u = U if s_sig > sp else -U
-        st[2] = s_sig
+            st[2] = s_sig
+        # ---- common case: a pulse wholly inside the interval, no tail from the previous one
+        # (speed: Phi((1 - s - w) T) = Phi(T) Phi(-w T) Phi(-s T), one matrix exponential per
+        # pulse; the general case uses interval_input / _position_at)
+        simple = u != 0.0 and carry[0] == 0.0 and carry[2] == 0.0 and carry[4] < 0.0 \
+            and s0 + width <= 1.0
+        if simple:
+            if hc[0] != f0:
+                _pulse_cache(f0, Q, fs, width, zoh, hc, z)
+            if s0 == 0.0:                  # on-sample pulse: Phi(0) = I, Gam(0) = 0
+                zs[0], zs[1], zs[2], zs[3], zs[4], zs[5] = 1.0, 0.0, 0.0, 1.0, 0.0, 0.0
+            else:
+                resonator_zoh_dt(f0, Q, fs, s0 / fs, zs)
+            det = zs[0] * zs[3] - zs[1] * zs[2]
+        # ---- in-loop observer time update with the exact pulse term
         if obs_mode:
             if fast:
-                # ss_step advanced xp with u = 0; add the pulse effect B u
-                for m in range(nx):
-                    xp[m] += B[m] * u
+                ss_step6(xp, A, B, C, Lss, 0.0, v, 0.0)
             else:
-                kf_predict(xp, P, A, B, F, M, u, nu, S, PC, L, AP, tmp)
-        force = u + force_noise[i]
-        st[0] = zoh[0] * y + zoh[1] * yd + zoh[4] * force
-        st[1] = zoh[2] * y + zoh[3] * yd + zoh[5] * force
+                kf_predict(xp, P, A, B, F, M, 0.0, nu, S, PC, L, AP, tmp)
+            if simple:
+                if hm[0] < 0.0:
+                    resonator_zoh_dt(f0m, Qm, fs, 1.0 / fs, z)
+                    _pulse_cache(f0m, Qm, fs, width, z, hm, o6)
+                    hm[0] = 1.0
+                if f0m == f0 and Qm == Q:
+                    for m in range(6):
+                        zm[m] = zs[m]
+                    dm = det
+                else:
+                    resonator_zoh_dt(f0m, Qm, fs, s0 / fs, zm)
+                    dm = zm[0] * zm[3] - zm[1] * zm[2]
+                # Phi_m(-s T) Phi_m((1 - w) T) Gam_m(w T) u   (hm[11:13]: the latter product)
+                e0 = (zm[3] * hm[11] - zm[1] * hm[12]) / dm * u
+                e1 = (-zm[2] * hm[11] + zm[0] * hm[12]) / dm * u
+                xp[0] += e0
+                xp[1] += e1 / w0m
+            elif u != 0.0 or carry[2] != 0.0:     # (guarded: calls cost array refcounts)
+                ospill[0] = carry[2]
+                ospill[1] = carry[3]
+                add_pulse_input(xp, f0m, Qm, fs, w0m, gam_m, ospill, u, s0, width, eff, z, wcm)
+                carry[2] = ospill[0]
+                carry[3] = ospill[1]
+        # ---- truth: exact update and the position at the pulse instants
+        f = force_noise[i]
+        x_start[i] = 0.0
+        x_center[i] = 0.0
+        if simple:
+            # piecewise exact propagation over [0, s) (force f), the two halves of the pulse
+            # (f + u) and [s + w, 1) (f); Phi, Gam(w/2 T) and Phi(T) Phi(-w T) cached (hc)
+            a0 = zs[0] * y + zs[1] * yd + zs[4] * f
+            a1 = zs[2] * y + zs[3] * yd + zs[5] * f
+            x_start[i] = a0
+            fu = f + u
+            c0 = hc[1] * a0 + hc[2] * a1 + hc[5] * fu
+            c1 = hc[3] * a0 + hc[4] * a1 + hc[6] * fu
+            x_center[i] = c0
+            a0 = hc[1] * c0 + hc[2] * c1 + hc[5] * fu
+            a1 = hc[3] * c0 + hc[4] * c1 + hc[6] * fu
+            # Phi(r T), r = 1 - s - w: (Phi(T) Phi(-w T)) Phi(-s T); Gam(r T) from Phi(r T)
+            i11 = zs[3] / det
+            i12 = -zs[1] / det
+            i21 = -zs[2] / det
+            i22 = zs[0] / det
+            r11 = hc[7] * i11 + hc[8] * i21
+            r12 = hc[7] * i12 + hc[8] * i22
+            r21 = hc[9] * i11 + hc[10] * i21
+            r22 = hc[9] * i12 + hc[10] * i22
+            w0t = 2.0 * math.pi * f0
+            g1 = fs * w0t * (1.0 - r11) / (w0t * w0t)
+            g2 = fs * w0t * r12
+            st[0] = r11 * a0 + r12 * a1 + g1 * f
+            st[1] = r21 * a0 + r22 * a1 + g2 * f
+        elif u == 0.0 and carry[0] == 0.0:
+            st[0] = zoh[0] * y + zoh[1] * yd + zoh[4] * f
+            st[1] = zoh[2] * y + zoh[3] * yd + zoh[5] * f
+        else:
+            # general case: a pulse tail from the previous interval and/or a pulse
+            # outlasting this one (centre possibly in the next interval)
+            if carry[4] >= 0.0:
+                x_center[i] = _position_at(f0, Q, fs, y, yd, carry[4], carry[0], carry[1],
+                                           0.0, 0.0, 1.0, f, o2, z)
+                carry[4] = -1.0
+            if u != 0.0:
+                x_start[i] = _position_at(f0, Q, fs, y, yd, s0, carry[0], carry[1], 0.0, 0.0,
+                                          1.0, f, o2, z)
+                tcen = s0 + 0.5 * width
+                if tcen <= 1.0:
+                    x_center[i] = _position_at(f0, Q, fs, y, yd, tcen, carry[0], carry[1], u,
+                                               s0, width, f, o2, z)
+                else:
+                    carry[4] = tcen - 1.0
+            gam_t[0] = zoh[4]
+            gam_t[1] = zoh[5]
+            wct[0] = -1.0
+            interval_input(f0, Q, fs, gam_t, carry[0], carry[1], u, s0, width, eff, z, wct)
+            tspill[0] = carry[0]
+            tspill[1] = carry[1]
+            next_spill(u, s0, width, tspill)
+            carry[0] = tspill[0]
+            carry[1] = tspill[1]
+            st[0] = zoh[0] * y + zoh[1] * yd + eff[0] + zoh[4] * f
+            st[1] = zoh[2] * y + zoh[3] * yd + eff[1] + zoh[5] * f
         bits[i] = v
         pulses[i] = u
+        starts[i] = s0
         pos[i] = y
         vel[i] = yd
         f0o[i] = f0
@@ -294,12 +538,24 @@ class SdResonatorDevice:
         if p["fast"]:
             ss = steady_state_gains(self.model)
             self._L = np.ascontiguousarray(ss["L"])
-            self._cpk = float(self.model.C_pos @ ss["K"])
+            self._K = np.ascontiguousarray(ss["K"])
             self._ss_var = ss["pos_var"]
         else:
             self._L = np.zeros(6)
-            self._cpk = 0.0
+            self._K = np.zeros(6)
             self._ss_var = 0.0
+        m = self.model
+        self.width = p["pulse_width_s"] * fs            # fraction of T
+        self.sub_sample = self.observer_mode and p["pulse_timing"] == "sub_sample"
+        self._res_m = np.array([m.f0, m.Q, m.fs, m.w0])
+        # free-response rows Phi(w/2 T)[0, :] and Phi((1 + w/2) T)[0, :] of the model
+        z = np.empty(6)
+        self._pred = np.empty(4)
+        resonator_zoh_dt(m.f0, m.Q, fs, 0.5 * self.width / fs, z)
+        self._pred[0:2] = z[0:2]
+        resonator_zoh_dt(m.f0, m.Q, fs, (1.0 + 0.5 * self.width) / fs, z)
+        self._pred[2:4] = z[0:2]
+        self._carry = np.array([0.0, 0.0, 0.0, 0.0, -1.0])
         self._next = 0
 
     @property
@@ -321,19 +577,18 @@ class SdResonatorDevice:
         sb, sf = p["output_noise_std"], p["state_noise_std"]
         b = self._gen_b.standard_normal(n) * sb if sb > 0 else np.zeros(n)
         f = self._gen_f.standard_normal(n) * sf if sf > 0 else np.zeros(n)
-        bits = np.empty(n)
-        pulses = np.empty(n)
-        pos = np.empty(n)
-        vel = np.empty(n)
-        f0o = np.empty(n)
-        est = np.empty(n)
-        estv = np.empty(n)
+        bits, pulses, starts, pos, vel, f0o, est, estv, xs, xc = (np.empty(n)
+                                                                   for _ in range(10))
         m = self.model
-        _device_run(self._next, n, p["sample_rate_hz"], p["f0_hz"], p["quality_factor"],
+        fs = p["sample_rate_hz"]
+        _device_run(self._next, n, fs, p["f0_hz"], p["quality_factor"],
                     p["f0_drift_ppm_per_s"], p["f0_step_fraction"], p["f0_step_time_s"],
-                    p["pulse_amplitude"], p["sd_feedforward"], b, f, self._st, self._zoh,
-                    self._sd, self._win, self._xp, self._P, m.A, m.B, m.C, m.C_pos, m.F, m.G,
-                    m.M, self._L, self._cpk, self._ss_var, self.observer_mode, p["fast"],
-                    bits, pulses, pos, vel, f0o, est, estv)
+                    p["pulse_amplitude"], self.width, self.sub_sample, p["sd_feedforward"],
+                    b, f, self._st, self._zoh, self._sd, self._win, self._xp, self._P, m.A, m.B,
+                    m.C, m.C_pos, m.F, m.G, m.M, self._L, self._K, self._ss_var,
+                    self.observer_mode, p["fast"], self._res_m, m.gam, self._pred, self._carry,
+                    bits, pulses, starts, pos, vel, f0o, est, estv, xs, xc)
         self._next += n
-        return SdFrame(bits.astype(np.int8), pulses, pos, vel, f0o, est, estv)
+        on = pulses != 0.0
+        return SdFrame(bits.astype(np.int8), pulses, starts / fs,
+                       np.where(on, p["pulse_width_s"], 0.0), pos, vel, f0o, est, estv, xs, xc)

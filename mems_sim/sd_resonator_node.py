@@ -3,8 +3,12 @@
 
 Topics (relative to the namespace, default ``/resonator``):
     ``adc``           mems_msgs/AdcFrame     the one-bit stream: codes -1/+1, bits = 1, lsb 1 V
-    ``drive``         mems_msgs/SignalFrame  the pulses applied to the actuator [V]
-    ``truth``         mems_msgs/SignalFrame  position [V], velocity [V/s], f0 [Hz]
+    ``drive``         mems_msgs/SignalFrame  the pulses applied to the actuator: height of the
+                      pulse fired in each sample interval [V], its firing offset after the
+                      sample instant [s] and its width [s] (0 where no pulse)
+    ``truth``         mems_msgs/SignalFrame  position [V], velocity [V/s], f0 [Hz], position
+                      at the firing instant of the interval's pulse [V] and at the centre of
+                      a pulse centred in the interval [V] (0 where none)
     ``loop_estimate`` mems_msgs/StateEstimate the in-loop Kalman observer's position (observer mode)
     ``/diagnostics``
 Parameters: ``mems_sim.sd_resonator.RESONATOR_SPECS`` and ``EMULATOR_SPECS``.
@@ -30,8 +34,11 @@ NODE_SPECS: tuple[ParamSpec, ...] = tuple(
               s.unit, s.description, s.source, s.min, s.max, s.min_exclusive, s.choices)
     for s in EMULATOR_SPECS)
 
-TRUTH_CHANNELS = ("position", "velocity", "f0")
-TRUTH_UNITS = ("V", "V/s", "Hz")
+TRUTH_CHANNELS = ("position", "velocity", "f0", "position_at_pulse_start",
+                  "position_at_pulse_center")
+TRUTH_UNITS = ("V", "V/s", "Hz", "V", "V")
+DRIVE_CHANNELS = ("pulse", "pulse_start", "pulse_width")
+DRIVE_UNITS = ("V", "s", "s")
 
 
 class SdResonatorNode(PacedEmulator, Node):
@@ -86,10 +93,11 @@ class SdResonatorNode(PacedEmulator, Node):
             f.bits.reshape(n, 1), first, self.fs, bits=1, channel_names=("sd_bit",),
             channel_units=("V",), lsb=(1.0,), full_scale=(1.0,), **common))
         self.pub_drive.publish(make_signal_frame(
-            f.pulses.reshape(n, 1), first, self.fs, channel_names=("pulse",),
-            channel_units=("V",), **common))
+            np.column_stack([f.pulses, f.pulse_start, f.pulse_width]), first, self.fs,
+            channel_names=DRIVE_CHANNELS, channel_units=DRIVE_UNITS, **common))
         self.pub_truth.publish(make_signal_frame(
-            np.column_stack([f.position, f.velocity, f.f0]), first, self.fs,
+            np.column_stack([f.position, f.velocity, f.f0, f.x_pulse_start, f.x_pulse_center]),
+            first, self.fs,
             channel_names=TRUTH_CHANNELS, channel_units=TRUTH_UNITS, **common))
         if self.pub_estimate is not None:
             self.pub_estimate.publish(make_state_estimate(

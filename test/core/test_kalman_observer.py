@@ -22,6 +22,11 @@ def _amp(y):
     return math.sqrt(2.0) * float(np.std(y))
 
 
+def _io(fr):
+    """Observer inputs of a device frame: bits, pulse heights, firing offsets, widths."""
+    return fr.bits, fr.pulses, fr.pulse_start, fr.pulse_width
+
+
 def _acf(x, lags=20):
     x = x - x.mean()
     return np.array([np.dot(x[:-k], x[k:]) / np.dot(x, x) for k in range(1, lags + 1)])
@@ -42,7 +47,7 @@ def test_fig1_exact_model_no_state_noise():
     # same stream, observer started with a wrong, uncertain resonator state
     ko = KalmanObserver(F0, Q, FS, 0.5, 0.0, initial_state=[0.3, -0.2, 0, 0, 0, 0],
                         initial_cov=np.diag([0.25, 0.25, 1, 1, 1, 1]))
-    p, _ = ko.step(fr.bits, fr.pulses)
+    p, _ = ko.step(*_io(fr))
     off = np.sqrt(np.mean((p - fr.position)[100_000:] ** 2)) / a
     print(f"\nA = {a:.4f} V; RMS error / A: in-loop (known rest start, fast) {in_loop:.2e}, "
           f"offline from a wrong start {off:.2e}")
@@ -56,8 +61,8 @@ def test_steady_state_gain_matches_time_varying():
     fr = _run(0.25, 0.25, 5e-4, seed=2, n=60_000)
     full = KalmanObserver(F0, Q, FS, 0.25, 5e-4)
     fast = KalmanObserver(F0, Q, FS, 0.25, 5e-4, steady_state=True)
-    pf, vf = full.step(fr.bits, fr.pulses)
-    ps, vs = fast.step(fr.bits, fr.pulses)
+    pf, vf = full.step(*_io(fr))
+    ps, vs = fast.step(*_io(fr))
     print(f"\nDARE method {ss['method']}, steady pos var {ss['pos_var']:.3e}, "
           f"time-varying at end {vf[-1]:.3e}, "
           f"max |diff| last half {np.abs(pf - ps)[30_000:].max():.2e}")
@@ -77,7 +82,7 @@ def test_fig2_consistency_with_state_noise():
         ratio = err.var() / pred
         ratios.append(ratio)
         ko = KalmanObserver(F0, Q, FS, sb, sf)
-        ko.step(fr.bits, fr.pulses)
+        ko.step(*_io(fr))
         inn = ko.last_innovations[SKIP:]
         print(f"\nseed {seed}: A = {a:.3f} V, error std {err.std():.2e} V "
               f"({err.std() / a:.2%} of A, {err.std() / sb:.2%} of the output noise), "
@@ -122,12 +127,12 @@ def test_fig4_f0_error_and_adaptive_recovery():
     sb, sf = 0.25, 5e-4
     fr = _run(0.25, sb, sf, seed=5)
     a = _amp(fr.position[SKIP:])
-    exact, _ = KalmanObserver(F0, Q, FS, sb, sf).step(fr.bits, fr.pulses)
-    wrong, _ = KalmanObserver(F0 * 1.05, Q, FS, sb, sf).step(fr.bits, fr.pulses)
+    exact, _ = KalmanObserver(F0, Q, FS, sb, sf).step(*_io(fr))
+    wrong, _ = KalmanObserver(F0 * 1.05, Q, FS, sb, sf).step(*_io(fr))
     e_exact = np.std((exact - fr.position)[N // 2:])
     e_wrong = np.std((wrong - fr.position)[N // 2:])
     ao = AdaptiveObserver(F0 * 1.05, Q, FS, sb, sf, f0_random_walk_ppm=0.2)
-    pa, _, fa, fva = ao.step(fr.bits, fr.pulses)
+    pa, _, fa, fva = ao.step(*_io(fr))
     e_adapt = np.std((pa - fr.position)[N // 2:])
     print(f"\nA = {a:.3f} V; RMS error / A: exact {e_exact / a:.3e}, 5 % f0 error "
           f"{e_wrong / a:.3e} (x{e_wrong / e_exact:.1f}), adaptive from 5 % {e_adapt / a:.3e} "
@@ -144,7 +149,7 @@ def _step_run(**kw):
                             "f0_step_fraction": 0.02, "f0_step_time_s": t_step},
                            seed=kw.pop("seed", 6)).step(600_000)
     ao = AdaptiveObserver(F0, Q, FS, sb, sf, f0_random_walk_ppm=0.2, **kw)
-    _, _, f, fv = ao.step(fr.bits, fr.pulses)
+    _, _, f, fv = ao.step(*_io(fr))
     rel = f / fr.f0 - 1.0
     k0 = int(t_step * FS)
     return fr, rel, k0, ao
@@ -217,9 +222,9 @@ def test_carried_state_observers():
     for make in (lambda: KalmanObserver(F0, Q, FS, 0.25, 5e-4),
                  lambda: KalmanObserver(F0, Q, FS, 0.25, 5e-4, steady_state=True),
                  lambda: AdaptiveObserver(F0 * 1.01, Q, FS, 0.25, 5e-4, estimate_q=True)):
-        whole = make().step(fr.bits, fr.pulses)
+        whole = make().step(*_io(fr))
         o = make()
-        parts = [o.step(fr.bits[a:b], fr.pulses[a:b]) for a, b in
+        parts = [o.step(*(x[a:b] for x in _io(fr))) for a, b in
                  ((0, 1), (1, 777), (777, 777), (777, 20_000))]
         for i, w in enumerate(whole):
             assert np.array_equal(w, np.concatenate([p[i] for p in parts]))

@@ -9,6 +9,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
 from diagnostic_msgs.msg import DiagnosticArray
+from mems_estimation.kalman_observer import KalmanObserver
 from mems_estimation.sd_observer_node import SdObserverNode
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.params import ParameterError
@@ -45,11 +46,18 @@ def test_device_publishes_bits_pulses_truth_and_loop_estimate(graph):
     assert set(np.unique(bits)) <= {-1, 1}
     ref = SdResonatorDevice({"output_noise_std": 0.5}, seed=4).step(3000)
     np.testing.assert_array_equal(bits, ref.bits)
-    pulses = np.concatenate([np.asarray(x.data) for x in got["drive"]])
-    np.testing.assert_array_equal(pulses, ref.pulses)
-    truth = np.concatenate([np.asarray(x.data).reshape(-1, 3) for x in got["truth"]])
+    drive = np.concatenate([np.asarray(x.data).reshape(-1, 3) for x in got["drive"]])
+    np.testing.assert_array_equal(drive[:, 0], ref.pulses)
+    np.testing.assert_array_equal(drive[:, 1], ref.pulse_start)
+    np.testing.assert_array_equal(drive[:, 2], ref.pulse_width)
+    assert list(got["drive"][0].channel_names) == ["pulse", "pulse_start", "pulse_width"]
+    assert list(got["drive"][0].channel_units) == ["V", "s", "s"]
+    assert np.count_nonzero(drive[:, 1]) > 0            # sub-sample pulses (default)
+    truth = np.concatenate([np.asarray(x.data).reshape(-1, 5) for x in got["truth"]])
     np.testing.assert_array_equal(truth[:, 0], ref.position)
-    assert list(got["truth"][0].channel_units) == ["V", "V/s", "Hz"]
+    np.testing.assert_array_equal(truth[:, 3], ref.x_pulse_start)
+    np.testing.assert_array_equal(truth[:, 4], ref.x_pulse_center)
+    assert list(got["truth"][0].channel_units) == ["V", "V/s", "Hz", "V", "V"]
 
 
 def test_device_refuses_f0_above_nyquist_and_bad_q(ros_context):
@@ -102,3 +110,49 @@ def test_observer_node_rejects_bad_bit_streams_on_diagnostics(graph):
                                        {kv.key: kv.value for kv in s.values}
                                        .get("rejected_frames") == "2"
                                        for d in diags for s in d.status))
+
+
+def _drive_frame(first, pulses, starts, widths, fs=1e6):
+    n = len(pulses)
+    m = SignalFrame(first_sample_index=first, sample_rate_hz=fs, num_samples=n,
+                    channel_names=["pulse", "pulse_start", "pulse_width"],
+                    channel_units=["V", "s", "s"])
+    m.data = array.array("d", np.column_stack([pulses, starts, widths]).ravel().tolist())
+    return m
+
+
+def test_observer_node_uses_sub_sample_pulse_timing(graph):
+    """The downstream observer takes the pulses' firing offsets and widths from the drive
+    frame (its estimate equals the core observer's given them); a drive frame with an
+    offset outside [0, T) is rejected and counted."""
+    ctx, ex, probe = graph
+    obs = SdObserverNode(context=ctx, parameter_overrides=params(output_noise_std=0.5))
+    ex.add_node(obs)
+    pub_b = probe.create_publisher(AdcFrame, "/resonator/adc", FRAME_QOS)
+    pub_p = probe.create_publisher(SignalFrame, "/resonator/drive", FRAME_QOS)
+    estimates = []
+    probe.create_subscription(StateEstimate, "/resonator/estimate", estimates.append, FRAME_QOS)
+    assert spin_until(ex, lambda: pub_b.get_subscription_count() == 1
+                       and pub_p.get_subscription_count() == 1)
+    fr = SdResonatorDevice({"output_noise_std": 0.5}, seed=5).step(4000)
+    assert np.count_nonzero(fr.pulse_start) > 100
+    for first in range(0, 4000, 1000):
+        sl = slice(first, first + 1000)
+        pub_b.publish(_bit_frame(first, fr.bits[sl]))
+        pub_p.publish(_drive_frame(first, fr.pulses[sl], fr.pulse_start[sl],
+                                   fr.pulse_width[sl]))
+    assert spin_until(ex, lambda: len(estimates) == 4)
+    est = np.concatenate([np.asarray(m.states) for m in estimates])
+    ref, _ = KalmanObserver(5e4, 100.0, 1e6, 0.5, 0.0).step(fr.bits, fr.pulses, fr.pulse_start,
+                                                            fr.pulse_width)
+    np.testing.assert_allclose(est, ref, rtol=0, atol=1e-12)
+    naive, _ = KalmanObserver(5e4, 100.0, 1e6, 0.5, 0.0).step(fr.bits, fr.pulses)
+    gap = np.abs(naive - ref)[2000:].max()
+    print(f"\nnode = core observer; ignoring the timing would change the estimate by {gap:.1e} V")
+    assert gap > 1e-3
+    bad = np.zeros(1000)
+    bad[3] = 1.0
+    pub_b.publish(_bit_frame(4000, np.ones(1000)))
+    pub_p.publish(_drive_frame(4000, bad, np.where(bad != 0, 1.5e-6, 0.0), bad * 5e-8))
+    assert spin_until(ex, lambda: obs.diag.counters.get("rejected_frames", 0) == 1)
+    assert any("pulse start" in w for w in obs.diag.warnings)
