@@ -96,6 +96,13 @@ def resolve_estimator(overrides: Mapping[str, Any] | None = None) -> dict[str, A
         raise ParameterError(f"parameter 'sample_rate_hz' = {p['sample_rate_hz']!r} is out of "
                              f"range: must exceed 4 x the natural frequency "
                              f"{wn / (2 * math.pi):.1f} Hz")
+    n_lam = p["ukf_alpha"] ** 2 * (2 + p["ukf_kappa"])
+    if not p["initial_angle_std"] * math.sqrt(n_lam) < p["min_amplitude"]:
+        raise ParameterError(
+            f"parameter 'initial_angle_std' = {p['initial_angle_std']!r} is out of range: "
+            f"must be below min_amplitude / sqrt(n + lambda) = "
+            f"{p['min_amplitude'] / math.sqrt(n_lam)!r} rad (at acquisition the sigma points "
+            "must not straddle theta = 0, where the even h makes the UKF collapse)")
     if p["output_noise_var"] <= 0:
         raise ParameterError(f"parameter 'output_noise_var' = {p['output_noise_var']!r} is out "
                              "of range: the filters need R > 0")
