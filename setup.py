@@ -38,6 +38,8 @@ setup(
             "noise_identifier_node = mems_estimation.noise_identifier_node:main",
             "sd_resonator_node = mems_sim.sd_resonator_node:main",
             "sd_observer_node = mems_estimation.sd_observer_node:main",
+            "fr_accelerometer_node = mems_sim.fr_accelerometer_node:main",
+            "hybrid_ekf_node = mems_estimation.hybrid_ekf_node:main",
             "identify_noise = mems_estimation.identify_noise_cli:main",
             "mcap_record = mems_sim.bag.recorder:main",
             "mcap_play = mems_sim.bag.player:main",

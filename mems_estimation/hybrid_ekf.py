@@ -55,18 +55,23 @@ def _dynamics(x, v, a, v_f, mv):
 
     Returns (x', v', f10, f11): the Jacobian is [[0, 1, 0], [f10, f11, 1], [0, 0, 0]].
     """
-    m, k, b0, sq, ea, d0, v1, v_b = mv[0], mv[1], mv[2], mv[3], mv[4], mv[5], mv[6], mv[8]
+    k, b0, sq, ea, d0, v1, v_b = mv[1], mv[2], mv[3], mv[4], mv[5], mv[6], mv[8]
+    im = 1.0 / mv[0]
+    ilo = 1.0 / (d0 - x)          # reciprocals once: divisions dominate the cost
+    ihi = 1.0 / (d0 + x)
+    ilo2, ihi2 = ilo * ilo, ihi * ihi
     b, db = b0, 0.0
     if sq > 0.5:
-        u = x / d0
-        b = b0 * 0.5 * (1.0 / (1.0 - u) ** 3 + 1.0 / (1.0 + u) ** 3)
-        db = b0 * 1.5 / d0 * (1.0 / (1.0 - u) ** 4 - 1.0 / (1.0 + u) ** 4)
+        # b(x) = b0/2 [(d0/(d0 - x))^3 + (d0/(d0 + x))^3] (2-14 corrected) and db/dx
+        d3 = d0 * d0 * d0
+        b = b0 * 0.5 * d3 * (ilo2 * ilo + ihi2 * ihi)
+        db = b0 * 1.5 * d3 * (ilo2 * ilo2 - ihi2 * ihi2)
     c2 = 0.5 * v1 * v1
     lo = c2 + (v_f - v_b) ** 2
     hi = c2 + (v_f + v_b) ** 2
-    f_el = 0.5 * ea * (lo / (d0 - x) ** 2 - hi / (d0 + x) ** 2)
-    df_el = ea * (lo / (d0 - x) ** 3 + hi / (d0 + x) ** 3)
-    return v, a - (k * x + b * v) / m + f_el / m, (-k - db * v + df_el) / m, -b / m
+    f_el = 0.5 * ea * (lo * ilo2 - hi * ihi2)
+    df_el = ea * (lo * ilo2 * ilo + hi * ihi2 * ihi)
+    return v, a - (k * x + b * v - f_el) * im, (-k - db * v + df_el) * im, -b * im
 
 
 @numba.njit(cache=True)
