@@ -1,0 +1,650 @@
+"""Piezo tilt micro-stage with rotational parallel-plate capacitive sensing (emulator core).
+
+Source: Y. Chen, PhD thesis, U. Michigan 2018, chapter 3 (seed
+``chen2018_capacitive_motion_estimation_gyro_calibration_microscanner.md``):
+stage tilt mode eqs. (31)-(34), Table 3.3; capacitance eqs. (35)-(47), Tables A.1/A.2;
+transimpedance readout eqs. (28)-(30); feedthrough cancellation sec. 3.5.4;
+off-axis rejection eqs. (56)-(57); LDV reference sec. 3.5.2 / 3.5.4.
+
+Per stage sample k (sample period dt = 1/fs, everything carried across frames)::
+
+    u(k)        drive voltage the DAC holds over [t_k, t_k+1)  (sinusoid, schedule)
+    x(k+1)      = A_d x(k) + B_d (u(k) + w(k))         main axis, exact ZOH of eqs. (31)-(33)
+    x_off(k+1)  = A_d x_off(k) + B_d c_off (u(k) + w(k))   off axis (coupling c_off)
+    y_c(k)      = -V_b(k) R_s dC_c/dt (k)  + feedthrough_c(k) + n_c(k)     eq. (30), per channel
+    dC_c/dt     = dC/dtheta_X * omega_X + dC/dtheta_Y * omega_Y            eq. (43), dual-axis C
+    feedthrough = -R_s C_ft,c du/dt (the parasitic capacitance C_ft from the drive to the
+                  amplifier input carries a current C_ft du/dt; du/dt of the DAC's
+                  reconstruction (analog) output, i.e. of the continuous sinusoid)
+    code_c(k)   = round(y_c(k) / lsb) clipped to the ADC range
+
+``V_b`` is the sensing bias: ON on odd drive periods, OFF on even ones (period index =
+floor(drive phase / 2 pi)); schedule changes take effect only at the start of an even
+(bias-off) period, so each bias-on period is preceded by a bias-off period with the same
+drive, and ``y_on(t) - y_off(t - T)`` cancels the feedthrough exactly (sec. 3.5.4).
+
+Main axis convention: the stage tilts about Y (theta_Y, the paper's main axis of eq. 38);
+the four channels 1A/1B/2A/2B sense theta_Y; the off axis is theta_X.
+
+Misprints found in the source (the physics is implemented):
+
+* Table A.1, channel 2A: ``w2 = 0.5W - W_SA - W_SB`` gives w2 < w1 (negative area). The
+  outer right stator mirrors 1A: ``[0.5W - W_SA, 0.5W]``.
+* Eq. (46): the leading minus sign is wrong; integrating eq. (40) with theta_X = 0 gives
+  ``C = +eps (w4-w3)/tan(theta) * ln((D_n - w1 tan)/(D_n - w2 tan))`` (> 0 for w2 > w1).
+* Eq. (42): the ``- w_Y tan(theta_X)`` term cancels in the four-term sum of eq. (41)
+  (any separable term does); eq. (41) itself suffers catastrophic cancellation for small
+  angles (1/(tan tan)), so the emulator evaluates eq. (40) and its derivatives by
+  Gauss-Legendre quadrature (exact to < 1e-12 relative for the gap modulation here).
+* Eq. (56): E_y is a voltage and the motion ratio is dimensionless; E_y is normalised by
+  the RMS of the single-axis signal.
+
+Electronic noise (never tuned to a result) is the sum of the documented physical sources
+of the transimpedance readout, white over the ADC's Nyquist band B = fs/2 (brick-wall
+anti-alias filter, no averaging across periods):
+
+    S_y = 4 k T R_s + (i_n R_s)^2 + e_n^2 |1 + j 2 pi f R_s C_in|^2
+    sigma_y^2 = (4 k T R_s + i_n^2 R_s^2) B + e_n^2 (B + (2 pi R_s C_in)^2 B^3 / 3)
+
+plus the ADC's own quantisation (codes are rounded).  The transimpedance bandwidth is
+assumed >> fs, so no signal phase lag is modelled.
+
+Temperature: D_n(T) = D_n0 (1 + gap_tempco (T - T_ref)) (the paper re-identifies D_n at
+35.7 C but gives no coefficient: the default is an assumption); wn and b_c drift with
+their own (assumed) tempcos, which the estimator is not re-identified for: the
+capacitive measurement has to carry the EKF across that model error.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping, NamedTuple, Sequence
+
+import numba
+import numpy as np
+
+from mems_sim.params import ParameterError, ParamSpec, resolve
+
+__all__ = ["STAGE_SPECS", "CHANNELS", "EPS0", "K_BOLTZMANN", "stage_matrices", "channel_limits",
+           "dual_axis_capacitance", "dual_axis_gradient", "single_axis_dcdtheta",
+           "readout_noise_std", "off_axis_rejection", "DriveSchedule", "StageFrame",
+           "MicroStage", "steady_amplitude", "validate_params", "LdvReference", "gap_at",
+           "record"]
+
+EPS0 = 8.8541878128e-12  # F/m, electric constant (eq. 35: 8.8542e-12)
+K_BOLTZMANN = 1.380649e-23  # J/K
+CHANNELS = ("1A", "1B", "2A", "2B")
+
+STAGE_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("sample_rate_hz", 625.0e3, "Hz", "stage sample rate (DAC, ADC, LDV)",
+              "Chen 2018 sec. 3.5.2: saved at 625 kHz", min=0.0, max=1.0e8, min_exclusive=True),
+    ParamSpec("natural_freq_hz", 1714.5, "Hz", "tilt-mode natural frequency wn/2pi",
+              "Chen 2018 Table 3.3", min=1.0, max=1.0e6),
+    ParamSpec("damping_ratio", 0.005, "-", "tilt-mode damping ratio zeta", "Table 3.3",
+              min=0.0, max=0.7, min_exclusive=True),
+    ParamSpec("b_c", 3782.5, "rad/s^2/V", "input gain b_c of eq. (33)", "Table 3.3",
+              min=0.0, max=1.0e8, min_exclusive=True),
+    ParamSpec("off_axis_coupling", 0.001, "-", "off-axis tilt / main-axis tilt",
+              "sec. 3.3.1: < 0.1 % with compensation [17]", min=0.0, max=1.0),
+    ParamSpec("neutral_gap_m", 19.2e-6, "m", "neutral plate distance D_n at T_ref",
+              "Table 3.3", min=1.0e-6, max=1.0e-3),
+    ParamSpec("gap_tempco_per_k", 4.0e-4, "1/K", "relative change of D_n per kelvin",
+              "assumption (paper re-identifies D_n at 35.7 C, gives no value)",
+              min=-1.0e-2, max=1.0e-2),
+    ParamSpec("freq_tempco_per_k", -30.0e-6, "1/K", "relative change of wn per kelvin",
+              "assumption: f ~ sqrt(E), Young's modulus of Si about -60 ppm/K", min=-1e-2,
+              max=1e-2),
+    ParamSpec("b_c_tempco_per_k", 1.0e-3, "1/K", "relative change of the actuator gain b_c "
+              "per kelvin", "assumption: PZT d31 rises with temperature (order 0.1 %/K); the "
+              "estimator is not re-identified for it (only D_n is, sec. 3.5.3)",
+              min=-1e-1, max=1e-1),
+    ParamSpec("ref_temperature_c", 22.9, "degC", "reference temperature T_ref",
+              "Table 3.2 (room temperature run)", min=-60.0, max=150.0),
+    ParamSpec("temperature_c", 22.9, "degC", "stage temperature", "Table 3.2: 22.9 / 35.7 C",
+              min=-60.0, max=150.0),
+    ParamSpec("w_sa_m", 400e-6, "m", "width of large stator electrode W_SA", "Table A.2",
+              min=1e-6, max=1e-2),
+    ParamSpec("w_sb_m", 320e-6, "m", "width of small stator electrode W_SB", "Table A.2",
+              min=1e-6, max=1e-2),
+    ParamSpec("w_r_m", 520e-6, "m", "width of each rotor electrode W_R (>= stator: the overlap "
+              "is the stator area)", "Table A.2", min=1e-6, max=1e-2),
+    ParamSpec("w_m", 2780e-6, "m", "width of sensing stage W", "Table A.2", min=1e-5, max=0.1),
+    ParamSpec("d_w_m", 195e-6, "m", "distance between stators D_W", "Table A.2",
+              min=0.0, max=1e-2),
+    ParamSpec("eps_r", 1.0, "-", "relative permittivity", "sec. 3.4.3 (air)", min=1.0, max=100.0),
+    ParamSpec("v_bias", 10.0, "V", "sensing bias V_bias (eq. 29)",
+              "assumption: V_bias R_s = |eta| of Table 3.3", min=0.0, max=200.0,
+              min_exclusive=True),
+    ParamSpec("r_s_ohm", 2.40752e6, "ohm", "transimpedance feedback resistance R_s (eq. 28)",
+              "|eta| / V_bias, Table 3.3", min=1.0, max=1.0e10),
+    ParamSpec("channel_gain_mismatch", 0.01, "-", "std of the per-channel relative gain "
+              "mismatch of the readout (fixed per channel from the seed)",
+              "assumption: 1 % resistor/amplifier tolerance", min=0.0, max=0.2),
+    ParamSpec("device_seed", 2018, "-", "seed of the manufacturing tolerances (channel gain "
+              "mismatch): fixed per emulated device, independent of the run seed",
+              "design.md principle 4", min=0, max=2**62),
+    ParamSpec("feedthrough_cap_f", 50e-15, "F", "mean parasitic drive-to-sense capacitance "
+              "C_ft (channels 1A..2B use 0.8, 1.1, 0.9, 1.2 times it)",
+              "assumption; sec. 3.4.2 (feedthrough from parasitic capacitance)",
+              min=0.0, max=1e-9),
+    ParamSpec("amp_voltage_noise", 7.0e-9, "V/sqrt(Hz)", "amplifier input voltage noise e_n",
+              "typical JFET-input op-amp", min=0.0, max=1e-5),
+    ParamSpec("amp_current_noise", 1.5e-15, "A/sqrt(Hz)", "amplifier input current noise i_n",
+              "typical JFET-input op-amp", min=0.0, max=1e-9),
+    ParamSpec("input_capacitance_f", 5.0e-12, "F", "total capacitance at the amplifier input "
+              "(sensor, pads, op-amp input)", "assumption", min=0.0, max=1e-8),
+    ParamSpec("readout_temperature_k", 296.0, "K", "temperature of R_s (thermal noise)",
+              "room temperature", min=1.0, max=500.0),
+    ParamSpec("adc_bits", 16, "bits", "ADC resolution", "assumption", min=4, max=24),
+    ParamSpec("adc_full_scale_v", 0.02, "V", "ADC full scale (+-)", "assumption: fits "
+              "signal + feedthrough at 1.3 V drive", min=1e-6, max=100.0),
+    ParamSpec("drive_noise_density", 1.0e-6, "V/sqrt(Hz)", "drive amplifier output voltage "
+              "noise (process noise of the stage)", "assumption", min=0.0, max=1e-2),
+    ParamSpec("safe_tilt_rad", 0.005, "rad", "largest tilt amplitude the schedule may ask "
+              "(gap closes at D_n/(W/2) = 0.0138 rad)", "sec. 3.5.2: +-0.005 rad",
+              min=0.0, max=0.05, min_exclusive=True),
+    ParamSpec("bias_switching", True, "-", "switch the sensing bias on/off on alternate drive "
+              "periods (feedthrough cancellation); false: always on", "sec. 3.5.4"),
+    ParamSpec("feedthrough_enabled", True, "-", "model the drive feedthrough", "sec. 3.4.2"),
+    ParamSpec("ldv_noise_std", 0.02, "rad/s", "LDV angular-rate noise per sample",
+              "assumption (Polytec OFV-534 + VD-09 20 mm/s/V class)", min=0.0, max=10.0),
+    ParamSpec("ldv_delay_s", 6.9e-6, "s", "LDV output delay", "sec. 3.5.4: ~6.9 us",
+              min=0.0, max=1e-3),
+    ParamSpec("ldv_bias", 0.05, "rad/s", "LDV constant bias", "sec. 3.5.4 (constant bias)",
+              min=-10.0, max=10.0),
+)
+
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
+
+
+def validate_params(p: Mapping[str, Any]) -> None:
+    """Cross-parameter checks: drive frequency content below Nyquist, stators fit, W_R >= W_SA."""
+    if p["natural_freq_hz"] >= p["sample_rate_hz"] / 2:
+        raise ParameterError(f"parameter 'natural_freq_hz' = {p['natural_freq_hz']!r} is out of "
+                             f"range: must be below sample_rate_hz/2 = {p['sample_rate_hz']/2!r}")
+    if 2 * (p["w_sa_m"] + p["d_w_m"] + p["w_sb_m"]) > p["w_m"]:
+        raise ParameterError(f"parameter 'w_m' = {p['w_m']!r} is out of range: must hold two "
+                             "stator pairs, >= 2 (W_SA + D_W + W_SB)")
+    if p["w_r_m"] < p["w_sa_m"]:
+        raise ParameterError(f"parameter 'w_r_m' = {p['w_r_m']!r} is out of range: the rotor "
+                             f"must cover the stator, >= w_sa_m = {p['w_sa_m']!r}")
+
+
+def gap_at(p: Mapping[str, Any], temperature_c: float | None = None) -> float:
+    """D_n(T) = D_n0 (1 + gap_tempco (T - T_ref)), m."""
+    t = p["temperature_c"] if temperature_c is None else temperature_c
+    return p["neutral_gap_m"] * (1.0 + p["gap_tempco_per_k"] * (t - p["ref_temperature_c"]))
+
+
+def channel_limits(p: Mapping[str, Any]) -> np.ndarray:
+    """Integration limits (w1, w2, w3, w4) per channel 1A, 1B, 2A, 2B [m] (Table A.1).
+
+    2A corrected (misprint, see module doc): outer right stator [0.5W - W_SA, 0.5W].
+    """
+    W, sa, sb, dw = p["w_m"], p["w_sa_m"], p["w_sb_m"], p["d_w_m"]
+    return np.array([
+        [-0.5 * W, -0.5 * W + sa, -0.5 * sa, 0.5 * sa],
+        [0.5 * W - sa - dw - sb, 0.5 * W - sa - dw, -0.5 * sa, 0.5 * sa],
+        [0.5 * W - sa, 0.5 * W, -0.5 * sa, 0.5 * sa],
+        [-0.5 * W + sa + dw, -0.5 * W + sa + dw + sb, -0.5 * sa, 0.5 * sa],
+    ])
+
+
+def stage_matrices(wn: float, zeta: float, b_c: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact ZOH discretisation (A_d, B_d) of eqs. (31)-(33) over dt (eq. 34), closed form.
+
+    Args: wn rad/s, zeta -, b_c rad/s^2/V, dt s. Returns A_d (2x2), B_d (2,) [rad/V, rad/s/V].
+    Valid for 0 < zeta < 1.
+    """
+    wd = wn * math.sqrt(1.0 - zeta * zeta)
+    e = math.exp(-zeta * wn * dt)
+    c, s = math.cos(wd * dt), math.sin(wd * dt)
+    A = np.array([[e * (c + zeta * wn / wd * s), e * s / wd],
+                  [-e * wn * wn / wd * s, e * (c - zeta * wn / wd * s)]])
+    # B = A_c^-1 (A_d - I) B_c with A_c^-1 = [[-2 zeta/wn, -1/wn^2], [1, 0]]
+    B = np.array([(1.0 - A[0, 0]) / (wn * wn) * b_c, A[1, 0] * (-1.0 / (wn * wn)) * b_c])
+    return A, B
+
+
+@numba.njit(cache=True)
+def _grad_dual(thx, thy, dn, lim, eps, glx, glw, out):
+    """dC/dtheta_X, dC/dtheta_Y of eq. (40) for every sample and channel (GL quadrature).
+
+    d(1/D)/dtheta_Y = w_X sec^2(theta_Y)/D^2 ; d(1/D)/dtheta_X = -w_Y sec^2(theta_X)/D^2.
+    out: (n, nch, 2).
+    """
+    n = thx.shape[0]
+    nch = lim.shape[0]
+    ng = glx.shape[0]
+    for i in range(n):
+        tx = math.tan(thx[i])
+        ty = math.tan(thy[i])
+        sx = 1.0 + tx * tx
+        sy = 1.0 + ty * ty
+        for c in range(nch):
+            hx = 0.5 * (lim[c, 1] - lim[c, 0])
+            mx = 0.5 * (lim[c, 1] + lim[c, 0])
+            hy = 0.5 * (lim[c, 3] - lim[c, 2])
+            my = 0.5 * (lim[c, 3] + lim[c, 2])
+            gx = 0.0
+            gy = 0.0
+            for a in range(ng):
+                wx = mx + hx * glx[a]
+                for b in range(ng):
+                    wy = my + hy * glx[b]
+                    d = dn - wx * ty + wy * tx
+                    f = glw[a] * glw[b] / (d * d)
+                    gy += wx * f
+                    gx -= wy * f
+            out[i, c, 0] = eps * hx * hy * gx * sx
+            out[i, c, 1] = eps * hx * hy * gy * sy
+
+
+@numba.njit(cache=True)
+def _cap_dual(thx, thy, dn, lim, eps, glx, glw, out):
+    """C of eq. (40) by GL quadrature (n, nch)."""
+    n = thx.shape[0]
+    nch = lim.shape[0]
+    ng = glx.shape[0]
+    for i in range(n):
+        tx = math.tan(thx[i])
+        ty = math.tan(thy[i])
+        for c in range(nch):
+            hx = 0.5 * (lim[c, 1] - lim[c, 0])
+            mx = 0.5 * (lim[c, 1] + lim[c, 0])
+            hy = 0.5 * (lim[c, 3] - lim[c, 2])
+            my = 0.5 * (lim[c, 3] + lim[c, 2])
+            acc = 0.0
+            for a in range(ng):
+                wx = mx + hx * glx[a]
+                for b in range(ng):
+                    wy = my + hy * glx[b]
+                    acc += glw[a] * glw[b] / (dn - wx * ty + wy * tx)
+            out[i, c] = eps * hx * hy * acc
+
+
+def dual_axis_capacitance(theta_x, theta_y, gap_m: float, limits: np.ndarray,
+                          eps_r: float = 1.0) -> np.ndarray:
+    """C(theta_X, theta_Y) of eqs. (40)-(42) [F], shape (n, nch). Angles in rad, gap in m."""
+    tx = np.atleast_1d(np.asarray(theta_x, float))
+    ty = np.broadcast_to(np.atleast_1d(np.asarray(theta_y, float)), tx.shape).copy()
+    out = np.empty((tx.size, limits.shape[0]))
+    _cap_dual(tx, ty, float(gap_m), np.ascontiguousarray(limits, float), EPS0 * eps_r,
+              _GL_X, _GL_W, out)
+    return out
+
+
+def dual_axis_gradient(theta_x, theta_y, gap_m: float, limits: np.ndarray,
+                       eps_r: float = 1.0) -> np.ndarray:
+    """[dC/dtheta_X, dC/dtheta_Y] of eq. (43) [F/rad], shape (n, nch, 2)."""
+    tx = np.atleast_1d(np.asarray(theta_x, float))
+    ty = np.broadcast_to(np.atleast_1d(np.asarray(theta_y, float)), tx.shape).copy()
+    out = np.empty((tx.size, limits.shape[0], 2))
+    _grad_dual(tx, ty, float(gap_m), np.ascontiguousarray(limits, float), EPS0 * eps_r,
+               _GL_X, _GL_W, out)
+    return out
+
+
+@numba.njit(cache=True)
+def dcdtheta_single(theta, dn, w1, w2, length, eps):
+    """dC/dtheta of the single-axis model eq. (46) [F/rad] (8-point Gauss-Legendre).
+
+    C = eps L int_{w1}^{w2} dw/(D_n - w tan th)  ->  dC/dth = eps L sec^2 th int w/(D)^2 dw.
+    """
+    t = math.tan(theta)
+    h = 0.5 * (w2 - w1)
+    m = 0.5 * (w2 + w1)
+    acc = 0.0
+    x0 = (-0.9602898564975363, -0.7966664774136267, -0.5255324099163290, -0.1834346424956498,
+          0.1834346424956498, 0.5255324099163290, 0.7966664774136267, 0.9602898564975363)
+    w0 = (0.1012285362903763, 0.2223810344533745, 0.3137066458778873, 0.3626837833783620,
+          0.3626837833783620, 0.3137066458778873, 0.2223810344533745, 0.1012285362903763)
+    for a in range(8):
+        w = m + h * x0[a]
+        d = dn - w * t
+        acc += w0[a] * w / (d * d)
+    return eps * length * h * acc * (1.0 + t * t)
+
+
+def single_axis_dcdtheta(theta, gap_m: float, limits_row: Sequence[float],
+                         eps_r: float = 1.0) -> np.ndarray:
+    """Vectorised :func:`dcdtheta_single` for one channel's limits (w1, w2, w3, w4)."""
+    th = np.atleast_1d(np.asarray(theta, float))
+    w1, w2, w3, w4 = (float(v) for v in limits_row)
+    return np.array([dcdtheta_single(t, gap_m, w1, w2, w4 - w3, EPS0 * eps_r) for t in th])
+
+
+def readout_noise_std(p: Mapping[str, Any]) -> float:
+    """RMS output noise of one transimpedance channel per sample [V] (module doc formula)."""
+    B = p["sample_rate_hz"] / 2.0
+    rs = p["r_s_ohm"]
+    thermal = 4.0 * K_BOLTZMANN * p["readout_temperature_k"] * rs * B
+    current = (p["amp_current_noise"] * rs) ** 2 * B
+    k = 2.0 * math.pi * rs * p["input_capacitance_f"]
+    voltage = p["amp_voltage_noise"] ** 2 * (B + k * k * B ** 3 / 3.0)
+    return math.sqrt(thermal + current + voltage)
+
+
+def off_axis_rejection(theta_main: np.ndarray, omega_main: np.ndarray, ratio: float,
+                       gap_m: float, limits: np.ndarray, eta: float = 1.0) -> float:
+    """R_off of eqs. (56)-(57) for off-axis motion = ratio x main-axis motion (in phase).
+
+    E_y = RMS(y_single - y_dual) normalised by RMS(y_single) (see module doc, eq. 56 units).
+    y_single from eq. (46)-(47), y_dual from eqs. (41)-(45); all channels pooled.
+    """
+    tx, wx = ratio * theta_main, ratio * omega_main
+    g = dual_axis_gradient(tx, theta_main, gap_m, limits)
+    y_dual = eta * (g[:, :, 0] * wx[:, None] + g[:, :, 1] * omega_main[:, None])
+    eps = EPS0
+    y_single = np.empty_like(y_dual)
+    for c in range(limits.shape[0]):
+        w1, w2, w3, w4 = limits[c]
+        hs = np.array([dcdtheta_single(t, gap_m, w1, w2, w4 - w3, eps) for t in theta_main])
+        y_single[:, c] = eta * hs * omega_main
+    e_y = np.sqrt(np.mean((y_single - y_dual) ** 2)) / np.sqrt(np.mean(y_single ** 2))
+    return 1.0 - e_y / ratio
+
+
+def steady_amplitude(p: Mapping[str, Any], freq_hz: float, amp_v: float) -> float:
+    """Steady tilt amplitude |b_c U / (wn^2 - w^2 + 2j zeta wn w)| [rad] of eqs. (31)-(33)."""
+    wn = 2 * math.pi * p["natural_freq_hz"]
+    w = 2 * math.pi * freq_hz
+    return p["b_c"] * amp_v / abs(wn * wn - w * w + 2j * p["damping_ratio"] * wn * w)
+
+
+class DriveSchedule:
+    """Piecewise drive: list of segments (frequency Hz, amplitude V, number of drive periods).
+
+    A segment lasts a whole, even number of periods so that every segment starts with a
+    bias-off period (module doc). Zero amplitude is allowed (zero-input data for R).
+    """
+
+    def __init__(self, segments: Sequence[tuple[float, float, int]]) -> None:
+        segs = []
+        for i, (f, a, n) in enumerate(segments):
+            if not (math.isfinite(f) and f > 0):
+                raise ParameterError(f"drive segment {i}: frequency {f!r} Hz must be > 0")
+            if not (math.isfinite(a) and a >= 0):
+                raise ParameterError(f"drive segment {i}: amplitude {a!r} V must be >= 0")
+            n = int(n)
+            if n < 2 or n % 2:
+                raise ParameterError(f"drive segment {i}: {n!r} periods must be even and >= 2")
+            segs.append((float(f), float(a), n))
+        if not segs:
+            raise ParameterError("drive schedule is empty")
+        self.segments = segs
+
+    @classmethod
+    def frequency_sweep(cls, f_lo=1711.0, f_hi=1719.0, step=1.0, amp=0.8, periods=400):
+        """Stepped-sine sweep for identification (Table 3.2 row 1: 1711-1719 Hz, 0.8 V)."""
+        n = int(round((f_hi - f_lo) / step)) + 1
+        return cls([(f_lo + i * step, amp, periods) for i in range(n)])
+
+    @classmethod
+    def amplitude_sweep(cls, a_lo=1.0, a_hi=1.3, n_trials=7, freq=1700.0, periods=200):
+        """Amplitude sweep for calibration (Table 3.2 row 3: 1700 Hz, 1.0-1.3 V)."""
+        amps = np.linspace(a_lo, a_hi, n_trials)
+        return cls([(freq, float(a), periods) for a in amps])
+
+    def check_safe(self, p: Mapping[str, Any]) -> None:
+        """Refuse a schedule whose steady tilt amplitude exceeds ``safe_tilt_rad``."""
+        for i, (f, a, _) in enumerate(self.segments):
+            th = steady_amplitude(p, f, a)
+            # transient overshoot of a lightly damped mode stays below 2x steady amplitude
+            if th > p["safe_tilt_rad"]:
+                raise ParameterError(
+                    f"drive segment {i} ({f} Hz, {a} V): steady tilt amplitude {th:.3g} rad "
+                    f"exceeds safe_tilt_rad = {p['safe_tilt_rad']!r} rad")
+
+    def duration_s(self) -> float:
+        """Total duration [s]."""
+        return sum(n / f for f, _, n in self.segments)
+
+
+class StageFrame(NamedTuple):
+    """One frame. y: (n, 4) analog readout [V]; codes: (n, 4) int ADC codes; u: (n,) drive V;
+    v_bias: (n,) bias V; f_drive: (n,) Hz; theta/omega: (n, 2) truth [rad, rad/s], columns
+    (main, off); ldv: (n,) LDV omega of the main axis [rad/s]; segment: (n,) int segment index;
+    phase: (n,) drive phase within the period [cycles]; saturated: number of clipped samples."""
+
+    y: np.ndarray
+    codes: np.ndarray
+    u: np.ndarray
+    v_bias: np.ndarray
+    f_drive: np.ndarray
+    theta: np.ndarray
+    omega: np.ndarray
+    ldv: np.ndarray
+    segment: np.ndarray
+    phase: np.ndarray
+    saturated: int
+
+
+@numba.njit(cache=True)
+def _simulate(n, fs, segf, sega, segn, st, A, B, coup, wnoise, u, vb, fd, th, om, seg, phs,
+              switching):
+    """Drive generator + stage dynamics over n samples; st = [theta, omega, thx, omx, phase,
+    seg_idx, period_in_seg]. Phase in cycles since the start of the current segment."""
+    nseg = segf.shape[0]
+    for i in range(n):
+        s = int(st[5])
+        if s < nseg:
+            f = segf[s]
+            a = sega[s]
+        else:
+            f = segf[nseg - 1]
+            a = 0.0
+        ph = st[4]
+        uu = a * math.sin(2.0 * math.pi * ph)
+        per = int(math.floor(ph))
+        on = 1.0
+        if switching:
+            on = 1.0 if (per % 2) == 1 else 0.0
+        u[i] = uu
+        phs[i] = ph
+        vb[i] = on
+        fd[i] = f
+        seg[i] = s
+        th[i, 0] = st[0]
+        om[i, 0] = st[1]
+        th[i, 1] = st[2]
+        om[i, 1] = st[3]
+        ue = uu + wnoise[i]
+        t0 = A[0, 0] * st[0] + A[0, 1] * st[1] + B[0] * ue
+        t1 = A[1, 0] * st[0] + A[1, 1] * st[1] + B[1] * ue
+        st[0] = t0
+        st[1] = t1
+        ue2 = coup * ue
+        t0 = A[0, 0] * st[2] + A[0, 1] * st[3] + B[0] * ue2
+        t1 = A[1, 0] * st[2] + A[1, 1] * st[3] + B[1] * ue2
+        st[2] = t0
+        st[3] = t1
+        ph += f / fs
+        if s < nseg and ph >= segn[s]:
+            ph -= segn[s]
+            st[5] = s + 1
+        st[4] = ph
+
+
+class MicroStage:
+    """Stage + drive generator + 4-channel capacitive readout + ADC + LDV, carried state.
+
+    Args:
+        params: overrides of :data:`STAGE_SPECS` (validated).
+        schedule: :class:`DriveSchedule` (checked against ``safe_tilt_rad``).
+        seed: run seed (np.random.SeedSequence -> noise streams).
+    """
+
+    def __init__(self, params: Mapping[str, Any] | None = None,
+                 schedule: DriveSchedule | None = None, seed: int = 0) -> None:
+        p = resolve(STAGE_SPECS, params)
+        validate_params(p)
+        self.params = p
+        self.fs = p["sample_rate_hz"]
+        self.schedule = schedule or DriveSchedule.amplitude_sweep()
+        self.schedule.check_safe(p)
+        ss = np.random.SeedSequence(int(seed))
+        gn, gw, gl = [np.random.Generator(np.random.PCG64(s)) for s in ss.spawn(3)]
+        gmis = np.random.Generator(np.random.PCG64(p["device_seed"]))
+        self._gen_noise, self._gen_w, self._gen_ldv = gn, gw, gl
+        self.limits = channel_limits(p)
+        self.gain = 1.0 + p["channel_gain_mismatch"] * gmis.standard_normal(4)
+        self.eta_true = -p["v_bias"] * p["r_s_ohm"] * self.gain
+        self.c_ft = p["feedthrough_cap_f"] * np.array([0.8, 1.1, 0.9, 1.2])
+        self.temperature_c = p["temperature_c"]
+        self._update_dynamics()
+        wn = self.wn
+        self.noise_std = readout_noise_std(p)
+        self.lsb = p["adc_full_scale_v"] / 2 ** (p["adc_bits"] - 1)
+        self.code_max = 2 ** (p["adc_bits"] - 1) - 1
+        self.w_std = p["drive_noise_density"] * math.sqrt(self.fs / 2)
+        segs = np.array(self.schedule.segments, float)
+        self._segf, self._sega = segs[:, 0].copy(), segs[:, 1].copy()
+        self._segn = segs[:, 2].copy()
+        self._st = np.zeros(7)
+        self._next = 0
+        d = p["ldv_delay_s"] * self.fs
+        self._ldv_m = int(math.ceil(d))
+        self._ldv_hist = np.zeros((3, self._ldv_m))
+        self._ldv_AB = stage_matrices(wn, p["damping_ratio"], self.b_c,
+                                      (self._ldv_m - d) / self.fs)
+
+    def _update_dynamics(self) -> None:
+        """wn(T), b_c(T) (linear tempcos) and the ZOH matrices (eq. 34) at fs."""
+        p = self.params
+        dt_k = self.temperature_c - p["ref_temperature_c"]
+        self.wn = 2 * math.pi * p["natural_freq_hz"] * (1.0 + p["freq_tempco_per_k"] * dt_k)
+        self.b_c = p["b_c"] * (1.0 + p["b_c_tempco_per_k"] * dt_k)
+        self.A, self.B = stage_matrices(self.wn, p["damping_ratio"], self.b_c, 1.0 / self.fs)
+        if hasattr(self, "_ldv_m"):
+            d = p["ldv_delay_s"] * self.fs
+            self._ldv_AB = stage_matrices(self.wn, p["damping_ratio"], self.b_c,
+                                          (self._ldv_m - d) / self.fs)
+
+    @property
+    def next_index(self) -> int:
+        """Index of the next sample."""
+        return self._next
+
+    @property
+    def finished(self) -> bool:
+        """True once the whole schedule has been produced."""
+        return self._st[5] >= len(self._segf)
+
+    def total_samples(self) -> int:
+        """Samples of the whole schedule (phase accumulation exact to the sample)."""
+        return int(math.ceil(self.schedule.duration_s() * self.fs))
+
+    def set_temperature(self, temperature_c: float) -> None:
+        """Temperature input (moves D_n, eq. module doc)."""
+        spec = {s.name: s for s in STAGE_SPECS}["temperature_c"]
+        self.temperature_c = spec.validate(float(temperature_c))
+        self._update_dynamics()
+
+    @property
+    def gap(self) -> float:
+        """Current true D_n [m]."""
+        return gap_at(self.params, self.temperature_c)
+
+    def step(self, n: int) -> StageFrame:
+        """Produce the next n samples (module doc)."""
+        n = int(n)
+        if n < 0:
+            raise ValueError(f"n = {n} must be >= 0")
+        p = self.params
+        u = np.empty(n)
+        vb = np.empty(n)
+        fd = np.empty(n)
+        th = np.empty((n, 2))
+        om = np.empty((n, 2))
+        seg = np.empty(n, np.int64)
+        phs = np.empty(n)
+        w = self._gen_w.standard_normal(n) * self.w_std if self.w_std > 0 else np.zeros(n)
+        _simulate(n, self.fs, self._segf, self._sega, self._segn, self._st, self.A, self.B,
+                  p["off_axis_coupling"], w, u, vb, fd, th, om, seg, phs, p["bias_switching"])
+        vb = vb * p["v_bias"]
+        # dual-axis sensor: main axis = Y, off axis = X
+        g = dual_axis_gradient(th[:, 1], th[:, 0], self.gap, self.limits, p["eps_r"])
+        dcdt = g[:, :, 0] * om[:, 1:2] + g[:, :, 1] * om[:, 0:1]
+        y = -(vb[:, None] * p["r_s_ohm"] * self.gain[None, :]) * dcdt
+        if p["feedthrough_enabled"]:
+            # du/dt of the generator's continuous sinusoid a sin(2 pi phase)
+            a = np.where(seg < len(self._sega), self._sega[np.minimum(seg, len(self._sega) - 1)],
+                         0.0)
+            dudt = 2 * np.pi * fd * a * np.cos(2 * np.pi * phs)
+            y = y - p["r_s_ohm"] * self.c_ft[None, :] * dudt[:, None]
+        y = y + self._gen_noise.standard_normal((n, 4)) * self.noise_std
+        codes = np.rint(y / self.lsb)
+        sat = int(np.count_nonzero(np.abs(codes) > self.code_max))
+        codes = np.clip(codes, -self.code_max - 1, self.code_max).astype(np.int32)
+        self.last_applied = u + w  # drive incl. amplifier noise, held over each sample
+        ldv = self._ldv(th[:, 0], om[:, 0], u + w)
+        self._next += n
+        return StageFrame(y, codes, u, vb, fd, th, om, ldv, seg, phs % 1.0, sat)
+
+    def _ldv(self, theta: np.ndarray, omega: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """LDV reference (sec. 3.5.2/3.5.4): main-axis omega(t - tau) + bias + white noise.
+
+        The delayed rate is exact: the state at sample k - m (m = ceil(tau fs)) is propagated
+        with its held input over the fractional time m/fs - tau (ZOH, eq. 34).
+        """
+        p = self.params
+        m = self._ldv_m
+        th = np.concatenate([self._ldv_hist[0], theta])
+        om = np.concatenate([self._ldv_hist[1], omega])
+        uu = np.concatenate([self._ldv_hist[2], u])
+        k = omega.size
+        Af, Bf = self._ldv_AB
+        out = Af[1, 0] * th[:k] + Af[1, 1] * om[:k] + Bf[1] * uu[:k]
+        self._ldv_hist = np.stack([th[k:], om[k:], uu[k:]]) if k else self._ldv_hist
+        out = out + p["ldv_bias"]
+        if p["ldv_noise_std"] > 0:
+            out = out + self._gen_ldv.standard_normal(k) * p["ldv_noise_std"]
+        return out
+
+
+class LdvReference:
+    """Namespace doc: the LDV reference lives in :meth:`MicroStage._ldv` (truth + noise +
+    6.9 us delay + constant bias, sec. 3.5.4); it is used for identification only."""
+
+
+def record(stage: MicroStage, gyro=None, frame: int = 65536, n: int | None = None) -> dict:
+    """Run ``stage`` (and an optional :class:`mems_sim.mems_gyro.MemsGyro` on it) to the end
+    of its schedule (or n samples) and return concatenated arrays (offline use: tests,
+    identification, benchmarks). Keys: y [V, ADC-decoded], u, u_applied, v_bias, f_drive,
+    phase, segment, cycle (period counter), theta, omega (n, 2), ldv; gyro_t, gyro_value,
+    gyro_true, gyro_phase, gyro_cycle, gyro_segment when a gyro is given."""
+    total = stage.total_samples() if n is None else int(n)
+    parts: dict[str, list] = {}
+    g_parts: dict[str, list] = {}
+    done = 0
+    while done < total:
+        m = min(frame, total - done)
+        k0 = stage.next_index
+        f = stage.step(m)
+        for key, val in (("y", f.codes * stage.lsb), ("u", f.u), ("u_applied", stage.last_applied),
+                         ("v_bias", f.v_bias), ("f_drive", f.f_drive), ("phase", f.phase),
+                         ("segment", f.segment), ("theta", f.theta), ("omega", f.omega),
+                         ("ldv", f.ldv)):
+            parts.setdefault(key, []).append(val)
+        if gyro is not None:
+            gyro.temperature_c = stage.temperature_c
+            g = gyro.step(k0, stage.fs, f.theta[:, 0], f.omega[:, 0], stage.last_applied,
+                          stage.wn, stage.params["damping_ratio"], stage.b_c)
+            g_parts.setdefault("gyro_t", []).append(g.t)
+            g_parts.setdefault("gyro_value", []).append(g.value)
+            g_parts.setdefault("gyro_true", []).append(g.omega_true)
+        done += m
+    out = {k: np.concatenate(v) for k, v in parts.items()}
+    ph = out["phase"]
+    out["cycle"] = np.concatenate([[0], np.cumsum(np.diff(ph) < 0)])
+    out["fs"] = stage.fs
+    out["temperature_c"] = stage.temperature_c
+    if gyro is not None:
+        out.update({k: np.concatenate(v) for k, v in g_parts.items()})
+        kk = np.clip(np.floor(out["gyro_t"] * stage.fs).astype(np.int64), 0, ph.size - 1)
+        frac = out["gyro_t"] * stage.fs - kk
+        out["gyro_phase"] = (ph[kk] + frac * out["f_drive"][kk] / stage.fs) % 1.0
+        out["gyro_cycle"] = out["cycle"][kk]
+        out["gyro_segment"] = out["segment"][kk]
+        out["gyro_k_true"] = gyro.scale_factor()
+    return out
