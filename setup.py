@@ -40,6 +40,8 @@ setup(
             "sd_observer_node = mems_estimation.sd_observer_node:main",
             "fr_accelerometer_node = mems_sim.fr_accelerometer_node:main",
             "hybrid_ekf_node = mems_estimation.hybrid_ekf_node:main",
+            "scanner_amdm_node = mems_sim.scanner_amdm_node:main",
+            "scanner_amdm_estimator_node = mems_estimation.scanner_amdm_estimator_node:main",
             "identify_noise = mems_estimation.identify_noise_cli:main",
             "mcap_record = mems_sim.bag.recorder:main",
             "mcap_play = mems_sim.bag.player:main",
