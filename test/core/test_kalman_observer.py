@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from mems_estimation.adaptive_observer import AdaptiveObserver
 from mems_estimation.kalman_observer import KalmanObserver, observer_model, steady_state_gains
@@ -71,7 +72,8 @@ def test_steady_state_gain_matches_time_varying():
 
 
 def test_fig2_consistency_with_state_noise():
-    """Figure 2 (modulator within range): amplitude 0.25 V, output noise std 0.25 V."""
+    """Figure 2 (modulator within range): amplitude 0.25 V, output noise std 0.25 V (the
+    paper's "noise of the order of the signal", scaled into the modulator's input range)."""
     sb, sf = 0.25, 5e-4
     ratios = []
     for seed in (4, 5):
@@ -94,22 +96,84 @@ def test_fig2_consistency_with_state_noise():
         assert err.std() < 0.05 * sb
 
 
-@pytest.mark.xfail(strict=True, reason="the estimation error x - x(k|k) of a Q = 100 resonator "
-                   "is narrow-band around f0 (acf(1) ~ 0.95); the paper's 'white residual' holds "
-                   "for the innovations only, and even these show acf up to ~0.2 because the "
-                   "one-bit quantisation error is not white")
+def _ljung_box(x, lags=20):
+    """Ljung-Box statistic Q = n (n+2) sum r_k^2/(n-k) and its chi^2(lags) p-value."""
+    n = x.size
+    r = _acf(x, lags)
+    q = n * (n + 2) * float(np.sum(r ** 2 / (n - np.arange(1, lags + 1))))
+    return q, float(stats.chi2.sf(q, lags))
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "Colinet Sec. 7 says that with state noise 'the residual error will be a white noise with "
+    "non-zero variance P'. Measured (amplitude 0.25 V, output noise 0.25 V, state noise "
+    "5e-4 V, seed 4): the error x - x(k|k) has lag-1 autocorrelation 0.951, Ljung-Box "
+    "(20 lags) p = 0: it is narrow-band around f0, as the a-posteriori error of any Kalman "
+    "filter of a Q = 100 resonator driven by white force noise is (its correlation decays "
+    "with the resonator's ~Q/(pi f0) time constant, not in one sample). Only the "
+    "innovations are white in theory, and even they fail here (acf(1) = -0.22, Ljung-Box "
+    "Q = 14,600, p = 0) because the one-bit quantisation error is not white. The paper's "
+    "statement is wrong as written, so this item cannot be met"))
 def test_fig2_error_whiteness():
+    """The paper's claim, tested literally: the estimation error is white (Ljung-Box, 20 lags,
+    5 % level).  The innovations' statistic is printed alongside."""
     fr = _run(0.25, 0.25, 5e-4, seed=4)
     err = (fr.estimate - fr.position)[SKIP:]
-    acf = _acf(err)
-    bound = 3.0 / math.sqrt(err.size)
-    print(f"\nerror acf lags 1..20: {np.round(acf, 3)}; bound {bound:.4f}")
-    assert np.all(np.abs(acf) < bound)
+    ko = KalmanObserver(F0, Q, FS, 0.25, 5e-4)
+    ko.step(*_io(fr))
+    inn = ko.last_innovations[SKIP:]
+    q_e, p_e = _ljung_box(err)
+    q_i, p_i = _ljung_box(inn)
+    print(f"\nerror: acf(1) {_acf(err)[0]:.3f}, Ljung-Box Q {q_e:.0f} p {p_e:.2g}; "
+          f"innovations: acf(1..3) {np.round(_acf(inn)[:3], 3)}, Ljung-Box Q {q_i:.0f} p {p_i:.2g}")
+    assert p_e > 0.05
 
 
-@pytest.mark.xfail(strict=True, reason="amplitude 0.5 V + output noise std 0.5 V overloads the "
-                   "+-1 V second-order one-bit modulator (comparator input std ~2 V, var(e) ~3.3 "
-                   "V^2 vs 1/3 assumed): measured/predicted error variance ~2.1-2.3")
+def test_fig2_error_small_and_uncorrelated_with_state():
+    """What the paper contrasts (Sec. 7, Figs. 5-6): with an exact model and state noise the
+    residual error is small and unrelated to the resonator's motion, whereas a model error
+    leaves "a residual non-white error strongly correlated with the real resonator state
+    position".  Tested: exact model -> error std <= 5 % of the output-noise std and
+    |corr(error, true position)| < 0.25; 5 % f0 error -> |corr| > 0.9 and >= 10x larger.
+    This does not replace the whiteness item (strict xfail above)."""
+    sb, sf = 0.25, 5e-4
+    for seed in (4, 5):
+        fr = _run(0.25, sb, sf, seed)
+        x = fr.position[SKIP:]
+        err = (fr.estimate - fr.position)[SKIP:]
+        wrong, _ = KalmanObserver(F0 * 1.05, Q, FS, sb, sf).step(*_io(fr))
+        err_w = wrong[SKIP:] - x
+        c, c_w = np.corrcoef(err, x)[0, 1], np.corrcoef(err_w, x)[0, 1]
+        print(f"\nseed {seed}: exact model: error std {err.std():.2e} V "
+              f"({err.std() / sb:.2%} of the output noise), corr(error, x) {c:+.3f}; "
+              f"5 % f0 error: std {err_w.std():.2e} V, corr {c_w:+.3f}")
+        assert err.std() <= 0.05 * sb
+        assert abs(c) < 0.25
+        assert abs(c_w) > 0.9 and err_w.std() >= 10 * err.std()
+
+
+def test_fig2_consistency_default_amplitude():
+    """Consistency at the device's default amplitude (0.5 V) and default output noise (0),
+    state noise on: the modulator input stays within its +-1 V range."""
+    for seed in (4, 5):
+        fr = _run(0.5, 0.0, 1e-3, seed)
+        err = (fr.estimate - fr.position)[SKIP:]
+        ratio = err.var() / float(np.mean(fr.estimate_var[SKIP:]))
+        print(f"\nseed {seed}: A = {_amp(fr.position[SKIP:]):.3f} V, max |x| "
+              f"{np.abs(fr.position).max():.3f} V; measured/predicted variance {ratio:.3f}")
+        assert np.abs(fr.position).max() < 1.0
+        assert 0.8 <= ratio <= 1.2
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "amplitude 0.5 V with output noise std 0.5 V drives the +-1 V one-bit second-order "
+    "modulator beyond its reference on 10 % of the samples (peaks ~2 V): it overloads "
+    "(comparator-input std 2.5-2.6 V instead of 0.63-0.68 V in range) and no additive "
+    "linear quantiser model holds. Measured/predicted error variance 2.9-3.3 (seeds 4, 5) "
+    "with the paper's unit-gain model; a Bussgang gain does not help: 3.2-3.5 with the "
+    "in-range gain 1.247, 3.4 with a self-consistent Gaussian gain, 2.9-3.1 even with the "
+    "gain from the measured comparator-input std. The same SNR inside the input range "
+    "(0.25 V + 0.25 V) is consistent: 0.91-1.00"))
 def test_fig2_consistency_default_amplitude_overloaded():
     fr = _run(0.5, 0.5, 1e-3, seed=4)
     err = (fr.estimate - fr.position)[SKIP:]
