@@ -1,0 +1,203 @@
+"""Scenario ``gyro_calibration``: piezo tilt micro-stage, capacitive EKF, in-situ gyro
+scale-factor calibration at two temperatures (Chen 2018, chapter 3; issue 3).
+
+Steps (all seeded; identification never reads the emulator's truth):
+
+1. identification at 22.9 C: stepped-sine sweep 1711-1719 Hz at 0.8 V (circle fit ->
+   wn, zeta, b_c, LDV delay), training amplitude sweep 1.0-1.3 V at 1700 Hz with the LDV
+   (D_n, eta per channel; Q; output correction), zero drive (R);
+2. at 22.9 C and at 35.7 C (sensor parameters D_n, eta re-identified there from a
+   training sweep): a separate calibration amplitude sweep with the on-stage gyro;
+   EKF on the feedthrough-cancelled channels; peak-to-peak pairing; eq. (27);
+3. table in the form of Tables 3.4-3.6 and PNG figures.
+
+Status: this first version runs the ROS-free cores in one process (no node graph and no
+MCAP yet; see the issue report).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mems_estimation.gyro_calibration import calibrate
+from mems_estimation.stage_ekf import StageEkf, save_model
+from mems_estimation.stage_identification import (cancelled, evaluate, fold_period, identify,
+                                                  reidentify_gap)
+from mems_sim.mems_gyro import MemsGyro
+from mems_sim.micro_stage import DriveSchedule, MicroStage, off_axis_rejection, record
+
+NAME = "gyro_calibration"
+DESCRIPTION = ("piezo tilt micro-stage (Chen 2018 ch. 3): capacitive sensing + EKF, in-situ "
+               "MPU-6500-like gyro scale-factor calibration at 22.9 and 35.7 C")
+DEFAULT_DURATION_S = 0.0   # the duration follows from the drive schedules
+T1, T2 = 22.9, 35.7
+
+
+@dataclass
+class Plan:
+    """Lengths of the drive schedules (drive periods per step/trial)."""
+
+    sweep_step_hz: float = 1.0
+    sweep_periods: int = 400
+    train_trials: int = 7
+    train_periods: int = 200
+    zero_periods: int = 100
+    cal_trials: int = 7
+    cal_periods: int = 400
+
+    @classmethod
+    def short(cls) -> "Plan":
+        """Shortened plan for tests (seconds of CPU)."""
+        return cls(2.0, 300, 4, 120, 40, 4, 400)
+
+
+def identify_stage(seed: int, plan: Plan, stage_params: dict | None = None):
+    """Identification at T1 (step 1). Returns (model, report, limits)."""
+    sp = dict(stage_params or {}, temperature_c=T1)
+    sweep = DriveSchedule.frequency_sweep(step=plan.sweep_step_hz, periods=plan.sweep_periods)
+    rs = record(MicroStage(sp, sweep, seed=seed * 100 + 1))
+    tr = record(MicroStage(sp, DriveSchedule.amplitude_sweep(n_trials=plan.train_trials,
+                                                             periods=plan.train_periods),
+                           seed=seed * 100 + 2))
+    z = record(MicroStage(sp, DriveSchedule([(1700.0, 0.0, plan.zero_periods)]),
+                          seed=seed * 100 + 3))
+    limits = MicroStage(sp).limits  # design layout (Table A.1), not an identified quantity
+    model, rep = identify(rs, [s[0] for s in sweep.segments], tr, z, limits)
+    return model, rep
+
+
+def retrain_at(model, temperature_c: float, seed: int, plan: Plan,
+               stage_params: dict | None = None):
+    """Sensor parameters re-identified at another temperature (LDV training sweep)."""
+    sp = dict(stage_params or {}, temperature_c=temperature_c)
+    tr = record(MicroStage(sp, DriveSchedule.amplitude_sweep(n_trials=plan.train_trials,
+                                                             periods=plan.train_periods),
+                           seed=seed * 100 + 4 + int(temperature_c)))
+    return reidentify_gap(model, tr)
+
+
+def calibration_run(model, temperature_c: float, seed: int, plan: Plan,
+                    stage_params: dict | None = None, gyro_params: dict | None = None,
+                    cancel: bool = True) -> dict:
+    """Calibration sweep with the gyro (step 2): EKF figures and eq. (27) result."""
+    sp = dict(stage_params or {}, temperature_c=temperature_c)
+    stage = MicroStage(sp, DriveSchedule.amplitude_sweep(n_trials=plan.cal_trials,
+                                                         periods=plan.cal_periods),
+                       seed=seed * 100 + 50 + int(temperature_c))
+    gyro = MemsGyro(gyro_params, seed=seed * 100 + 60 + int(temperature_c),
+                    temperature_c=temperature_c)
+    rec = record(stage, gyro)
+    x, var = StageEkf(model).step(cancelled(rec, enabled=cancel), rec["u"])
+    ev = evaluate(x[:, 1], rec["omega"][:, 0], rec["phase"], rec["segment"])
+    cal = calibrate(rec, x[:, 1])
+    k_true = gyro.scale_factor()
+    return {"rec": rec, "x": x, "var": var, "eval": ev, "cal": cal, "k_true": k_true,
+            "ppm": (cal["scale_factor"] / k_true - 1.0) * 1e6,
+            "se_ppm": cal["scale_factor_se"] / k_true * 1e6}
+
+
+def off_axis_table(gap: float, limits: np.ndarray, ratios=(0.01, 0.1, 0.5)) -> list:
+    """R_off (eqs. 56-57) for main-axis motion +-0.003 rad at 1700 Hz (sec. 3.6.1)."""
+    ph = np.linspace(0.0, 1.0, 2000, endpoint=False)
+    th = 3e-3 * np.sin(2 * np.pi * ph)
+    om = 3e-3 * 2 * np.pi * 1700.0 * np.cos(2 * np.pi * ph)
+    return [(r, off_axis_rejection(th, om, r, gap, limits)) for r in ratios]
+
+
+def write_plots(out_dir: Path, runs: dict) -> list[Path]:
+    """Fig. 3.14-like averaged period and Fig. 3.15-like peak-to-peak plot."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    paths = []
+    r = runs[T1]
+    rec = r["rec"]
+    last = rec["segment"] == rec["segment"].max()
+    idx = np.flatnonzero(last)
+    idx = idx[idx.size // 2:]
+    fe = fold_period(r["x"][idx, 1], rec["phase"][idx])
+    ft = fold_period(rec["omega"][idx, 0], rec["phase"][idx])
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ph = (np.arange(fe.size) + 0.5) / fe.size
+    ax.plot(ph, ft, "k-", label="truth")
+    ax.plot(ph, fe, "r--", label="EKF (stage)")
+    ax.set_xlabel("drive phase [cycles]")
+    ax.set_ylabel("omega [rad/s]")
+    ax.legend()
+    ax.set_title("one averaged period, 1.3 V, 1700 Hz")
+    fig.tight_layout()
+    p = out_dir / f"{NAME}_period.png"
+    fig.savefig(p, dpi=100)
+    plt.close(fig)
+    paths.append(p)
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    for T, r in runs.items():
+        s = np.array([q["stage_pp"] for q in r["cal"]["pairs"]])
+        g = np.array([q["gyro_pp"] for q in r["cal"]["pairs"]])
+        ax.plot(s, g, "o", label=f"{T} C")
+        xs = np.linspace(s.min(), s.max(), 2)
+        ax.plot(xs, r["cal"]["scale_factor"] * xs + r["cal"]["bias"], "-")
+    ax.set_xlabel("stage omega_pp [rad/s]")
+    ax.set_ylabel("gyro omega_pp [rad/s]")
+    ax.legend()
+    fig.tight_layout()
+    p = out_dir / f"{NAME}_peak_to_peak.png"
+    fig.savefig(p, dpi=100)
+    plt.close(fig)
+    paths.append(p)
+    return paths
+
+
+def run_pipeline(seed: int = 0, plan: Plan | None = None, out_dir: Path | None = None,
+                 plots: bool = True) -> dict:
+    """Whole scenario without ROS; returns figures, table text and file paths."""
+    from mems_sim.scenarios.base import format_table
+    plan = plan or Plan()
+    model, rep = identify_stage(seed, plan)
+    models = {T1: model, T2: retrain_at(model, T2, seed, plan)}
+    runs = {T: calibration_run(models[T], T, seed, plan) for T in (T1, T2)}
+    limits = model.limits
+    rows = [["off-axis rejection R_off", f"{100 * r:g} % off-axis", f"{100 * v:.3f} %",
+             ">= 99.98 %" if r <= 0.1 else ">= 99.90 %"]
+            for r, v in off_axis_table(float(np.mean(model.gap)), limits)]
+    ev = runs[T1]["eval"]
+    rows += [["omega RMSE (1 period avg)", f"{T1} C", f"{ev['rmse']:.4f} rad/s", "<= 0.114"],
+             ["stage alpha", f"{T1} C", f"{ev['alpha']:.5f}", "|a-1| <= 8e-4"],
+             ["stage beta", f"{T1} C", f"{ev['beta']:.4f} rad/s", "(paper -0.0207)"]]
+    for T in (T1, T2):
+        r = runs[T]
+        rows.append([f"SF_IMU by stage (true {r['k_true']:.5f})", f"{T} C",
+                     f"{r['cal']['scale_factor']:.5f} +- {r['cal']['scale_factor_se']:.5f}",
+                     f"{r['ppm']:+.0f} ppm"])
+    rms = math.sqrt(np.mean([runs[T]["ppm"] ** 2 for T in (T1, T2)]))
+    rows.append(["SF error RMS over temps", f"{T1}/{T2} C", f"{rms:.0f} ppm", "<= 100 ppm"])
+    table = format_table(["quantity", "condition", "value", "target / note"], rows)
+    paths = []
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        save_model(model, str(out_dir / f"{NAME}_stage_params_{T1}C.yaml"))
+        save_model(models[T2], str(out_dir / f"{NAME}_stage_params_{T2}C.yaml"))
+        if plots:
+            paths = write_plots(out_dir, runs)
+    return {"table": table, "model": model, "models": models, "runs": runs,
+            "sf_rms_ppm": rms, "identification": rep, "plots": paths}
+
+
+def run(options) -> dict:
+    """``run_scenario gyro_calibration``: options.extra['short'] selects the short plan."""
+    from mems_sim.scenarios.base import ScenarioError
+    if options.realtime:
+        raise ScenarioError("gyro_calibration: --realtime is not supported yet (offline cores)")
+    if options.duration_s not in (None, 0.0):
+        raise ScenarioError("gyro_calibration: the duration follows from the drive schedules; "
+                            "omit --duration")
+    plan = Plan.short() if options.extra.get("short") else Plan()
+    out = options.out or Path("runs") / f"{NAME}-{options.seed}.mcap"
+    res = run_pipeline(int(options.seed), plan, Path(out).parent, options.plots)
+    print(res["table"])
+    for p in res["plots"]:
+        print(f"figure: {p}")
+    return {"table": res["table"], "sf_rms_ppm": res["sf_rms_ppm"], "plots": res["plots"]}
