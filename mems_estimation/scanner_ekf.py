@@ -183,12 +183,14 @@ def model_from_device(device_p: Mapping[str, Any], **overrides) -> dict[str, Any
 @numba.njit(cache=True, inline="always")
 def _predict(x, P, v, Phi, Gam, Q, J, dc0, dth0, thth, xo, Po):
     """x^- = Phi x + Gam tau/J; P^- = G P G^T + Q (eqs. (69)-(70), ZOH form). P as [p00,p01,p11]."""
-    th = x[0]
-    u = (th - thth) / dth0
-    e = math.exp(-u * u)
     v2 = v * v
-    acc = 0.5 * (-2.0 * dc0 * u / dth0 * e) * v2 / J
-    dacc = 0.5 * (2.0 * dc0 / (dth0 * dth0) * (2.0 * u * u - 1.0) * e) * v2 / J
+    acc = 0.0
+    dacc = 0.0
+    if v2 != 0.0:
+        u = (x[0] - thth) / dth0
+        e = math.exp(-u * u)
+        acc = 0.5 * (-2.0 * dc0 * u / dth0 * e) * v2 / J
+        dacc = 0.5 * (2.0 * dc0 / (dth0 * dth0) * (2.0 * u * u - 1.0) * e) * v2 / J
     xo[0] = Phi[0, 0] * x[0] + Phi[0, 1] * x[1] + Gam[0] * acc
     xo[1] = Phi[1, 0] * x[0] + Phi[1, 1] * x[1] + Gam[1] * acc
     g00 = Phi[0, 0] + Gam[0] * dacc

@@ -27,7 +27,10 @@ delta in [-0.5, 0.5] from the parabola through r[c-1], r[c], r[c+1], and its tim
 from the discrete form of eq. (65): var(delta) ~ sigma_n^2 sum g^2 / r''(c)^2 with g the
 central difference of f (noise of r'(c)) and r''(c) = r[c-1] - 2 r[c] + r[c+1] (samples^2).
 
-The offline (non-causal) run applies the same f and NMS to a whole record.
+Implementation: per frame, r is computed for the centres completed by the frame from the
+stored 2W-sample history + the frame (direct convolution, or FFT for frames of >= 2048
+samples: same values up to rounding), then an online NMS kernel (numba) keeps the last 2M+1
+responses.  The offline (non-causal) run applies the same f and NMS to a whole record.
 """
 from __future__ import annotations
 
@@ -36,6 +39,7 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
+import scipy.signal
 
 from mems_sim.params import ParameterError, ParamSpec, resolve
 
@@ -146,29 +150,19 @@ def slope_noise_var(sigma_n: float, kernel: np.ndarray) -> float:
 
 
 @numba.njit(cache=True)
-def _online_run(y, k0, f, M, thr, g2, ybuf, rbuf, st, out_c, out_k, out_d, out_r, out_v):
-    """Online DOG + NMS over a frame. st = [samples seen, r values computed].
+def _nms_run(r, c_first, W, M, thr, g2, rbuf, out_c, out_k, out_d, out_r, out_v):
+    """Online non-maximum suppression over new responses r[i] of centres c_first + i.
 
-    ybuf: ring of the last 2W+1 inputs (slot k % (2W+1)); rbuf: ring of the last 2M+1
-    responses (slot c % (2M+1)). Returns the number of detections written.
+    The response of centre c1 exists once sample c1 + W has arrived; the NMS of centre
+    c = c1 - M is decided then, at arrival k = c + M + W.  rbuf: ring of the last 2M+1
+    responses (slot c % (2M+1)).  Returns the number of detections written.
     """
-    nf = f.shape[0]
-    W = (nf - 1) // 2
     nr = rbuf.shape[0]
     nd = 0
-    for i in range(y.shape[0]):
-        k = k0 + i
-        ybuf[k % nf] = y[i]
-        st[0] = k + 1
-        if k < 2 * W:
-            continue
-        c1 = k - W                      # centre whose response is now complete
-        acc = 0.0
-        for m in range(-W, W + 1):
-            acc += f[m + W] * ybuf[(c1 - m) % nf]
-        rbuf[c1 % nr] = acc
-        st[1] = c1 - W + 1              # number of responses (first centre is W)
-        c = c1 - M                      # NMS centre, needs r[c-M .. c+M]
+    for i in range(r.shape[0]):
+        c1 = c_first + i
+        rbuf[c1 % nr] = r[i]
+        c = c1 - M
         if c - M < W:
             continue
         r0 = rbuf[c % nr]
@@ -181,12 +175,16 @@ def _online_run(y, k0, f, M, thr, g2, ybuf, rbuf, st, out_c, out_k, out_d, out_r
                 break
         if ok:
             out_c[nd] = c
-            out_k[nd] = k
+            out_k[nd] = c1 + W
             out_d[nd] = _parabolic_delta(rbuf[(c - 1) % nr], r0, rbuf[(c + 1) % nr])
             out_r[nd] = r0
             out_v[nd] = _timing_var(rbuf[(c - 1) % nr], r0, rbuf[(c + 1) % nr], g2)
             nd += 1
     return nd
+
+
+#: frames at least this long are filtered by FFT (overlap-save), shorter ones directly
+FFT_MIN_SAMPLES = 2048
 
 
 class OnlineThresholdDetector:
@@ -206,24 +204,37 @@ class OnlineThresholdDetector:
         self.latency = self.W + self.M
         self.threshold = self.p["detect_kappa"] * noise_response_std(self.p["noise_std"], self.kernel)
         self._g2 = slope_noise_var(self.p["noise_std"], self.kernel)
-        self._ybuf = np.zeros(self.kernel.shape[0])
+        self._hist = np.zeros(0)          # last 2W inputs (the filter's causal history)
         self._rbuf = np.zeros(2 * self.M + 1)
-        self._st = np.zeros(2, np.int64)
         self.next_index = 0
 
     def process(self, y: np.ndarray) -> Detections:
-        """Feed the next frame of y_cap [V]; returns the detections issued during it."""
+        """Feed the next frame of y_cap [V]; returns the detections issued during it.
+
+        The responses r[c] completed by this frame (c + W inside it) are computed from the
+        stored history and the frame only (causal), by direct or FFT convolution.
+        """
         y = np.ascontiguousarray(y, dtype=np.float64)
         n = y.shape[0]
-        cap = n // (self.M + 1) + 2
+        nf = self.kernel.shape[0]
+        ext = np.concatenate((self._hist, y))
+        start = self.next_index - self._hist.shape[0]       # global index of ext[0]
+        self._hist = ext[-(nf - 1):].copy() if ext.shape[0] >= nf - 1 else ext
+        self.next_index += n
+        if ext.shape[0] < nf:
+            return Detections.empty()
+        if n >= FFT_MIN_SAMPLES:
+            r = scipy.signal.fftconvolve(ext, self.kernel, mode="valid")
+        else:
+            r = np.convolve(ext, self.kernel, mode="valid")
+        cap = r.shape[0] // (self.M + 1) + 2
         oc = np.empty(cap, np.int64)
         ok = np.empty(cap, np.int64)
         od = np.empty(cap)
         orr = np.empty(cap)
         ov = np.empty(cap)
-        nd = _online_run(y, self.next_index, self.kernel, self.M, self.threshold, self._g2,
-                         self._ybuf, self._rbuf, self._st, oc, ok, od, orr, ov)
-        self.next_index += n
+        nd = _nms_run(np.ascontiguousarray(r), start + self.W, self.W, self.M, self.threshold,
+                      self._g2, self._rbuf, oc, ok, od, orr, ov)
         return Detections(oc[:nd].copy(), ok[:nd].copy(), od[:nd].copy(), orr[:nd].copy(),
                           ov[:nd].copy())
 

@@ -303,7 +303,8 @@ def drive_plan_from(p: Mapping[str, Any]) -> DrivePlan:
 @numba.njit(cache=True, inline="always")
 def _accel(th, om, v2, tau_n, J, k, b, dc0, dth0, thth):
     """theta'' = (1/2 dC_dr/dtheta V^2 + tau_n - b omega - k theta)/J -- eq. (66)."""
-    return (0.5 * _gauss_dc(th, dc0, dth0, thth) * v2 + tau_n - b * om - k * th) / J
+    tq = 0.5 * _gauss_dc(th, dc0, dth0, thth) * v2 if v2 != 0.0 else 0.0
+    return (tq + tau_n - b * om - k * th) / J
 
 
 @numba.njit(cache=True)

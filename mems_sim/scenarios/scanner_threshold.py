@@ -23,6 +23,7 @@ Results, from the recording:
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -50,6 +51,7 @@ PAPER = dict(ekf=(0.0050, 0.0029, 0.0026, 0.0025, 0.0034),
              hyb=(0.0047, 0.0023, 0.0019, 0.0018, 0.0029),
              red=(6.9, 21.4, 27.6, 30.3, 15.1))
 NS = "scanner"
+FRAME = 5000                       # samples per frame (10 ms at 500 kHz)
 
 
 def _params(d: dict) -> list[Parameter]:
@@ -63,51 +65,63 @@ def device_overrides(duration: float) -> dict:
     return p
 
 
-def run_graph(options: ScenarioOptions, out: Path, duration: float, progress: Progress) -> dict:
-    """Device + threshold/EKF node + recorder; returns publish counts and recorder summary."""
+def run_graph(options: ScenarioOptions, out: Path, duration: float, progress: Progress,
+              frame: int = FRAME, record: bool = True) -> dict:
+    """Device + threshold/EKF node + recorder; returns publish counts and recorder summary.
+
+    ``frame``: samples per frame; ``record``: False leaves the recorder out (benchmark).
+    """
     graph = Graph(options.domain_id if options.domain_id is not None else default_domain_id())
     p = dict(device_overrides(duration), seed=int(options.seed), duration_s=float(duration),
-             frame_size=1000)
+             frame_size=int(frame))
     dev = graph.add(MicroScannerNode(context=graph.context, namespace=NS,
                                      drive_externally=not options.realtime, autostart=False,
                                      parameter_overrides=_params(p)))
     est = graph.add(ScannerThresholdNode(context=graph.context, namespace=f"{NS}/threshold",
                                          parameter_overrides=_params(dict(
                                              device_namespace=f"/{NS}", dog_sigma=DOG_SIGMA))))
-    rec = graph.add(RecorderNode(str(out), regex=rf"^/{NS}/", context=graph.context))
+    rec = (graph.add(RecorderNode(str(out), regex=rf"^/{NS}/", context=graph.context))
+           if record else None)
 
     def delivered(_d) -> int:
+        if rec is None:
+            return est.frames_done
         return min([rec.received(f"/{NS}/{t}") for t in ("adc", "drive", "truth", "psd",
                                                           "threshold_detections")]
                    + [est.frames_done])
     try:
-        graph.spin_until(lambda: dev.pub_adc.get_subscription_count() >= 2
-                         and dev.pub_drive.get_subscription_count() >= 2
-                         and dev.pub_psd.get_subscription_count() >= 1
-                         and est.pub_hyb.get_subscription_count() >= 1
-                         and est.pub_plain.get_subscription_count() >= 1
-                         and est.pub_det.get_subscription_count() >= 1, 30.0,
-                         "the recorder and the estimator to subscribe")
+        nsub = 2 if rec is not None else 1
+        graph.spin_until(lambda: dev.pub_adc.get_subscription_count() >= nsub
+                         and dev.pub_drive.get_subscription_count() >= nsub
+                         and (rec is None or (dev.pub_psd.get_subscription_count() >= 1
+                                              and est.pub_hyb.get_subscription_count() >= 1
+                                              and est.pub_plain.get_subscription_count() >= 1
+                                              and est.pub_det.get_subscription_count() >= 1)),
+                         30.0, "the recorder and the estimator to subscribe")
+        t_start = time.perf_counter()
         if options.realtime:
             dev.start()
             graph.spin_until(lambda: dev.finished, duration * 50 + 60, "the device to finish")
         else:
             drive_fast(graph, [dev], delivered, progress)
         graph.spin_until(lambda: delivered(dev) >= dev.frames_published, 60.0, "the last frames")
+        t_run = time.perf_counter() - t_start
         est.flush()
         n_est = est.frames_done + 1
-        graph.spin_until(lambda: rec.received(f"/{NS}/estimate") >= n_est
-                         and rec.received(f"/{NS}/estimate_plain") >= n_est, 60.0,
-                         "the last estimates")
+        graph.spin_until(lambda: rec is None or (rec.received(f"/{NS}/estimate") >= n_est
+                                                 and rec.received(f"/{NS}/estimate_plain")
+                                                 >= n_est), 60.0, "the last estimates")
         for _ in range(20):
             graph.executor.spin_once(timeout_sec=0.01)
         published = dev.frames_published
         counts = est.hybrid.counts
     finally:
-        rec.close()
-        summary = dict(counts=rec.counts(), gaps=rec.gaps())
+        summary = None
+        if rec is not None:
+            rec.close()
+            summary = dict(counts=rec.counts(), gaps=rec.gaps())
         graph.close()
-    return dict(published=published, recorder=summary, detector_counts=counts)
+    return dict(published=published, recorder=summary, detector_counts=counts, wall_s=t_run)
 
 
 def _seg_stats(th, est, segs):

@@ -37,6 +37,9 @@ def test_online_detector_matches_offline_within_one_sample(record):
     np.testing.assert_array_equal(on.arrival - on.index, det.latency)
     assert len(on.index) == len(off.index)
     assert np.abs(on.index - off.index).max() <= 1
+    det2 = OnlineThresholdDetector()                  # long frames: FFT path
+    on2 = Detections.concat([det2.process(f.y[a:a + 5000]) for a in range(0, f.y.size, 5000)])
+    assert len(on2.index) == len(off.index) and np.abs(on2.index - off.index).max() <= 1
 
 
 def test_detector_is_causal(record):
