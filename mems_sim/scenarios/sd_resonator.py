@@ -185,6 +185,10 @@ def figures(path: Path, duration: float) -> dict:
     f["consistency"] = float(np.var(err["exact"][skip:])
                              / np.mean(est["exact"]["variances"][skip:, 0]))
     f["exact_noisy_rel"] = float(np.std(err["exact"][half:]) / a_noisy)
+    e = err["exact"][skip:] - np.mean(err["exact"][skip:])
+    f["error_acf1"] = float(np.dot(e[:-1], e[1:]) / np.dot(e, e))
+    f["error_corr_x"] = float(np.corrcoef(err["exact"][skip:], x_noisy[skip:])[0, 1])
+    f["f0_error_corr_x"] = float(np.corrcoef(err["f0_error"][skip:], x_noisy[skip:])[0, 1])
     f["f0_error_ratio"] = float(np.std(err["f0_error"][half:]) / np.std(err["exact"][half:]))
     f["adaptive_ratio"] = float(np.std(err["adaptive"][half:]) / np.std(err["exact"][half:]))
     f["adaptive_f0_ppm"] = float((est["adaptive"]["data"][-1, 1] / F0 - 1) * 1e6)
@@ -207,7 +211,8 @@ def table(f: dict) -> str:
     """The scenario's results next to the paper's and the issue's figures."""
     def ok(cond: bool) -> str:
         return "yes" if cond else "NO"
-    settle = "never" if f["settle_periods"] is None else f"{f['settle_periods']:.0f} periods"
+    settle = ("never" if f["settle_periods"] is None else f"{f['settle_periods']:.0f} periods")
+    settle += f" (last 50 ms: mean {f['tracking_tail_ppm']:+.0f} ppm)"
     rows = [
         ["exact model, no state noise: RMS error / amplitude", "~1e-10", "<= 1e-9",
          f"{f['exact_err_rel']:.1e}", ok(f["exact_err_rel"] <= 1e-9)],
@@ -224,6 +229,10 @@ def table(f: dict) -> str:
          f"{f['pulse_est_err_rel']:.0e} of A)", "-"],
         ["state noise: measured / predicted error variance", "-", "1 +- 0.2",
          f"{f['consistency']:.3f}", ok(0.8 <= f["consistency"] <= 1.2)],
+        ["state noise: error lag-1 autocorrelation (white: ~0)", "white", "white",
+         f"{f['error_acf1']:.3f} (narrow-band at f0)", ok(abs(f["error_acf1"]) < 0.1)],
+        ["corr(error, true position): exact model / 5 % f0 error", "small / strong", "-",
+         f"{f['error_corr_x']:+.3f} / {f['f0_error_corr_x']:+.3f}", "-"],
         ["5 % f0 model error: error / exact-model error", "substantial", ">= 10x",
          f"{f['f0_error_ratio']:.1f}x", ok(f["f0_error_ratio"] >= 10)],
         ["adaptive observer from 5 % error: error / exact-model error", "(future work)",
