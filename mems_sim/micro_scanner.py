@@ -41,7 +41,7 @@ from mems_sim.params import ParameterError, ParamSpec, resolve
 
 __all__ = ["SCANNER_SPECS", "ScannerParams", "scanner_params", "resolve_scanner",
            "capacitance", "dcap_dtheta", "d2cap_dtheta2", "drive_torque",
-           "drive_waveform", "DrivePlan", "simulate_mechanics", "dc_transimpedance_output",
+           "drive_waveform", "drive_plan_from", "DrivePlan", "simulate_mechanics", "dc_transimpedance_output",
            "sensor_gain", "psd_reference", "MicroScannerDevice", "ScannerFrame",
            "FRONT_ENDS"]
 
