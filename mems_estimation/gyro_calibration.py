@@ -21,7 +21,8 @@ import numpy as np
 
 from mems_estimation.stage_identification import crest_trough, harmonic_eval, harmonic_fit
 
-__all__ = ["peak_phases", "pair_peak_to_peak", "least_squares_eq27", "trial_pairs", "calibrate"]
+__all__ = ["peak_phases", "pair_peak_to_peak", "least_squares_eq27", "trial_pairs", "calibrate",
+           "StreamingCalibrator"]
 
 
 def peak_phases(omega: np.ndarray, phase: np.ndarray, grid: int = 8192
@@ -121,3 +122,86 @@ def calibrate(rec: dict, omega_est: np.ndarray, **kw) -> dict:
     res = least_squares_eq27([p["stage_pp"] for p in pairs], [p["gyro_pp"] for p in pairs])
     res["pairs"] = pairs
     return res
+
+
+class StreamingCalibrator:
+    """Frame-wise calibration (ROS-free core of the calibration node).
+
+    Feed stage-rate frames with :meth:`add_stage` (first index, omega estimate, drive
+    phase [cycles], drive frequency [Hz], trial id) and gyro samples with
+    :meth:`add_gyro` (stage-index times, rates). A trial is processed when a later trial
+    has started and the gyro data reach past its end; :meth:`result` applies eq. (27)
+    once ``n_trials`` pairs exist (or on demand with >= 3).
+    """
+
+    def __init__(self, fs: float, settle_fraction: float = 0.5, half_window: int = 15) -> None:
+        self.fs = float(fs)
+        self.settle = settle_fraction
+        self.hw = half_window
+        self.trials: dict[int, list] = {}
+        self.gyro_k: list[np.ndarray] = []
+        self.gyro_v: list[np.ndarray] = []
+        self.gyro_end = -1.0
+        self.pairs: list[dict] = []
+        self.current = None
+
+    def add_stage(self, first: int, omega: np.ndarray, phase: np.ndarray, f_drive: np.ndarray,
+                  trial: np.ndarray) -> None:
+        """Store one frame's samples by trial."""
+        idx = first + np.arange(omega.size)
+        for t in np.unique(trial):
+            sel = trial == t
+            self.trials.setdefault(int(t), []).append(
+                (idx[sel], omega[sel], phase[sel], f_drive[sel]))
+        self.current = int(trial[-1]) if trial.size else self.current
+        self._process()
+
+    def add_gyro(self, k: np.ndarray, value: np.ndarray) -> None:
+        """Gyro samples at fractional stage indices k (time * fs)."""
+        if k.size:
+            self.gyro_k.append(np.asarray(k, float))
+            self.gyro_v.append(np.asarray(value, float))
+            self.gyro_end = max(self.gyro_end, float(k[-1]))
+        self._process()
+
+    def finish(self) -> None:
+        """Process every stored trial (end of the schedule)."""
+        self._process(final=True)
+
+    def _process(self, final: bool = False) -> None:
+        for t in sorted(self.trials):
+            if not final and (self.current is None or t >= self.current):
+                continue
+            parts = self.trials[t]
+            idx = np.concatenate([p[0] for p in parts])
+            if not final and self.gyro_end < idx[-1]:
+                continue
+            del self.trials[t]
+            if idx.size < 1000:
+                continue
+            om = np.concatenate([p[1] for p in parts])
+            ph = np.concatenate([p[2] for p in parts])
+            fd = np.concatenate([p[3] for p in parts])
+            s = int(self.settle * idx.size)
+            idx, om, ph, fd = idx[s:], om[s:], ph[s:], fd[s:]
+            if not self.gyro_k:
+                continue
+            gk = np.concatenate(self.gyro_k)
+            gv = np.concatenate(self.gyro_v)
+            sel = (gk >= idx[0]) & (gk < idx[-1])
+            pos = np.searchsorted(idx, np.floor(gk[sel]).astype(np.int64))
+            pos = np.clip(pos, 0, idx.size - 1)
+            gph = (ph[pos] + (gk[sel] - idx[pos]) * fd[pos] / self.fs) % 1.0
+            f = float(np.median(fd))
+            r = pair_peak_to_peak(om, ph, f, self.fs, gv[sel], gph, self.hw)
+            r["segment"] = t
+            self.pairs.append(r)
+            keep = gk >= idx[-1]
+            self.gyro_k, self.gyro_v = [gk[keep]], [gv[keep]]
+
+    def result(self) -> dict:
+        """Eq. (27) over the pairs so far (ValueError with < 3)."""
+        res = least_squares_eq27([p["stage_pp"] for p in self.pairs],
+                                 [p["gyro_pp"] for p in self.pairs])
+        res["pairs"] = list(self.pairs)
+        return res

@@ -201,9 +201,12 @@ def cancel_run(y, vb, fd, fs, hist_y, hist_on, out):
             for c in range(nch):
                 out[k, c] = np.nan
             continue
-        j = k - fs / fd[k]
-        i0 = int(math.floor(j))
-        fr = j - i0
+        # j = k - d with d = fs/f_drive; split so that the weights do not depend on k
+        # (frame-wise and one-shot runs give bit-identical results)
+        d = fs / fd[k]
+        dc = math.ceil(d)
+        i0 = k - int(dc)
+        fr = dc - d
         good = i0 + 1 < k and i0 >= -m
         if good:
             on0 = vb[i0] if i0 >= 0 else hist_on[m + i0]

@@ -1,0 +1,206 @@
+"""ROS 2 node of the piezo tilt micro-stage with its on-stage gyro and LDV reference
+(thin wrapper of mems_sim.micro_stage and mems_sim.mems_gyro; Chen 2018 ch. 3).
+
+Topics (relative to the namespace, default ``/stage``):
+    ``adc``          mems_msgs/AdcFrame     capacitive channels 1A, 1B, 2A, 2B [V], 16 bit
+    ``drive``        mems_msgs/SignalFrame  u [V], v_bias [V], f_drive [Hz], phase [cycle],
+                                            trial [-] (drive-schedule segment index)
+    ``truth``        mems_msgs/SignalFrame  theta_y, omega_y (main), theta_x, omega_x (off axis)
+    ``ldv``          mems_msgs/SignalFrame  LDV reference omega [rad/s] (identification only)
+    ``temperature``  sensor_msgs/Temperature  stage temperature [degC]
+    ``gyro/adc``     mems_msgs/AdcFrame     gyro codes (own ~8 kHz clock: sample_rate_hz is
+                                            the gyro's, stamps in the stage time base)
+    ``gyro/imu``     sensor_msgs/Imu        the same samples (angular_velocity.y = main axis)
+    ``/diagnostics``
+Parameters: STAGE_SPECS, GYRO_SPECS, SCHEDULE_SPECS and EMULATOR_SPECS.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from rclpy.node import Node
+from sensor_msgs.msg import Imu, Temperature
+
+from mems_msgs.msg import AdcFrame, SignalFrame
+from mems_sim import micro_stage
+from mems_sim.diagnostics import DiagnosticsReporter
+from mems_sim.mems_gyro import GYRO_SPECS, MemsGyro
+from mems_sim.node_common import EMULATOR_SPECS, PacedEmulator, run_node
+from mems_sim.params import ParameterError, ParamSpec
+from mems_sim.qos import FRAME_QOS
+from mems_sim.ros_frames import index_to_ns, make_adc_frame, make_signal_frame, ns_to_time
+from mems_sim.ros_params import declare_specs
+
+SCHEDULE_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("schedule", "calibration", "-", "drive schedule: amplitude sweep (calibration), "
+              "frequency sweep (identification) or zero drive (noise)", "Table 3.2",
+              choices=("calibration", "identification", "zero")),
+    ParamSpec("drive_freq_hz", 1700.0, "Hz", "drive frequency of the amplitude sweep",
+              "Table 3.2 row 3", min=1.0, max=1e5),
+    ParamSpec("amp_lo_v", 1.0, "V", "first amplitude of the sweep", "Table 3.2", min=0.0,
+              max=100.0),
+    ParamSpec("amp_hi_v", 1.3, "V", "last amplitude of the sweep", "Table 3.2", min=0.0,
+              max=100.0),
+    ParamSpec("n_trials", 7, "-", "amplitude steps (trials)", "assumption", min=1, max=1000),
+    ParamSpec("periods_per_trial", 400, "periods", "drive periods per trial / sweep step (even)",
+              "assumption (settling 1/(zeta wn) = 18.6 ms)", min=2, max=10**7),
+    ParamSpec("sweep_lo_hz", 1711.0, "Hz", "first frequency of the sweep", "Table 3.2 row 1",
+              min=1.0, max=1e5),
+    ParamSpec("sweep_hi_hz", 1719.0, "Hz", "last frequency of the sweep", "Table 3.2 row 1",
+              min=1.0, max=1e5),
+    ParamSpec("sweep_step_hz", 1.0, "Hz", "frequency step of the sweep", "assumption",
+              min=0.0, max=1e4, min_exclusive=True),
+    ParamSpec("sweep_amp_v", 0.8, "V", "amplitude of the frequency sweep", "Table 3.2 row 1",
+              min=0.0, max=100.0),
+    ParamSpec("gyro_enabled", True, "-", "emulate the on-stage gyro", "sec. 3.5.2"),
+    ParamSpec("publish_imu", False, "-", "also publish every gyro sample as sensor_msgs/Imu "
+              "(one message per sample, ~8 kHz)", "design.md principle 6"),
+)
+
+CHANNEL_UNITS = ("V",) * 4
+DRIVE_CHANNELS = ("u", "v_bias", "f_drive", "phase", "trial")
+DRIVE_UNITS = ("V", "V", "Hz", "cycle", "-")
+TRUTH_CHANNELS = ("theta_y", "omega_y", "theta_x", "omega_x")
+TRUTH_UNITS = ("rad", "rad/s", "rad", "rad/s")
+
+
+def make_schedule(p: dict) -> micro_stage.DriveSchedule:
+    """DriveSchedule from the node's schedule parameters (ParameterError when invalid)."""
+    n = int(p["periods_per_trial"])
+    n += n % 2
+    if p["schedule"] == "identification":
+        if p["sweep_hi_hz"] < p["sweep_lo_hz"]:
+            raise ParameterError(f"parameter 'sweep_hi_hz' = {p['sweep_hi_hz']!r} is out of "
+                                 f"range: must be >= sweep_lo_hz = {p['sweep_lo_hz']!r}")
+        return micro_stage.DriveSchedule.frequency_sweep(p["sweep_lo_hz"], p["sweep_hi_hz"],
+                                                         p["sweep_step_hz"], p["sweep_amp_v"], n)
+    if p["schedule"] == "zero":
+        return micro_stage.DriveSchedule([(p["drive_freq_hz"], 0.0, n)])
+    return micro_stage.DriveSchedule.amplitude_sweep(p["amp_lo_v"], p["amp_hi_v"], p["n_trials"],
+                                                     p["drive_freq_hz"], n)
+
+
+class MicroStageNode(PacedEmulator, Node):
+    """Emulated micro-stage + gyro + LDV publishing raw frames and truth.
+
+    Args:
+        drive_externally: no timer; the owner calls :meth:`step` (scenario runner, tests).
+        autostart: start the wall-clock timer at once.
+    """
+
+    def __init__(self, *, drive_externally: bool = False, autostart: bool = True,
+                 **node_kwargs) -> None:
+        node_kwargs.setdefault("namespace", "stage")
+        super().__init__("micro_stage", **node_kwargs)
+        node_specs = tuple(
+            ParamSpec(s.name, {"frame_size": 5000, "frame_id": "stage"}.get(s.name, s.default),
+                      s.unit, s.description, s.source, s.min, s.max, s.min_exclusive, s.choices)
+            for s in EMULATOR_SPECS)
+        self.p = declare_specs(self, micro_stage.STAGE_SPECS + GYRO_SPECS + SCHEDULE_SPECS
+                               + node_specs)
+        dev = {s.name: self.p[s.name] for s in micro_stage.STAGE_SPECS}
+        micro_stage.validate_params(dev)
+        schedule = make_schedule(self.p)
+        self.device = micro_stage.MicroStage(dev, schedule, seed=self.p["seed"])
+        self.gyro = (MemsGyro({s.name: self.p[s.name] for s in GYRO_SPECS},
+                              seed=self.p["seed"], temperature_c=self.p["temperature_c"])
+                     if self.p["gyro_enabled"] else None)
+        self.fs = self.device.fs
+        self.t0_ns = 0 if self.p["stamp_origin"] == "zero" else time.time_ns()
+        sched_n = self.device.total_samples()
+        self.total_samples = (min(sched_n, int(round(self.p["duration_s"] * self.fs)))
+                              if self.p["duration_s"] > 0 else sched_n)
+        self.next_index = 0
+        self.frames_published = 0
+        self.pub_adc = self.create_publisher(AdcFrame, "adc", FRAME_QOS)
+        self.pub_drive = self.create_publisher(SignalFrame, "drive", FRAME_QOS)
+        self.pub_truth = self.create_publisher(SignalFrame, "truth", FRAME_QOS)
+        self.pub_ldv = self.create_publisher(SignalFrame, "ldv", FRAME_QOS)
+        self.pub_temp = self.create_publisher(Temperature, "temperature", 10)
+        self.pub_gyro = self.create_publisher(AdcFrame, "gyro/adc", FRAME_QOS)
+        self.pub_imu = self.create_publisher(Imu, "gyro/imu", FRAME_QOS)
+        self.publish_imu = self.p["publish_imu"]
+        self.diag = DiagnosticsReporter(self, f"{self.get_name()}: piezo tilt micro-stage",
+                                        hardware_id=self.get_fully_qualified_name())
+        self._timer = None
+        self._wall_start = None
+        if not drive_externally and autostart:
+            self.start()
+
+    def set_temperature(self, temperature_c: float) -> None:
+        """Temperature input: moves D_n, wn, b_c of the stage and k_I, bias of the gyro."""
+        self.device.set_temperature(temperature_c)
+        if self.gyro is not None:
+            self.gyro.temperature_c = self.device.temperature_c
+
+    def step(self) -> int:
+        """Run and publish the next frame; return the number of samples (0 when done)."""
+        n = min(self.p["frame_size"], self.total_samples - self.next_index)
+        if n <= 0:
+            return 0
+        first = self.next_index
+        f = self.device.step(n)
+        common = dict(frame_id=self.p["frame_id"], t0_ns=self.t0_ns)
+        lsb = self.device.lsb
+        self.pub_adc.publish(make_adc_frame(
+            f.codes, first, self.fs, bits=self.p["adc_bits"],
+            channel_names=micro_stage.CHANNELS, channel_units=CHANNEL_UNITS, lsb=(lsb,) * 4,
+            full_scale=(self.p["adc_full_scale_v"],) * 4, saturated_count=f.saturated,
+            **common))
+        self.pub_drive.publish(make_signal_frame(
+            np.column_stack([f.u, f.v_bias, f.f_drive, f.phase, f.segment.astype(float)]),
+            first, self.fs, channel_names=DRIVE_CHANNELS, channel_units=DRIVE_UNITS, **common))
+        self.pub_truth.publish(make_signal_frame(
+            np.column_stack([f.theta[:, 0], f.omega[:, 0], f.theta[:, 1], f.omega[:, 1]]),
+            first, self.fs, channel_names=TRUTH_CHANNELS, channel_units=TRUTH_UNITS, **common))
+        self.pub_ldv.publish(make_signal_frame(f.ldv.reshape(-1, 1), first, self.fs,
+                                               channel_names=("omega_ldv",),
+                                               channel_units=("rad/s",), **common))
+        tmsg = Temperature()
+        tmsg.header.stamp = ns_to_time(index_to_ns(first, self.fs, self.t0_ns))
+        tmsg.header.frame_id = self.p["frame_id"]
+        tmsg.temperature = float(self.device.temperature_c)
+        self.pub_temp.publish(tmsg)
+        if self.gyro is not None:
+            g = self.gyro.step(first, self.fs, f.theta[:, 0], f.omega[:, 0],
+                               self.device.last_applied, self.device.wn,
+                               self.p["damping_ratio"], self.device.b_c)
+            if g.index.size:
+                t0g = self.t0_ns + int(round(self.p["gyro_start_offset_s"] * 1e9))
+                self.pub_gyro.publish(make_adc_frame(
+                    g.codes.reshape(-1, 1), int(g.index[0]), self.gyro.rate,
+                    bits=self.p["gyro_bits"], channel_names=("gyro_y",),
+                    channel_units=("rad/s",), lsb=(self.gyro.lsb,),
+                    full_scale=(self.p["gyro_full_scale"],), saturated_count=g.saturated,
+                    frame_id="imu_link", t0_ns=t0g))
+                if self.publish_imu:
+                    for j in range(g.index.size):
+                        m = Imu()
+                        m.header.stamp = ns_to_time(self.t0_ns + int(round(g.t[j] * 1e9)))
+                        m.header.frame_id = "imu_link"
+                        m.angular_velocity.y = float(g.value[j])
+                        m.orientation_covariance[0] = -1.0
+                        m.linear_acceleration_covariance[0] = -1.0
+                        var = self.p["gyro_noise_rms"] ** 2
+                        m.angular_velocity_covariance[0] = var
+                        m.angular_velocity_covariance[4] = var
+                        m.angular_velocity_covariance[8] = var
+                        self.pub_imu.publish(m)
+                self.diag.count("gyro_samples", int(g.index.size))
+        if f.saturated:
+            self.diag.count("saturated_samples", f.saturated)
+            self.diag.warn("capacitive ADC clipped")
+        self.diag.count("frames")
+        self.next_index += n
+        self.frames_published += 1
+        return n
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point ``micro_stage_node``."""
+    return run_node(MicroStageNode, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
