@@ -16,7 +16,9 @@ Topics (relative to the namespace, default ``/scanner``):
     ``psd``    mems_msgs/SignalFrame  theta_psd [rad]: PSD-like reference delayed by
                                       ``psd_delay_s`` (dc_transimpedance only)
     ``/diagnostics``                   frames, saturated samples, psd delay
-Parameters: ``SCANNER_SPECS`` + ``front_end`` + ``drive_frequency_hz`` + ``EMULATOR_SPECS``.
+Parameters: ``SCANNER_SPECS`` + ``front_end`` + ``drive_frequency_hz`` + ``EMULATOR_SPECS``
+(default ``frame_size`` 10000 samples = 20 ms: with the estimator and the recorder in one
+process the graph keeps up with 500 kHz only with frames of ~10^4 samples, bench_scanner.py).
 """
 from __future__ import annotations
 
@@ -35,7 +37,7 @@ from mems_sim.ros_frames import make_adc_frame, make_signal_frame
 from mems_sim.ros_params import declare_specs
 
 NODE_SPECS: tuple[ParamSpec, ...] = tuple(
-    ParamSpec(s.name, {"frame_size": 1000, "frame_id": "scanner"}.get(s.name, s.default),
+    ParamSpec(s.name, {"frame_size": 10000, "frame_id": "scanner"}.get(s.name, s.default),
               s.unit, s.description, s.source, s.min, s.max, s.min_exclusive, s.choices)
     for s in EMULATOR_SPECS) + (
     ParamSpec("front_end", "dc_transimpedance", "-", "sensing front end",
