@@ -9,6 +9,7 @@ SCENARIOS = {
     "scanner_shared_electrodes": "mems_sim.scenarios.scanner_shared_electrodes",
     "scanner_threshold": "mems_sim.scenarios.scanner_threshold",
     "accelerometer_snr": "mems_sim.scenarios.accelerometer_snr",
+    "gyro_calibration": "mems_sim.scenarios.gyro_calibration",
 }
 
 

@@ -186,18 +186,158 @@ def run_pipeline(seed: int = 0, plan: Plan | None = None, out_dir: Path | None =
             "sf_rms_ppm": rms, "identification": rep, "plots": paths}
 
 
+INSTANCES = {"stage_t1": T1, "stage_t2": T2}
+RECORDED = ("adc", "drive", "truth", "estimate", "gyro/adc", "gyro_scale_factor", "temperature")
+FRAME = 20000
+
+
+def run_graph(options, plan: Plan, models: dict, out: Path) -> dict:
+    """Calibration phase through the node graph: per temperature one micro_stage_node
+    (+ gyro), stage_ekf_node (identified YAML) and gyro_calibration_node; one recorder."""
+    from rclpy.parameter import Parameter
+
+    from mems_estimation.gyro_calibration_node import GyroCalibrationNode
+    from mems_estimation.stage_ekf_node import StageEkfNode
+    from mems_sim.bag.recorder import RecorderNode
+    from mems_sim.micro_stage_node import MicroStageNode
+    from mems_sim.scenarios.base import Graph, Progress, default_domain_id, drive_fast
+
+    def prm(d):
+        return [Parameter(k, value=v) for k, v in d.items()]
+    graph = Graph(options.domain_id if options.domain_id is not None else default_domain_id())
+    devs, ekfs, cals = {}, {}, {}
+    topics = [f"/{ns}/{t}" for ns in INSTANCES for t in RECORDED] + ["/diagnostics"]
+    try:
+        for k, (ns, T) in enumerate(INSTANCES.items()):
+            yaml_path = out.parent / f"{NAME}_stage_params_{T}C.yaml"
+            save_model(models[T], str(yaml_path))
+            devs[ns] = graph.add(MicroStageNode(
+                context=graph.context, namespace=ns, drive_externally=not options.realtime,
+                autostart=False, parameter_overrides=prm(dict(
+                    seed=int(options.seed) * 100 + 50 + k, temperature_c=T,
+                    n_trials=plan.cal_trials, periods_per_trial=plan.cal_periods,
+                    frame_size=FRAME, frame_id=ns, publish_imu=bool(options.realtime)))))
+            ekfs[ns] = graph.add(StageEkfNode(context=graph.context, namespace=ns,
+                                              parameter_overrides=prm(dict(
+                                                  stage_namespace=f"/{ns}",
+                                                  params_yaml=str(yaml_path)))))
+            cals[ns] = graph.add(GyroCalibrationNode(context=graph.context, namespace=ns,
+                                                     parameter_overrides=prm(dict(
+                                                         stage_namespace=f"/{ns}",
+                                                         n_trials=plan.cal_trials))))
+        rec = graph.add(RecorderNode(str(out), topics=topics, context=graph.context))
+
+        def delivered(d) -> int:
+            ns = d.get_namespace()
+            return min([rec.received(f"{ns}/{t}") for t in ("adc", "drive", "truth")]
+                       + [ekfs[ns.lstrip("/")].frames_done])
+        graph.spin_until(lambda: all(d.pub_adc.get_subscription_count() >= 2
+                                     and d.pub_gyro.get_subscription_count() >= 2
+                                     for d in devs.values())
+                         and all(e.pub.get_subscription_count() >= 2 for e in ekfs.values()),
+                         30.0, "the recorder, EKF and calibration nodes to subscribe")
+        total = max(d.total_samples for d in devs.values()) / devs["stage_t1"].fs
+        progress = Progress(total, options.progress, NAME)
+        import time as _time
+        wall0 = _time.monotonic()
+        if options.realtime:
+            for d in devs.values():
+                d.start()
+            graph.spin_until(lambda: all(d.finished for d in devs.values()), total * 50 + 120,
+                             "the stages to finish")
+        else:
+            drive_fast(graph, list(devs.values()), delivered, progress, window=20)
+        graph.spin_until(lambda: all(delivered(d) >= d.frames_published for d in devs.values()),
+                         120.0, "the last frames")
+        wall = _time.monotonic() - wall0
+        progress.close()
+        for ns, c in cals.items():
+            c.close()
+        graph.spin_until(lambda: all(rec.received(f"/{ns}/gyro_scale_factor") >= 1
+                                     for ns in INSTANCES), 30.0, "the calibration results")
+        graph.spin_until(lambda: all(rec.received(f"/{ns}/estimate") >= ekfs[ns].frames_done
+                                     for ns in INSTANCES), 60.0, "the last estimates")
+        k_true = {ns: devs[ns].gyro.scale_factor() for ns in INSTANCES}
+        results = {ns: cals[ns].results[-1] for ns in INSTANCES}
+        rejected = {ns: ekfs[ns].diag.counters.get("rejected_frames", 0) for ns in INSTANCES}
+        published = {ns: d.frames_published for ns, d in devs.items()}
+    finally:
+        rec.close()
+        summary = dict(counts=rec.counts(), gaps=rec.gaps())
+        graph.close()
+    return dict(k_true=k_true, results=results, recorder=summary, published=published,
+                rejected=rejected, wall_s=wall, simulated_s=total)
+
+
+def graph_figures(out: Path, g: dict) -> dict:
+    """RMSE/alpha/beta per temperature from the recorded MCAP and the calibration results."""
+    from mems_sim.scenarios.base import topic_frames
+    figs = {}
+    for ns, T in INSTANCES.items():
+        est = topic_frames(out, f"/{ns}/estimate")["data"]
+        tru = topic_frames(out, f"/{ns}/truth")["data"]
+        drv = topic_frames(out, f"/{ns}/drive")["data"]
+        n = min(len(est), len(tru), len(drv))
+        ev = evaluate(est[:n, 1], tru[:n, 1], drv[:n, 3], drv[:n, 4].astype(int))
+        r = g["results"][ns]
+        k = g["k_true"][ns]
+        figs[T] = dict(eval=ev, cal=r, k_true=k, ppm=(r["scale_factor"] / k - 1) * 1e6,
+                       se_ppm=r["scale_factor_se"] / k * 1e6, est=est[:n], truth=tru[:n],
+                       drive=drv[:n])
+    return figs
+
+
 def run(options) -> dict:
-    """``run_scenario gyro_calibration``: options.extra['short'] selects the short plan."""
-    from mems_sim.scenarios.base import ScenarioError
-    if options.realtime:
-        raise ScenarioError("gyro_calibration: --realtime is not supported yet (offline cores)")
+    """``run_scenario gyro_calibration``: identification (ROS-free cores), then the
+    calibration at both temperatures through the node graph, recorded to MCAP.
+    ``options.extra['short']`` selects the short plan (tests)."""
+    from mems_sim.scenarios.base import ScenarioError, format_table
     if options.duration_s not in (None, 0.0):
-        raise ScenarioError("gyro_calibration: the duration follows from the drive schedules; "
-                            "omit --duration")
+        raise ScenarioError("gyro_calibration: the duration follows from the drive schedules "
+                            "(7 trials x 400 periods at 1700 Hz); omit --duration")
     plan = Plan.short() if options.extra.get("short") else Plan()
-    out = options.out or Path("runs") / f"{NAME}-{options.seed}.mcap"
-    res = run_pipeline(int(options.seed), plan, Path(out).parent, options.plots)
-    print(res["table"])
-    for p in res["plots"]:
-        print(f"figure: {p}")
-    return {"table": res["table"], "sf_rms_ppm": res["sf_rms_ppm"], "plots": res["plots"]}
+    out = Path(options.out or Path("runs") / f"{NAME}-{options.seed}.mcap")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    seed = int(options.seed)
+    model, rep = identify_stage(seed, plan)
+    models = {T1: model, T2: retrain_at(model, T2, seed, plan)}
+    g = run_graph(options, plan, models, out)
+    figs = graph_figures(out, g)
+    rows = [["off-axis rejection R_off", f"{100 * r:g} % off-axis", f"{100 * v:.3f} %",
+             ">= 99.98 %" if r <= 0.1 else ">= 99.90 %"]
+            for r, v in off_axis_table(float(np.mean(model.gap)), model.limits)]
+    for T in (T1, T2):
+        ev = figs[T]["eval"]
+        rows += [["omega RMSE (1 period avg)", f"{T} C", f"{ev['rmse']:.4f} rad/s",
+                  "<= 0.114 (paper 0.1140)"],
+                 ["stage alpha / beta", f"{T} C", f"{ev['alpha']:.5f} / {ev['beta']:+.4f}",
+                  "|a-1| <= 8e-4 (paper 1.0008/-0.0207)"]]
+    for T in (T1, T2):
+        f = figs[T]
+        rows.append([f"SF_IMU by stage (true {f['k_true']:.5f})", f"{T} C",
+                     f"{f['cal']['scale_factor']:.5f} +- {f['cal']['scale_factor_se']:.5f}",
+                     f"{f['ppm']:+.0f} ppm (paper -340/+220)"])
+    rms = math.sqrt(np.mean([figs[T]["ppm"] ** 2 for T in (T1, T2)]))
+    rows.append(["SF error RMS over temps", f"{T1}/{T2} C", f"{rms:.0f} ppm",
+                 "<= 100 ppm (paper 286)"])
+    rows.append(["graph", "fast" if not options.realtime else "realtime",
+                 f"{g['simulated_s']:.2f} s sim in {g['wall_s']:.1f} s wall",
+                 f"RTF {g['simulated_s'] / g['wall_s']:.2f}"])
+    table = format_table(["quantity", "condition", "value", "target / note"], rows)
+    plots = []
+    if options.plots:
+        plots = _graph_plots(out.parent, figs)
+    return {"table": table, "duration_s": g["simulated_s"], "mcap": str(out),
+            "recorder": g["recorder"], "figure": ", ".join(str(p) for p in plots),
+            "figures": figs, "sf_rms_ppm": rms, "rejected": g["rejected"],
+            "published": g["published"], "model": model}
+
+
+def _graph_plots(out_dir: Path, figs: dict) -> list:
+    """PNG figures from the graph run (Fig. 3.14 / 3.15 forms)."""
+    runs = {}
+    for T, f in figs.items():
+        rec = {"segment": f["drive"][:, 4].astype(int), "phase": f["drive"][:, 3],
+               "omega": f["truth"][:, [1, 3]]}
+        runs[T] = {"rec": rec, "x": f["est"], "cal": f["cal"]}
+    return write_plots(out_dir, runs)
