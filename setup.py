@@ -40,6 +40,8 @@ setup(
             "sd_observer_node = mems_estimation.sd_observer_node:main",
             "fr_accelerometer_node = mems_sim.fr_accelerometer_node:main",
             "hybrid_ekf_node = mems_estimation.hybrid_ekf_node:main",
+            "micro_scanner_node = mems_sim.micro_scanner_node:main",
+            "scanner_threshold_node = mems_estimation.scanner_threshold_node:main",
             "scanner_amdm_node = mems_sim.scanner_amdm_node:main",
             "scanner_amdm_estimator_node = mems_estimation.scanner_amdm_estimator_node:main",
             "identify_noise = mems_estimation.identify_noise_cli:main",
