@@ -1,0 +1,46 @@
+"""End-to-end: scenario gyro_calibration (short plan) through the node graph (issue 3)."""
+from pathlib import Path
+
+import pytest
+
+from mems_sim.scenarios import gyro_calibration
+from mems_sim.scenarios.base import ScenarioError, ScenarioOptions
+
+
+@pytest.fixture(scope="module")
+def result(tmp_path_factory):
+    from conftest import next_domain_id
+    out = tmp_path_factory.mktemp("gc") / "gyro_calibration-2.mcap"
+    return gyro_calibration.run(ScenarioOptions(seed=2, out=out, domain_id=next_domain_id(),
+                                                progress=False, extra={"short": True}))
+
+
+def test_recording_complete(result):
+    counts = result["recorder"]["counts"]
+    for ns, n in result["published"].items():
+        for topic in ("adc", "drive", "truth", "estimate"):
+            assert counts[f"/{ns}/{topic}"] == n
+        assert counts[f"/{ns}/gyro_scale_factor"] >= 1
+    assert all(g == 0 for g in result["recorder"]["gaps"].values())
+    assert all(v == 0 for v in result["rejected"].values())
+    for p in result["figure"].split(", "):
+        assert Path(p).stat().st_size > 10_000
+
+
+def test_table_figures_through_graph(result):
+    print("\n" + result["table"])
+    f = result["figures"]
+    ev = f[gyro_calibration.T1]["eval"]
+    assert ev["rmse"] <= 0.114 and abs(ev["alpha"] - 1) <= 8e-4
+    ev2 = f[gyro_calibration.T2]["eval"]
+    assert ev2["rmse"] <= 0.114      # D_n, eta re-identified at 35.7 C
+    k1 = f[gyro_calibration.T1]["cal"]["scale_factor"]
+    k2 = f[gyro_calibration.T2]["cal"]["scale_factor"]
+    assert k2 / k1 - 1 == pytest.approx(-0.0543, abs=0.01)
+    for T in (gyro_calibration.T1, gyro_calibration.T2):
+        assert abs(f[T]["ppm"]) < 4 * f[T]["se_ppm"] + 50   # honest standard error
+
+
+def test_refuses_duration():
+    with pytest.raises(ScenarioError, match="duration"):
+        gyro_calibration.run(ScenarioOptions(duration_s=1.0))
