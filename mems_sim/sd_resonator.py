@@ -272,7 +272,8 @@ def _position_at(f0, Q, fs, y, yd, t, spill_u, spill_end, u, s, w, f, o2, z):
 @numba.njit(cache=True)
 def _pulse_cache(f0, Q, fs, width, zoh, hc, z):
     """Per-f0 constants of a pulse of width w T (exact, closed-form exponentials):
-    hc = [f0, Phi(w/2 T) (4), Gam(w/2 T) (2), Phi(T) Phi(-w T) (4), Phi((1 - w) T) Gam(w T) (2)].
+    hc = [f0, Phi(w/2 T) (4), Gam(w/2 T) (2), Phi(T) Phi(-w T) (4), Phi((1 - w) T) Gam(w T) (2),
+    fs/w0, fs w0].
     zoh: the one-sample [Phi(T), Gam(T)] at f0. z: (6,) scratch."""
     resonator_zoh_dt(f0, Q, fs, 0.5 * width / fs, z)
     hc[0] = f0
@@ -289,13 +290,16 @@ def _pulse_cache(f0, Q, fs, width, zoh, hc, z):
     resonator_zoh_dt(f0, Q, fs, (1.0 - width) / fs, z)
     hc[11] = z[0] * g1 + z[1] * g2
     hc[12] = z[2] * g1 + z[3] * g2
+    w0 = 2.0 * math.pi * f0
+    hc[13] = fs / w0
+    hc[14] = fs * w0
 
 
 @numba.njit(cache=True)
 def _device_run(k0, n, fs, f0_base, Q, drift, step_frac, step_time, U, width, sub_sample,
                 c_ff, out_noise, force_noise, st, zoh, sd, win, xp, P, A, B, C, Cp, F, G, M,
                 Lss, Kss, ss_var, obs_mode, fast, res_m, gam_m, pred, carry,
-                bits, pulses, starts, pos, vel, f0o, est, estv, x_start, x_center):
+                bits, pulses, starts, widths, pos, vel, f0o, est, estv, x_start, x_center):
     # st = [y, ydot, s_prev (sign state in sub-sample mode), f0_cur, win_sum, win_pos]
     # carry = [truth spill u, truth spill end, observer spill u, observer spill end,
     #          pending pulse centre in the next interval (T, -1 none)]
@@ -312,8 +316,8 @@ def _device_run(k0, n, fs, f0_base, Q, drift, step_frac, step_time, U, width, su
     gam_t = np.empty(2)
     ospill = np.empty(2)
     tspill = np.empty(2)
-    hc = np.full(13, -1.0)         # truth pulse cache, see _pulse_cache
-    hm = np.full(13, -1.0)         # the same for the observer model (f0 fixed)
+    hc = np.full(15, -1.0)         # truth pulse cache, see _pulse_cache
+    hm = np.full(15, -1.0)         # the same for the observer model (f0 fixed)
     zs = np.empty(6)
     zm = np.empty(6)
     o6 = np.empty(6)
@@ -451,18 +455,19 @@ def _device_run(k0, n, fs, f0_base, Q, drift, step_frac, step_time, U, width, su
             x_center[i] = c0
             a0 = hc[1] * c0 + hc[2] * c1 + hc[5] * fu
             a1 = hc[3] * c0 + hc[4] * c1 + hc[6] * fu
-            # Phi(r T), r = 1 - s - w: (Phi(T) Phi(-w T)) Phi(-s T); Gam(r T) from Phi(r T)
-            i11 = zs[3] / det
-            i12 = -zs[1] / det
-            i21 = -zs[2] / det
-            i22 = zs[0] / det
+            # Phi(r T), r = 1 - s - w: (Phi(T) Phi(-w T)) Phi(-s T); Gam(r T) from Phi(r T):
+            # Gam1 = (fs/w0) (1 - Phi11), Gam2 = fs w0 Phi12 (hc[13], hc[14])
+            idet = 1.0 / det
+            i11 = zs[3] * idet
+            i12 = -zs[1] * idet
+            i21 = -zs[2] * idet
+            i22 = zs[0] * idet
             r11 = hc[7] * i11 + hc[8] * i21
             r12 = hc[7] * i12 + hc[8] * i22
             r21 = hc[9] * i11 + hc[10] * i21
             r22 = hc[9] * i12 + hc[10] * i22
-            w0t = 2.0 * math.pi * f0
-            g1 = fs * w0t * (1.0 - r11) / (w0t * w0t)
-            g2 = fs * w0t * r12
+            g1 = hc[13] * (1.0 - r11)
+            g2 = hc[14] * r12
             st[0] = r11 * a0 + r12 * a1 + g1 * f
             st[1] = r21 * a0 + r22 * a1 + g2 * f
         elif u == 0.0 and carry[0] == 0.0:
@@ -497,7 +502,8 @@ def _device_run(k0, n, fs, f0_base, Q, drift, step_frac, step_time, U, width, su
             st[1] = zoh[2] * y + zoh[3] * yd + eff[1] + zoh[5] * f
         bits[i] = v
         pulses[i] = u
-        starts[i] = s0
+        starts[i] = s0 / fs
+        widths[i] = width / fs if u != 0.0 else 0.0
         pos[i] = y
         vel[i] = yd
         f0o[i] = f0
@@ -577,8 +583,8 @@ class SdResonatorDevice:
         sb, sf = p["output_noise_std"], p["state_noise_std"]
         b = self._gen_b.standard_normal(n) * sb if sb > 0 else np.zeros(n)
         f = self._gen_f.standard_normal(n) * sf if sf > 0 else np.zeros(n)
-        bits, pulses, starts, pos, vel, f0o, est, estv, xs, xc = (np.empty(n)
-                                                                   for _ in range(10))
+        bits, pulses, starts, widths, pos, vel, f0o, est, estv, xs, xc = (np.empty(n)
+                                                                          for _ in range(11))
         m = self.model
         fs = p["sample_rate_hz"]
         _device_run(self._next, n, fs, p["f0_hz"], p["quality_factor"],
@@ -587,8 +593,7 @@ class SdResonatorDevice:
                     b, f, self._st, self._zoh, self._sd, self._win, self._xp, self._P, m.A, m.B,
                     m.C, m.C_pos, m.F, m.G, m.M, self._L, self._K, self._ss_var,
                     self.observer_mode, p["fast"], self._res_m, m.gam, self._pred, self._carry,
-                    bits, pulses, starts, pos, vel, f0o, est, estv, xs, xc)
+                    bits, pulses, starts, widths, pos, vel, f0o, est, estv, xs, xc)
         self._next += n
-        on = pulses != 0.0
-        return SdFrame(bits.astype(np.int8), pulses, starts / fs,
-                       np.where(on, p["pulse_width_s"], 0.0), pos, vel, f0o, est, estv, xs, xc)
+        return SdFrame(bits.astype(np.int8), pulses, starts, widths, pos, vel, f0o, est, estv,
+                       xs, xc)
