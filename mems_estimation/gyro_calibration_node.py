@@ -64,6 +64,7 @@ class GyroCalibrationNode(Node):
         self.t0_ns = None
         self.results: list[dict] = []
         self.last_stamp = 0
+        self.estimates_received = 0
         self.diag = DiagnosticsReporter(self, f"{self.get_name()}: gyro scale factor")
         self.create_subscription(StateEstimate, f"{ns}/estimate", self.on_estimate, FRAME_QOS)
         self.create_subscription(SignalFrame, f"{ns}/drive", self.on_drive, FRAME_QOS)
@@ -83,6 +84,7 @@ class GyroCalibrationNode(Node):
             self.t0_ns = time_to_ns(msg.header.stamp) - round(
                 msg.first_sample_index * 1e9 / self.p["sample_rate_hz"])
         self.last_stamp = time_to_ns(msg.header.stamp)
+        self.estimates_received += 1
         self.est[msg.first_sample_index] = om
         self._pair()
 

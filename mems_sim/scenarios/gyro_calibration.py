@@ -11,8 +11,13 @@ Steps (all seeded; identification never reads the emulator's truth):
    EKF on the feedthrough-cancelled channels; peak-to-peak pairing; eq. (27);
 3. table in the form of Tables 3.4-3.6 and PNG figures.
 
-Status: this first version runs the ROS-free cores in one process (no node graph and no
-MCAP yet; see the issue report).
+Identification (step 1) runs the ROS-free cores on emulator records (drive, cancelled ADC
+channels, LDV); the calibration (step 2) runs through the node graph: per temperature a
+``micro_stage_node`` (namespaces ``/stage_t1`` = 22.9 C, ``/stage_t2`` = 35.7 C) with its
+gyro, a ``stage_ekf_node`` loading the identified parameter YAML and a
+``gyro_calibration_node`` publishing ``/<stage>/gyro_scale_factor``; everything recorded
+to MCAP and the table computed from the recording and the published results.
+:func:`run_pipeline` is the same scenario on the cores only (no ROS).
 """
 from __future__ import annotations
 
@@ -251,6 +256,9 @@ def run_graph(options, plan: Plan, models: dict, out: Path) -> dict:
                          120.0, "the last frames")
         wall = _time.monotonic() - wall0
         progress.close()
+        graph.spin_until(lambda: all(cals[ns].estimates_received >= ekfs[ns].frames_done
+                                     for ns in INSTANCES), 60.0,
+                         "the calibration nodes to receive the last estimates")
         for ns, c in cals.items():
             c.close()
         graph.spin_until(lambda: all(rec.received(f"/{ns}/gyro_scale_factor") >= 1

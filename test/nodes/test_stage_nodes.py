@@ -47,6 +47,7 @@ def test_graph_estimate_and_calibration(graph, yaml_path):
         spin_until(ex, lambda: ekf.frames_done >= frames, timeout=30)
     assert spin_until(ex, lambda: len(est) == frames and len(adc) == frames
                       and len(drv) == frames, timeout=30)
+    assert spin_until(ex, lambda: cal.estimates_received == frames, timeout=30)
     cal.close()
     assert spin_until(ex, lambda: len(res) >= 1, timeout=10)
     r = res[-1]
