@@ -95,7 +95,7 @@ from mems_sim.sd_models import (interval_input, next_crossing, next_spill, reson
                                 resonator_zoh_dt, sd_step, segment_response)
 from mems_estimation.kalman_observer import (DEFAULT_QUANTIZATION_VAR, add_pulse_input,
                                              kf_predict, kf_update, observer_model, ss_step6,
-                                             steady_state_gains)
+                                             state_predict, steady_state_gains)
 
 __all__ = ["RESONATOR_SPECS", "validate_params", "SdFrame", "SdResonatorDevice",
            "default_pulse_amplitude"]
@@ -296,6 +296,128 @@ def _pulse_cache(f0, Q, fs, width, zoh, hc, z):
 
 
 @numba.njit(cache=True)
+def _pulse_interval(f0, Q, fs, width, f0m, Qm, w0m, y, yd, f, u, s0, obs_mode, fast, nu, S,
+                    st, zoh, carry, xp, P, A, B, C, F, M, Lss, gam_m, PC, L, AP, tmp, z, zs,
+                    zm, hc, hm, wct, wcm):
+    """One sample interval with a pulse acting in it (kept out of the main loop, which then
+    stays small): in-loop observer time update with the exact pulse term, true resonator
+    update, true position at the pulse's firing instant and centre.  Returns
+    (x at the start of a pulse fired in this interval, x at a pulse centre in it), V (0
+    where none).  z, zs, zm: (6,) scratch.  See :func:`_device_run` for the other arguments.
+    (No allocation on the common path: this runs on every pulse.)"""
+    det = 1.0
+    x_s = 0.0
+    x_c = 0.0
+    # ---- common case: a pulse wholly inside the interval, no tail from the previous one
+    # (speed: Phi((1 - s - w) T) = Phi(T) Phi(-w T) Phi(-s T), one matrix exponential per
+    # pulse; the general case uses interval_input / _position_at)
+    simple = u != 0.0 and carry[0] == 0.0 and carry[2] == 0.0 and carry[4] < 0.0 \
+        and s0 + width <= 1.0
+    if simple:
+        if hc[0] != f0:
+            _pulse_cache(f0, Q, fs, width, zoh, hc, z)
+        if s0 == 0.0:                  # on-sample pulse: Phi(0) = I, Gam(0) = 0
+            zs[0], zs[1], zs[2], zs[3], zs[4], zs[5] = 1.0, 0.0, 0.0, 1.0, 0.0, 0.0
+        else:
+            resonator_zoh_dt(f0, Q, fs, s0 / fs, zs)
+        det = zs[0] * zs[3] - zs[1] * zs[2]
+    # ---- in-loop observer time update with the exact pulse term
+    if obs_mode:
+        if fast:
+            state_predict(xp, A, B, Lss, 0.0, nu, tmp)
+        else:
+            kf_predict(xp, P, A, B, F, M, 0.0, nu, S, PC, L, AP, tmp)
+        if simple:
+            if hm[0] < 0.0:
+                resonator_zoh_dt(f0m, Qm, fs, 1.0 / fs, z)
+                _pulse_cache(f0m, Qm, fs, width, z, hm, np.empty(6))
+                hm[0] = 1.0
+            if f0m == f0 and Qm == Q:
+                for m in range(6):
+                    zm[m] = zs[m]
+                dm = det
+            else:
+                resonator_zoh_dt(f0m, Qm, fs, s0 / fs, zm)
+                dm = zm[0] * zm[3] - zm[1] * zm[2]
+            # Phi_m(-s T) Phi_m((1 - w) T) Gam_m(w T) u   (hm[11:13]: the latter product)
+            e0 = (zm[3] * hm[11] - zm[1] * hm[12]) / dm * u
+            e1 = (-zm[2] * hm[11] + zm[0] * hm[12]) / dm * u
+            xp[0] += e0
+            xp[1] += e1 / w0m
+        elif u != 0.0 or carry[2] != 0.0:     # (guarded: calls cost array refcounts)
+            ospill = np.empty(2)
+            eff = np.empty(2)
+            ospill[0] = carry[2]
+            ospill[1] = carry[3]
+            add_pulse_input(xp, f0m, Qm, fs, w0m, gam_m, ospill, u, s0, width, eff, z, wcm)
+            carry[2] = ospill[0]
+            carry[3] = ospill[1]
+    # ---- truth: exact update and the position at the pulse instants
+    if simple:
+        # piecewise exact propagation over [0, s) (force f), the two halves of the pulse
+        # (f + u) and [s + w, 1) (f); Phi, Gam(w/2 T) and Phi(T) Phi(-w T) cached (hc)
+        a0 = zs[0] * y + zs[1] * yd + zs[4] * f
+        a1 = zs[2] * y + zs[3] * yd + zs[5] * f
+        x_s = a0
+        fu = f + u
+        c0 = hc[1] * a0 + hc[2] * a1 + hc[5] * fu
+        c1 = hc[3] * a0 + hc[4] * a1 + hc[6] * fu
+        x_c = c0
+        a0 = hc[1] * c0 + hc[2] * c1 + hc[5] * fu
+        a1 = hc[3] * c0 + hc[4] * c1 + hc[6] * fu
+        # Phi(r T), r = 1 - s - w: (Phi(T) Phi(-w T)) Phi(-s T); Gam(r T) from Phi(r T):
+        # Gam1 = (fs/w0) (1 - Phi11), Gam2 = fs w0 Phi12 (hc[13], hc[14])
+        idet = 1.0 / det
+        i11 = zs[3] * idet
+        i12 = -zs[1] * idet
+        i21 = -zs[2] * idet
+        i22 = zs[0] * idet
+        r11 = hc[7] * i11 + hc[8] * i21
+        r12 = hc[7] * i12 + hc[8] * i22
+        r21 = hc[9] * i11 + hc[10] * i21
+        r22 = hc[9] * i12 + hc[10] * i22
+        g1 = hc[13] * (1.0 - r11)
+        g2 = hc[14] * r12
+        st[0] = r11 * a0 + r12 * a1 + g1 * f
+        st[1] = r21 * a0 + r22 * a1 + g2 * f
+    elif u == 0.0 and carry[0] == 0.0:
+        st[0] = zoh[0] * y + zoh[1] * yd + zoh[4] * f
+        st[1] = zoh[2] * y + zoh[3] * yd + zoh[5] * f
+    else:
+        # general case: a pulse tail from the previous interval and/or a pulse
+        # outlasting this one (centre possibly in the next interval)
+        o2 = np.empty(2)
+        eff = np.empty(2)
+        gam_t = np.empty(2)
+        tspill = np.empty(2)
+        if carry[4] >= 0.0:
+            x_c = _position_at(f0, Q, fs, y, yd, carry[4], carry[0], carry[1], 0.0, 0.0,
+                               1.0, f, o2, z)
+            carry[4] = -1.0
+        if u != 0.0:
+            x_s = _position_at(f0, Q, fs, y, yd, s0, carry[0], carry[1], 0.0, 0.0, 1.0, f,
+                               o2, z)
+            tcen = s0 + 0.5 * width
+            if tcen <= 1.0:
+                x_c = _position_at(f0, Q, fs, y, yd, tcen, carry[0], carry[1], u, s0,
+                                   width, f, o2, z)
+            else:
+                carry[4] = tcen - 1.0
+        gam_t[0] = zoh[4]
+        gam_t[1] = zoh[5]
+        wct[0] = -1.0
+        interval_input(f0, Q, fs, gam_t, carry[0], carry[1], u, s0, width, eff, z, wct)
+        tspill[0] = carry[0]
+        tspill[1] = carry[1]
+        next_spill(u, s0, width, tspill)
+        carry[0] = tspill[0]
+        carry[1] = tspill[1]
+        st[0] = zoh[0] * y + zoh[1] * yd + eff[0] + zoh[4] * f
+        st[1] = zoh[2] * y + zoh[3] * yd + eff[1] + zoh[5] * f
+    return x_s, x_c
+
+
+@numba.njit(cache=True)
 def _device_run(k0, n, fs, f0_base, Q, drift, step_frac, step_time, U, width, sub_sample,
                 c_ff, out_noise, force_noise, st, zoh, sd, win, xp, P, A, B, C, Cp, F, G, M,
                 Lss, Kss, ss_var, obs_mode, fast, res_m, gam_m, pred, carry,
@@ -310,18 +432,11 @@ def _device_run(k0, n, fs, f0_base, Q, drift, step_frac, step_time, U, width, su
     L = np.empty(nx)
     AP = np.empty((nx, nx))
     tmp = np.empty(nx)
-    eff = np.empty(2)
-    o2 = np.empty(2)
-    z = np.empty(6)
-    gam_t = np.empty(2)
-    ospill = np.empty(2)
-    tspill = np.empty(2)
     hc = np.full(15, -1.0)         # truth pulse cache, see _pulse_cache
     hm = np.full(15, -1.0)         # the same for the observer model (f0 fixed)
+    z = np.empty(6)
     zs = np.empty(6)
     zm = np.empty(6)
-    o6 = np.empty(6)
-    det = 1.0
     wct = np.full(3, -1.0)
     wcm = np.full(3, -1.0)         # width cache of the observer model (f0 fixed)
     W = win.shape[0]
@@ -397,109 +512,24 @@ def _device_run(k0, n, fs, f0_base, Q, drift, step_frac, step_time, U, width, su
             if (s_sig >= 0.0) != (sp >= 0.0):
                 u = U if s_sig > sp else -U
             st[2] = s_sig
-        # ---- common case: a pulse wholly inside the interval, no tail from the previous one
-        # (speed: Phi((1 - s - w) T) = Phi(T) Phi(-w T) Phi(-s T), one matrix exponential per
-        # pulse; the general case uses interval_input / _position_at)
-        simple = u != 0.0 and carry[0] == 0.0 and carry[2] == 0.0 and carry[4] < 0.0 \
-            and s0 + width <= 1.0
-        if simple:
-            if hc[0] != f0:
-                _pulse_cache(f0, Q, fs, width, zoh, hc, z)
-            if s0 == 0.0:                  # on-sample pulse: Phi(0) = I, Gam(0) = 0
-                zs[0], zs[1], zs[2], zs[3], zs[4], zs[5] = 1.0, 0.0, 0.0, 1.0, 0.0, 0.0
-            else:
-                resonator_zoh_dt(f0, Q, fs, s0 / fs, zs)
-            det = zs[0] * zs[3] - zs[1] * zs[2]
-        # ---- in-loop observer time update with the exact pulse term
-        if obs_mode:
-            if fast:
-                ss_step6(xp, A, B, C, Lss, 0.0, v, 0.0)
-            else:
-                kf_predict(xp, P, A, B, F, M, 0.0, nu, S, PC, L, AP, tmp)
-            if simple:
-                if hm[0] < 0.0:
-                    resonator_zoh_dt(f0m, Qm, fs, 1.0 / fs, z)
-                    _pulse_cache(f0m, Qm, fs, width, z, hm, o6)
-                    hm[0] = 1.0
-                if f0m == f0 and Qm == Q:
-                    for m in range(6):
-                        zm[m] = zs[m]
-                    dm = det
-                else:
-                    resonator_zoh_dt(f0m, Qm, fs, s0 / fs, zm)
-                    dm = zm[0] * zm[3] - zm[1] * zm[2]
-                # Phi_m(-s T) Phi_m((1 - w) T) Gam_m(w T) u   (hm[11:13]: the latter product)
-                e0 = (zm[3] * hm[11] - zm[1] * hm[12]) / dm * u
-                e1 = (-zm[2] * hm[11] + zm[0] * hm[12]) / dm * u
-                xp[0] += e0
-                xp[1] += e1 / w0m
-            elif u != 0.0 or carry[2] != 0.0:     # (guarded: calls cost array refcounts)
-                ospill[0] = carry[2]
-                ospill[1] = carry[3]
-                add_pulse_input(xp, f0m, Qm, fs, w0m, gam_m, ospill, u, s0, width, eff, z, wcm)
-                carry[2] = ospill[0]
-                carry[3] = ospill[1]
-        # ---- truth: exact update and the position at the pulse instants
+        # ---- pulse term of this interval in the in-loop observer and the truth
         f = force_noise[i]
-        x_start[i] = 0.0
-        x_center[i] = 0.0
-        if simple:
-            # piecewise exact propagation over [0, s) (force f), the two halves of the pulse
-            # (f + u) and [s + w, 1) (f); Phi, Gam(w/2 T) and Phi(T) Phi(-w T) cached (hc)
-            a0 = zs[0] * y + zs[1] * yd + zs[4] * f
-            a1 = zs[2] * y + zs[3] * yd + zs[5] * f
-            x_start[i] = a0
-            fu = f + u
-            c0 = hc[1] * a0 + hc[2] * a1 + hc[5] * fu
-            c1 = hc[3] * a0 + hc[4] * a1 + hc[6] * fu
-            x_center[i] = c0
-            a0 = hc[1] * c0 + hc[2] * c1 + hc[5] * fu
-            a1 = hc[3] * c0 + hc[4] * c1 + hc[6] * fu
-            # Phi(r T), r = 1 - s - w: (Phi(T) Phi(-w T)) Phi(-s T); Gam(r T) from Phi(r T):
-            # Gam1 = (fs/w0) (1 - Phi11), Gam2 = fs w0 Phi12 (hc[13], hc[14])
-            idet = 1.0 / det
-            i11 = zs[3] * idet
-            i12 = -zs[1] * idet
-            i21 = -zs[2] * idet
-            i22 = zs[0] * idet
-            r11 = hc[7] * i11 + hc[8] * i21
-            r12 = hc[7] * i12 + hc[8] * i22
-            r21 = hc[9] * i11 + hc[10] * i21
-            r22 = hc[9] * i12 + hc[10] * i22
-            g1 = hc[13] * (1.0 - r11)
-            g2 = hc[14] * r12
-            st[0] = r11 * a0 + r12 * a1 + g1 * f
-            st[1] = r21 * a0 + r22 * a1 + g2 * f
-        elif u == 0.0 and carry[0] == 0.0:
+        if u != 0.0 or carry[0] != 0.0 or carry[2] != 0.0 or carry[4] >= 0.0:
+            xs_xc = _pulse_interval(f0, Q, fs, width, f0m, Qm, w0m, y, yd, f, u, s0, obs_mode,
+                                    fast, nu, S, st, zoh, carry, xp, P, A, B, C, F, M, Lss,
+                                    gam_m, PC, L, AP, tmp, z, zs, zm, hc, hm, wct, wcm)
+            x_start[i] = xs_xc[0]
+            x_center[i] = xs_xc[1]
+        else:
+            if obs_mode:
+                if fast:
+                    ss_step6(xp, A, B, C, Lss, 0.0, v, 0.0)
+                else:
+                    kf_predict(xp, P, A, B, F, M, 0.0, nu, S, PC, L, AP, tmp)
+            x_start[i] = 0.0
+            x_center[i] = 0.0
             st[0] = zoh[0] * y + zoh[1] * yd + zoh[4] * f
             st[1] = zoh[2] * y + zoh[3] * yd + zoh[5] * f
-        else:
-            # general case: a pulse tail from the previous interval and/or a pulse
-            # outlasting this one (centre possibly in the next interval)
-            if carry[4] >= 0.0:
-                x_center[i] = _position_at(f0, Q, fs, y, yd, carry[4], carry[0], carry[1],
-                                           0.0, 0.0, 1.0, f, o2, z)
-                carry[4] = -1.0
-            if u != 0.0:
-                x_start[i] = _position_at(f0, Q, fs, y, yd, s0, carry[0], carry[1], 0.0, 0.0,
-                                          1.0, f, o2, z)
-                tcen = s0 + 0.5 * width
-                if tcen <= 1.0:
-                    x_center[i] = _position_at(f0, Q, fs, y, yd, tcen, carry[0], carry[1], u,
-                                               s0, width, f, o2, z)
-                else:
-                    carry[4] = tcen - 1.0
-            gam_t[0] = zoh[4]
-            gam_t[1] = zoh[5]
-            wct[0] = -1.0
-            interval_input(f0, Q, fs, gam_t, carry[0], carry[1], u, s0, width, eff, z, wct)
-            tspill[0] = carry[0]
-            tspill[1] = carry[1]
-            next_spill(u, s0, width, tspill)
-            carry[0] = tspill[0]
-            carry[1] = tspill[1]
-            st[0] = zoh[0] * y + zoh[1] * yd + eff[0] + zoh[4] * f
-            st[1] = zoh[2] * y + zoh[3] * yd + eff[1] + zoh[5] * f
         bits[i] = v
         pulses[i] = u
         starts[i] = s0 / fs
