@@ -454,7 +454,7 @@ def test_cli_play_round_trip(ctx, tmp_path):
                              "--wait-for-subscribers", "1", "--clock", "100"],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        assert spin_until(executor, lambda: recorder.received("/c/adc") == 2000, 40.0), \
+        assert spin_until(executor, lambda: recorder.received("/c/adc") == 2000, 120.0), \
             recorder.counts()
         stdout, stderr = proc.communicate(timeout=20)
     finally:
