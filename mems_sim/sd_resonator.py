@@ -95,7 +95,7 @@ from mems_sim.sd_models import (interval_input, next_crossing, next_spill, reson
                                 resonator_zoh_dt, sd_step, segment_response)
 from mems_estimation.kalman_observer import (DEFAULT_QUANTIZATION_VAR, add_pulse_input,
                                              kf_predict, kf_update, observer_model, ss_step6,
-                                             state_predict, steady_state_gains)
+                                             steady_state_gains)
 
 __all__ = ["RESONATOR_SPECS", "validate_params", "SdFrame", "SdResonatorDevice",
            "default_pulse_amplitude"]
@@ -270,150 +270,146 @@ def _position_at(f0, Q, fs, y, yd, t, spill_u, spill_end, u, s, w, f, o2, z):
 
 
 @numba.njit(cache=True)
-def _pulse_cache(f0, Q, fs, width, zoh, hc, z):
-    """Per-f0 constants of a pulse of width w T (exact, closed-form exponentials):
-    hc = [f0, Phi(w/2 T) (4), Gam(w/2 T) (2), Phi(T) Phi(-w T) (4), Phi((1 - w) T) Gam(w T) (2),
-    fs/w0, fs w0].
-    zoh: the one-sample [Phi(T), Gam(T)] at f0. z: (6,) scratch."""
-    resonator_zoh_dt(f0, Q, fs, 0.5 * width / fs, z)
-    hc[0] = f0
-    for m in range(6):
-        hc[m + 1] = z[m]
-    resonator_zoh_dt(f0, Q, fs, width / fs, z)
-    det = z[0] * z[3] - z[1] * z[2]
-    i11, i12, i21, i22 = z[3] / det, -z[1] / det, -z[2] / det, z[0] / det
-    hc[7] = zoh[0] * i11 + zoh[1] * i21
-    hc[8] = zoh[0] * i12 + zoh[1] * i22
-    hc[9] = zoh[2] * i11 + zoh[3] * i21
-    hc[10] = zoh[2] * i12 + zoh[3] * i22
-    g1, g2 = z[4], z[5]
-    resonator_zoh_dt(f0, Q, fs, (1.0 - width) / fs, z)
-    hc[11] = z[0] * g1 + z[1] * g2
-    hc[12] = z[2] * g1 + z[3] * g2
+def _zoh_t(f0, Q, fs, dt):
+    """:func:`mems_sim.sd_models.resonator_zoh_dt` as a tuple (Phi11, Phi12, Phi21, Phi22,
+    Gam1, Gam2) (no array argument: cheap to call on every pulse)."""
     w0 = 2.0 * math.pi * f0
-    hc[13] = fs / w0
-    hc[14] = fs * w0
+    sig = w0 / (2.0 * Q)
+    wd = w0 * math.sqrt(1.0 - 1.0 / (4.0 * Q * Q))
+    E = math.exp(-sig * dt)
+    c = math.cos(wd * dt)
+    s = math.sin(wd * dt)
+    p12 = E * s / wd
+    p11 = E * (c + sig / wd * s)
+    g = fs * w0
+    return p11, p12, -w0 * w0 * p12, E * (c - sig / wd * s), g * (1.0 - p11) / (w0 * w0), g * p12
 
 
 @numba.njit(cache=True)
-def _pulse_interval(f0, Q, fs, width, f0m, Qm, w0m, y, yd, f, u, s0, obs_mode, fast, nu, S,
-                    st, zoh, carry, xp, P, A, B, C, F, M, Lss, gam_m, PC, L, AP, tmp, z, zs,
-                    zm, hc, hm, wct, wcm):
-    """One sample interval with a pulse acting in it (kept out of the main loop, which then
-    stays small): in-loop observer time update with the exact pulse term, true resonator
-    update, true position at the pulse's firing instant and centre.  Returns
-    (x at the start of a pulse fired in this interval, x at a pulse centre in it), V (0
-    where none).  z, zs, zm: (6,) scratch.  See :func:`_device_run` for the other arguments.
-    (No allocation on the common path: this runs on every pulse.)"""
-    det = 1.0
+def _pulse_cache(f0, Q, fs, width, cache, o):
+    """Per-f0 constants of a pulse of width w T (exact, closed-form exponentials), written
+    to cache[o:o+15] = [f0, Phi(w/2 T) (4), Gam(w/2 T) (2), Phi(T) Phi(-w T) (4),
+    Phi((1 - w) T) Gam(w T) (2), fs/w0, fs w0]."""
+    h = _zoh_t(f0, Q, fs, 0.5 * width / fs)
+    cache[o] = f0
+    for m in range(6):
+        cache[o + 1 + m] = h[m]
+    p = _zoh_t(f0, Q, fs, 1.0 / fs)
+    zw = _zoh_t(f0, Q, fs, width / fs)
+    idet = 1.0 / (zw[0] * zw[3] - zw[1] * zw[2])
+    i11, i12, i21, i22 = zw[3] * idet, -zw[1] * idet, -zw[2] * idet, zw[0] * idet
+    cache[o + 7] = p[0] * i11 + p[1] * i21
+    cache[o + 8] = p[0] * i12 + p[1] * i22
+    cache[o + 9] = p[2] * i11 + p[3] * i21
+    cache[o + 10] = p[2] * i12 + p[3] * i22
+    r = _zoh_t(f0, Q, fs, (1.0 - width) / fs)
+    cache[o + 11] = r[0] * zw[4] + r[1] * zw[5]
+    cache[o + 12] = r[2] * zw[4] + r[3] * zw[5]
+    w0 = 2.0 * math.pi * f0
+    cache[o + 13] = fs / w0
+    cache[o + 14] = fs * w0
+
+
+@numba.njit(cache=True)
+def _pulse_simple(f0, Q, fs, width, f0m, Qm, w0m, y, yd, f, u, s0, obs_mode, st, xp, cache):
+    """Interval with a pulse wholly inside it and no tail of a previous one (the common
+    case; kept out of the main loop with few array arguments, since it runs on every pulse).
+
+    Exact: Phi((1 - s - w) T) = [Phi(T) Phi(-w T)] Phi(-s T), one matrix exponential
+    Phi(s T) per pulse, the rest cached per f0 (:func:`_pulse_cache`; truth at cache[0:15],
+    observer model at cache[15:30]).  Adds the observer model's pulse term to the predicted
+    state xp (observer mode) and propagates the true state st piecewise over [0, s)
+    (force f), the two halves of the pulse (f + u) and [s + w, 1) (f).
+    Returns (true position at the firing instant, at the pulse centre), V."""
+    if cache[0] != f0:
+        _pulse_cache(f0, Q, fs, width, cache, 0)
+    if s0 == 0.0:                      # on-sample pulse: Phi(0) = I, Gam(0) = 0
+        zs = (1.0, 0.0, 0.0, 1.0, 0.0, 0.0)
+    else:
+        zs = _zoh_t(f0, Q, fs, s0 / fs)
+    idet = 1.0 / (zs[0] * zs[3] - zs[1] * zs[2])
+    if obs_mode:
+        if cache[15] < 0.0:
+            _pulse_cache(f0m, Qm, fs, width, cache, 15)
+        if f0m == f0 and Qm == Q:
+            zm = zs
+            idm = idet
+        elif s0 == 0.0:
+            zm = (1.0, 0.0, 0.0, 1.0, 0.0, 0.0)
+            idm = 1.0
+        else:
+            zm = _zoh_t(f0m, Qm, fs, s0 / fs)
+            idm = 1.0 / (zm[0] * zm[3] - zm[1] * zm[2])
+        # Phi_m(-s T) [Phi_m((1 - w) T) Gam_m(w T)] u
+        xp[0] += (zm[3] * cache[26] - zm[1] * cache[27]) * idm * u
+        xp[1] += (-zm[2] * cache[26] + zm[0] * cache[27]) * idm * u / w0m
+    a0 = zs[0] * y + zs[1] * yd + zs[4] * f
+    a1 = zs[2] * y + zs[3] * yd + zs[5] * f
+    x_s = a0
+    fu = f + u
+    c0 = cache[1] * a0 + cache[2] * a1 + cache[5] * fu
+    c1 = cache[3] * a0 + cache[4] * a1 + cache[6] * fu
+    x_c = c0
+    a0 = cache[1] * c0 + cache[2] * c1 + cache[5] * fu
+    a1 = cache[3] * c0 + cache[4] * c1 + cache[6] * fu
+    i11 = zs[3] * idet
+    i12 = -zs[1] * idet
+    i21 = -zs[2] * idet
+    i22 = zs[0] * idet
+    r11 = cache[7] * i11 + cache[8] * i21
+    r12 = cache[7] * i12 + cache[8] * i22
+    r21 = cache[9] * i11 + cache[10] * i21
+    r22 = cache[9] * i12 + cache[10] * i22
+    # Gam(r T) from Phi(r T): Gam1 = (fs/w0) (1 - Phi11), Gam2 = fs w0 Phi12
+    st[0] = r11 * a0 + r12 * a1 + cache[13] * (1.0 - r11) * f
+    st[1] = r21 * a0 + r22 * a1 + cache[14] * r12 * f
+    return x_s, x_c
+
+
+@numba.njit(cache=True)
+def _pulse_general(f0, Q, fs, width, f0m, Qm, w0m, y, yd, f, u, s0, obs_mode, st, zoh, carry,
+                   xp, gam_m):
+    """Interval with a tail of the previous pulse and/or a pulse outlasting it (rare):
+    :func:`mems_sim.sd_models.interval_input` for the observer model's pulse term and the
+    truth, :func:`_position_at` for the true positions at the pulse instants (the centre
+    possibly in the next interval: carry[4]).  Returns (x at firing, x at a centre), V."""
+    z = np.empty(6)
+    o2 = np.empty(2)
+    eff = np.empty(2)
+    sp = np.empty(2)
+    wc = np.full(3, -1.0)
     x_s = 0.0
     x_c = 0.0
-    # ---- common case: a pulse wholly inside the interval, no tail from the previous one
-    # (speed: Phi((1 - s - w) T) = Phi(T) Phi(-w T) Phi(-s T), one matrix exponential per
-    # pulse; the general case uses interval_input / _position_at)
-    simple = u != 0.0 and carry[0] == 0.0 and carry[2] == 0.0 and carry[4] < 0.0 \
-        and s0 + width <= 1.0
-    if simple:
-        if hc[0] != f0:
-            _pulse_cache(f0, Q, fs, width, zoh, hc, z)
-        if s0 == 0.0:                  # on-sample pulse: Phi(0) = I, Gam(0) = 0
-            zs[0], zs[1], zs[2], zs[3], zs[4], zs[5] = 1.0, 0.0, 0.0, 1.0, 0.0, 0.0
-        else:
-            resonator_zoh_dt(f0, Q, fs, s0 / fs, zs)
-        det = zs[0] * zs[3] - zs[1] * zs[2]
-    # ---- in-loop observer time update with the exact pulse term
-    if obs_mode:
-        if fast:
-            state_predict(xp, A, B, Lss, 0.0, nu, tmp)
-        else:
-            kf_predict(xp, P, A, B, F, M, 0.0, nu, S, PC, L, AP, tmp)
-        if simple:
-            if hm[0] < 0.0:
-                resonator_zoh_dt(f0m, Qm, fs, 1.0 / fs, z)
-                _pulse_cache(f0m, Qm, fs, width, z, hm, np.empty(6))
-                hm[0] = 1.0
-            if f0m == f0 and Qm == Q:
-                for m in range(6):
-                    zm[m] = zs[m]
-                dm = det
-            else:
-                resonator_zoh_dt(f0m, Qm, fs, s0 / fs, zm)
-                dm = zm[0] * zm[3] - zm[1] * zm[2]
-            # Phi_m(-s T) Phi_m((1 - w) T) Gam_m(w T) u   (hm[11:13]: the latter product)
-            e0 = (zm[3] * hm[11] - zm[1] * hm[12]) / dm * u
-            e1 = (-zm[2] * hm[11] + zm[0] * hm[12]) / dm * u
-            xp[0] += e0
-            xp[1] += e1 / w0m
-        elif u != 0.0 or carry[2] != 0.0:     # (guarded: calls cost array refcounts)
-            ospill = np.empty(2)
-            eff = np.empty(2)
-            ospill[0] = carry[2]
-            ospill[1] = carry[3]
-            add_pulse_input(xp, f0m, Qm, fs, w0m, gam_m, ospill, u, s0, width, eff, z, wcm)
-            carry[2] = ospill[0]
-            carry[3] = ospill[1]
-    # ---- truth: exact update and the position at the pulse instants
-    if simple:
-        # piecewise exact propagation over [0, s) (force f), the two halves of the pulse
-        # (f + u) and [s + w, 1) (f); Phi, Gam(w/2 T) and Phi(T) Phi(-w T) cached (hc)
-        a0 = zs[0] * y + zs[1] * yd + zs[4] * f
-        a1 = zs[2] * y + zs[3] * yd + zs[5] * f
-        x_s = a0
-        fu = f + u
-        c0 = hc[1] * a0 + hc[2] * a1 + hc[5] * fu
-        c1 = hc[3] * a0 + hc[4] * a1 + hc[6] * fu
-        x_c = c0
-        a0 = hc[1] * c0 + hc[2] * c1 + hc[5] * fu
-        a1 = hc[3] * c0 + hc[4] * c1 + hc[6] * fu
-        # Phi(r T), r = 1 - s - w: (Phi(T) Phi(-w T)) Phi(-s T); Gam(r T) from Phi(r T):
-        # Gam1 = (fs/w0) (1 - Phi11), Gam2 = fs w0 Phi12 (hc[13], hc[14])
-        idet = 1.0 / det
-        i11 = zs[3] * idet
-        i12 = -zs[1] * idet
-        i21 = -zs[2] * idet
-        i22 = zs[0] * idet
-        r11 = hc[7] * i11 + hc[8] * i21
-        r12 = hc[7] * i12 + hc[8] * i22
-        r21 = hc[9] * i11 + hc[10] * i21
-        r22 = hc[9] * i12 + hc[10] * i22
-        g1 = hc[13] * (1.0 - r11)
-        g2 = hc[14] * r12
-        st[0] = r11 * a0 + r12 * a1 + g1 * f
-        st[1] = r21 * a0 + r22 * a1 + g2 * f
-    elif u == 0.0 and carry[0] == 0.0:
-        st[0] = zoh[0] * y + zoh[1] * yd + zoh[4] * f
-        st[1] = zoh[2] * y + zoh[3] * yd + zoh[5] * f
-    else:
-        # general case: a pulse tail from the previous interval and/or a pulse
-        # outlasting this one (centre possibly in the next interval)
-        o2 = np.empty(2)
-        eff = np.empty(2)
-        gam_t = np.empty(2)
-        tspill = np.empty(2)
-        if carry[4] >= 0.0:
-            x_c = _position_at(f0, Q, fs, y, yd, carry[4], carry[0], carry[1], 0.0, 0.0,
-                               1.0, f, o2, z)
-            carry[4] = -1.0
-        if u != 0.0:
-            x_s = _position_at(f0, Q, fs, y, yd, s0, carry[0], carry[1], 0.0, 0.0, 1.0, f,
+    if obs_mode and (u != 0.0 or carry[2] != 0.0):
+        sp[0] = carry[2]
+        sp[1] = carry[3]
+        add_pulse_input(xp, f0m, Qm, fs, w0m, gam_m, sp, u, s0, width, eff, z, wc)
+        carry[2] = sp[0]
+        carry[3] = sp[1]
+    if carry[4] >= 0.0:
+        x_c = _position_at(f0, Q, fs, y, yd, carry[4], carry[0], carry[1], 0.0, 0.0, 1.0, f,
+                           o2, z)
+        carry[4] = -1.0
+    if u != 0.0:
+        x_s = _position_at(f0, Q, fs, y, yd, s0, carry[0], carry[1], 0.0, 0.0, 1.0, f, o2, z)
+        tcen = s0 + 0.5 * width
+        if tcen <= 1.0:
+            x_c = _position_at(f0, Q, fs, y, yd, tcen, carry[0], carry[1], u, s0, width, f,
                                o2, z)
-            tcen = s0 + 0.5 * width
-            if tcen <= 1.0:
-                x_c = _position_at(f0, Q, fs, y, yd, tcen, carry[0], carry[1], u, s0,
-                                   width, f, o2, z)
-            else:
-                carry[4] = tcen - 1.0
-        gam_t[0] = zoh[4]
-        gam_t[1] = zoh[5]
-        wct[0] = -1.0
-        interval_input(f0, Q, fs, gam_t, carry[0], carry[1], u, s0, width, eff, z, wct)
-        tspill[0] = carry[0]
-        tspill[1] = carry[1]
-        next_spill(u, s0, width, tspill)
-        carry[0] = tspill[0]
-        carry[1] = tspill[1]
-        st[0] = zoh[0] * y + zoh[1] * yd + eff[0] + zoh[4] * f
-        st[1] = zoh[2] * y + zoh[3] * yd + eff[1] + zoh[5] * f
+        else:
+            carry[4] = tcen - 1.0
+    gam_t = np.empty(2)
+    gam_t[0] = zoh[4]
+    gam_t[1] = zoh[5]
+    wc[0] = -1.0
+    interval_input(f0, Q, fs, gam_t, carry[0], carry[1], u, s0, width, eff, z, wc)
+    sp[0] = carry[0]
+    sp[1] = carry[1]
+    next_spill(u, s0, width, sp)
+    carry[0] = sp[0]
+    carry[1] = sp[1]
+    st[0] = zoh[0] * y + zoh[1] * yd + eff[0] + zoh[4] * f
+    st[1] = zoh[2] * y + zoh[3] * yd + eff[1] + zoh[5] * f
     return x_s, x_c
 
 
@@ -432,13 +428,7 @@ def _device_run(k0, n, fs, f0_base, Q, drift, step_frac, step_time, U, width, su
     L = np.empty(nx)
     AP = np.empty((nx, nx))
     tmp = np.empty(nx)
-    hc = np.full(15, -1.0)         # truth pulse cache, see _pulse_cache
-    hm = np.full(15, -1.0)         # the same for the observer model (f0 fixed)
-    z = np.empty(6)
-    zs = np.empty(6)
-    zm = np.empty(6)
-    wct = np.full(3, -1.0)
-    wcm = np.full(3, -1.0)         # width cache of the observer model (f0 fixed)
+    cache = np.full(30, -1.0)      # pulse constants: truth [0:15], observer model [15:30]
     W = win.shape[0]
     varying = drift != 0.0 or step_frac != 0.0
     f0m, Qm, w0m = res_m[0], res_m[1], res_m[3]
@@ -512,24 +502,26 @@ def _device_run(k0, n, fs, f0_base, Q, drift, step_frac, step_time, U, width, su
             if (s_sig >= 0.0) != (sp >= 0.0):
                 u = U if s_sig > sp else -U
             st[2] = s_sig
-        # ---- pulse term of this interval in the in-loop observer and the truth
+        # ---- observer time update (pulse term added below), truth update
         f = force_noise[i]
-        if u != 0.0 or carry[0] != 0.0 or carry[2] != 0.0 or carry[4] >= 0.0:
-            xs_xc = _pulse_interval(f0, Q, fs, width, f0m, Qm, w0m, y, yd, f, u, s0, obs_mode,
-                                    fast, nu, S, st, zoh, carry, xp, P, A, B, C, F, M, Lss,
-                                    gam_m, PC, L, AP, tmp, z, zs, zm, hc, hm, wct, wcm)
-            x_start[i] = xs_xc[0]
-            x_center[i] = xs_xc[1]
-        else:
-            if obs_mode:
-                if fast:
-                    ss_step6(xp, A, B, C, Lss, 0.0, v, 0.0)
-                else:
-                    kf_predict(xp, P, A, B, F, M, 0.0, nu, S, PC, L, AP, tmp)
+        if obs_mode:
+            if fast:
+                ss_step6(xp, A, B, C, Lss, 0.0, v, 0.0)
+            else:
+                kf_predict(xp, P, A, B, F, M, 0.0, nu, S, PC, L, AP, tmp)
+        quiet = carry[0] == 0.0 and carry[2] == 0.0 and carry[4] < 0.0
+        if u == 0.0 and quiet:
             x_start[i] = 0.0
             x_center[i] = 0.0
             st[0] = zoh[0] * y + zoh[1] * yd + zoh[4] * f
             st[1] = zoh[2] * y + zoh[3] * yd + zoh[5] * f
+        elif quiet and s0 + width <= 1.0:
+            x_start[i], x_center[i] = _pulse_simple(f0, Q, fs, width, f0m, Qm, w0m, y, yd, f,
+                                                    u, s0, obs_mode, st, xp, cache)
+        else:
+            x_start[i], x_center[i] = _pulse_general(f0, Q, fs, width, f0m, Qm, w0m, y, yd,
+                                                     f, u, s0, obs_mode, st, zoh, carry, xp,
+                                                     gam_m)
         bits[i] = v
         pulses[i] = u
         starts[i] = s0 / fs
@@ -592,6 +584,7 @@ class SdResonatorDevice:
         resonator_zoh_dt(m.f0, m.Q, fs, (1.0 + 0.5 * self.width) / fs, z)
         self._pred[2:4] = z[0:2]
         self._carry = np.array([0.0, 0.0, 0.0, 0.0, -1.0])
+        self._zeros = np.zeros(0)
         self._next = 0
 
     @property
@@ -612,9 +605,13 @@ class SdResonatorDevice:
         p = self.params
         sb, sf = p["output_noise_std"], p["state_noise_std"]
         b = self._gen_b.standard_normal(n) * sb if sb > 0 else np.zeros(n)
-        f = self._gen_f.standard_normal(n) * sf if sf > 0 else np.zeros(n)
-        bits, pulses, starts, widths, pos, vel, f0o, est, estv, xs, xc = (np.empty(n)
-                                                                          for _ in range(11))
+        if sf > 0:
+            f = self._gen_f.standard_normal(n) * sf
+        else:                                # shared read-only zeros (speed)
+            if self._zeros.shape[0] < n:
+                self._zeros = np.zeros(n)
+            f = self._zeros[:n]
+        bits, pulses, starts, widths, pos, vel, f0o, est, estv, xs, xc = np.empty((11, n))
         m = self.model
         fs = p["sample_rate_hz"]
         _device_run(self._next, n, fs, p["f0_hz"], p["quality_factor"],
