@@ -37,7 +37,9 @@ from mems_sim.micro_stage import DriveSchedule, MicroStage, off_axis_rejection, 
 NAME = "gyro_calibration"
 DESCRIPTION = ("piezo tilt micro-stage (Chen 2018 ch. 3): capacitive sensing + EKF, in-situ "
                "MPU-6500-like gyro scale-factor calibration at 22.9 and 35.7 C")
-DEFAULT_DURATION_S = 0.0   # the duration follows from the drive schedules
+#: simulated calibration span per temperature (7 trials x 400 periods at 1700 Hz); fixed by
+#: the drive schedules (``--duration`` is refused)
+DEFAULT_DURATION_S = round(7 * 400 / 1700.0, 3)
 T1, T2 = 22.9, 35.7
 
 
