@@ -14,8 +14,6 @@ Parameters: :data:`mems_sim.fr_accelerometer.ACCEL_SPECS` and ``EMULATOR_SPECS``
 """
 from __future__ import annotations
 
-import time
-
 import numpy as np
 from rclpy.node import Node
 
@@ -23,16 +21,13 @@ from mems_estimation.hybrid_ekf import STATE_NAMES, STATE_UNITS
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim import fr_accelerometer as fra
 from mems_sim.diagnostics import DiagnosticsReporter
-from mems_sim.node_common import EMULATOR_SPECS, PacedEmulator, run_node
+from mems_sim.node_common import PacedEmulator, emulator_specs, run_node
 from mems_sim.params import ParamSpec
 from mems_sim.qos import FRAME_QOS
 from mems_sim.ros_frames import make_adc_frame, make_signal_frame, make_state_estimate
 from mems_sim.ros_params import declare_specs
 
-NODE_SPECS: tuple[ParamSpec, ...] = tuple(
-    ParamSpec(s.name, {"frame_size": 10000, "frame_id": "accelerometer"}.get(s.name, s.default),
-              s.unit, s.description, s.source, s.min, s.max, s.min_exclusive, s.choices)
-    for s in EMULATOR_SPECS)
+NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=10000, frame_id="accelerometer")
 
 TRUTH_CHANNELS = ("acceleration", "displacement", "velocity", "contact", "saturated")
 TRUTH_UNITS = ("m/s^2", "m", "m/s", "1", "1")
@@ -54,11 +49,7 @@ class FrAccelerometerNode(PacedEmulator, Node):
         device = {s.name: self.p[s.name] for s in fra.ACCEL_SPECS}
         self.device = fra.ForceRebalanceAccelerometer(device, seed=self.p["seed"])
         self.fs = self.device.fs
-        self.t0_ns = 0 if self.p["stamp_origin"] == "zero" else time.time_ns()
-        self.total_samples = (int(round(self.p["duration_s"] * self.fs))
-                              if self.p["duration_s"] > 0 else None)
-        self.next_index = 0
-        self.frames_published = 0
+        self.init_emulator(self.fs)
         self.ekf_mode = self.p["mode"] == "ekf_rebalance"
         self.pub_adc = self.create_publisher(AdcFrame, "adc", FRAME_QOS)
         self.pub_drive = self.create_publisher(SignalFrame, "drive", FRAME_QOS)
@@ -67,8 +58,6 @@ class FrAccelerometerNode(PacedEmulator, Node):
                              if self.ekf_mode else None)
         self.diag = DiagnosticsReporter(self, f"{self.get_name()}: force-rebalance accelerometer",
                                         hardware_id=self.get_fully_qualified_name())
-        self._timer = None
-        self._wall_start = None
         if not drive_externally and autostart:
             self.start()
 
@@ -97,9 +86,7 @@ class FrAccelerometerNode(PacedEmulator, Node):
 
     def step(self) -> int:
         """Run and publish the next frame; return the number of samples (0 when done)."""
-        n = self.p["frame_size"]
-        if self.total_samples is not None:
-            n = min(n, self.total_samples - self.next_index)
+        n = self.next_frame_size()
         if n <= 0:
             return 0
         first = self.next_index
@@ -124,8 +111,7 @@ class FrAccelerometerNode(PacedEmulator, Node):
                 state_names=STATE_NAMES, state_units=STATE_UNITS, **common))
         self.diag.count("frames")
         self._report(f, first)
-        self.next_index += n
-        self.frames_published += 1
+        self.frame_published(n)
         return n
 
 

@@ -10,8 +10,6 @@ Parameters: the table ``mems_sim.imu_noise.IMU_SPECS`` (units, ranges, sources),
 """
 from __future__ import annotations
 
-import time
-
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import Imu
@@ -63,11 +61,7 @@ class ImuNoiseNode(PacedEmulator, Node):
         device = {k: self.p[k] for k in (s.name for s in imu_noise.IMU_SPECS)}
         self.model = imu_noise.ImuNoiseModel(device, seed=self.p["seed"])
         self.fs = fs
-        self.t0_ns = 0 if self.p["stamp_origin"] == "zero" else time.time_ns()
-        self.total_samples = (int(round(self.p["duration_s"] * fs))
-                              if self.p["duration_s"] > 0 else None)
-        self.next_index = 0
-        self.frames_published = 0
+        self.init_emulator(fs)
         gyro_var, accel_var = imu_noise.imu_covariances(device)
         self._gyro_cov = imu_noise.covariance9(gyro_var)
         self._accel_cov = imu_noise.covariance9(accel_var)
@@ -83,8 +77,6 @@ class ImuNoiseNode(PacedEmulator, Node):
         self.pub_imu = self.create_publisher(Imu, "data", FRAME_QOS) if self.p["publish_imu"] else None
         self.diag = DiagnosticsReporter(self, f"{self.get_name()}: IMU emulator",
                                         hardware_id=self.get_fully_qualified_name())
-        self._wall_start = None
-        self._timer = None
         if not drive_externally and autostart:
             self.start()
 
@@ -98,9 +90,7 @@ class ImuNoiseNode(PacedEmulator, Node):
 
     def step(self) -> int:
         """Generate and publish the next frame; return the number of samples (0 when done)."""
-        n = self.p["frame_size"]
-        if self.total_samples is not None:
-            n = min(n, self.total_samples - self.next_index)
+        n = self.next_frame_size()
         if n <= 0:
             return 0
         first = self.next_index
@@ -118,8 +108,7 @@ class ImuNoiseNode(PacedEmulator, Node):
             channel_units=UNITS, frame_id=self.p["frame_id"], t0_ns=self.t0_ns))
         if self.pub_imu is not None:
             self._publish_imu(first, frame.gyro_si, frame.accel_si)
-        self.next_index += n
-        self.frames_published += 1
+        self.frame_published(n)
         self.diag.count("frames")
         return n
 

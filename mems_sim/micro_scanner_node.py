@@ -22,24 +22,19 @@ process the graph keeps up with 500 kHz only with frames of ~10^4 samples, bench
 """
 from __future__ import annotations
 
-import time
-
 import numpy as np
 from rclpy.node import Node
 
 from mems_msgs.msg import AdcFrame, SignalFrame
 from mems_sim import micro_scanner
 from mems_sim.diagnostics import DiagnosticsReporter
-from mems_sim.node_common import EMULATOR_SPECS, PacedEmulator, run_node
+from mems_sim.node_common import PacedEmulator, emulator_specs, run_node
 from mems_sim.params import ParamSpec
 from mems_sim.qos import FRAME_QOS
 from mems_sim.ros_frames import make_adc_frame, make_signal_frame
 from mems_sim.ros_params import declare_specs
 
-NODE_SPECS: tuple[ParamSpec, ...] = tuple(
-    ParamSpec(s.name, {"frame_size": 10000, "frame_id": "scanner"}.get(s.name, s.default),
-              s.unit, s.description, s.source, s.min, s.max, s.min_exclusive, s.choices)
-    for s in EMULATOR_SPECS) + (
+NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=10000, frame_id="scanner") + (
     ParamSpec("front_end", "dc_transimpedance", "-", "sensing front end",
               "issue 5: dc_transimpedance (ch. 4) or shared_amdm (ch. 5, mems_sim.scanner_amdm)",
               choices=micro_scanner.FRONT_ENDS),
@@ -93,11 +88,7 @@ class MicroScannerNode(PacedEmulator, Node):
             from mems_sim import scanner_amdm
             self.device = scanner_amdm.AmdmScannerDevice(seed=p["seed"])
             self.fs = self.device.fs
-        self.t0_ns = 0 if p["stamp_origin"] == "zero" else time.time_ns()
-        self.total_samples = (int(round(p["duration_s"] * self.fs)) if p["duration_s"] > 0
-                              else None)
-        self.next_index = 0
-        self.frames_published = 0
+        self.init_emulator(self.fs)
         self.pub_adc = self.create_publisher(AdcFrame, "adc", FRAME_QOS)
         self.pub_drive = self.create_publisher(SignalFrame, "drive", FRAME_QOS)
         self.pub_truth = self.create_publisher(SignalFrame, "truth", FRAME_QOS)
@@ -107,8 +98,6 @@ class MicroScannerNode(PacedEmulator, Node):
                                         hardware_id=self.get_fully_qualified_name())
         if self.pub_psd is not None:
             self.diag.counters["psd_delay_s"] = self.device.psd_delay
-        self._timer = None
-        self._wall_start = None
         if not drive_externally and autostart:
             self.start()
 
@@ -132,9 +121,7 @@ class MicroScannerNode(PacedEmulator, Node):
 
     def step(self) -> int:
         """Run and publish the next frame; return the number of samples (0 when done)."""
-        n = self.p["frame_size"]
-        if self.total_samples is not None:
-            n = min(n, self.total_samples - self.next_index)
+        n = self.next_frame_size()
         if n <= 0:
             return 0
         first = self.next_index
@@ -162,8 +149,7 @@ class MicroScannerNode(PacedEmulator, Node):
         if sat:
             self.diag.count("saturated_samples", sat)
             self.diag.warn(f"ADC saturated on {sat} samples in frame {first}")
-        self.next_index += n
-        self.frames_published += 1
+        self.frame_published(n)
         return n
 
 

@@ -1,6 +1,7 @@
 """Parameters and the main() wrapper shared by the emulator and estimator nodes."""
 from __future__ import annotations
 
+import dataclasses
 import sys
 from typing import Callable
 
@@ -26,13 +27,48 @@ EMULATOR_SPECS: tuple[ParamSpec, ...] = (
 )
 
 
+def emulator_specs(**defaults) -> tuple[ParamSpec, ...]:
+    """:data:`EMULATOR_SPECS` with some defaults replaced (e.g. ``frame_size=10000``)."""
+    unknown = set(defaults) - {s.name for s in EMULATOR_SPECS}
+    if unknown:
+        raise KeyError(f"not emulator parameters: {sorted(unknown)}")
+    return tuple(dataclasses.replace(s, default=defaults[s.name]) if s.name in defaults else s
+                 for s in EMULATOR_SPECS)
+
+
 class PacedEmulator:
     """Mixin of emulator nodes: wall-clock pacing of ``step()`` and the duration limit.
 
-    The node sets ``self.p`` (with ``frame_size``, ``realtime_factor``), ``self.fs``,
-    ``self.next_index``, ``self.total_samples`` (None: unlimited), ``self._timer = None``
-    and ``self._wall_start = None``, and implements ``step()``.
+    The node sets ``self.p`` (with the :data:`EMULATOR_SPECS` values), calls
+    :meth:`init_emulator` with its sample rate, and implements ``step()`` with
+    :meth:`next_frame_size` and :meth:`frame_published`.
     """
+
+    def init_emulator(self, fs: float, total_samples: int | None = None) -> None:
+        """Sample rate fs [Hz], stamp origin, sample budget (``duration_s``; 0: unlimited,
+        or ``total_samples`` if given), counters and pacing state."""
+        import time
+        self.fs = fs
+        self.t0_ns = 0 if self.p["stamp_origin"] == "zero" else time.time_ns()
+        if total_samples is None and self.p["duration_s"] > 0:
+            total_samples = int(round(self.p["duration_s"] * fs))
+        self.total_samples = total_samples
+        self.next_index = 0
+        self.frames_published = 0
+        self._timer = None
+        self._wall_start = None
+
+    def next_frame_size(self) -> int:
+        """Samples of the next frame: ``frame_size``, fewer at the end, 0 when finished."""
+        n = self.p["frame_size"]
+        if self.total_samples is not None:
+            n = min(n, self.total_samples - self.next_index)
+        return max(n, 0)
+
+    def frame_published(self, n: int) -> None:
+        """Advance the sample index by the n samples just published."""
+        self.next_index += n
+        self.frames_published += 1
 
     @property
     def finished(self) -> bool:

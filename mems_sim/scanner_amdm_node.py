@@ -12,24 +12,19 @@ the chain (``chain_delay_s`` of the estimator) is logged at start and published 
 """
 from __future__ import annotations
 
-import time
-
 import numpy as np
 from rclpy.node import Node
 
 from mems_msgs.msg import AdcFrame, SignalFrame
 from mems_sim import scanner_amdm
 from mems_sim.diagnostics import DiagnosticsReporter
-from mems_sim.node_common import EMULATOR_SPECS, PacedEmulator, run_node
+from mems_sim.node_common import PacedEmulator, emulator_specs, run_node
 from mems_sim.params import ParamSpec
 from mems_sim.qos import FRAME_QOS
 from mems_sim.ros_frames import make_adc_frame, make_signal_frame
 from mems_sim.ros_params import declare_specs
 
-NODE_SPECS: tuple[ParamSpec, ...] = tuple(
-    ParamSpec(s.name, {"frame_size": 1000, "frame_id": "scanner"}.get(s.name, s.default),
-              s.unit, s.description, s.source, s.min, s.max, s.min_exclusive, s.choices)
-    for s in EMULATOR_SPECS)
+NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=1000, frame_id="scanner")
 
 ADC_CHANNEL = "y_cap"
 DRIVE_CHANNELS = ("v_drive", "f_drive")
@@ -54,11 +49,7 @@ class ScannerAmdmNode(PacedEmulator, Node):
         device = {s.name: self.p[s.name] for s in scanner_amdm.AMDM_SPECS}
         self.device = scanner_amdm.AmdmScannerDevice(device, seed=self.p["seed"])
         self.fs = self.device.fs
-        self.t0_ns = 0 if self.p["stamp_origin"] == "zero" else time.time_ns()
-        self.total_samples = (int(round(self.p["duration_s"] * self.fs))
-                              if self.p["duration_s"] > 0 else None)
-        self.next_index = 0
-        self.frames_published = 0
+        self.init_emulator(self.fs)
         self.pub_adc = self.create_publisher(AdcFrame, "adc", FRAME_QOS)
         self.pub_drive = self.create_publisher(SignalFrame, "drive", FRAME_QOS)
         self.pub_truth = self.create_publisher(SignalFrame, "truth", FRAME_QOS)
@@ -67,16 +58,12 @@ class ScannerAmdmNode(PacedEmulator, Node):
         self.diag.counters["chain_delay_s"] = f"{self.device.delay:.6e}"
         self.get_logger().info(f"AMDM chain envelope delay {self.device.delay * 1e6:.4f} us "
                                f"(estimator parameter chain_delay_s)")
-        self._timer = None
-        self._wall_start = None
         if not drive_externally and autostart:
             self.start()
 
     def step(self) -> int:
         """Simulate and publish the next frame; return the number of samples (0 when done)."""
-        n = self.p["frame_size"]
-        if self.total_samples is not None:
-            n = min(n, self.total_samples - self.next_index)
+        n = self.next_frame_size()
         if n <= 0:
             return 0
         first = self.next_index
@@ -97,8 +84,7 @@ class ScannerAmdmNode(PacedEmulator, Node):
         if f.saturated:
             self.diag.count("saturated_samples", f.saturated)
             self.diag.warn(f"ADC saturated on {f.saturated} samples of frame {first}")
-        self.next_index += n
-        self.frames_published += 1
+        self.frame_published(n)
         return n
 
 

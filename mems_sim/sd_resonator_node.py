@@ -15,24 +15,19 @@ Parameters: ``mems_sim.sd_resonator.RESONATOR_SPECS`` and ``EMULATOR_SPECS``.
 """
 from __future__ import annotations
 
-import time
-
 import numpy as np
 from rclpy.node import Node
 
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim import sd_resonator
 from mems_sim.diagnostics import DiagnosticsReporter
-from mems_sim.node_common import EMULATOR_SPECS, PacedEmulator, run_node
+from mems_sim.node_common import PacedEmulator, emulator_specs, run_node
 from mems_sim.params import ParamSpec
 from mems_sim.qos import FRAME_QOS
 from mems_sim.ros_frames import make_adc_frame, make_signal_frame, make_state_estimate
 from mems_sim.ros_params import declare_specs
 
-NODE_SPECS: tuple[ParamSpec, ...] = tuple(
-    ParamSpec(s.name, {"frame_size": 1000, "frame_id": "resonator"}.get(s.name, s.default),
-              s.unit, s.description, s.source, s.min, s.max, s.min_exclusive, s.choices)
-    for s in EMULATOR_SPECS)
+NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=1000, frame_id="resonator")
 
 TRUTH_CHANNELS = ("position", "velocity", "f0", "position_at_pulse_start",
                   "position_at_pulse_center")
@@ -58,11 +53,7 @@ class SdResonatorNode(PacedEmulator, Node):
         sd_resonator.validate_params(device)
         self.device = sd_resonator.SdResonatorDevice(device, seed=self.p["seed"])
         self.fs = self.p["sample_rate_hz"]
-        self.t0_ns = 0 if self.p["stamp_origin"] == "zero" else time.time_ns()
-        self.total_samples = (int(round(self.p["duration_s"] * self.fs))
-                              if self.p["duration_s"] > 0 else None)
-        self.next_index = 0
-        self.frames_published = 0
+        self.init_emulator(self.fs)
         self.observer_mode = self.p["mode"] == "observer"
         self.pub_adc = self.create_publisher(AdcFrame, "adc", FRAME_QOS)
         self.pub_drive = self.create_publisher(SignalFrame, "drive", FRAME_QOS)
@@ -71,8 +62,6 @@ class SdResonatorNode(PacedEmulator, Node):
                              if self.observer_mode else None)
         self.diag = DiagnosticsReporter(self, f"{self.get_name()}: sigma-delta resonator",
                                         hardware_id=self.get_fully_qualified_name())
-        self._timer = None
-        self._wall_start = None
         if not drive_externally and autostart:
             self.start()
 
@@ -81,9 +70,7 @@ class SdResonatorNode(PacedEmulator, Node):
 
     def step(self) -> int:
         """Run and publish the next frame; return the number of samples (0 when done)."""
-        n = self.p["frame_size"]
-        if self.total_samples is not None:
-            n = min(n, self.total_samples - self.next_index)
+        n = self.next_frame_size()
         if n <= 0:
             return 0
         first = self.next_index
@@ -106,8 +93,7 @@ class SdResonatorNode(PacedEmulator, Node):
                 state_units=("V",), **common))
         self.diag.count("frames")
         self.diag.count("pulses", int(np.count_nonzero(f.pulses)))
-        self.next_index += n
-        self.frames_published += 1
+        self.frame_published(n)
         return n
 
 
