@@ -16,8 +16,6 @@ Parameters: STAGE_SPECS, GYRO_SPECS, SCHEDULE_SPECS and EMULATOR_SPECS.
 """
 from __future__ import annotations
 
-import time
-
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import Imu, Temperature
@@ -26,7 +24,7 @@ from mems_msgs.msg import AdcFrame, SignalFrame
 from mems_sim import micro_stage
 from mems_sim.diagnostics import DiagnosticsReporter
 from mems_sim.mems_gyro import GYRO_SPECS, MemsGyro
-from mems_sim.node_common import EMULATOR_SPECS, PacedEmulator, run_node
+from mems_sim.node_common import PacedEmulator, emulator_specs, run_node
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.qos import FRAME_QOS
 from mems_sim.ros_frames import index_to_ns, make_adc_frame, make_signal_frame, ns_to_time
@@ -93,10 +91,7 @@ class MicroStageNode(PacedEmulator, Node):
                  **node_kwargs) -> None:
         node_kwargs.setdefault("namespace", "stage")
         super().__init__("micro_stage", **node_kwargs)
-        node_specs = tuple(
-            ParamSpec(s.name, {"frame_size": 5000, "frame_id": "stage"}.get(s.name, s.default),
-                      s.unit, s.description, s.source, s.min, s.max, s.min_exclusive, s.choices)
-            for s in EMULATOR_SPECS)
+        node_specs = emulator_specs(frame_size=5000, frame_id="stage")
         self.p = declare_specs(self, micro_stage.STAGE_SPECS + GYRO_SPECS + SCHEDULE_SPECS
                                + node_specs)
         dev = {s.name: self.p[s.name] for s in micro_stage.STAGE_SPECS}
@@ -106,13 +101,10 @@ class MicroStageNode(PacedEmulator, Node):
         self.gyro = (MemsGyro({s.name: self.p[s.name] for s in GYRO_SPECS},
                               seed=self.p["seed"], temperature_c=self.p["temperature_c"])
                      if self.p["gyro_enabled"] else None)
-        self.fs = self.device.fs
-        self.t0_ns = 0 if self.p["stamp_origin"] == "zero" else time.time_ns()
         sched_n = self.device.total_samples()
-        self.total_samples = (min(sched_n, int(round(self.p["duration_s"] * self.fs)))
-                              if self.p["duration_s"] > 0 else sched_n)
-        self.next_index = 0
-        self.frames_published = 0
+        self.init_emulator(self.device.fs, (
+            min(sched_n, int(round(self.p["duration_s"] * self.device.fs)))
+            if self.p["duration_s"] > 0 else sched_n))
         self.pub_adc = self.create_publisher(AdcFrame, "adc", FRAME_QOS)
         self.pub_drive = self.create_publisher(SignalFrame, "drive", FRAME_QOS)
         self.pub_truth = self.create_publisher(SignalFrame, "truth", FRAME_QOS)
@@ -123,8 +115,6 @@ class MicroStageNode(PacedEmulator, Node):
         self.publish_imu = self.p["publish_imu"]
         self.diag = DiagnosticsReporter(self, f"{self.get_name()}: piezo tilt micro-stage",
                                         hardware_id=self.get_fully_qualified_name())
-        self._timer = None
-        self._wall_start = None
         if not drive_externally and autostart:
             self.start()
 
@@ -136,7 +126,7 @@ class MicroStageNode(PacedEmulator, Node):
 
     def step(self) -> int:
         """Run and publish the next frame; return the number of samples (0 when done)."""
-        n = min(self.p["frame_size"], self.total_samples - self.next_index)
+        n = self.next_frame_size()
         if n <= 0:
             return 0
         first = self.next_index
@@ -192,8 +182,7 @@ class MicroStageNode(PacedEmulator, Node):
             self.diag.count("saturated_samples", f.saturated)
             self.diag.warn("capacitive ADC clipped")
         self.diag.count("frames")
-        self.next_index += n
-        self.frames_published += 1
+        self.frame_published(n)
         return n
 
 
