@@ -31,7 +31,8 @@ from mems_sim import fr_accelerometer as fra
 from mems_sim.bag.recorder import RecorderNode
 from mems_sim.fr_accelerometer_node import FrAccelerometerNode
 from mems_sim.scenarios.base import (Graph, Progress, ScenarioError, ScenarioOptions,
-                                     default_domain_id, drive_fast, format_table, topic_frames)
+                                     default_domain_id, drive_fast, format_table, run_recorded,
+                                     topic_frames)
 
 NAME = "accelerometer_snr"
 DESCRIPTION = ("force-rebalance accelerometer (Zhang 2010): open loop vs PI vs hybrid-EKF loop, "
@@ -177,6 +178,7 @@ def figures(path: Path, diagnostics: dict) -> dict:
     f["downstream"]["accel_snr"] = coherent_snr_db(est["data"][k0:, 2], t[k0:], F_IN)
     p = fra.validate_params({})
     f["pull_in_g"] = fra.pull_in_acceleration(p)[0] / G
+    f["checks"] = checks(f)
     return f
 
 
@@ -308,27 +310,20 @@ def plot(f: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def run(options: ScenarioOptions) -> dict:
-    """Run the scenario; return the tables, figures and paths."""
-    duration = DEFAULT_DURATION_S if options.duration_s is None else options.duration_s
+def _check_duration(duration: float) -> None:
     if duration < SKIP_S + 1.0 / F_IN - 1e-9:
         raise ScenarioError(f"--duration = {duration!r} is too short for {NAME}: at least "
                             f"{SKIP_S + 1.0 / F_IN:g} s (start-up and one 10 Hz period)")
-    out = options.out or Path("runs") / f"{NAME}-{options.seed}.mcap"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    progress = Progress(duration, options.progress, NAME)
-    try:
-        result = run_graph(options, out, duration, progress)
-    finally:
-        progress.close()
-    f = figures(out, result["diagnostics"])
-    figure = None
-    if options.plots:
-        figure = out.with_name(out.stem + ".png")
-        plot(f, figure)
-    public = {ns: {k: v for k, v in d.items() if k != "series"}
-              for ns, d in f["devices"].items()}
-    return dict(table=table(f), figures=dict(devices=public, downstream=f["downstream"],
-                                             pull_in_g=f["pull_in_g"], checks=checks(f)),
-                mcap=out, figure=figure, recorder=result["recorder"],
-                published=result["published"], duration_s=duration)
+
+
+def run(options: ScenarioOptions) -> dict:
+    """Run the scenario; return the tables, figures and paths."""
+    r = run_recorded(options, name=NAME, default_duration_s=DEFAULT_DURATION_S,
+                     check_duration=_check_duration, run_graph=run_graph,
+                     figures=lambda out, res, _d: figures(out, res["diagnostics"]),
+                     table=table, plot=plot)
+    f = r["figures"]
+    r["figures"] = dict(devices={ns: {k: v for k, v in d.items() if k != "series"}
+                                 for ns, d in f["devices"].items()},
+                        downstream=f["downstream"], pull_in_g=f["pull_in_g"], checks=f["checks"])
+    return r

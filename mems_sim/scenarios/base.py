@@ -202,3 +202,42 @@ def topic_frames(path, topic: str) -> dict:
     if variances:
         out["variances"] = np.concatenate(variances)
     return out
+
+
+def run_recorded(options: "ScenarioOptions", *, name: str, default_duration_s: float,
+                 check_duration: Callable[[float], None],
+                 run_graph: Callable[..., dict], figures: Callable[[Path, dict, float], dict],
+                 table: Callable[[dict], str], plot: Callable[..., None],
+                 png_suffixes: tuple[str, ...] = ("",)) -> dict:
+    """The common shape of a scenario's ``run``: graph -> MCAP -> figures -> table and PNGs.
+
+    Args:
+        check_duration: raises :class:`ScenarioError` for a duration the scenario can't use.
+        run_graph: ``(options, out, duration, progress) -> dict`` with at least
+            ``recorder`` and ``published``.
+        figures: ``(mcap_path, run_graph_result, duration) -> dict`` (key ``series`` holds
+            arrays for the plots only).
+        plot: ``(figures, *png_paths)``; one PNG per entry of ``png_suffixes``, named
+            ``<mcap stem><suffix>.png`` next to the MCAP file.
+    Returns:
+        dict with ``table``, ``figures`` (without ``series``), ``mcap``, ``figure`` (first
+        PNG), ``figure_paths``, ``recorder``, ``published``, ``duration_s``.
+    """
+    duration = default_duration_s if options.duration_s is None else options.duration_s
+    check_duration(duration)
+    out = Path(options.out or Path("runs") / f"{name}-{options.seed}.mcap")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    progress = Progress(duration, options.progress, name)
+    try:
+        result = run_graph(options, out, duration, progress)
+    finally:
+        progress.close()
+    f = figures(out, result, duration)
+    pngs = None
+    if options.plots:
+        pngs = tuple(out.with_name(out.stem + s + ".png") for s in png_suffixes)
+        plot(f, *pngs)
+    return dict(table=table(f), figures={k: v for k, v in f.items() if k != "series"},
+                mcap=out, figure=pngs[0] if pngs else None, figure_paths=pngs,
+                recorder=result["recorder"], published=result["published"],
+                duration_s=duration)

@@ -30,7 +30,8 @@ from mems_sim import scanner_amdm as sa
 from mems_sim.bag.recorder import RecorderNode
 from mems_sim.scanner_amdm_node import ScannerAmdmNode
 from mems_sim.scenarios.base import (Graph, Progress, ScenarioError, ScenarioOptions,
-                                     default_domain_id, drive_fast, format_table, topic_frames)
+                                     default_domain_id, drive_fast, format_table, run_recorded,
+                                     topic_frames)
 
 NAME = "scanner_shared_electrodes"
 DESCRIPTION = ("micro-scanner with shared drive/sense electrodes, AMDM read-out (Chen 2018 ch. 5): "
@@ -284,25 +285,15 @@ def plot(f: dict, path58: Path, path59: Path) -> None:
     plt.close(fig)
 
 
-def run(options: ScenarioOptions) -> dict:
-    """Run the scenario; return the table, figures and paths."""
-    duration = DEFAULT_DURATION_S if options.duration_s is None else options.duration_s
+def _check_duration(duration: float) -> None:
     if duration < 0.04:
         raise ScenarioError(f"--duration = {duration!r} is too short for {NAME}: at least 0.04 s "
                             f"(growth of the motion, acquisition, evaluation after {T_EVAL} s)")
-    out = options.out or Path("runs") / f"{NAME}-{options.seed}.mcap"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    progress = Progress(duration, options.progress, NAME)
-    try:
-        result = run_graph(options, out, duration, progress)
-    finally:
-        progress.close()
-    f = figures(out, result["state"])
-    figs = None
-    if options.plots:
-        figs = (out.with_name(out.stem + "-fig5_8.png"), out.with_name(out.stem + "-fig5_9.png"))
-        plot(f, *figs)
-    return dict(table=table(f), figures={k: v for k, v in f.items() if k != "series"},
-                mcap=out, figure=figs[0] if figs else None, figure_paths=figs,
-                recorder=result["recorder"], published=result["published"],
-                duration_s=duration)
+
+
+def run(options: ScenarioOptions) -> dict:
+    """Run the scenario; return the table, figures and paths."""
+    return run_recorded(options, name=NAME, default_duration_s=DEFAULT_DURATION_S,
+                        check_duration=_check_duration, run_graph=run_graph,
+                        figures=lambda out, res, _d: figures(out, res["state"]),
+                        table=table, plot=plot, png_suffixes=("-fig5_8", "-fig5_9"))

@@ -39,7 +39,8 @@ from mems_sim.bag.recorder import RecorderNode
 from mems_sim.micro_scanner import (dc_transimpedance_output, resolve_scanner, scanner_params)
 from mems_sim.micro_scanner_node import MicroScannerNode
 from mems_sim.scenarios.base import (Graph, Progress, ScenarioError, ScenarioOptions,
-                                     default_domain_id, drive_fast, format_table, topic_frames)
+                                     default_domain_id, drive_fast, format_table, run_recorded,
+                                     topic_frames)
 
 NAME = "scanner_threshold"
 DESCRIPTION = ("comb-drive micro-scanner (Chen ch. 4): causal DOG threshold detector + hybrid EKF "
@@ -375,24 +376,16 @@ def plot(f: dict, path: Path, path2: Path) -> None:
     plt.close(fig)
 
 
-def run(options: ScenarioOptions) -> dict:
-    """Run the scenario; return the table, figures and paths."""
-    duration = DEFAULT_DURATION_S if options.duration_s is None else options.duration_s
+def _check_duration(duration: float) -> None:
     if not 0.38 <= duration <= 2.0:
         raise ScenarioError(f"--duration = {duration!r} is invalid for {NAME}: 0.38 .. 2 s (sweep "
                             "0.25 s + hold 0.05 s + a ring-down of at least 80 ms, Sec. 4.4.1)")
-    out = options.out or Path("runs") / f"{NAME}-{options.seed}.mcap"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    progress = Progress(duration, options.progress, NAME)
-    try:
-        result = run_graph(options, out, duration, progress)
-    finally:
-        progress.close()
-    f = figures(out, duration, int(options.seed))
-    figs = None
-    if options.plots:
-        figs = (out.with_name(out.stem + ".png"), out.with_name(out.stem + "-detection.png"))
-        plot(f, *figs)
-    return dict(table=table(f), figures={k: v for k, v in f.items() if k != "series"},
-                mcap=out, figure=figs[0] if figs else None, figures_png=figs,
-                recorder=result["recorder"], published=result["published"], duration_s=duration)
+
+
+def run(options: ScenarioOptions) -> dict:
+    """Run the scenario; return the table, figures and paths."""
+    return run_recorded(options, name=NAME, default_duration_s=DEFAULT_DURATION_S,
+                        check_duration=_check_duration, run_graph=run_graph,
+                        figures=lambda out, _res, duration: figures(out, duration,
+                                                                     int(options.seed)),
+                        table=table, plot=plot, png_suffixes=("", "-detection"))

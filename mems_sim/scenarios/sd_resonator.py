@@ -26,7 +26,8 @@ from rclpy.parameter import Parameter
 from mems_estimation.sd_observer_node import SdObserverNode
 from mems_sim.bag.recorder import RecorderNode
 from mems_sim.scenarios.base import (Graph, Progress, ScenarioError, ScenarioOptions,
-                                     default_domain_id, drive_fast, format_table, topic_frames)
+                                     default_domain_id, drive_fast, format_table, run_recorded,
+                                     topic_frames)
 from mems_sim.sd_resonator import default_pulse_amplitude
 from mems_sim.sd_resonator_node import SdResonatorNode
 
@@ -280,24 +281,15 @@ def plot(f: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def run(options: ScenarioOptions) -> dict:
-    """Run the scenario; return the table, figures and paths."""
-    duration = DEFAULT_DURATION_S if options.duration_s is None else options.duration_s
+def _check_duration(duration: float) -> None:
     if duration < 0.2:
         raise ScenarioError(f"--duration = {duration!r} is too short for sd_resonator: at least "
                             "0.2 s (start-up, steady state, and the f0 step at mid-run)")
-    out = options.out or Path("runs") / f"{NAME}-{options.seed}.mcap"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    progress = Progress(duration, options.progress, NAME)
-    try:
-        result = run_graph(options, out, duration, progress)
-    finally:
-        progress.close()
-    f = figures(out, duration)
-    figure = None
-    if options.plots:
-        figure = out.with_name(out.stem + ".png")
-        plot(f, figure)
-    return dict(table=table(f), figures={k: v for k, v in f.items() if k != "series"},
-                mcap=out, figure=figure, recorder=result["recorder"],
-                published=result["published"], duration_s=duration)
+
+
+def run(options: ScenarioOptions) -> dict:
+    """Run the scenario; return the table, figures and paths."""
+    return run_recorded(options, name=NAME, default_duration_s=DEFAULT_DURATION_S,
+                        check_duration=_check_duration, run_graph=run_graph,
+                        figures=lambda out, _res, duration: figures(out, duration),
+                        table=table, plot=plot)

@@ -23,7 +23,7 @@ def test_recording_complete(result):
         assert counts[f"/scanner/{topic}"] == result["published"]
     assert counts["/scanner/estimate"] == result["published"] + 1      # + the final flush
     assert all(g == 0 for g in result["recorder"]["gaps"].values())
-    for png in result["figures_png"]:
+    for png in result["figure_paths"]:
         assert png.stat().st_size > 20_000
 
 
