@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 from rclpy.node import Node
 
+from mems_estimation.frame_input import FrameInputMixin, FramePairer
 from mems_estimation.hybrid_ekf import STATE_NAMES, STATE_UNITS, HybridEkf, HybridEkfConfig
-from mems_estimation.sd_observer_node import FramePairer
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim import fr_accelerometer as fra
 from mems_sim.diagnostics import DiagnosticsReporter
@@ -36,7 +36,7 @@ NODE_SPECS: tuple[ParamSpec, ...] = (
 )
 
 
-class HybridEkfNode(Node):
+class HybridEkfNode(FrameInputMixin, Node):
     """Hybrid EKF on an accelerometer's readout and feedback-voltage frames."""
 
     def __init__(self, **node_kwargs) -> None:
@@ -57,14 +57,7 @@ class HybridEkfNode(Node):
         self.create_subscription(AdcFrame, f"{ns}/adc", self.on_adc, FRAME_QOS)
         self.create_subscription(SignalFrame, f"{ns}/drive", self.on_drive, FRAME_QOS)
 
-    def _reject(self, text: str) -> None:
-        self.diag.count("rejected_frames")
-        self.diag.warn(f"rejected frame: {text}")
 
-    def _check_rate(self, msg) -> None:
-        if msg.sample_rate_hz != self.fs:
-            raise FrameError(f"frame at {msg.first_sample_index}: sample_rate_hz "
-                             f"{msg.sample_rate_hz} differs from the model's {self.fs} Hz")
 
     def on_adc(self, msg: AdcFrame) -> None:
         """Validate a readout frame and filter the pairs it completes."""
@@ -75,7 +68,7 @@ class HybridEkfNode(Node):
             self._reject(str(exc))
             return
         self.stamps[msg.first_sample_index] = time_to_ns(msg.header.stamp)
-        self._process(self.pairer.add("bits", msg.first_sample_index, values))
+        self._process(self.pairer.add("adc", msg.first_sample_index, values))
 
     def on_drive(self, msg: SignalFrame) -> None:
         """Validate a drive frame (finite samples) and filter the pairs it completes."""
@@ -85,7 +78,7 @@ class HybridEkfNode(Node):
         except FrameError as exc:
             self._reject(str(exc))
             return
-        self._process(self.pairer.add("pulses", msg.first_sample_index, values))
+        self._process(self.pairer.add("drive", msg.first_sample_index, values))
 
     def _process(self, pairs) -> None:
         for first, y, v_f in pairs:

@@ -26,6 +26,7 @@ import math
 import numpy as np
 from rclpy.node import Node
 
+from mems_estimation.frame_input import FrameInputMixin
 from mems_estimation import scanner_ukf as su
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.diagnostics import DiagnosticsReporter
@@ -47,7 +48,7 @@ EVENT_NAMES, EVENT_UNITS = ("t_peak", "phase", "amplitude"), ("s", "rad", "rad")
 KINDS = ("ekf", "ukf")
 
 
-class ScannerAmdmEstimatorNode(Node):
+class ScannerAmdmEstimatorNode(FrameInputMixin, Node):
     """EKF + UKF on the AMDM output of the shared-electrode scanner (module doc)."""
 
     def __init__(self, **node_kwargs) -> None:
@@ -83,14 +84,7 @@ class ScannerAmdmEstimatorNode(Node):
                          for k in KINDS}
 
     # ------------------------------------------------------------------ input
-    def _reject(self, text: str) -> None:
-        self.diag.count("rejected_frames")
-        self.diag.warn(f"rejected frame: {text}")
 
-    def _check_rate(self, msg) -> None:
-        if msg.sample_rate_hz != self.fs:
-            raise FrameError(f"frame at {msg.first_sample_index}: sample_rate_hz "
-                             f"{msg.sample_rate_hz} differs from the model's {self.fs} Hz")
 
     @staticmethod
     def _channel(msg, data: np.ndarray, name: str) -> np.ndarray:

@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 from rclpy.node import Node
 
+from mems_estimation.frame_input import FrameInputMixin, FramePairer
 from mems_estimation.scanner_ekf import EKF_SPECS, StreamingScannerEkf, signal_snr
 from mems_estimation.threshold_detector import DETECTOR_SPECS, OnlineThresholdDetector
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
@@ -71,20 +72,7 @@ def detections_from_rows(rows: np.ndarray, first: int):
                       np.zeros(k.size), rows[k, 2])
 
 
-class _Pairer:
-    """Pairs y frames and drive frames of the same first_sample_index (ROS-free)."""
-
-    def __init__(self) -> None:
-        self.parts: tuple[dict, dict] = ({}, {})
-
-    def add(self, which: int, first: int, values) -> list:
-        """Store one frame (0: y, 1: drive); return complete pairs ordered by index."""
-        self.parts[which][first] = values
-        ready = sorted(set(self.parts[0]) & set(self.parts[1]))
-        return [(k, self.parts[0].pop(k), self.parts[1].pop(k)) for k in ready]
-
-
-class ScannerThresholdNode(Node):
+class ScannerThresholdNode(FrameInputMixin, Node):
     """Threshold detector + hybrid (and plain) EKF of the chapter-4 micro-scanner."""
 
     def __init__(self, **node_kwargs) -> None:
@@ -105,7 +93,7 @@ class ScannerThresholdNode(Node):
         self.pub_plain = (self.create_publisher(StateEstimate, f"{ns}/estimate_plain", FRAME_QOS)
                           if self.plain is not None else None)
         self.pub_det = self.create_publisher(SignalFrame, f"{ns}/threshold_detections", FRAME_QOS)
-        self.pairer = _Pairer()
+        self.pairer = FramePairer()
         self.tracker = IndexTracker()
         self.frames_done = 0
         self.low_signal = False
@@ -117,14 +105,7 @@ class ScannerThresholdNode(Node):
         self.create_subscription(AdcFrame, f"{ns}/adc", self.on_adc, FRAME_QOS)
         self.create_subscription(SignalFrame, f"{ns}/drive", self.on_drive, FRAME_QOS)
 
-    def _reject(self, text: str) -> None:
-        self.diag.count("rejected_frames")
-        self.diag.warn(f"rejected frame: {text}")
 
-    def _check_rate(self, msg) -> None:
-        if msg.sample_rate_hz != self.fs:
-            raise FrameError(f"frame at {msg.first_sample_index}: sample_rate_hz "
-                             f"{msg.sample_rate_hz} differs from the model's {self.fs} Hz")
 
     def on_adc(self, msg: AdcFrame) -> None:
         """Validate a y_cap frame and process the pairs it completes."""
@@ -137,7 +118,7 @@ class ScannerThresholdNode(Node):
         except FrameError as exc:
             self._reject(str(exc))
             return
-        self._process(self.pairer.add(0, msg.first_sample_index, np.ascontiguousarray(y)))
+        self._process(self.pairer.add("adc", msg.first_sample_index, np.ascontiguousarray(y)))
 
     def on_drive(self, msg: SignalFrame) -> None:
         """Validate a drive frame and process the pairs it completes."""
@@ -151,7 +132,7 @@ class ScannerThresholdNode(Node):
         except FrameError as exc:
             self._reject(str(exc))
             return
-        self._process(self.pairer.add(1, msg.first_sample_index, v))
+        self._process(self.pairer.add("drive", msg.first_sample_index, v))
 
     def _update_snr(self, y: np.ndarray) -> None:
         w = max(1, int(self.p["snr_window_s"] * self.fs))

@@ -18,6 +18,7 @@ import numpy as np
 from rclpy.node import Node
 
 from mems_estimation.adaptive_observer import AdaptiveObserver
+from mems_estimation.frame_input import FrameInputMixin, FramePairer
 from mems_estimation.kalman_observer import KalmanObserver
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.diagnostics import DiagnosticsReporter
@@ -49,20 +50,6 @@ OBSERVER_SPECS: tuple[ParamSpec, ...] = (
               "or <device_namespace>/adaptive_estimate", ""),
     ParamSpec("steady_state", False, "-", "use the steady-state Kalman gain (fast)", ""),
 )
-
-
-class FramePairer:
-    """Pairs bit frames and pulse frames of the same first_sample_index, in order (ROS-free)."""
-
-    def __init__(self) -> None:
-        self.bits: dict[int, np.ndarray] = {}
-        self.pulses: dict[int, np.ndarray] = {}
-
-    def add(self, kind: str, first: int, values) -> list[tuple[int, np.ndarray, object]]:
-        """Store one frame; return the pairs now complete, ordered by index."""
-        (self.bits if kind == "bits" else self.pulses)[first] = values
-        ready = sorted(set(self.bits) & set(self.pulses))
-        return [(k, self.bits.pop(k), self.pulses.pop(k)) for k in ready]
 
 
 def pulses_of(msg: SignalFrame) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
@@ -106,12 +93,13 @@ def bits_of(msg: AdcFrame) -> np.ndarray:
     return codes.astype(np.float64)
 
 
-class SdObserverNode(Node):
+class SdObserverNode(FrameInputMixin, Node):
     """Kalman / adaptive observer on the bit stream and pulses of a sigma-delta resonator."""
 
     def __init__(self, **node_kwargs) -> None:
         super().__init__("sd_observer", **node_kwargs)
         self.p = p = declare_specs(self, OBSERVER_SPECS)
+        self.fs = p["sample_rate_hz"]
         if p["f0_hz"] >= p["sample_rate_hz"] / 2:
             raise ParameterError(f"parameter 'f0_hz' = {p['f0_hz']!r} is out of range: allowed "
                                  f"(0, {p['sample_rate_hz'] / 2!r}) Hz (below fs/2)")
@@ -130,7 +118,7 @@ class SdObserverNode(Node):
         topic = p["output_topic"] or (f"{ns}/adaptive_estimate" if p["adaptive"]
                                       else f"{ns}/estimate")
         self.pub = self.create_publisher(StateEstimate, topic, FRAME_QOS)
-        self.pairer = FramePairer()
+        self.pairer = FramePairer(("bits", "pulses"))
         self.tracker = IndexTracker()
         self.stamps: dict[int, int] = {}
         self.frames_done = 0
@@ -138,15 +126,7 @@ class SdObserverNode(Node):
         self.create_subscription(AdcFrame, f"{ns}/adc", self.on_bits, FRAME_QOS)
         self.create_subscription(SignalFrame, f"{ns}/drive", self.on_pulses, FRAME_QOS)
 
-    def _reject(self, text: str) -> None:
-        self.diag.count("rejected_frames")
-        self.diag.warn(f"rejected frame: {text}")
 
-    def _check_rate(self, msg) -> None:
-        if msg.sample_rate_hz != self.p["sample_rate_hz"]:
-            raise FrameError(f"frame at {msg.first_sample_index}: sample_rate_hz "
-                             f"{msg.sample_rate_hz} differs from the model's "
-                             f"{self.p['sample_rate_hz']} Hz")
 
     def on_bits(self, msg: AdcFrame) -> None:
         """Validate a bit frame and process the pairs it completes."""
