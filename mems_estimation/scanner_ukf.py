@@ -172,6 +172,28 @@ def _dtorque_u(th, v2, m, J):
 
 
 @numba.njit(cache=True)
+def _store_posterior(P, Q, p00, p01, p11, x, k, out_x, out_p) -> int:
+    """Write the a-posteriori covariance into P and sample k's outputs; returns 1 if it was
+    not positive definite (then repaired: diagonal floored at Q, correlation dropped), else 0."""
+    bad = 0
+    if not (p00 > 0.0 and p11 > 0.0 and p00 * p11 - p01 * p01 > 0.0):
+        bad = 1
+        p01 = 0.0
+        p00 = max(p00, Q[0, 0])
+        p11 = max(p11, Q[1, 1])
+    P[0, 0] = p00
+    P[0, 1] = p01
+    P[1, 0] = p01
+    P[1, 1] = p11
+    out_x[k, 0] = x[0]
+    out_x[k, 1] = x[1]
+    out_p[k, 0] = p00
+    out_p[k, 1] = p11
+    out_p[k, 2] = p01
+    return bad
+
+
+@numba.njit(cache=True)
 def ekf_run(y, v2, x, P, Phi, Gam, Q, m, J, R, T, predict_first, out_x, out_p, out_nis):
     """EKF (Algorithm 1, Joseph-form update) over a frame; x (2,), P (2,2) carried in place.
 
@@ -221,20 +243,7 @@ def ekf_run(y, v2, x, P, Phi, Gam, Q, m, J, R, T, predict_first, out_x, out_p, o
         p00 = i00 * i00 * P[0, 0] + k0 * k0 * R
         p01 = i00 * (i10 * P[0, 0] + P[1, 0]) + k0 * k1 * R
         p11 = i10 * i10 * P[0, 0] + 2.0 * i10 * P[1, 0] + P[1, 1] + k1 * k1 * R
-        if not (p00 > 0.0 and p11 > 0.0 and p00 * p11 - p01 * p01 > 0.0):
-            bad += 1
-            p01 = 0.0
-            p00 = max(p00, Q[0, 0])
-            p11 = max(p11, Q[1, 1])
-        P[0, 0] = p00
-        P[0, 1] = p01
-        P[1, 0] = p01
-        P[1, 1] = p11
-        out_x[k, 0] = x[0]
-        out_x[k, 1] = x[1]
-        out_p[k, 0] = p00
-        out_p[k, 1] = p11
-        out_p[k, 2] = p01
+        bad += _store_posterior(P, Q, p00, p01, p11, x, k, out_x, out_p)
         out_nis[k] = nu * nu / s
     return bad
 
@@ -353,20 +362,7 @@ def ukf_run(y, v2, x, P, Phi, Gam, Q, m, J, R, T, wm, wc, gamma, predict_first,
         p00 = P[0, 0] - k0 * k0 * py
         p01 = P[0, 1] - k0 * k1 * py
         p11 = P[1, 1] - k1 * k1 * py
-        if not (p00 > 0.0 and p11 > 0.0 and p00 * p11 - p01 * p01 > 0.0):
-            bad += 1
-            p01 = 0.0
-            p00 = max(p00, Q[0, 0])
-            p11 = max(p11, Q[1, 1])
-        P[0, 0] = p00
-        P[0, 1] = p01
-        P[1, 0] = p01
-        P[1, 1] = p11
-        out_x[k, 0] = x[0]
-        out_x[k, 1] = x[1]
-        out_p[k, 0] = p00
-        out_p[k, 1] = p11
-        out_p[k, 2] = p01
+        bad += _store_posterior(P, Q, p00, p01, p11, x, k, out_x, out_p)
         out_nis[k] = nu * nu / py
     return bad
 
