@@ -113,16 +113,40 @@ class MicroStageNode(PacedEmulator, Node):
         self.pub_gyro = self.create_publisher(AdcFrame, "gyro/adc", FRAME_QOS)
         self.pub_imu = self.create_publisher(Imu, "gyro/imu", FRAME_QOS)
         self.publish_imu = self.p["publish_imu"]
+        self._imu_msg = None
         self.diag = DiagnosticsReporter(self, f"{self.get_name()}: piezo tilt micro-stage",
                                         hardware_id=self.get_fully_qualified_name())
         if not drive_externally and autostart:
             self.start()
 
     def set_temperature(self, temperature_c: float) -> None:
-        """Temperature input: moves D_n, wn, b_c of the stage and k_I, bias of the gyro."""
+        """Temperature input: moves D_n of the stage (wn, b_c only if their tempcos are set)
+        and k_I, bias of the gyro."""
         self.device.set_temperature(temperature_c)
         if self.gyro is not None:
             self.gyro.temperature_c = self.device.temperature_c
+
+    def _publish_imu(self, t: np.ndarray, value: np.ndarray) -> None:
+        """One sensor_msgs/Imu per gyro sample. The message is built once and only its stamp
+        and rate are rewritten (publish serialises a copy), stamps as integer ns."""
+        m = self._imu_msg
+        if m is None:
+            m = self._imu_msg = Imu()
+            m.header.frame_id = "imu_link"
+            m.orientation_covariance[0] = -1.0
+            m.linear_acceleration_covariance[0] = -1.0
+            var = self.p["gyro_noise_rms"] ** 2
+            m.angular_velocity_covariance[0] = var
+            m.angular_velocity_covariance[4] = var
+            m.angular_velocity_covariance[8] = var
+        stamp, av, pub = m.header.stamp, m.angular_velocity, self.pub_imu.publish
+        ns = np.rint(t * 1e9).astype(np.int64) + np.int64(self.t0_ns)
+        sec, nsec = np.divmod(ns, 10**9)
+        for s_, n_, v_ in zip(sec.tolist(), nsec.tolist(), value.tolist()):
+            stamp.sec = s_
+            stamp.nanosec = n_
+            av.y = v_
+            pub(m)
 
     def step(self) -> int:
         """Run and publish the next frame; return the number of samples (0 when done)."""
@@ -165,18 +189,7 @@ class MicroStageNode(PacedEmulator, Node):
                     full_scale=(self.p["gyro_full_scale"],), saturated_count=g.saturated,
                     frame_id="imu_link", t0_ns=t0g))
                 if self.publish_imu:
-                    for j in range(g.index.size):
-                        m = Imu()
-                        m.header.stamp = ns_to_time(self.t0_ns + int(round(g.t[j] * 1e9)))
-                        m.header.frame_id = "imu_link"
-                        m.angular_velocity.y = float(g.value[j])
-                        m.orientation_covariance[0] = -1.0
-                        m.linear_acceleration_covariance[0] = -1.0
-                        var = self.p["gyro_noise_rms"] ** 2
-                        m.angular_velocity_covariance[0] = var
-                        m.angular_velocity_covariance[4] = var
-                        m.angular_velocity_covariance[8] = var
-                        self.pub_imu.publish(m)
+                    self._publish_imu(g.t, g.value)
                 self.diag.count("gyro_samples", int(g.index.size))
         if f.saturated:
             self.diag.count("saturated_samples", f.saturated)

@@ -46,6 +46,44 @@ def test_gradient_matches_finite_difference_and_closed_form():
         assert t > 0
 
 
+def _grad_gl16(tx, ty, dn, lim):
+    """Reference: eq. (40) differentiated under the integral, 16 x 16 Gauss-Legendre."""
+    x, w = np.polynomial.legendre.leggauss(16)
+    out = np.empty((lim.shape[0], 2))
+    for c, (w1, w2, w3, w4) in enumerate(lim):
+        wx = 0.5 * (w2 + w1) + 0.5 * (w2 - w1) * x[:, None]
+        wy = 0.5 * (w4 + w3) + 0.5 * (w4 - w3) * x[None, :]
+        d = dn - wx * math.tan(ty) + wy * math.tan(tx)
+        ww = np.outer(w, w) * 0.25 * (w2 - w1) * (w4 - w3) / d ** 2
+        out[c] = (-EPS0 * np.sum(ww * wy) / math.cos(tx) ** 2,
+                  EPS0 * np.sum(ww * wx) / math.cos(ty) ** 2)
+    return out
+
+
+@pytest.mark.parametrize("tx,ty", [(0.0, 3e-3), (5e-6, -4e-3), (2.5e-3, 3e-3), (4e-2, 1e-3),
+                                   (5.5e-2, -1e-3)])
+def test_gradient_closed_form_inner_integral(tx, ty):
+    """The emulator's gradient (closed-form w_Y integral + GL in w_X, series and log branches)
+    against a 16 x 16 quadrature of eq. (40), asymmetric limits included."""
+    lim = np.vstack([LIM, [[1e-4, 5e-4, -1e-4, 3e-4]]])
+    g = dual_axis_gradient(tx, ty, 19.2e-6, lim)[0]
+    ref = _grad_gl16(tx, ty, 19.2e-6, lim)
+    np.testing.assert_allclose(g[:, 1], ref[:, 1], rtol=1e-11)
+    np.testing.assert_allclose(g[:, 0], ref[:, 0], rtol=1e-9, atol=1e-13 * np.abs(ref).max())
+
+
+def test_temperature_moves_gap_only_by_default():
+    """The seed gives no stage temperature coefficient: wn and b_c stay put by default,
+    D_n moves (re-identified in the paper); the tempcos remain study parameters."""
+    st = MicroStage()
+    wn, bc, gap = st.wn, st.b_c, st.gap
+    st.set_temperature(35.7)
+    assert (st.wn, st.b_c) == (wn, bc) and st.gap != gap
+    st2 = MicroStage({"b_c_tempco_per_k": 1e-3})
+    st2.set_temperature(35.7)
+    assert st2.b_c == pytest.approx(bc * (1 + 12.8e-3))
+
+
 def test_rate_range_matches_table_3_2():
     """omega_pp at 1700 Hz, 1.3 V from the simulated stage = 46.3 rad/s (Table 3.2)."""
     st = MicroStage({"ldv_noise_std": 0.0}, DriveSchedule([(1700.0, 1.3, 400)]), seed=1)
