@@ -35,7 +35,7 @@ from typing import Any, Mapping, Sequence
 import numba
 import numpy as np
 
-from mems_sim.micro_stage import EPS0, dcdtheta_single, stage_matrices
+from mems_sim.micro_stage import EPS0, dcdtheta_single_tan, stage_matrices
 
 __all__ = ["StageModel", "ekf_run", "StageEkf", "FeedthroughCanceller", "cancel_run",
            "output_h"]
@@ -81,9 +81,10 @@ class StageModel:
 @numba.njit(cache=True)
 def output_h(theta, eta, gap, lim, eps, out):
     """h_c(theta) = eta_c dC_c/dtheta (eqs. 44, 46) for every channel c [V/(rad/s)]."""
+    t = math.tan(theta)
     for c in range(eta.shape[0]):
-        out[c] = eta[c] * dcdtheta_single(theta, gap[c], lim[c, 0], lim[c, 1],
-                                          lim[c, 3] - lim[c, 2], eps)
+        out[c] = eta[c] * dcdtheta_single_tan(t, gap[c], lim[c, 0], lim[c, 1],
+                                              lim[c, 3] - lim[c, 2], eps)
 
 
 @numba.njit(cache=True)

@@ -73,6 +73,7 @@ from mems_sim.params import ParameterError, ParamSpec, resolve
 
 __all__ = ["STAGE_SPECS", "CHANNELS", "EPS0", "K_BOLTZMANN", "stage_matrices", "channel_limits",
            "dual_axis_capacitance", "dual_axis_gradient", "single_axis_dcdtheta",
+           "dcdtheta_single", "dcdtheta_single_tan",
            "readout_noise_std", "off_axis_rejection", "DriveSchedule", "StageFrame",
            "MicroStage", "steady_amplitude", "validate_params", "LdvReference", "gap_at",
            "record"]
@@ -428,7 +429,13 @@ def dcdtheta_single(theta, dn, w1, w2, length, eps):
 
     C = eps L int_{w1}^{w2} dw/(D_n - w tan th)  ->  dC/dth = eps L sec^2 th int w/(D)^2 dw.
     """
-    t = math.tan(theta)
+    return dcdtheta_single_tan(math.tan(theta), dn, w1, w2, length, eps)
+
+
+@numba.njit(cache=True)
+def dcdtheta_single_tan(t, dn, w1, w2, length, eps):
+    """:func:`dcdtheta_single` from t = tan(theta) (callers with several channels at one
+    angle compute the tangent once)."""
     h = 0.5 * (w2 - w1)
     m = 0.5 * (w2 + w1)
     acc = 0.0
