@@ -1,13 +1,16 @@
 """Benchmark and sensitivity study of the micro-stage EKF (Chen 2018 ch. 3, issue 3).
 
-Run:  .venv/bin/python bench/bench_stage_ekf.py [--sensitivity]
+Run:  .venv/bin/python bench/bench_stage_ekf.py [--graph] [--sensitivity]
 
 1. samples/s of the numba EKF kernel (eqs. 48-53, 4 channels), of the feedthrough
    canceller and of the stage emulator (real-time factor at fs = 625 kHz);
 2. the kernel against a reference EKF on the same data: filterpy's ExtendedKalmanFilter
    when installed, otherwise the plain numpy matrix form of eqs. (48)-(53)
    (np.linalg.inv per sample); max relative difference of the estimates and speed ratio;
-3. ``--sensitivity`` (Fig. 3.16): stage scale-factor error vs sensor-noise variance, split
+3. ``--graph``: real-time factor of the scenario's node graph (stage at 625 kHz + gyro +
+   EKF + calibration + MCAP recorder in one process), one stage instance and both
+   temperatures at once, as fast as possible and paced by the wall clock;
+4. ``--sensitivity`` (Fig. 3.16): stage scale-factor error vs sensor-noise variance, split
    into the part caused by identifying (eta, D_n) from noisy training data (estimator run on
    noise-free test data) and the EKF's stochastic part (true sensor parameters, noisy test
    data); Monte Carlo over seeds.
@@ -152,9 +155,35 @@ def sensitivity(model, seeds=(1, 2, 3, 4), scales=(0.5, 1.0, 2.0, 4.0)):
               f"{np.std(stoch) * 1e6:24.0f}")
 
 
+def graph_rtf(model, realtime: bool, two: bool = False, domain_id: int | None = None) -> dict:
+    """Real-time factor of the node graph of the scenario (stage at 625 kHz + gyro + EKF +
+    calibration + MCAP recorder, one process) over the 7 x 400-period calibration sweep:
+    one stage instance (the issue's benchmark) or both temperatures at once (the scenario)."""
+    import tempfile
+    from pathlib import Path
+
+    from mems_sim.scenarios import gyro_calibration as gc
+    from mems_sim.scenarios.base import ScenarioOptions
+    inst = gc.INSTANCES if two else {"stage_t1": gc.T1}
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "bench.mcap"
+        opts = ScenarioOptions(seed=1, out=out, domain_id=domain_id, progress=False,
+                               realtime=realtime)
+        g = gc.run_graph(opts, Plan(), {gc.T1: model, gc.T2: model}, out, instances=inst)
+    return {"rtf": g["simulated_s"] / g["wall_s"] * (2 if two else 1),
+            "gaps": sum(g["recorder"]["gaps"].values()), "instances": len(inst)}
+
+
 def main() -> None:
     model, _ = identify_stage(seed=5, plan=Plan.short())
     bench(model)
+    if "--graph" in sys.argv:
+        for two in (False, True):
+            for rt in (False, True):
+                r = graph_rtf(model, rt, two)
+                print(f"graph, {r['instances']} stage(s), {'realtime' if rt else 'fast':8s}: "
+                      f"{r['rtf']:5.2f} x real time (stage samples summed over instances), "
+                      f"frame-index gaps {r['gaps']}")
     if "--sensitivity" in sys.argv:
         sensitivity(model)
 

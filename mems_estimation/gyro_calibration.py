@@ -149,10 +149,14 @@ class StreamingCalibrator:
                   trial: np.ndarray) -> None:
         """Store one frame's samples by trial."""
         idx = first + np.arange(omega.size)
-        for t in np.unique(trial):
-            sel = trial == t
-            self.trials.setdefault(int(t), []).append(
-                (idx[sel], omega[sel], phase[sel], f_drive[sel]))
+        if trial.size and trial[0] == trial[-1] and np.all(trial == trial[0]):
+            # usual case: the whole frame inside one trial
+            self.trials.setdefault(int(trial[0]), []).append((idx, omega, phase, f_drive))
+        else:
+            for t in np.unique(trial):
+                sel = trial == t
+                self.trials.setdefault(int(t), []).append(
+                    (idx[sel], omega[sel], phase[sel], f_drive[sel]))
         self.current = int(trial[-1]) if trial.size else self.current
         self._process()
 

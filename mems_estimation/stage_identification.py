@@ -45,32 +45,48 @@ N_HARM = 6
 
 @numba.njit(cache=True)
 def _harmonic_normal(x, ph, n_harm, G, b):
-    """Accumulate the normal equations G = M^T M, b = M^T x of the harmonic regressor
-    M = [1, cos(m ph), sin(m ph)] (ph in rad, m = 1..n_harm) without forming M; the
-    harmonics come from the angle-addition recursion (one cos/sin per sample).
+    """Normal equations G = M^T M, b = M^T x of the harmonic regressor
+    M = [1, cos(m ph), sin(m ph)] (ph in rad, m = 1..n_harm) without forming M.
+
+    Per sample only the sums C_k = sum cos(k ph), S_k = sum sin(k ph), k <= 2 n_harm
+    (angle-addition recursion, one cos/sin per sample) and b are accumulated; G follows
+    from the product-to-sum identities, e.g. cos(m ph) cos(l ph) = (C_{m-l} + C_{m+l})/2.
     x: (n, k); G: (2 n_harm + 1,)^2, b: (2 n_harm + 1, k), both zeroed by the caller."""
     n = x.shape[0]
     k = x.shape[1]
-    nc = 2 * n_harm + 1
-    row = np.empty(nc)
+    nk = 2 * n_harm
+    C = np.zeros(nk + 1)
+    S = np.zeros(nk + 1)
+    cs = np.empty(nk + 1)
+    sn = np.empty(nk + 1)
     for i in range(n):
         c1 = math.cos(ph[i])
         s1 = math.sin(ph[i])
-        row[0] = 1.0
         c, s = c1, s1
-        for m in range(n_harm):
-            row[2 * m + 1] = c
-            row[2 * m + 2] = s
+        for m in range(1, nk + 1):
+            cs[m] = c
+            sn[m] = s
+            C[m] += c
+            S[m] += s
             c, s = c * c1 - s * s1, s * c1 + c * s1
-        for a in range(nc):
-            ra = row[a]
-            for j in range(a, nc):
-                G[a, j] += ra * row[j]
-            for j in range(k):
-                b[a, j] += ra * x[i, j]
-    for a in range(nc):
-        for j in range(a):
-            G[a, j] = G[j, a]
+        for j in range(k):
+            xv = x[i, j]
+            b[0, j] += xv
+            for m in range(1, n_harm + 1):
+                b[2 * m - 1, j] += cs[m] * xv
+                b[2 * m, j] += sn[m] * xv
+    C[0] = n
+    G[0, 0] = n
+    for m in range(1, n_harm + 1):
+        G[0, 2 * m - 1] = G[2 * m - 1, 0] = C[m]
+        G[0, 2 * m] = G[2 * m, 0] = S[m]
+        for l in range(1, n_harm + 1):
+            d = abs(m - l)
+            sd = S[d] if m >= l else -S[d]      # S_{m-l}, odd in m-l
+            G[2 * m - 1, 2 * l - 1] = 0.5 * (C[d] + C[m + l])
+            G[2 * m, 2 * l] = 0.5 * (C[d] - C[m + l])
+            G[2 * m - 1, 2 * l] = 0.5 * (S[m + l] - sd)    # cos(m) sin(l)
+            G[2 * m, 2 * l - 1] = 0.5 * (S[m + l] + sd)    # sin(m) cos(l)
 
 
 def harmonic_fit(x: np.ndarray, phase: np.ndarray, n_harm: int = N_HARM) -> np.ndarray:

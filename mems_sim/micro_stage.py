@@ -335,13 +335,15 @@ def _grad_dual(thx, thy, dn, lim, eps, glx, glw, out):
             out[i, c, 1] = eps * iy * sy
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _readout(thx, thy, omx, omy, vb, fd, phs, seg, sega, dn, lim, eps, glx, glw, gain_rs,
              ft_rs, feedthrough, noise, noise_std, inv_lsb, code_max, y, codes):
     """Fused per-sample readout of eq. (30) for all channels (module doc):
     y_c = -V_b R_s g_c (dC_c/dtheta_X omega_X + dC_c/dtheta_Y omega_Y) - R_s C_ft,c du/dt
     + sigma n_c, codes = rint(y / lsb) clipped. gain_rs[c] = R_s g_c, ft_rs[c] = R_s C_ft,c;
-    noise (n, nch) standard normal. Returns the number of clipped samples. No allocation."""
+    noise (n, nch) standard normal. Returns the number of clipped samples. No allocation;
+    samples are independent, so the loop runs on all cores (prange; results do not depend
+    on the thread count)."""
     n = thx.shape[0]
     nch = lim.shape[0]
     nseg = sega.shape[0]
@@ -349,7 +351,7 @@ def _readout(thx, thy, omx, omy, vb, fd, phs, seg, sega, dn, lim, eps, glx, glw,
     two_pi = 2.0 * math.pi
     wxmax = max(np.abs(lim[:, 0]).max(), np.abs(lim[:, 1]).max())
     wymax = max(np.abs(lim[:, 2]).max(), np.abs(lim[:, 3]).max())
-    for i in range(n):
+    for i in numba.prange(n):
         tx = math.tan(thx[i])
         ty = math.tan(thy[i])
         sx = 1.0 + tx * tx

@@ -198,9 +198,13 @@ RECORDED = ("adc", "drive", "truth", "estimate", "gyro/adc", "gyro_scale_factor"
 FRAME = 20000
 
 
-def run_graph(options, plan: Plan, models: dict, out: Path) -> dict:
+def run_graph(options, plan: Plan, models: dict, out: Path,
+              instances: dict | None = None) -> dict:
     """Calibration phase through the node graph: per temperature one micro_stage_node
-    (+ gyro), stage_ekf_node (identified YAML) and gyro_calibration_node; one recorder."""
+    (+ gyro), stage_ekf_node (identified YAML) and gyro_calibration_node; one recorder.
+    ``instances``: namespace -> temperature (default :data:`INSTANCES`, both temperatures
+    at once; the benchmark runs one)."""
+    INSTANCES = instances or globals()["INSTANCES"]  # noqa: N806
     from rclpy.parameter import Parameter
 
     from mems_estimation.gyro_calibration_node import GyroCalibrationNode
@@ -243,7 +247,7 @@ def run_graph(options, plan: Plan, models: dict, out: Path) -> dict:
                                      for d in devs.values())
                          and all(e.pub.get_subscription_count() >= 2 for e in ekfs.values()),
                          30.0, "the recorder, EKF and calibration nodes to subscribe")
-        total = max(d.total_samples for d in devs.values()) / devs["stage_t1"].fs
+        total = max(d.total_samples for d in devs.values()) / next(iter(devs.values())).fs
         progress = Progress(total, options.progress, NAME)
         import time as _time
         wall0 = _time.monotonic()

@@ -180,3 +180,14 @@ def test_gyro_model():
     assert np.max(np.abs(rec["gyro_true"] - interp)) < 1e-3
     noise = rec["gyro_value"] - (rec["gyro_true"] + 2.0 * DPS)
     assert np.std(noise) == pytest.approx(math.sqrt((0.1 * DPS) ** 2 + g.lsb ** 2 / 12), rel=0.05)
+
+
+def test_adc_clipping_counted():
+    """Codes clip at the 16-bit range and every clipped code is counted (parallel readout)."""
+    st = MicroStage({"adc_full_scale_v": 0.002}, DriveSchedule([(1700.0, 1.3, 40)]), seed=1)
+    f = st.step(30000)
+    expected = int(np.count_nonzero(np.abs(np.rint(f.y / st.lsb)) > st.code_max))
+    assert f.saturated == expected > 0
+    assert f.codes.max() == st.code_max and f.codes.min() == -st.code_max - 1
+    inside = np.abs(f.y / st.lsb) < st.code_max
+    np.testing.assert_array_equal(f.codes[inside], np.rint(f.y[inside] / st.lsb))
