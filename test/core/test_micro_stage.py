@@ -183,7 +183,7 @@ def test_gyro_model():
 
 
 def test_adc_clipping_counted():
-    """Codes clip at the 16-bit range and every clipped code is counted (parallel readout)."""
+    """Codes clip at the 16-bit range and every clipped code is counted."""
     st = MicroStage({"adc_full_scale_v": 0.002}, DriveSchedule([(1700.0, 1.3, 40)]), seed=1)
     f = st.step(30000)
     expected = int(np.count_nonzero(np.abs(np.rint(f.y / st.lsb)) > st.code_max))
