@@ -99,3 +99,30 @@ def test_nonfinite_frames_rejected_and_counted(graph, yaml_path):
         dev.step()
     assert spin_until(ex, lambda: ekf.frames_done == 3)
     assert ekf.diag.counters["rejected_frames"] == 1
+
+
+def test_imu_messages_match_gyro_frames(graph):
+    """publish_imu: one sensor_msgs/Imu per gyro sample, same rate value as the gyro ADC frame
+    and stamps in integer ns of the stage time base (reused message, rewritten fields)."""
+    from sensor_msgs.msg import Imu
+    ctx, ex, probe = graph
+    dev = MicroStageNode(context=ctx, drive_externally=True, parameter_overrides=params(
+        seed=2, n_trials=1, periods_per_trial=20, frame_size=5000, publish_imu=True))
+    ex.add_node(dev)
+    imu, gy = [], []
+    probe.create_subscription(Imu, "/stage/gyro/imu", imu.append, FRAME_QOS)
+    probe.create_subscription(AdcFrame, "/stage/gyro/adc", gy.append, FRAME_QOS)
+    assert spin_until(ex, lambda: dev.pub_imu.get_subscription_count() >= 1
+                      and dev.pub_gyro.get_subscription_count() >= 1)
+    for _ in range(2):
+        dev.step()
+    n = sum(m.num_samples for m in gy) if gy else -1
+    assert spin_until(ex, lambda: len(gy) == 2 and len(imu) == sum(m.num_samples for m in gy),
+                      timeout=20), (len(imu), n)
+    v = np.concatenate([adc_physical(m)[:, 0] for m in gy])
+    np.testing.assert_array_equal([m.angular_velocity.y for m in imu], v)
+    ns = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in imu])
+    assert np.all(np.diff(ns) > 0)
+    assert np.allclose(np.diff(ns), 1e9 / dev.gyro.rate, atol=1.0)
+    assert all(m.angular_velocity_covariance[0] > 0 and m.orientation_covariance[0] == -1.0
+               for m in imu)
