@@ -45,7 +45,7 @@ $(PKG_STAMP): $(MSGS_STAMP) setup.py pyproject.toml package.xml
 	touch $@
 
 demo: setup
-	ROS_DOMAIN_ID=$(DEMO_DOMAIN) $(VENV)/bin/run_scenario imu_noise --seed 1
+	ROS_DOMAIN_ID=$(DEMO_DOMAIN) $(VENV)/bin/run_scenario gyro_calibration --seed 1
 
 test: setup
 	ROS_DOMAIN_ID=$(TEST_DOMAIN) $(PY) -m pytest test

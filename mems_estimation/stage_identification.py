@@ -15,8 +15,11 @@
   sum over trials of (lambda_meas - lambda_pred(D_n))^2. lambda is gain invariant.
 * eta per channel by least-squares amplitude match (eq. 55 b) with D_n fixed.
 * R = covariance of the cancelled channels with zero drive.
-* Q (input-noise variance of eq. 49) from the reference: one-step prediction errors of
-  the identified model driven by the LDV states (sec. 3.5.4), Q = var(e_omega) / B_d[1]^2.
+* Q (input-noise variance of eq. 49) from the reference. The thesis' one-step prediction
+  errors of the identified model driven by the LDV states (sec. 3.5.4),
+  Q = var(e_omega) / B_d[1]^2, measure the LDV's white noise rather than the stage's input
+  noise (:func:`identify_Q`); the default is the Q that minimises the EKF's deviation from
+  the reference on the training sweep (:func:`identify_Q_reference`).
 * Output correction alpha, beta (eqs. 59-61) of the EKF on the training data (last step
   of sec. 3.5.4).
 
@@ -143,7 +146,13 @@ def integrate_harmonics(coef: np.ndarray, freq: float) -> np.ndarray:
 def frequency_response(u: np.ndarray, ref: np.ndarray, seg: np.ndarray, freqs: Sequence[float],
                        fs: float, settle_fraction: float = 0.6) -> np.ndarray:
     """Complex FRF omega_ref/u at each stepped frequency, from the last (1 - settle_fraction)
-    of each segment (phasor least squares with a constant for the reference bias)."""
+    of each segment (phasor least squares with a constant for the reference bias).
+
+    u[k] are the DAC's samples, held over [t_k, t_k + 1/fs): the analog drive is the
+    sampled phasor times the zero-order hold's response e^{-j w T/2} sin(w T/2)/(w T/2),
+    T = 1/fs. G is referred to the analog drive (divided by it), so the circle fit sees the
+    continuous stage of eqs. (31)-(33) and the reference's delay alone (otherwise the hold's
+    half sample, 0.8 us at 625 kHz, is taken for LDV delay)."""
     G = np.empty(len(freqs), complex)
     for i, f in enumerate(freqs):
         idx = np.flatnonzero(seg == i)
@@ -155,7 +164,9 @@ def frequency_response(u: np.ndarray, ref: np.ndarray, seg: np.ndarray, freqs: S
                              np.ones_like(t)])
         cu, *_ = np.linalg.lstsq(M, u[idx], rcond=None)
         cr, *_ = np.linalg.lstsq(M, ref[idx], rcond=None)
-        G[i] = (cr[0] - 1j * cr[1]) / (cu[0] - 1j * cu[1])
+        wt2 = math.pi * f / fs
+        zoh = np.exp(-1j * wt2) * math.sin(wt2) / wt2
+        G[i] = (cr[0] - 1j * cr[1]) / ((cu[0] - 1j * cu[1]) * zoh)
     return G
 
 
@@ -283,19 +294,88 @@ def identify_Q(ldv, u, fs, A, B, delay_s, bias) -> float:
     x_ref: LDV rate shifted by the identified delay (linear interpolation), bias removed;
     theta by trapezoidal integration, detrended.
     """
-    d = delay_s * fs
-    n = ldv.size
-    k = np.arange(n) + d
-    ok = k < n - 1
-    i0 = np.floor(k[ok]).astype(int)
-    fr = k[ok] - i0
-    om = (ldv[i0] * (1 - fr) + ldv[i0 + 1] * fr) - bias
+    om = delayed_reference(ldv, delay_s, fs, bias)
     th = np.concatenate([[0.0], np.cumsum(0.5 * (om[1:] + om[:-1]) / fs)])
     t = np.arange(th.size)
     th = th - np.polyval(np.polyfit(t, th, 1), t)
     uu = u[:th.size]
     e = om[1:] - (A[1, 0] * th[:-1] + A[1, 1] * om[:-1] + B[1] * uu[:-1])
     return float(np.var(e) / B[1] ** 2)
+
+
+def delayed_reference(ldv: np.ndarray, delay_s: float, fs: float, bias: float) -> np.ndarray:
+    """LDV rate advanced by its identified delay (linear interpolation) with the bias
+    removed [rad/s]; one sample per stage sample, shorter by the delay."""
+    n = ldv.size
+    k = np.arange(n) + delay_s * fs
+    ok = k < n - 1
+    i0 = np.floor(k[ok]).astype(int)
+    fr = k[ok] - i0
+    return ldv[i0] * (1 - fr) + ldv[i0 + 1] * fr - bias
+
+
+def settled_mask(seg: np.ndarray, settle_fraction: float = 0.3) -> np.ndarray:
+    """True on the samples of each trial after its first ``settle_fraction``."""
+    mask = np.zeros(seg.size, bool)
+    for s in np.unique(seg):
+        idx = np.flatnonzero(seg == s)
+        mask[idx[int(settle_fraction * idx.size):]] = True
+    return mask
+
+
+def identify_Q_reference(model: StageModel, y_cancel, u, ldv, seg, delay_s, bias,
+                         decades: int = 14, blocks: int = 50) -> tuple[float, np.ndarray]:
+    """Q [V^2] from the reference: the largest Q whose EKF is not significantly worse
+    than the best one against the LDV on the training sweep.
+
+    Why not the thesis' formula: the one-step prediction errors of sec. 3.5.4
+    (:func:`identify_Q`), e = x_ref[k] - A x_ref[k-1] - B u[k-1], carry ~2 sigma_LDV^2 of
+    white reference noise against a true input noise many orders smaller (here ~10 V^2
+    against ~3e-7 V^2 of drive-amplifier noise), so the EKF they parametrise follows the
+    capacitive measurements sample by sample and its omega is noisy.
+
+    Here, for Q on a grid of one decade from Q_1step down ``decades`` decades, the EKF runs
+    on the training data; its cost is the residual variance of the delay-compensated,
+    de-biased LDV regressed on the EKF's omega (the affine part is what the output
+    correction alpha, beta removes afterwards) over the settled samples. The LDV noise is
+    white and independent of the estimate, so the cost is the error against the true rate
+    plus a constant. The cost flattens once the filter is model-driven, so the chosen Q is
+    the largest one whose cost exceeds the minimum by less than two standard errors of the
+    paired difference (batch means over ``blocks`` contiguous blocks): the one-standard-
+    error rule of model selection with a 2-sigma margin, which keeps the filter as close to
+    its measurements as the reference can justify. Returns (Q, rows of (log10 Q, cost,
+    cost excess, its standard error))."""
+    import copy
+    ref = delayed_reference(ldv, delay_s, model.fs, bias)
+    m = ref.size
+    mask = settled_mask(seg[:m])
+    top = math.log10(float(model.Q))
+    grid = top - np.arange(decades + 1, dtype=float)
+    res = []
+    for lq in grid:
+        mm = copy.copy(model)
+        mm.Q = 10.0 ** lq
+        x, _ = StageEkf(mm).step(y_cancel, u, corrected=False)
+        xs = x[:m, 1][mask]
+        r = ref[mask]
+        ok = np.isfinite(xs)
+        xs, r = np.where(ok, xs, 0.0), np.where(ok, r, 0.0)
+        M = np.column_stack([xs, ok.astype(float)])
+        coef, *_ = np.linalg.lstsq(M, r, rcond=None)
+        res.append((r - M @ coef) ** 2)
+    cost = np.array([float(np.mean(e)) for e in res])
+    best = int(np.argmin(cost))
+    rows = []
+    chosen = None
+    for i, lq in enumerate(grid):
+        d = res[i] - res[best]
+        bm = np.array([b.mean() for b in np.array_split(d, blocks)])
+        se = float(bm.std(ddof=1) / math.sqrt(blocks))
+        excess = float(d.mean())
+        rows.append((lq, cost[i], excess, se))
+        if chosen is None and excess <= 2.0 * se:
+            chosen = lq
+    return float(10.0 ** chosen), np.array(rows)
 
 
 def fold_period(x: np.ndarray, phase: np.ndarray, bins: int = 368) -> np.ndarray:
@@ -333,13 +413,7 @@ def output_correction(model: StageModel, y_cancel, u, ldv, phase, seg, delay_s, 
     """alpha, beta of the EKF on training data vs the delay-compensated, de-biased LDV."""
     ekf = StageEkf(model)
     x, _ = ekf.step(y_cancel, u, corrected=False)
-    fs = model.fs
-    n = ldv.size
-    k = np.arange(n) + delay_s * fs
-    ok = k < n - 1
-    i0 = np.floor(k[ok]).astype(int)
-    fr = k[ok] - i0
-    ref = ldv[i0] * (1 - fr) + ldv[i0 + 1] * fr - bias
+    ref = delayed_reference(ldv, delay_s, model.fs, bias)
     m = ref.size
     r = evaluate(x[:m, 1], ref, phase[:m], seg[:m])
     return r["alpha"], r["beta"]
@@ -360,11 +434,16 @@ def cancelled(rec: dict, enabled: bool = True) -> np.ndarray:
 
 
 def identify(sweep: dict, sweep_freqs: Sequence[float], train: dict, zero: dict,
-             limits: np.ndarray, output_corr: bool = True) -> tuple[StageModel, dict]:
+             limits: np.ndarray, output_corr: bool = True,
+             q_method: str = "reference") -> tuple[StageModel, dict]:
     """Whole identification (module doc) from three records (see
     :func:`mems_sim.micro_stage.record`): frequency sweep, training amplitude sweep, zero
     drive. ``limits``: the electrode layout (Table A.1 design data, not identified).
+    ``q_method``: ``'reference'`` (:func:`identify_Q_reference`, default) or ``'one_step'``
+    (:func:`identify_Q`, the thesis' formula, kept for comparison).
     Returns the model and a report dict."""
+    if q_method not in ("reference", "one_step"):
+        raise ValueError(f"q_method {q_method!r}: 'reference' or 'one_step'")
     from mems_sim.micro_stage import stage_matrices
     fs = sweep["fs"]
     G = frequency_response(sweep["u"], sweep["ldv"], sweep["segment"], sweep_freqs, fs)
@@ -375,17 +454,22 @@ def identify(sweep: dict, sweep_freqs: Sequence[float], train: dict, zero: dict,
     gaps, etas, lam_res = identify_sensor(fits, limits)
     bias = ldv_bias(train)
     A, B = stage_matrices(cf["wn"], cf["zeta"], cf["b_c"], 1.0 / fs)
-    Q = identify_Q(train["ldv"], train["u"], fs, A, B, cf["delay_s"], bias)
+    q_one_step = identify_Q(train["ldv"], train["u"], fs, A, B, cf["delay_s"], bias)
     R = identify_R(cancelled(zero))
     model = StageModel(cf["wn"], cf["zeta"], cf["b_c"], fs, etas, gaps, np.asarray(limits),
-                       R, Q)
+                       R, q_one_step)
+    q_evals = None
+    if q_method == "reference":
+        model.Q, q_evals = identify_Q_reference(model, yc, train["u"], train["ldv"],
+                                                train["segment"], cf["delay_s"], bias)
     if output_corr:
         a, b = output_correction(model, yc, train["u"], train["ldv"], train["phase"],
                                  train["segment"], cf["delay_s"], bias)
         model.alpha, model.beta = a, b
     model.extra = {"ldv_delay_s": cf["delay_s"], "ldv_bias_rad_s": bias,
                    "temperature_c": float(train.get("temperature_c", math.nan))}
-    report = {"circle": cf, "frf": G, "lambda_residual": lam_res, "ldv_bias": bias}
+    report = {"circle": cf, "frf": G, "lambda_residual": lam_res, "ldv_bias": bias,
+              "Q_one_step": q_one_step, "Q_search": q_evals}
     return model, report
 
 

@@ -61,8 +61,10 @@ class Plan:
         return cls(2.0, 300, 4, 120, 40, 4, 400)
 
 
-def identify_stage(seed: int, plan: Plan, stage_params: dict | None = None):
-    """Identification at T1 (step 1). Returns (model, report, limits)."""
+def identify_stage(seed: int, plan: Plan, stage_params: dict | None = None,
+                   q_method: str = "reference"):
+    """Identification at T1 (step 1). Returns (model, report). ``q_method``: see
+    :func:`mems_estimation.stage_identification.identify`."""
     sp = dict(stage_params or {}, temperature_c=T1)
     sweep = DriveSchedule.frequency_sweep(step=plan.sweep_step_hz, periods=plan.sweep_periods)
     rs = record(MicroStage(sp, sweep, seed=seed * 100 + 1))
@@ -72,7 +74,8 @@ def identify_stage(seed: int, plan: Plan, stage_params: dict | None = None):
     z = record(MicroStage(sp, DriveSchedule([(1700.0, 0.0, plan.zero_periods)]),
                           seed=seed * 100 + 3))
     limits = MicroStage(sp).limits  # design layout (Table A.1), not an identified quantity
-    model, rep = identify(rs, [s[0] for s in sweep.segments], tr, z, limits)
+    model, rep = identify(rs, [s[0] for s in sweep.segments], tr, z, limits,
+                          q_method=q_method)
     return model, rep
 
 

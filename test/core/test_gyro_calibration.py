@@ -34,13 +34,13 @@ def runs():
 
 def test_pairing_with_true_reference(runs):
     """The peak-to-peak pairing itself (truth as reference) is unbiased within its standard
-    error, which is far below the stage-estimate case: what remains is the stage estimate."""
+    error; the stage estimate adds less than that again twice over (model-driven EKF)."""
     for T, r in runs.items():
         res = calibrate(r["rec"], r["rec"]["omega"][:, 0])
         err = abs(res["scale_factor"] / r["k_true"] - 1)
         assert err < 4 * res["scale_factor_se"] / r["k_true"] + 20e-6
         assert err < 150e-6
-        assert res["scale_factor_se"] < 0.2 * r["cal"]["scale_factor_se"]
+        assert r["cal"]["scale_factor_se"] < 3 * res["scale_factor_se"]
 
 
 def test_scale_factor_tracks_temperature(runs):
@@ -51,16 +51,8 @@ def test_scale_factor_tracks_temperature(runs):
         assert abs(r["ppm"]) < 4 * r["se_ppm"] + 50
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "measured 630-2050 ppm RMS over 22.9/35.7 C (short plan seeds 4/1: 645/633 ppm; full "
-    "scenario 7 trials x 400 periods seeds 1/2: 2050/805 ppm, standard error 1350-2250 ppm "
-    "per temperature; 14 trials x 1600 periods: 413 ppm, SE ~480 ppm) vs asked 100 ppm. "
-    "Stochastic, not a temperature bias (the stage has no wn/b_c tempco in the seed; "
-    "defaults 0): per-trial omega_pp noise of the EKF ~3e-4 relative, amplified ~4x by "
-    "the free intercept of eq. (27) over 1.0-1.3 V. The EKF is measurement-driven because "
-    "Q identified from the LDV (sec. 3.5.4) is ~11 V^2, >99.99 % the LDV's own white noise "
-    "(true drive-noise input 3e-7 V^2); SE falls only as 1/sqrt(data): 100 ppm would need "
-    "~400x the 7 x 400-period sweep per temperature"))
 def test_scale_factor_error_rms_100ppm(runs):
+    """Issue 3: <= 100 ppm RMS over the two temperatures (paper 286 ppm). With the thesis'
+    one-step Q (measurement-driven EKF) this was 630-2050 ppm, stochastic."""
     rms = math.sqrt(np.mean([runs[T]["ppm"] ** 2 for T in (T1, T2)]))
     assert rms <= 100.0
