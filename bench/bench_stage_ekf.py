@@ -1,6 +1,7 @@
 """Benchmark and sensitivity study of the micro-stage EKF (Chen 2018 ch. 3, issue 3).
 
-Run:  .venv/bin/python bench/bench_stage_ekf.py [--graph] [--sensitivity]
+Run:  .venv/bin/python bench/bench_stage_ekf.py [--graph] [--graph-processes[=ROWS]]
+                                                [--sensitivity]
 
 1. samples/s of the numba EKF kernel (eqs. 48-53, 4 channels), of the feedthrough
    canceller and of the stage emulator (real-time factor at fs = 625 kHz);
@@ -10,7 +11,14 @@ Run:  .venv/bin/python bench/bench_stage_ekf.py [--graph] [--sensitivity]
 3. ``--graph``: real-time factor of the scenario's node graph (stage at 625 kHz + gyro +
    EKF + calibration + MCAP recorder in one process), one stage instance and both
    temperatures at once, as fast as possible and paced by the wall clock;
-4. ``--sensitivity`` (Fig. 3.16): stage scale-factor error vs sensor-noise variance, split
+4. ``--graph-processes[=zstd,lz4,none,lz4-noimu]``: the same graph (one stage, 22.9 C) the
+   way ROS users run it, one process per node (micro_stage_node paced by its own
+   wall-clock timer, stage_ekf_node, gyro_calibration_node, mcap_record --compression C),
+   localhost discovery, ROS_DOMAIN_ID from the environment (77 if unset): the stage's
+   real-time factor (first to last frame), frames published vs recorded, frame-index gaps
+   in the MCAP, CPU per process; "DOES NOT KEEP UP" when the factor is below 0.99, a frame
+   is missing or the recording lags; plus the one-process figures (fast and realtime);
+5. ``--sensitivity`` (Fig. 3.16): stage scale-factor error vs sensor-noise variance, split
    into the part caused by identifying (eta, D_n) from noisy training data (estimator run on
    noise-free test data) and the EKF's stochastic part (true sensor parameters, noisy test
    data); Monte Carlo over seeds.
@@ -174,6 +182,210 @@ def graph_rtf(model, realtime: bool, two: bool = False, domain_id: int | None = 
             "gaps": sum(g["recorder"]["gaps"].values()), "instances": len(inst)}
 
 
+def _cpu_ticks(pid: int) -> int:
+    """utime + stime of a running process [clock ticks] (0 once it is gone)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return int(fields[11]) + int(fields[12])
+    except (OSError, IndexError, ValueError):
+        return 0
+
+
+def _busy_ticks() -> int:
+    """CPU ticks spent by the whole machine (all cores, not idle/iowait) since boot."""
+    with open("/proc/stat") as f:
+        v = [int(x) for x in f.readline().split()[1:]]
+    return sum(v) - v[3] - v[4]
+
+
+def _reap(proc, timeout_s: float) -> float | None:
+    """Wait for a child with os.wait4; its CPU seconds (None after a timeout)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        pid, status, ru = os.wait4(proc.pid, os.WNOHANG)
+        if pid:
+            proc.returncode = os.waitstatus_to_exitcode(status)
+            return ru.ru_utime + ru.ru_stime
+        time.sleep(0.02)
+    return None
+
+
+#: ``--graph-processes`` rows: recorder compression, ``-noimu`` without the per-sample
+#: sensor_msgs/Imu stream of the stage (on in the scenario's realtime graph)
+GRAPH_PROCESS_ROWS = "zstd,lz4,none,lz4-noimu"
+
+
+def graph_processes(model, compression: str = "zstd", domain_id: int = 77,
+                    publish_imu: bool = True, plan: Plan | None = None,
+                    extra_env: dict | None = None) -> dict:
+    """The scenario's graph for one stage instance (22.9 C) the way ROS users run it: one
+    process per node -- ``micro_stage_node`` paced by its own wall-clock timer
+    (bench/paced_stage.py: the node, its timer started once the subscribers are matched),
+    ``stage_ekf_node`` (identified YAML), ``gyro_calibration_node`` and ``mcap_record
+    --compression C`` -- all with localhost discovery in ``domain_id``.
+
+    Returns the stage's real-time factor (simulated / wall span from its first to its last
+    frame) and worst lateness, frames published vs recorded per topic and frame-index gaps
+    (from the MCAP), the lag of the last recorded estimate behind the stage's last frame, and
+    CPU seconds per process."""
+    import json
+    import signal
+    import subprocess
+    import tempfile
+    from pathlib import Path
+
+    from mcap.reader import make_reader
+
+    from mems_estimation.stage_ekf import save_model
+    from mems_sim.bag.info import bag_info
+    from mems_sim.scenarios import gyro_calibration as gc
+
+    plan = plan or Plan()
+    ns = "/stage_t1"
+    py = sys.executable
+    here = Path(__file__).resolve().parent
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               ROS_DOMAIN_ID=str(domain_id), PYTHONUNBUFFERED="1",
+               PYTHONPATH=os.pathsep.join([str(here.parent)]
+                                          + [x for x in [os.environ.get("PYTHONPATH")] if x]))
+    env.pop("ROS_LOCALHOST_ONLY", None)
+    env.update(extra_env or {})
+    topics = [f"{ns}/{t}" for t in gc.RECORDED] + ["/diagnostics"]
+    frames_topics = ("adc", "drive", "truth", "estimate")
+    ros = ["--ros-args", "--log-level", "warn", "-r", f"__ns:={ns}"]
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        yaml_path = tmp / "stage_params.yaml"
+        save_model(model, str(yaml_path))
+        out = tmp / "graph.mcap"
+        cmds = {
+            "recorder": [py, "-m", "mems_sim.bag.recorder", "-o", str(out),
+                         "--compression", compression, *topics, "--ros-args", "--log-level",
+                         "warn"],
+            "ekf": [py, "-m", "mems_estimation.stage_ekf_node", *ros,
+                    "-p", f"stage_namespace:={ns}", "-p", f"params_yaml:={yaml_path}"],
+            "calibration": [py, "-m", "mems_estimation.gyro_calibration_node", *ros,
+                            "-p", f"stage_namespace:={ns}", "-p", f"n_trials:={plan.cal_trials}"],
+            "stage": [py, str(here / "paced_stage.py"),
+                      f"--wait-subs={ns}/adc:2,{ns}/drive:3,{ns}/truth:1,{ns}/gyro/adc:2,"
+                      f"{ns}/estimate:2", *ros,
+                      "-p", f"seed:={1 * 100 + 50}", "-p", f"temperature_c:={gc.T1}",
+                      "-p", f"n_trials:={plan.cal_trials}",
+                      "-p", f"periods_per_trial:={plan.cal_periods}",
+                      "-p", f"frame_size:={gc.FRAME}", "-p", "frame_id:=stage_t1",
+                      "-p", f"publish_imu:={'true' if publish_imu else 'false'}"],
+        }
+        procs, logs, cpu = {}, {}, {}
+        try:
+            for name, cmd in cmds.items():
+                logs[name] = open(tmp / f"{name}.log", "w+")
+                procs[name] = subprocess.Popen(cmd, env=env, stdout=logs[name],
+                                               stderr=subprocess.STDOUT, cwd=str(tmp))
+            samples = []  # (monotonic, CPU ticks per process) while the stage runs
+            deadline = time.monotonic() + 180.0
+            while cpu.get("stage") is None:
+                samples.append((time.monotonic(), dict({n: _cpu_ticks(p.pid)
+                                                        for n, p in procs.items()},
+                                                       machine=_busy_ticks())))
+                cpu["stage"] = _reap(procs["stage"], 0.05)
+                if time.monotonic() > deadline:
+                    raise RuntimeError("the stage process did not finish in 180 s")
+            t_stage_exit = time.monotonic()
+            # the consumers are done when they stop using CPU (no ROS participant of ours)
+            rest = [procs[n] for n in ("ekf", "calibration", "recorder")]
+            hz = os.sysconf("SC_CLK_TCK")
+            prev, quiet_since = None, None
+            deadline = time.monotonic() + 60.0
+            while time.monotonic() < deadline:
+                ticks = sum(_cpu_ticks(p.pid) for p in rest)
+                now = time.monotonic()
+                if prev is not None and ticks - prev <= 0.05 * hz * 0.1 * len(rest) + 1:
+                    quiet_since = quiet_since or now
+                    if now - quiet_since >= 0.5:
+                        break
+                else:
+                    quiet_since = None
+                prev = ticks
+                time.sleep(0.1)
+            drain_s = (quiet_since or time.monotonic()) - t_stage_exit
+            for name in ("calibration", "ekf", "recorder"):
+                procs[name].send_signal(signal.SIGINT)
+                cpu[name] = _reap(procs[name], 60.0)
+        finally:
+            for name, p in procs.items():
+                if p.returncode is None and p.poll() is None:
+                    p.kill()
+                    p.wait()
+            for f in logs.values():
+                f.flush()
+        texts = {}
+        for name, f in logs.items():
+            f.seek(0)
+            texts[name] = f.read()
+            f.close()
+        lines = [x for x in texts["stage"].splitlines() if x.startswith("{")]
+        if not lines or "error" in json.loads(lines[-1]) or procs["stage"].returncode:
+            raise RuntimeError("stage process failed:\n" + texts["stage"][-3000:])
+        st = json.loads(lines[-1])
+        if procs["recorder"].returncode or not out.exists():
+            raise RuntimeError("recorder failed:\n" + texts["recorder"][-3000:])
+        info = bag_info(str(out))
+        last = {}
+        with open(out, "rb") as f:
+            for _, ch, m in make_reader(f).iter_messages(topics=[f"{ns}/{t}" for t in
+                                                                 frames_topics]):
+                last[ch.topic] = max(last.get(ch.topic, 0), m.log_time)
+    tp = info["topics"]
+    recorded = {t: tp.get(f"{ns}/{t}", {}).get("count", 0)
+                for t in frames_topics + ("gyro/adc", "gyro_scale_factor")}
+    gaps = {t: tp[f"{ns}/{t}"]["gaps"] for t in frames_topics + ("gyro/adc",)
+            if "gaps" in tp.get(f"{ns}/{t}", {})}
+    missing = sum(tp[f"{ns}/{t}"].get("missing_samples", 0) for t in gaps)
+    lag = {t: (last[f"{ns}/{t}"] - st["t_last_ns"]) / 1e9 for t in frames_topics
+           if f"{ns}/{t}" in last}
+    # CPU of each process while the stage published (first frame's start to last frame)
+    hz = os.sysconf("SC_CLK_TCK")
+    w0, w1 = st["t_first"] - st["frame_size"] / st["fs"], st["t_last"]
+    inside = [s_ for s_ in samples if w0 <= s_[0] <= w1]
+    run_cpu = {}
+    if len(inside) >= 2:
+        run_cpu = {n: (inside[-1][1][n] - inside[0][1][n]) / hz / (inside[-1][0] - inside[0][0])
+                   for n in list(procs) + ["machine"] if n != "stage" or inside[-1][1][n]}
+        # busy cores of other processes (another job on the machine slows the graph)
+        run_cpu["others"] = max(run_cpu.pop("machine") - sum(run_cpu.values()), 0.0)
+    return dict(compression=compression, publish_imu=publish_imu, rtf=st["rtf"],
+                max_late_s=st["max_late_s"],
+                sim_span_s=st["sim_span_s"], wall_span_s=st["wall_span_s"],
+                published=st["frames"], recorded=recorded, gaps=sum(gaps.values()),
+                gap_topics=gaps, missing_samples=missing, lag_s=lag, drain_s=drain_s,
+                acked=st["acked"], cpu_s=cpu, run_cpu=run_cpu, stage_loop_cpu_s=st["cpu_s"],
+                mb=info["file_size"] / 1e6, truncated=info["truncated"],
+                lost=sum(max(st["frames"] - recorded[t], 0) for t in frames_topics))
+
+
+def print_graph_processes(r: dict) -> None:
+    """One block per recorder compression; says so when the stage cannot keep up."""
+    keeps = r["rtf"] >= 0.99 and r["lost"] == 0 and r["gaps"] == 0 and max(
+        r["lag_s"].values(), default=1e9) < 1.0
+    cpu = ", ".join(f"{k} {v:.2f}" for k, v in r["cpu_s"].items() if v is not None)
+    rec = ", ".join(f"{k} {v}" for k, v in r["recorded"].items())
+    lag = ", ".join(f"{k} {v * 1e3:.0f}" for k, v in r["lag_s"].items())
+    print(f"graph, 4 processes, realtime, recorder {r['compression']:4s}, "
+          f"{'with' if r['publish_imu'] else 'no  '} 8 kHz Imu: {r['rtf']:5.3f} x real "
+          f"time (stage, first to last frame: {r['sim_span_s']:.3f} sim s in "
+          f"{r['wall_span_s']:.3f} wall s; worst frame {r['max_late_s'] * 1e3:.0f} ms late) -> "
+          + ("keeps up" if keeps else "DOES NOT KEEP UP")
+          + (f" (machine busy: other jobs used {r['run_cpu']['others']:.1f} cores)"
+             if r["run_cpu"].get("others", 0.0) > 0.25 else ""))
+    print(f"    frames published {r['published']}, recorded {rec}; frame-index gaps "
+          f"{r['gaps']} ({r['missing_samples']} samples missing); last frame recorded "
+          f"[ms after the stage published it]: {lag}")
+    run = ", ".join(f"{k} {v:.2f}" for k, v in r["run_cpu"].items())
+    print(f"    CPU [cores] while the stage published: {run} (of {os.cpu_count()}); "
+          f"CPU s incl. start-up: {cpu}; bag {r['mb']:.0f} MB")
+
+
 def main() -> None:
     model, _ = identify_stage(seed=5, plan=Plan.short())
     bench(model)
@@ -184,7 +396,23 @@ def main() -> None:
                 print(f"graph, {r['instances']} stage(s), {'realtime' if rt else 'fast':8s}: "
                       f"{r['rtf']:5.2f} x real time (stage samples summed over instances), "
                       f"frame-index gaps {r['gaps']}")
+    gp = [a for a in sys.argv if a.split("=")[0] == "--graph-processes"]
+    if gp:
+        rows = (gp[-1].split("=", 1)[1] if "=" in gp[-1] else GRAPH_PROCESS_ROWS).split(",")
+        domain = int(os.environ.get("ROS_DOMAIN_ID") or 77)
+        if "--graph" not in sys.argv:
+            for rt in (False, True):
+                r = graph_rtf(model, rt, domain_id=domain)
+                print(f"graph, 1 process, 1 stage, {'realtime' if rt else 'fast':8s}: "
+                      f"{r['rtf']:5.2f} x real time, frame-index gaps {r['gaps']}")
+        for row in rows:
+            comp, _, imu = row.partition("-")
+            print_graph_processes(graph_processes(model, comp, domain_id=domain,
+                                                  publish_imu=imu != "noimu"))
     if "--sensitivity" in sys.argv:
+        print("Fig. 3.16 with the thesis' one-step Q (measurement-driven EKF, the paper's setup):")
+        sensitivity(identify_stage(seed=5, plan=Plan.short(), q_method="one_step")[0])
+        print("with the default Q from the reference (model-driven EKF):")
         sensitivity(model)
 
 

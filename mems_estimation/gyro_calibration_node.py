@@ -11,9 +11,11 @@ more arrived). Malformed / non-finite frames are rejected and counted on /diagno
 from __future__ import annotations
 
 import numpy as np
+from rclpy.duration import Duration
 from rclpy.node import Node
 
 from mems_estimation.gyro_calibration import StreamingCalibrator
+from mems_estimation.stage_identification import harmonic_fit
 from mems_msgs.msg import AdcFrame, CalibrationResult, SignalFrame, StateEstimate
 from mems_sim.diagnostics import DiagnosticsReporter
 from mems_sim.node_common import run_node
@@ -56,6 +58,8 @@ class GyroCalibrationNode(Node):
         self.p = p = declare_specs(self, CAL_SPECS)
         self.cal = StreamingCalibrator(p["sample_rate_hz"], p["settle_fraction"],
                                        p["half_window"])
+        # load the compiled (numba) harmonic fit now, not at the first trial (~1 s)
+        harmonic_fit(np.zeros(64), np.arange(64) / 64.0)
         ns = p["stage_namespace"].rstrip("/")
         self.pub = self.create_publisher(CalibrationResult, f"{ns}/gyro_scale_factor",
                                          RESULT_QOS)
@@ -155,7 +159,9 @@ class GyroCalibrationNode(Node):
         n = len(self.cal.pairs)
         self.cal.finish()
         if len(self.cal.pairs) > n or not self.results:
-            self.publish_result()
+            if self.publish_result() is not None:
+                # the process may end right after: let the subscribers (recorder) have it
+                self.pub.wait_for_all_acked(Duration(seconds=2.0))
 
 
 def main(argv: list[str] | None = None) -> int:

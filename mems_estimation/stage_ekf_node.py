@@ -79,6 +79,12 @@ class StageEkfNode(Node):
         self.ekf = StageEkf(self.model)
         self.canceller = FeedthroughCanceller(len(chans), self.model.fs,
                                               enabled=p["cancel_feedthrough"])
+        # load the compiled (numba) kernels before subscribing, not at the first frame
+        # (~1 s late otherwise); throwaway filter and canceller, same argument types
+        nch = len(chans)
+        StageEkf(self.model).step(np.zeros((1, nch)), np.zeros(1))
+        FeedthroughCanceller(nch, self.model.fs).step(np.zeros((1, nch)), np.ones(1),
+                                                      np.ones(1))
         ns = p["stage_namespace"].rstrip("/")
         self.pub = self.create_publisher(StateEstimate, f"{ns}/estimate", FRAME_QOS)
         self.pairer = FramePairer()

@@ -98,6 +98,9 @@ class MicroStageNode(PacedEmulator, Node):
         micro_stage.validate_params(dev)
         schedule = make_schedule(self.p)
         self.device = micro_stage.MicroStage(dev, schedule, seed=self.p["seed"])
+        # load the compiled (numba) kernels now: at the first frame a paced node would
+        # publish ~1 s late (a throwaway device: the node's own device is untouched)
+        micro_stage.MicroStage(dev, schedule, seed=0).step(2)
         self.gyro = (MemsGyro({s.name: self.p[s.name] for s in GYRO_SPECS},
                               seed=self.p["seed"], temperature_c=self.p["temperature_c"])
                      if self.p["gyro_enabled"] else None)
