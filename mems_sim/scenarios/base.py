@@ -69,13 +69,18 @@ class Graph:
         rclpy.init(context=self.context, domain_id=domain_id,
                    signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
         self.executor = SingleThreadedExecutor(context=self.context)
+        # the recorder subscribes (and announces each topic) already in its constructor
+        rclpy.logging.set_logger_level("mcap_recorder", rclpy.logging.LoggingSeverity.WARN)
         self.nodes: list = []
         self._clock_node = rclpy.create_node("scenario_clock", context=self.context)
         self._clock_pub = self._clock_node.create_publisher(Clock, "/clock", 10)
         self.add(self._clock_node)
 
     def add(self, node):
-        """Add ``node`` to the executor and return it."""
+        """Add ``node`` to the executor and return it. Its logger is set to WARN: a
+        scenario's product is its table, and per-topic INFO lines (the recorder announces
+        every topic) would bury it; warnings and errors still print."""
+        node.get_logger().set_level(rclpy.logging.LoggingSeverity.WARN)
         self.nodes.append(node)
         self.executor.add_node(node)
         return node
