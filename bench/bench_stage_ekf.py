@@ -192,11 +192,13 @@ def _cpu_ticks(pid: int) -> int:
         return 0
 
 
-def _busy_ticks() -> int:
-    """CPU ticks spent by the whole machine (all cores, not idle/iowait) since boot."""
+def _machine_ticks() -> dict:
+    """CPU ticks of the whole machine since boot (all cores): processes (user, nice,
+    system), interrupts (irq + softirq: e.g. the loopback network stack) and steal (the
+    hypervisor's other guests)."""
     with open("/proc/stat") as f:
-        v = [int(x) for x in f.readline().split()[1:]]
-    return sum(v) - v[3] - v[4]
+        v = [int(x) for x in f.readline().split()[1:9]]
+    return {"machine": v[0] + v[1] + v[2], "irq": v[5] + v[6], "steal": v[7]}
 
 
 def _reap(proc, timeout_s: float) -> float | None:
@@ -287,7 +289,7 @@ def graph_processes(model, compression: str = "zstd", domain_id: int = 77,
             while cpu.get("stage") is None:
                 samples.append((time.monotonic(), dict({n: _cpu_ticks(p.pid)
                                                         for n, p in procs.items()},
-                                                       machine=_busy_ticks())))
+                                                       **_machine_ticks())))
                 cpu["stage"] = _reap(procs["stage"], 0.05)
                 if time.monotonic() > deadline:
                     raise RuntimeError("the stage process did not finish in 180 s")
@@ -351,9 +353,11 @@ def graph_processes(model, compression: str = "zstd", domain_id: int = 77,
     run_cpu = {}
     if len(inside) >= 2:
         run_cpu = {n: (inside[-1][1][n] - inside[0][1][n]) / hz / (inside[-1][0] - inside[0][0])
-                   for n in list(procs) + ["machine"] if n != "stage" or inside[-1][1][n]}
+                   for n in inside[0][1] if n != "stage" or inside[-1][1][n]}
         # busy cores of other processes (another job on the machine slows the graph)
-        run_cpu["others"] = max(run_cpu.pop("machine") - sum(run_cpu.values()), 0.0)
+        machine = run_cpu.pop("machine")
+        run_cpu["others"] = max(machine - sum(v for k, v in run_cpu.items()
+                                              if k in procs), 0.0)
     return dict(compression=compression, publish_imu=publish_imu, rtf=st["rtf"],
                 max_late_s=st["max_late_s"],
                 sim_span_s=st["sim_span_s"], wall_span_s=st["wall_span_s"],
@@ -376,14 +380,18 @@ def print_graph_processes(r: dict) -> None:
           f"time (stage, first to last frame: {r['sim_span_s']:.3f} sim s in "
           f"{r['wall_span_s']:.3f} wall s; worst frame {r['max_late_s'] * 1e3:.0f} ms late) -> "
           + ("keeps up" if keeps else "DOES NOT KEEP UP")
-          + (f" (machine busy: other jobs used {r['run_cpu']['others']:.1f} cores)"
-             if r["run_cpu"].get("others", 0.0) > 0.25 else ""))
+          + (f" (machine busy: other jobs {r['run_cpu']['others']:.2f} cores, hypervisor "
+             f"steal {r['run_cpu']['steal']:.2f} cores)"
+             if r["run_cpu"].get("others", 0.0) + r["run_cpu"].get("steal", 0.0) > 0.2
+             else ""))
     print(f"    frames published {r['published']}, recorded {rec}; frame-index gaps "
           f"{r['gaps']} ({r['missing_samples']} samples missing); last frame recorded "
           f"[ms after the stage published it]: {lag}")
     run = ", ".join(f"{k} {v:.2f}" for k, v in r["run_cpu"].items())
+    need = sum(r["run_cpu"].get(k, 0.0) for k in r["cpu_s"]) / r["rtf"]
     print(f"    CPU [cores] while the stage published: {run} (of {os.cpu_count()}); "
-          f"CPU s incl. start-up: {cpu}; bag {r['mb']:.0f} MB")
+          f"at 1.0 x real time the 4 processes need {need:.1f} cores; CPU s incl. start-up: "
+          f"{cpu}; bag {r['mb']:.0f} MB")
 
 
 def main() -> None:
