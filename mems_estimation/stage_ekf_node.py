@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 from rclpy.node import Node
 
+from mems_estimation.frame_input import FramePairer
 from mems_estimation.stage_ekf import FeedthroughCanceller, StageEkf, load_model
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.diagnostics import DiagnosticsReporter
@@ -33,19 +34,6 @@ EKF_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("output_correction", True, "-", "apply the identified alpha/beta correction",
               "sec. 3.5.4 (last step)"),
 )
-
-
-class FramePairer:
-    """Pairs ADC and drive frames of the same first_sample_index, in order (ROS-free)."""
-
-    def __init__(self) -> None:
-        self.a: dict[int, object] = {}
-        self.b: dict[int, object] = {}
-
-    def add(self, kind: str, first: int, values) -> list:
-        (self.a if kind == "adc" else self.b)[first] = values
-        ready = sorted(set(self.a) & set(self.b))
-        return [(k, self.a.pop(k), self.b.pop(k)) for k in ready]
 
 
 def drive_columns(msg: SignalFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
