@@ -167,6 +167,40 @@ def test_writer_close_idempotent(tmp_path):
     assert info["topics"]["/f"]["gaps"] == 1 and info["topics"]["/f"]["missing_samples"] == 100
 
 
+def test_writer_thread_order_and_error(tmp_path):
+    """Messages queued faster than a small queue drains arrive complete and in order; a
+    failure inside the writer thread is not lost: the next write and close() raise it,
+    and the file is closed."""
+    from mcap.reader import make_reader
+    path = str(tmp_path / "q.mcap")
+    writer = McapBagWriter(path, queue_size=2, chunk_size=4096)
+    writer.add_topic("/f", "mems_msgs/msg/AdcFrame", schema_text("mems_msgs/msg/AdcFrame"),
+                     qos_profiles_yaml([FRAME_QOS]))
+    for k in range(300):
+        writer.write("/f", serialize_message(make_frame(k)), 10 + k, 10 + k)
+    writer.close()
+    with open(path, "rb") as fh:
+        seq = [m.sequence for _, _, m in make_reader(fh).iter_messages(log_time_order=False)]
+    assert seq == list(range(300))
+
+    bad = McapBagWriter(str(tmp_path / "bad.mcap"))
+    bad.add_topic("/f", "mems_msgs/msg/AdcFrame", schema_text("mems_msgs/msg/AdcFrame"),
+                  qos_profiles_yaml([FRAME_QOS]))
+
+    def fail(**_):
+        raise OSError("disk full")
+    bad._writer.add_message = fail
+    bad.write("/f", serialize_message(make_frame(0)), 1, 1)
+    deadline = time.monotonic() + 5.0
+    while bad._error is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    with pytest.raises(OSError, match="disk full"):
+        bad.write("/f", serialize_message(make_frame(1)), 2, 2)
+    with pytest.raises(OSError, match="disk full"):
+        bad.close()
+    assert bad.closed
+
+
 # ---------------------------------------------------------------- recording
 
 
