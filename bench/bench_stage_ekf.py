@@ -16,8 +16,9 @@ Run:  .venv/bin/python bench/bench_stage_ekf.py [--graph] [--graph-processes[=RO
    wall-clock timer, stage_ekf_node, gyro_calibration_node, mcap_record --compression C),
    localhost discovery, ROS_DOMAIN_ID from the environment (77 if unset): the stage's
    real-time factor (first to last frame), frames published vs recorded, frame-index gaps
-   in the MCAP, CPU per process; "DOES NOT KEEP UP" when the factor is below 0.99, a frame
-   is missing or the recording lags; plus the one-process figures (fast and realtime);
+   in the MCAP, CPU per process; "DOES NOT KEEP UP" when the factor is below 0.99 or a
+   frame is missing, and a last frame recorded > 1 s late is named; plus the one-process
+   figures (fast and realtime). Both over the 6.6 s sweep :data:`BENCH_PLAN`;
 5. ``--sensitivity`` (Fig. 3.16): stage scale-factor error vs sensor-noise variance, split
    into the part caused by identifying (eta, D_n) from noisy training data (estimator run on
    noise-free test data) and the EKF's stochastic part (true sensor parameters, noisy test
@@ -163,10 +164,24 @@ def sensitivity(model, seeds=(1, 2, 3, 4), scales=(0.5, 1.0, 2.0, 4.0)):
               f"{np.std(stoch) * 1e6:24.0f}")
 
 
-def graph_rtf(model, realtime: bool, two: bool = False, domain_id: int | None = None) -> dict:
+#: Calibration sweep of the graph benchmarks: 7 trials x 1600 drive periods at 1700 Hz
+#: (6.6 simulated s). The scenario's own sweep (7 x 400 periods, 1.65 s) is so short that
+#: start-up (DDS matching, first frames) and the pipeline's end latency (~2 frames of
+#: 32 ms) decide its wall time; the longer sweep measures the steady state.
+BENCH_PLAN = Plan(cal_periods=1600)
+
+
+def graph_rtf(model, realtime: bool, two: bool = False, domain_id: int | None = None,
+              plan: Plan = BENCH_PLAN) -> dict:
     """Real-time factor of the node graph of the scenario (stage at 625 kHz + gyro + EKF +
-    calibration + MCAP recorder, one process) over the 7 x 400-period calibration sweep:
-    one stage instance (the issue's benchmark) or both temperatures at once (the scenario)."""
+    calibration + MCAP recorder, one process) over the calibration sweep ``plan``:
+    one stage instance (the issue's benchmark) or both temperatures at once (the scenario).
+
+    ``rtf`` = simulated s / wall s from the stages' start to the last frame recorded and
+    estimated; paced by the wall clock it is at most 1 - latency/duration, so ``latency_s``
+    = wall - simulated (realtime only) says how far behind the graph ended: a graph that
+    keeps up ends a constant pipeline latency behind, one that does not falls further
+    behind the longer it runs."""
     import tempfile
     from pathlib import Path
 
@@ -177,8 +192,9 @@ def graph_rtf(model, realtime: bool, two: bool = False, domain_id: int | None = 
         out = Path(tmp) / "bench.mcap"
         opts = ScenarioOptions(seed=1, out=out, domain_id=domain_id, progress=False,
                                realtime=realtime)
-        g = gc.run_graph(opts, Plan(), {gc.T1: model, gc.T2: model}, out, instances=inst)
+        g = gc.run_graph(opts, plan, {gc.T1: model, gc.T2: model}, out, instances=inst)
     return {"rtf": g["simulated_s"] / g["wall_s"] * (2 if two else 1),
+            "latency_s": g["wall_s"] - g["simulated_s"], "simulated_s": g["simulated_s"],
             "gaps": sum(g["recorder"]["gaps"].values()), "instances": len(inst)}
 
 
@@ -244,7 +260,7 @@ def graph_processes(model, compression: str = "zstd", domain_id: int = 77,
     from mems_sim.bag.info import bag_info
     from mems_sim.scenarios import gyro_calibration as gc
 
-    plan = plan or Plan()
+    plan = plan or BENCH_PLAN
     ns = "/stage_t1"
     py = sys.executable
     here = Path(__file__).resolve().parent
@@ -370,9 +386,16 @@ def graph_processes(model, compression: str = "zstd", domain_id: int = 77,
 
 
 def print_graph_processes(r: dict) -> None:
-    """One block per recorder compression; says so when the stage cannot keep up."""
-    keeps = r["rtf"] >= 0.99 and r["lost"] == 0 and r["gaps"] == 0 and max(
-        r["lag_s"].values(), default=1e9) < 1.0
+    """One block per recorder compression; says so when the stage cannot keep up.
+
+    Keeping up = the stage's factor >= 0.99 with every frame recorded and no index gap.
+    A last frame recorded more than 1 s after its publication is reported apart: in the
+    MCAPs checked, such a delay hits one frame (the run's last) or a short run of frames
+    that then catch up at the frame rate, i.e. a reliable re-send of a fragment the
+    shared-memory transport dropped (frames of 0.3-0.8 MB are sent as 64 kB fragments),
+    delivered after the writer's next heartbeat; not a consumer falling behind."""
+    keeps = r["rtf"] >= 0.99 and r["lost"] == 0 and r["gaps"] == 0
+    late = {k: v for k, v in r["lag_s"].items() if v >= 1.0}
     cpu = ", ".join(f"{k} {v:.2f}" for k, v in r["cpu_s"].items() if v is not None)
     rec = ", ".join(f"{k} {v}" for k, v in r["recorded"].items())
     lag = ", ".join(f"{k} {v * 1e3:.0f}" for k, v in r["lag_s"].items())
@@ -381,6 +404,7 @@ def print_graph_processes(r: dict) -> None:
           f"time (stage, first to last frame: {r['sim_span_s']:.3f} sim s in "
           f"{r['wall_span_s']:.3f} wall s; worst frame {r['max_late_s'] * 1e3:.0f} ms late) -> "
           + ("keeps up" if keeps else "DOES NOT KEEP UP")
+          + "".join(f"; last {k} frame recorded {v:.1f} s late (re-sent)" for k, v in late.items())
           + (f" (machine busy: other jobs {r['run_cpu']['others']:.2f} cores, hypervisor "
              f"steal {r['run_cpu']['steal']:.2f} cores)"
              if r["run_cpu"].get("others", 0.0) + r["run_cpu"].get("steal", 0.0) > 0.2
@@ -395,6 +419,14 @@ def print_graph_processes(r: dict) -> None:
           f"{cpu}; bag {r['mb']:.0f} MB")
 
 
+def _latency(r: dict, realtime: bool) -> str:
+    """How far behind the wall clock a realtime graph ended (see :func:`graph_rtf`)."""
+    if not realtime:
+        return ""
+    return (f" over {r['simulated_s']:.1f} sim s, ended {r['latency_s'] * 1e3:.0f} ms behind the"
+            " wall clock")
+
+
 def main() -> None:
     model, _ = identify_stage(seed=5, plan=Plan.short())
     bench(model)
@@ -403,8 +435,8 @@ def main() -> None:
             for rt in (False, True):
                 r = graph_rtf(model, rt, two)
                 print(f"graph, {r['instances']} stage(s), {'realtime' if rt else 'fast':8s}: "
-                      f"{r['rtf']:5.2f} x real time (stage samples summed over instances), "
-                      f"frame-index gaps {r['gaps']}")
+                      f"{r['rtf']:5.2f} x real time (stage samples summed over instances)"
+                      + _latency(r, rt) + f", frame-index gaps {r['gaps']}")
     gp = [a for a in sys.argv if a.split("=")[0] == "--graph-processes"]
     if gp:
         rows = (gp[-1].split("=", 1)[1] if "=" in gp[-1] else GRAPH_PROCESS_ROWS).split(",")
@@ -413,7 +445,8 @@ def main() -> None:
             for rt in (False, True):
                 r = graph_rtf(model, rt, domain_id=domain)
                 print(f"graph, 1 process, 1 stage, {'realtime' if rt else 'fast':8s}: "
-                      f"{r['rtf']:5.2f} x real time, frame-index gaps {r['gaps']}")
+                      f"{r['rtf']:5.3f} x real time" + _latency(r, rt)
+                      + f", frame-index gaps {r['gaps']}")
         for row in rows:
             comp, _, imu = row.partition("-")
             print_graph_processes(graph_processes(model, comp, domain_id=domain,

@@ -5,7 +5,7 @@ from pathlib import Path
 
 HERE = Path(__file__).parent
 
-# options per benchmark: the stage graph as separate processes (~40 s: the one-process
+# options per benchmark: the stage graph as separate processes (~70 s: the one-process
 # figures, zstd as recorded by default and the cheapest configuration)
 ARGS = {"bench_stage_ekf.py": ["--graph-processes=zstd,none"]}
 
