@@ -24,7 +24,8 @@ Run:  .venv/bin/python bench/bench_stage_ekf.py [--graph] [--graph-processes[=RO
    noise-free test data) and the EKF's stochastic part (true sensor parameters, noisy test
    data); Monte Carlo over seeds;
 6. ``--drift``: scale-factor error when the actuator gain b_c drifts between identification
-   (22.9 C) and calibration (35.7 C), default Q vs the thesis' Q (:func:`actuator_drift`).
+   (22.9 C) and calibration (35.7 C): default Q, the thesis' Q, and the default Q with the
+   actuator gain as a state (:func:`actuator_drift`).
 """
 import os
 import sys
@@ -166,23 +167,39 @@ def sensitivity(model, seeds=(1, 2, 3, 4), scales=(0.5, 1.0, 2.0, 4.0)):
               f"{np.std(stoch) * 1e6:24.0f}")
 
 
-def actuator_drift(seeds=(1, 2), tempcos=(0.0, 2e-4, 1e-3)):
+def actuator_drift(seeds=(1, 2), tempcos=(0.0, 2e-4, 1e-3), gain_rw=1e-5):
     """Scale-factor error at 35.7 C when the stage's actuator gain b_c drifts with temperature
     (``b_c_tempco_per_k``; the seed gives no coefficient, the default is 0) and nothing but
-    D_n is re-identified there (as in the paper), for the default Q (from the reference:
-    model-driven EKF) and the thesis' one-step Q (measurement-driven). Short plan."""
+    (D_n, eta) is re-identified there (as in the paper). Three estimators: the default Q
+    (from the reference: model-driven EKF), the thesis' one-step Q (measurement-driven), and
+    the default Q with the actuator gain as a random-walk state
+    (:class:`~mems_estimation.stage_ekf.GainAdaptiveStageEkf`, ``gain_rw`` 1/sqrt(s), its
+    output correction fitted on the 22.9 C training sweep like the default's). Short plan."""
+    from mems_estimation.stage_ekf import GainAdaptiveStageEkf
     from mems_sim.scenarios import gyro_calibration as gc
     plan = Plan.short()
-    print("Q method  | seed | b_c change 22.9->35.7 C | SF error [ppm] +- SE | omega RMSE [rad/s]")
-    for qm in ("reference", "one_step"):
+    print("estimator | seed | b_c change 22.9->35.7 C | SF error at 35.7 C [ppm] +- SE | "
+          "omega RMSE [rad/s]")
+    for kind in ("reference", "one_step", "gain"):
         for seed in seeds:
-            model, _ = identify_stage(seed, plan, q_method=qm)
+            model, _ = identify_stage(seed, plan, q_method="one_step" if kind == "one_step"
+                                      else "reference")
+            oc = None
+            if kind == "gain":
+                tr = record(MicroStage({"temperature_c": gc.T1}, DriveSchedule.amplitude_sweep(
+                    n_trials=plan.train_trials, periods=plan.train_periods),
+                    seed=seed * 100 + 2))         # the training sweep of identify_stage
+                oc = si.output_correction(
+                    model, si.cancelled(tr), tr["u"], tr["ldv"], tr["phase"], tr["segment"],
+                    model.extra["ldv_delay_s"], model.extra["ldv_bias_rad_s"],
+                    estimator=GainAdaptiveStageEkf(model, gain_rw, output_correction=(1.0, 0.0)))
             for tc in tempcos:
                 sp = {"b_c_tempco_per_k": tc}
                 m2 = gc.retrain_at(model, gc.T2, seed, plan, stage_params=sp)
-                r = gc.calibration_run(m2, gc.T2, seed, plan, stage_params=sp)
-                print(f"{qm:9s} | {seed:4d} | {100 * tc * (gc.T2 - gc.T1):+22.2f} % | "
-                      f"{r['ppm']:+9.0f} +- {r['se_ppm']:5.0f}  | {r['eval']['rmse']:.4f}")
+                est = GainAdaptiveStageEkf(m2, gain_rw, output_correction=oc) if oc else None
+                r = gc.calibration_run(m2, gc.T2, seed, plan, stage_params=sp, estimator=est)
+                print(f"{kind:9s} | {seed:4d} | {100 * tc * (gc.T2 - gc.T1):+22.2f} % | "
+                      f"{r['ppm']:+19.0f} +- {r['se_ppm']:5.0f} | {r['eval']['rmse']:.4f}")
 
 
 #: Calibration sweep of the graph benchmarks: 7 trials x 1600 drive periods at 1700 Hz

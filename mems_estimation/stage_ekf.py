@@ -38,7 +38,7 @@ import numpy as np
 from mems_sim.micro_stage import EPS0, dcdtheta_single_tan, stage_matrices
 
 __all__ = ["StageModel", "ekf_run", "StageEkf", "FeedthroughCanceller", "cancel_run",
-           "output_h"]
+           "output_h", "gain_ekf_run", "GainAdaptiveStageEkf"]
 
 
 @dataclass
@@ -185,6 +185,131 @@ class StageEkf:
         if corrected and (m.alpha != 1.0 or m.beta != 0.0):
             out_x[:, 1] = (out_x[:, 1] - m.beta) / m.alpha
             out_v[:, 1] /= m.alpha ** 2
+        return out_x, out_v
+
+
+@numba.njit(cache=True)
+def gain_ekf_run(y, u, A, B, Q, Qg, Rinv, eta, gap, lim, eps, x, P, uprev, out_x, out_var):
+    """Eqs. (48)-(53) with the actuator gain as a third state (:class:`GainAdaptiveStageEkf`).
+
+    x = [theta, omega, g] carried in x (3,), P (3, 3), uprev (1,) [V]; the model input is
+    g b_c u (g = 1: the identified b_c), g a random walk of variance Qg per sample [-].
+    Jacobian of (48): F = [[A_d, B_d u_{k-1}], [0, 0, 1]]; input noise B_d g^2 Q B_d^T.
+    H = [0, h_c(theta), 0] as in eq. (50), so the update is the scalar one of
+    :func:`ekf_run` along the omega column of P. Outputs (n, 3) states and variances."""
+    n = y.shape[0]
+    ny = y.shape[1]
+    h = np.empty(ny)
+    r = np.empty(ny)
+    F = np.zeros((3, 3))
+    F[0, 0], F[0, 1], F[1, 0], F[1, 1], F[2, 2] = A[0, 0], A[0, 1], A[1, 0], A[1, 1], 1.0
+    T = np.empty((3, 3))
+    M = np.empty((3, 3))
+    c = np.empty(3)
+    for k in range(n):
+        ue = uprev[0]
+        gk = x[2]
+        t = A[0, 0] * x[0] + A[0, 1] * x[1] + B[0] * gk * ue
+        w = A[1, 0] * x[0] + A[1, 1] * x[1] + B[1] * gk * ue
+        F[0, 2] = B[0] * ue
+        F[1, 2] = B[1] * ue
+        for i in range(3):
+            for j in range(3):
+                T[i, j] = F[i, 0] * P[0, j] + F[i, 1] * P[1, j] + F[i, 2] * P[2, j]
+        for i in range(3):
+            for j in range(3):
+                M[i, j] = T[i, 0] * F[j, 0] + T[i, 1] * F[j, 1] + T[i, 2] * F[j, 2]
+        qg = gk * gk * Q
+        M[0, 0] += B[0] * B[0] * qg
+        M[0, 1] += B[0] * B[1] * qg
+        M[1, 0] += B[0] * B[1] * qg
+        M[1, 1] += B[1] * B[1] * qg
+        M[2, 2] += Qg
+        ok = True
+        for cc in range(ny):
+            if not math.isfinite(y[k, cc]):
+                ok = False
+        if ok:
+            output_h(t, eta, gap, lim, eps, h)
+            for cc in range(ny):
+                acc = 0.0
+                for d in range(ny):
+                    acc += Rinv[cc, d] * h[d]
+                r[cc] = acc
+            gs = 0.0
+            s = 0.0
+            for cc in range(ny):
+                gs += r[cc] * h[cc]
+                s += r[cc] * (y[k, cc] - h[cc] * w)
+            den = 1.0 + M[1, 1] * gs
+            for i in range(3):
+                c[i] = M[i, 1]
+            t += c[0] * s / den
+            w += c[1] * s / den
+            gk += c[2] * s / den
+            f = gs / den
+            for i in range(3):
+                for j in range(3):
+                    M[i, j] -= c[i] * c[j] * f
+        x[0] = t
+        x[1] = w
+        x[2] = gk
+        for i in range(3):
+            for j in range(3):
+                P[i, j] = M[i, j]
+            out_var[k, i] = M[i, i]
+        uprev[0] = u[k]
+        out_x[k, 0] = t
+        out_x[k, 1] = w
+        out_x[k, 2] = gk
+
+
+class GainAdaptiveStageEkf:
+    """Stage EKF that also estimates the actuator gain g (b_c -> g b_c), a study of how
+    the estimator could follow a piezo whose gain drifts between identification and use
+    (``bench_stage_ekf.py --drift``); not one of the thesis' estimators.
+
+    Args:
+        model: identified :class:`StageModel` (its Q is the input noise, V^2).
+        gain_rw: random-walk density of g [1/sqrt(s)] (default 1e-3: g may wander 0.1 %
+            in a second); Qg = gain_rw^2 / fs per sample.
+        p0: initial covariance diag (theta^2 [rad^2], omega^2 [(rad/s)^2], g^2 [-]).
+        output_correction: (alpha, beta) applied to omega; default the model's (they were
+            identified for the 2-state filter, so pass ones fitted for this one).
+    """
+
+    def __init__(self, model: StageModel, gain_rw: float = 1e-3,
+                 p0: tuple[float, float, float] = (1e-6, 1.0, 1e-4),
+                 output_correction: tuple[float, float] | None = None) -> None:
+        if not (math.isfinite(gain_rw) and gain_rw >= 0.0):
+            raise ValueError(f"gain_rw {gain_rw!r} 1/sqrt(s) must be >= 0")
+        self.model = model
+        self.A, self.B = model.matrices()
+        self.Rinv = np.ascontiguousarray(np.linalg.inv(np.atleast_2d(model.R)))
+        self.eps = EPS0 * model.eps_r
+        self.Qg = gain_rw * gain_rw / model.fs
+        self.alpha, self.beta = output_correction or (model.alpha, model.beta)
+        self.x = np.array([0.0, 0.0, 1.0])
+        self.P = np.diag(np.asarray(p0, float))
+        self.uprev = np.zeros(1)
+
+    def step(self, y: np.ndarray, u: np.ndarray, corrected: bool = True
+             ) -> tuple[np.ndarray, np.ndarray]:
+        """States (n, 3) [rad, rad/s, -] and their variances for measurements y (n, n_y)
+        [V] and drive u (n,) [V]; ``corrected`` applies (alpha, beta) to omega."""
+        y = np.ascontiguousarray(np.atleast_2d(y), float)
+        u = np.ascontiguousarray(u, float)
+        n = y.shape[0]
+        out_x = np.empty((n, 3))
+        out_v = np.empty((n, 3))
+        m = self.model
+        gain_ekf_run(y, u, self.A, self.B, float(m.Q), self.Qg, self.Rinv,
+                     np.asarray(m.eta, float), np.asarray(m.gap, float),
+                     np.ascontiguousarray(m.limits, float), self.eps, self.x, self.P,
+                     self.uprev, out_x, out_v)
+        if corrected and (self.alpha != 1.0 or self.beta != 0.0):
+            out_x[:, 1] = (out_x[:, 1] - self.beta) / self.alpha
+            out_v[:, 1] /= self.alpha ** 2
         return out_x, out_v
 
 

@@ -409,9 +409,11 @@ def evaluate(omega_est: np.ndarray, omega_ref: np.ndarray, phase: np.ndarray, se
 
 
 def output_correction(model: StageModel, y_cancel, u, ldv, phase, seg, delay_s, bias,
-                      channels=None) -> tuple[float, float]:
-    """alpha, beta of the EKF on training data vs the delay-compensated, de-biased LDV."""
-    ekf = StageEkf(model)
+                      channels=None, estimator=None) -> tuple[float, float]:
+    """alpha, beta of the EKF on training data vs the delay-compensated, de-biased LDV.
+    ``estimator``: a fresh filter with ``step(y, u, corrected=False)`` (default
+    ``StageEkf(model)``)."""
+    ekf = estimator or StageEkf(model)
     x, _ = ekf.step(y_cancel, u, corrected=False)
     ref = delayed_reference(ldv, delay_s, model.fs, bias)
     m = ref.size

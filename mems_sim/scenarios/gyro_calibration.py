@@ -91,8 +91,9 @@ def retrain_at(model, temperature_c: float, seed: int, plan: Plan,
 
 def calibration_run(model, temperature_c: float, seed: int, plan: Plan,
                     stage_params: dict | None = None, gyro_params: dict | None = None,
-                    cancel: bool = True) -> dict:
-    """Calibration sweep with the gyro (step 2): EKF figures and eq. (27) result."""
+                    cancel: bool = True, estimator=None) -> dict:
+    """Calibration sweep with the gyro (step 2): EKF figures and eq. (27) result.
+    ``estimator``: object with ``step(y, u) -> (x, var)`` (default ``StageEkf(model)``)."""
     sp = dict(stage_params or {}, temperature_c=temperature_c)
     stage = MicroStage(sp, DriveSchedule.amplitude_sweep(n_trials=plan.cal_trials,
                                                          periods=plan.cal_periods),
@@ -100,7 +101,7 @@ def calibration_run(model, temperature_c: float, seed: int, plan: Plan,
     gyro = MemsGyro(gyro_params, seed=seed * 100 + 60 + int(temperature_c),
                     temperature_c=temperature_c)
     rec = record(stage, gyro)
-    x, var = StageEkf(model).step(cancelled(rec, enabled=cancel), rec["u"])
+    x, var = (estimator or StageEkf(model)).step(cancelled(rec, enabled=cancel), rec["u"])
     ev = evaluate(x[:, 1], rec["omega"][:, 0], rec["phase"], rec["segment"])
     cal = calibrate(rec, x[:, 1])
     k_true = gyro.scale_factor()
