@@ -276,20 +276,24 @@ class GainAdaptiveStageEkf:
         p0: initial covariance diag (theta^2 [rad^2], omega^2 [(rad/s)^2], g^2 [-]).
         output_correction: (alpha, beta) applied to omega; default the model's (they were
             identified for the 2-state filter, so pass ones fitted for this one).
+        gain0: initial g [-] (e.g. the converged g of an earlier run, with a small p0[2]).
     """
 
     def __init__(self, model: StageModel, gain_rw: float = 1e-3,
                  p0: tuple[float, float, float] = (1e-6, 1.0, 1e-4),
-                 output_correction: tuple[float, float] | None = None) -> None:
+                 output_correction: tuple[float, float] | None = None,
+                 gain0: float = 1.0) -> None:
         if not (math.isfinite(gain_rw) and gain_rw >= 0.0):
             raise ValueError(f"gain_rw {gain_rw!r} 1/sqrt(s) must be >= 0")
+        if not (math.isfinite(gain0) and gain0 > 0.0):
+            raise ValueError(f"gain0 {gain0!r} must be > 0")
         self.model = model
         self.A, self.B = model.matrices()
         self.Rinv = np.ascontiguousarray(np.linalg.inv(np.atleast_2d(model.R)))
         self.eps = EPS0 * model.eps_r
         self.Qg = gain_rw * gain_rw / model.fs
         self.alpha, self.beta = output_correction or (model.alpha, model.beta)
-        self.x = np.array([0.0, 0.0, 1.0])
+        self.x = np.array([0.0, 0.0, float(gain0)])
         self.P = np.diag(np.asarray(p0, float))
         self.uprev = np.zeros(1)
 
