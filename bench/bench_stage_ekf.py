@@ -11,7 +11,7 @@ Run:  .venv/bin/python bench/bench_stage_ekf.py [--graph] [--graph-processes[=RO
 3. ``--graph``: real-time factor of the scenario's node graph (stage at 625 kHz + gyro +
    EKF + calibration + MCAP recorder in one process), one stage instance and both
    temperatures at once, as fast as possible and paced by the wall clock;
-4. ``--graph-processes[=zstd,lz4,none,lz4-noimu]``: the same graph (one stage, 22.9 C) the
+4. ``--graph-processes[=zstd,lz4,none,lz4-noimu,none:10000]``: the same graph (one stage, 22.9 C) the
    way ROS users run it, one process per node (micro_stage_node paced by its own
    wall-clock timer, stage_ekf_node, gyro_calibration_node, mcap_record --compression C),
    localhost discovery, ROS_DOMAIN_ID from the environment (77 if unset): the stage's
@@ -288,13 +288,14 @@ def _reap(proc, timeout_s: float) -> float | None:
 
 #: ``--graph-processes`` rows: recorder compression, ``-noimu`` with publish_imu off (the
 #: stage publishes its per-sample sensor_msgs/Imu only while somebody subscribes, and
-#: nobody does in this graph, so both variants should measure the same)
+#: nobody does in this graph, so both variants should measure the same), ``:N`` with
+#: frames of N samples instead of the scenario's 20000 (e.g. ``none:10000``)
 GRAPH_PROCESS_ROWS = "zstd,lz4,none,lz4-noimu"
 
 
 def graph_processes(model, compression: str = "zstd", domain_id: int = 77,
                     publish_imu: bool = True, plan: Plan | None = None,
-                    extra_env: dict | None = None) -> dict:
+                    extra_env: dict | None = None, frame_size: int | None = None) -> dict:
     """The scenario's graph for one stage instance (22.9 C) the way ROS users run it: one
     process per node -- ``micro_stage_node`` paced by its own wall-clock timer
     (bench/paced_stage.py: the node, its timer started once the subscribers are matched),
@@ -303,8 +304,10 @@ def graph_processes(model, compression: str = "zstd", domain_id: int = 77,
 
     Returns the stage's real-time factor (simulated / wall span from its first to its last
     frame) and worst lateness, frames published vs recorded per topic and frame-index gaps
-    (from the MCAP), the lag of the last recorded estimate behind the stage's last frame, and
-    CPU seconds per process."""
+    (from the MCAP), the lag of the last recorded estimate behind the stage's last frame,
+    each topic's worst frame delay (recorder's log time - header stamp, beyond the median
+    of the run) and how many frames were delayed > 0.2 s, and CPU seconds per process.
+    ``frame_size``: samples per stage frame (default the scenario's ``FRAME``)."""
     import json
     import signal
     import subprocess
@@ -318,6 +321,7 @@ def graph_processes(model, compression: str = "zstd", domain_id: int = 77,
     from mems_sim.scenarios import gyro_calibration as gc
 
     plan = plan or BENCH_PLAN
+    frame_size = int(frame_size or gc.FRAME)
     ns = "/stage_t1"
     py = sys.executable
     here = Path(__file__).resolve().parent
@@ -349,7 +353,7 @@ def graph_processes(model, compression: str = "zstd", domain_id: int = 77,
                       "-p", f"seed:={1 * 100 + 50}", "-p", f"temperature_c:={gc.T1}",
                       "-p", f"n_trials:={plan.cal_trials}",
                       "-p", f"periods_per_trial:={plan.cal_periods}",
-                      "-p", f"frame_size:={gc.FRAME}", "-p", "frame_id:=stage_t1",
+                      "-p", f"frame_size:={frame_size}", "-p", "frame_id:=stage_t1",
                       "-p", f"publish_imu:={'true' if publish_imu else 'false'}"],
         }
         procs, logs, cpu = {}, {}, {}
@@ -407,11 +411,17 @@ def graph_processes(model, compression: str = "zstd", domain_id: int = 77,
         if procs["recorder"].returncode or not out.exists():
             raise RuntimeError("recorder failed:\n" + texts["recorder"][-3000:])
         info = bag_info(str(out))
-        last = {}
+        last, delay = {}, {}
         with open(out, "rb") as f:
             for _, ch, m in make_reader(f).iter_messages(topics=[f"{ns}/{t}" for t in
                                                                  frames_topics]):
                 last[ch.topic] = max(last.get(ch.topic, 0), m.log_time)
+                delay.setdefault(ch.topic.rsplit("/", 1)[1], []).append(
+                    (m.log_time - m.publish_time) / 1e9)    # publish_time = header stamp
+    delayed = {}
+    for t, d in delay.items():
+        d = np.asarray(d) - np.median(d)
+        delayed[t] = (float(d.max()), int(np.sum(d > 0.2)))
     tp = info["topics"]
     recorded = {t: tp.get(f"{ns}/{t}", {}).get("count", 0)
                 for t in frames_topics + ("gyro/adc", "gyro_scale_factor")}
@@ -433,6 +443,7 @@ def graph_processes(model, compression: str = "zstd", domain_id: int = 77,
         run_cpu["others"] = max(machine - sum(v for k, v in run_cpu.items()
                                               if k in procs), 0.0)
     return dict(compression=compression, publish_imu=publish_imu, rtf=st["rtf"],
+                frame_size=frame_size, delayed=delayed,
                 max_late_s=st["max_late_s"],
                 sim_span_s=st["sim_span_s"], wall_span_s=st["wall_span_s"],
                 published=st["frames"], recorded=recorded, gaps=sum(gaps.values()),
@@ -457,7 +468,8 @@ def print_graph_processes(r: dict) -> None:
     rec = ", ".join(f"{k} {v}" for k, v in r["recorded"].items())
     lag = ", ".join(f"{k} {v * 1e3:.0f}" for k, v in r["lag_s"].items())
     print(f"graph, 4 processes, realtime, recorder {r['compression']:4s}, "
-          f"publish_imu {'on ' if r['publish_imu'] else 'off'}: {r['rtf']:5.3f} x real "
+          f"publish_imu {'on ' if r['publish_imu'] else 'off'}, frames of "
+          f"{r['frame_size']}: {r['rtf']:5.3f} x real "
           f"time (stage, first to last frame: {r['sim_span_s']:.3f} sim s in "
           f"{r['wall_span_s']:.3f} wall s; worst frame {r['max_late_s'] * 1e3:.0f} ms late) -> "
           + ("keeps up" if keeps else "DOES NOT KEEP UP")
@@ -469,6 +481,8 @@ def print_graph_processes(r: dict) -> None:
     print(f"    frames published {r['published']}, recorded {rec}; frame-index gaps "
           f"{r['gaps']} ({r['missing_samples']} samples missing); last frame recorded "
           f"[ms after the stage published it]: {lag}")
+    dl = ", ".join(f"{k} {v[0] * 1e3:.0f} ({v[1]})" for k, v in r["delayed"].items())
+    print(f"    worst frame delay beyond the run's median [ms] (frames delayed > 0.2 s): {dl}")
     run = ", ".join(f"{k} {v:.2f}" for k, v in r["run_cpu"].items())
     need = sum(r["run_cpu"].get(k, 0.0) for k in r["cpu_s"]) / r["rtf"]
     print(f"    CPU [cores] while the stage published: {run} (of {os.cpu_count()}); "
@@ -505,9 +519,11 @@ def main() -> None:
                       f"{r['rtf']:5.3f} x real time" + _latency(r, rt)
                       + f", frame-index gaps {r['gaps']}")
         for row in rows:
+            row, _, frame = row.partition(":")
             comp, _, imu = row.partition("-")
             print_graph_processes(graph_processes(model, comp, domain_id=domain,
-                                                  publish_imu=imu != "noimu"))
+                                                  publish_imu=imu != "noimu",
+                                                  frame_size=int(frame) if frame else None))
     if "--drift" in sys.argv:
         actuator_drift()
     if "--sensitivity" in sys.argv:
