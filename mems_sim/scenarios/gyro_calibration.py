@@ -131,29 +131,38 @@ def write_plots(out_dir: Path, runs: dict) -> list[Path]:
     idx = idx[idx.size // 2:]
     fe = fold_period(r["x"][idx, 1], rec["phase"][idx])
     ft = fold_period(rec["omega"][idx, 0], rec["phase"][idx])
-    fig, ax = plt.subplots(figsize=(6, 3.5))
+    fig, (ax, ae) = plt.subplots(2, 1, figsize=(6, 5), sharex=True,
+                                 gridspec_kw={"height_ratios": [2, 1]})
     ph = (np.arange(fe.size) + 0.5) / fe.size
     ax.plot(ph, ft, "k-", label="truth")
     ax.plot(ph, fe, "r--", label="EKF (stage)")
-    ax.set_xlabel("drive phase [cycles]")
     ax.set_ylabel("omega [rad/s]")
     ax.legend()
-    ax.set_title("one averaged period, 1.3 V, 1700 Hz")
+    ax.set_title(f"one averaged period, last trial, 1700 Hz, {T1} C")
+    err = fe - ft       # the estimate's error is small against omega: its own panel
+    ae.plot(ph, 1e3 * err, "r-")
+    ae.axhline(0.0, color="k", lw=0.5)
+    ae.set_xlabel("drive phase [cycles]")
+    ae.set_ylabel("EKF - truth [mrad/s]")
+    ae.set_title(f"error, RMS {1e3 * np.sqrt(np.mean(err ** 2)):.2f} mrad/s", fontsize=9)
     fig.tight_layout()
     p = out_dir / f"{NAME}_period.png"
     fig.savefig(p, dpi=100)
     plt.close(fig)
     paths.append(p)
     fig, ax = plt.subplots(figsize=(6, 3.5))
-    for T, r in runs.items():
+    for (T, r), color in zip(runs.items(), ("tab:blue", "tab:red")):
         s = np.array([q["stage_pp"] for q in r["cal"]["pairs"]])
         g = np.array([q["gyro_pp"] for q in r["cal"]["pairs"]])
-        ax.plot(s, g, "o", label=f"{T} C")
+        ax.plot(s, g, "o", color=color, label=f"{T} C")
         xs = np.linspace(s.min(), s.max(), 2)
-        ax.plot(xs, r["cal"]["scale_factor"] * xs + r["cal"]["bias"], "-")
+        ax.plot(xs, r["cal"]["scale_factor"] * xs + r["cal"]["bias"], "-", color=color,
+                label=f"eq. 27 fit: SF {r['cal']['scale_factor']:.5f} "
+                      f"+- {r['cal']['scale_factor_se']:.5f}")
     ax.set_xlabel("stage omega_pp [rad/s]")
     ax.set_ylabel("gyro omega_pp [rad/s]")
-    ax.legend()
+    ax.set_title("gyro vs stage peak-to-peak rate per trial")
+    ax.legend(fontsize=8)
     fig.tight_layout()
     p = out_dir / f"{NAME}_peak_to_peak.png"
     fig.savefig(p, dpi=100)
