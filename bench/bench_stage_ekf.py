@@ -202,9 +202,7 @@ def actuator_drift(seeds=(1, 2), tempcos=(0.0, 2e-4, 1e-3), gain_rw=0.0):
                                       else "reference")
             oc = None
             if kind == "gain":
-                tr = record(MicroStage({"temperature_c": gc.T1}, DriveSchedule.amplitude_sweep(
-                    n_trials=plan.train_trials, periods=plan.train_periods),
-                    seed=seed * 100 + 2))         # the training sweep of identify_stage
+                tr = gc.training_record(seed, plan)
                 oc = si.output_correction(
                     model, si.cancelled(tr), tr["u"], tr["ldv"], tr["phase"], tr["segment"],
                     model.extra["ldv_delay_s"], model.extra["ldv_bias_rad_s"],

@@ -151,6 +151,14 @@ def ekf_run(y, u, A, B, Q, Rinv, eta, gap, lim, eps, x, P, uprev, out_x, out_var
         out_var[k, 1] = q11
 
 
+def _output_correction(x: np.ndarray, var: np.ndarray, alpha: float, beta: float) -> None:
+    """omega = (omega_ekf - beta) / alpha in place (sec. 3.5.4 last step), its variance
+    scaled by 1/alpha^2; column 1 of the (n, n_states) arrays."""
+    if alpha != 1.0 or beta != 0.0:
+        x[:, 1] = (x[:, 1] - beta) / alpha
+        var[:, 1] /= alpha ** 2
+
+
 class StageEkf:
     """Streaming EKF over frames (state carried).
 
@@ -182,9 +190,8 @@ class StageEkf:
         ekf_run(y, u, self.A, self.B, float(m.Q), self.Rinv, np.asarray(m.eta, float),
                 np.asarray(m.gap, float), np.ascontiguousarray(m.limits, float), self.eps,
                 self.x, self.P, self.uprev, out_x, out_v)
-        if corrected and (m.alpha != 1.0 or m.beta != 0.0):
-            out_x[:, 1] = (out_x[:, 1] - m.beta) / m.alpha
-            out_v[:, 1] /= m.alpha ** 2
+        if corrected:
+            _output_correction(out_x, out_v, m.alpha, m.beta)
         return out_x, out_v
 
 
@@ -196,7 +203,11 @@ def gain_ekf_run(y, u, A, B, Q, Qg, Rinv, eta, gap, lim, eps, x, P, uprev, out_x
     g b_c u (g = 1: the identified b_c), g a random walk of variance Qg per sample [-].
     Jacobian of (48): F = [[A_d, B_d u_{k-1}], [0, 0, 1]]; input noise B_d g^2 Q B_d^T.
     H = [0, h_c(theta), 0] as in eq. (50), so the update is the scalar one of
-    :func:`ekf_run` along the omega column of P. Outputs (n, 3) states and variances."""
+    :func:`ekf_run` along the omega column of P. Outputs (n, 3) states and variances.
+
+    The measurement terms (finite check, R^-1 h, g, s) repeat :func:`ekf_run`'s inline
+    code on purpose: moving them into a shared njit function made the 2-state kernel
+    30-40 % slower (10 vs 15 M samples/s, inlined or not)."""
     n = y.shape[0]
     ny = y.shape[1]
     h = np.empty(ny)
@@ -311,9 +322,8 @@ class GainAdaptiveStageEkf:
                      np.asarray(m.eta, float), np.asarray(m.gap, float),
                      np.ascontiguousarray(m.limits, float), self.eps, self.x, self.P,
                      self.uprev, out_x, out_v)
-        if corrected and (self.alpha != 1.0 or self.beta != 0.0):
-            out_x[:, 1] = (out_x[:, 1] - self.beta) / self.alpha
-            out_v[:, 1] /= self.alpha ** 2
+        if corrected:
+            _output_correction(out_x, out_v, self.alpha, self.beta)
         return out_x, out_v
 
 

@@ -61,6 +61,15 @@ class Plan:
         return cls(2.0, 300, 4, 120, 40, 4, 400)
 
 
+def training_record(seed: int, plan: Plan, stage_params: dict | None = None) -> dict:
+    """The LDV training amplitude sweep at T1 that :func:`identify_stage` identifies from
+    (eta, D_n, Q and the output correction are fitted on it)."""
+    sp = dict(stage_params or {}, temperature_c=T1)
+    return record(MicroStage(sp, DriveSchedule.amplitude_sweep(n_trials=plan.train_trials,
+                                                               periods=plan.train_periods),
+                             seed=seed * 100 + 2))
+
+
 def identify_stage(seed: int, plan: Plan, stage_params: dict | None = None,
                    q_method: str = "reference"):
     """Identification at T1 (step 1). Returns (model, report). ``q_method``: see
@@ -68,9 +77,7 @@ def identify_stage(seed: int, plan: Plan, stage_params: dict | None = None,
     sp = dict(stage_params or {}, temperature_c=T1)
     sweep = DriveSchedule.frequency_sweep(step=plan.sweep_step_hz, periods=plan.sweep_periods)
     rs = record(MicroStage(sp, sweep, seed=seed * 100 + 1))
-    tr = record(MicroStage(sp, DriveSchedule.amplitude_sweep(n_trials=plan.train_trials,
-                                                             periods=plan.train_periods),
-                           seed=seed * 100 + 2))
+    tr = training_record(seed, plan, stage_params)
     z = record(MicroStage(sp, DriveSchedule([(1700.0, 0.0, plan.zero_periods)]),
                           seed=seed * 100 + 3))
     limits = MicroStage(sp).limits  # design layout (Table A.1), not an identified quantity
