@@ -2,9 +2,13 @@
 #   make demo   set up if needed, run the default scenario, print its table, write runs/
 #   make test   set up if needed, run the whole test suite
 #   make bench  set up if needed, run the benchmarks (ratios measured in one run)
+#   make acceptance  set up if needed, run the long seeded runs and campaigns (slow tests)
+#   make lint   ruff check and ruff format --check (make test runs it first)
+#   make bags   regenerate the reference recordings in bags/
 # Setup: venv at .venv/ with the pinned wheels of requirements.lock, the
 # interface package msg_defs/ (mems_msgs) built with rosidl into the venv, and
-# this package installed (editable) with its executables in .venv/bin.
+# this package installed (editable) with its executables in .venv/bin, and the venv made an
+# ament prefix for it (ament index, share/mems_emulator, lib/mems_emulator) as colcon would.
 
 SHELL := /bin/bash
 PYTHON ?= python3
@@ -18,6 +22,7 @@ export MPLBACKEND := Agg
 DEMO_DOMAIN ?= 61
 BENCH_DOMAIN ?= 62
 TEST_DOMAIN ?= 63
+ACCEPTANCE_DOMAIN ?= 64
 
 PIP_VERSION := 26.3
 DEPS_STAMP := $(VENV)/.stamp-deps
@@ -25,7 +30,7 @@ MSGS_STAMP := $(VENV)/.stamp-msgs
 PKG_STAMP := $(VENV)/.stamp-pkg
 MSG_FILES := $(wildcard msg_defs/msg/*.msg)
 
-.PHONY: setup demo test bench clean
+.PHONY: setup demo test lint acceptance bench bags clean
 
 setup: $(PKG_STAMP)
 
@@ -40,15 +45,23 @@ $(MSGS_STAMP): $(DEPS_STAMP) msg_defs/package.xml msg_defs/CMakeLists.txt $(MSG_
 	VENV=$(VENV) bash tools/build_msgs.sh
 	touch $@
 
-$(PKG_STAMP): $(MSGS_STAMP) setup.py pyproject.toml package.xml
+$(PKG_STAMP): $(MSGS_STAMP) setup.py pyproject.toml package.xml requirements.lock LICENSE CHANGELOG.rst resource/mems_emulator $(wildcard launch/* config/*)
 	$(PY) -m pip install --disable-pip-version-check -q --no-build-isolation --no-deps -e .
+	$(PY) tools/install_ament_prefix.py
 	touch $@
 
 demo: setup
 	ROS_DOMAIN_ID=$(DEMO_DOMAIN) $(VENV)/bin/run_scenario gyro_calibration --seed 1
 
-test: setup
-	ROS_DOMAIN_ID=$(TEST_DOMAIN) $(PY) -m pytest test
+lint: setup
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+
+test: lint
+	ROS_DOMAIN_ID=$(TEST_DOMAIN) $(PY) -m pytest test -m "not slow"
+
+acceptance: setup
+	ROS_DOMAIN_ID=$(ACCEPTANCE_DOMAIN) $(PY) -m pytest test -m slow -rA
 
 bench: setup
 	ROS_DOMAIN_ID=$(BENCH_DOMAIN) $(PY) bench/run_all.py

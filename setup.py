@@ -1,5 +1,7 @@
 """ament_python package of the MEMS hardware emulator (mems_sim + mems_estimation)."""
+
 import sys
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
@@ -11,19 +13,60 @@ PACKAGE = "mems_emulator"
 # [install]/[develop] section would do. pip's editable/wheel installs (make
 # setup) keep console scripts in the venv's bin/, so no setup.cfg is used.
 SCRIPT_DIR = f"$base/lib/{PACKAGE}"
+HERE = Path(__file__).resolve().parent
+
+#: Python distributions the package imports at run time, and those its tests and benchmarks
+#: add; versions come from requirements.lock (the exact environment `make setup` builds), so
+#: the metadata cannot drift from the lock. ROS packages (rclpy, message packages) come from
+#: the ROS 2 installation and are declared in package.xml.
+RUNTIME = (
+    "numpy",
+    "scipy",
+    "numba",
+    "matplotlib",
+    "PyYAML",
+    "tqdm",
+    "mcap",
+    "mcap-ros2-support",
+    "rosbags",
+    "zstandard",
+)
+TEST = ("pytest", "ruff", "xmlschema", "AllanTools", "filterpy")
+
+
+def locked(names):
+    """``name==version`` of each name as pinned in requirements.lock."""
+    pins = {}
+    for line in (HERE / "requirements.lock").read_text().splitlines():
+        if "==" in line and not line.startswith("#"):
+            name, version = line.strip().split("==")
+            pins[name.lower()] = f"{name}=={version}"
+    return [pins[n.lower()] for n in names]
+
+
 OPTIONS = {}
 if {"install", "develop"} & set(sys.argv[1:]):
     OPTIONS = {"install": {"install_scripts": SCRIPT_DIR}, "develop": {"script_dir": SCRIPT_DIR}}
 
 setup(
     name=PACKAGE,
-    version="0.1.0",
-    packages=find_packages(include=["mems_sim", "mems_sim.*", "mems_estimation", "mems_estimation.*"]),
+    version="0.2.0",
+    packages=find_packages(
+        include=[
+            "mems_sim",
+            "mems_sim.*",
+            "mems_estimation",
+            "mems_estimation.*",
+            "mems_scenarios",
+            "mems_scenarios.*",
+        ]
+    ),
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
-        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}", ["package.xml", "LICENSE", "CHANGELOG.rst"]),
     ],
-    install_requires=["setuptools"],
+    install_requires=locked(RUNTIME),
+    extras_require={"test": locked(TEST)},
     zip_safe=True,
     options=OPTIONS,
     maintainer="MEMS emulator maintainers",
@@ -33,21 +76,21 @@ setup(
     python_requires=">=3.10",
     entry_points={
         "console_scripts": [
-            "run_scenario = mems_sim.scenarios.cli:main",
-            "imu_noise_node = mems_sim.imu_noise_node:main",
-            "noise_identifier_node = mems_estimation.noise_identifier_node:main",
-            "sd_resonator_node = mems_sim.sd_resonator_node:main",
-            "sd_observer_node = mems_estimation.sd_observer_node:main",
-            "fr_accelerometer_node = mems_sim.fr_accelerometer_node:main",
-            "hybrid_ekf_node = mems_estimation.hybrid_ekf_node:main",
-            "micro_stage_node = mems_sim.micro_stage_node:main",
-            "stage_ekf_node = mems_estimation.stage_ekf_node:main",
-            "gyro_calibration_node = mems_estimation.gyro_calibration_node:main",
-            "micro_scanner_node = mems_sim.micro_scanner_node:main",
-            "scanner_threshold_node = mems_estimation.scanner_threshold_node:main",
-            "scanner_amdm_node = mems_sim.scanner_amdm_node:main",
-            "scanner_amdm_estimator_node = mems_estimation.scanner_amdm_estimator_node:main",
-            "identify_noise = mems_estimation.identify_noise_cli:main",
+            "run_scenario = mems_scenarios.cli:main",
+            "imu_node = mems_sim.nodes.imu_node:main",
+            "imu_noise_identifier_node = mems_estimation.nodes.imu_noise_identifier_node:main",
+            "resonator_node = mems_sim.nodes.resonator_node:main",
+            "resonator_observer_node = mems_estimation.nodes.resonator_observer_node:main",
+            "accelerometer_node = mems_sim.nodes.accelerometer_node:main",
+            "accelerometer_ekf_node = mems_estimation.nodes.accelerometer_ekf_node:main",
+            "stage_node = mems_sim.nodes.stage_node:main",
+            "stage_ekf_node = mems_estimation.nodes.stage_ekf_node:main",
+            "stage_gyro_calibration_node = mems_estimation.nodes.stage_gyro_calibration_node:main",
+            "scanner_node = mems_sim.nodes.scanner_node:main",
+            "scanner_threshold_ekf_node = mems_estimation.nodes.scanner_threshold_ekf_node:main",
+            "scanner_amdm_node = mems_sim.nodes.scanner_amdm_node:main",
+            "scanner_amdm_estimator_node = mems_estimation.nodes.scanner_amdm_estimator_node:main",
+            "identify_noise = mems_estimation.tools.identify_noise:main",
             "mcap_record = mems_sim.bag.recorder:main",
             "mcap_play = mems_sim.bag.player:main",
             "mcap_info = mems_sim.bag.info:main",

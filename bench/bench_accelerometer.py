@@ -1,4 +1,4 @@
-"""Benchmark: force-rebalance accelerometer (issue 4) with the hybrid EKF in its loop.
+"""Benchmark: force-rebalance accelerometer (Zhang 2010) with the hybrid EKF in its loop.
 
 Run:  .venv/bin/python bench/bench_accelerometer.py [n_samples]
 Prints samples/s and the real-time factor (samples/s / fs) at fs = 1 MHz of the
@@ -7,6 +7,7 @@ of the device node publishing its frames (ekf_rebalance, no subscriber), and of 
 hybrid-EKF kernel alone (downstream filter on recorded frames). Numba compile /
 cache load is done before timing.
 """
+
 import os
 import sys
 import time
@@ -14,15 +15,15 @@ import time
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
-from mems_estimation.hybrid_ekf import HybridEkf  # noqa: E402
-from mems_sim import fr_accelerometer as fra  # noqa: E402
+from mems_estimation.filters.accelerometer_ekf import HybridEkf
+from mems_sim.devices import accelerometer as fra
 
 FS = 1e6
 FRAME = 10_000
 
 
 def _rate(fn, n):
-    fn(FRAME)                                            # warm-up (numba cache / compile)
+    fn(FRAME)  # warm-up (numba cache / compile)
     t0 = time.perf_counter()
     fn(n)
     return n / (time.perf_counter() - t0)
@@ -38,14 +39,21 @@ def bench_node(n: int) -> float:
     from rclpy.context import Context
     from rclpy.parameter import Parameter
 
-    from mems_sim.fr_accelerometer_node import FrAccelerometerNode
-    from mems_sim.ros_env import apply_defaults
+    from mems_sim.nodes.accelerometer_node import FrAccelerometerNode
+    from mems_sim.ros.env import apply_defaults
+
     apply_defaults()
     ctx = Context()
     rclpy.init(context=ctx, domain_id=int(os.environ.get("ROS_DOMAIN_ID", "62")))
     try:
-        node = FrAccelerometerNode(context=ctx, drive_externally=True, parameter_overrides=[
-            Parameter("mode", value="ekf_rebalance"), Parameter("frame_size", value=FRAME)])
+        node = FrAccelerometerNode(
+            context=ctx,
+            drive_externally=True,
+            parameter_overrides=[
+                Parameter("mode", value="ekf_rebalance"),
+                Parameter("frame_size", value=FRAME),
+            ],
+        )
         r = _rate(lambda m: [node.step() for _ in range(max(1, m // FRAME))], n)
         node.destroy_node()
     finally:
@@ -57,18 +65,24 @@ def main() -> None:
     n = int(sys.argv[1]) if len(sys.argv) > 1 else 2_000_000
     for mode in fra.MODES:
         r = bench_device(mode, n)
-        print(f"device core, {mode:13}: {r / 1e6:6.2f} Msamples/s = {r / FS:5.2f} x real time "
-              "at fs = 1 MHz" + ("  (target >= 1x)" if mode == "ekf_rebalance" else ""))
+        print(
+            f"device core, {mode:13}: {r / 1e6:6.2f} Msamples/s = {r / FS:5.2f} x real time "
+            "at fs = 1 MHz" + ("  (target >= 1x)" if mode == "ekf_rebalance" else "")
+        )
     r = bench_node(n // 2)
-    print(f"device node (publishing adc/drive/truth/loop_estimate), ekf_rebalance: "
-          f"{r / 1e6:6.2f} Msamples/s = {r / FS:5.2f} x real time")
+    print(
+        f"device node (publishing adc/drive/truth/loop_estimate), ekf_rebalance: "
+        f"{r / 1e6:6.2f} Msamples/s = {r / FS:5.2f} x real time"
+    )
     d = fra.ForceRebalanceAccelerometer({"mode": "pi_rebalance"}, seed=1)
     f = d.step(n)
     y = f.code * d.lsb
     ekf = HybridEkf(d.ekf_config)
     r = _rate(lambda m: ekf.run(y[:m], f.v_f[:m]), n)
-    print(f"hybrid EKF kernel alone (3 states, RK4 time update, Joseph update): "
-          f"{r / 1e6:6.2f} Msamples/s = {r / FS:5.2f} x real time")
+    print(
+        f"hybrid EKF kernel alone (3 states, RK4 time update, Joseph update): "
+        f"{r / 1e6:6.2f} Msamples/s = {r / FS:5.2f} x real time"
+    )
 
 
 if __name__ == "__main__":

@@ -6,6 +6,7 @@ separate process (as in a real graph); after each stage the recorder is
 stopped with SIGINT and the file's Statistics are compared with the number
 sent. Reported: per stage the offered rate, msg/s and MB/s written, and lost.
 """
+
 from __future__ import annotations
 
 import os
@@ -18,16 +19,16 @@ from pathlib import Path
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
-import numpy as np  # noqa: E402
-import rclpy  # noqa: E402
-from mcap.reader import make_reader  # noqa: E402
-from rclpy.context import Context  # noqa: E402
-from rclpy.duration import Duration  # noqa: E402
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+import numpy as np
+import rclpy
+from mcap.reader import make_reader
+from rclpy.context import Context
+from rclpy.duration import Duration
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from mems_sim.qos import FRAME_QOS  # noqa: E402
-from mems_sim.ros_frames import make_signal_frame  # noqa: E402
-from mems_msgs.msg import SignalFrame  # noqa: E402
+from mems_msgs.msg import SignalFrame
+from mems_sim.ros.frames import make_signal_frame
+from mems_sim.ros.qos import FRAME_QOS
 
 TOPIC = "/bench/frames"
 SAMPLES = 1000
@@ -36,9 +37,13 @@ SAMPLES = 1000
 def stage(rate_hz: float, seconds: float, out: Path, domain: int) -> dict:
     """Publish at ``rate_hz`` for ``seconds`` to a recorder process; return counts."""
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
-    topic = f"{TOPIC}_{os.getpid()}_{int(rate_hz)}"   # no cross-talk with any other recorder
-    rec = subprocess.Popen([str(Path(sys.executable).parent / "mcap_record"), "-o", str(out), topic],
-                           env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    topic = f"{TOPIC}_{os.getpid()}_{int(rate_hz)}"  # no cross-talk with any other recorder
+    rec = subprocess.Popen(
+        [str(Path(sys.executable).parent / "mcap_record"), "-o", str(out), topic],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         return _publish(rec, topic, rate_hz, seconds, out, domain)
     finally:
@@ -52,8 +57,11 @@ def _publish(rec, topic: str, rate_hz: float, seconds: float, out: Path, domain:
     node = rclpy.create_node("bench_pub", context=ctx)
     # KEEP_ALL: a lagging recorder pushes back on the publisher instead of losing frames,
     # so the achieved rate is the recorder's sustained rate and any loss is the recorder's.
-    qos = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_ALL,
-                     depth=FRAME_QOS.depth)
+    qos = QoSProfile(
+        reliability=ReliabilityPolicy.RELIABLE,
+        history=HistoryPolicy.KEEP_ALL,
+        depth=FRAME_QOS.depth,
+    )
     pub = node.create_publisher(SignalFrame, topic, qos)
     deadline = time.monotonic() + 30
     while pub.get_subscription_count() < 1 and time.monotonic() < deadline:
@@ -64,9 +72,12 @@ def _publish(rec, topic: str, rate_hz: float, seconds: float, out: Path, domain:
         due = int((time.monotonic() - t0) * rate_hz)
         while sent < due:
             try:
-                pub.publish(make_signal_frame(data, sent * SAMPLES, 1e6, channel_names=["x"],
-                                              channel_units=["V"]))
-            except Exception:  # noqa: BLE001 - writer blocked: the recorder pushes back
+                pub.publish(
+                    make_signal_frame(
+                        data, sent * SAMPLES, 1e6, channel_names=["x"], channel_units=["V"]
+                    )
+                )
+            except Exception:
                 refused += 1
                 time.sleep(0.001)
                 continue
@@ -85,23 +96,39 @@ def _publish(rec, topic: str, rate_hz: float, seconds: float, out: Path, domain:
         summary = make_reader(f).get_summary()
     got = sum(summary.statistics.channel_message_counts.values())
     size = 8 * SAMPLES + 100
-    return dict(offered=rate_hz, acked=acked, sent=sent, recorded=got, lost=sent - got, refused=refused,
-                msg_s=got / elapsed, mb_s=got * size / elapsed / 1e6)
+    return dict(
+        offered=rate_hz,
+        acked=acked,
+        sent=sent,
+        recorded=got,
+        lost=sent - got,
+        refused=refused,
+        msg_s=got / elapsed,
+        mb_s=got * size / elapsed / 1e6,
+    )
     # msg/s and MB/s: recorded messages over the time from the first publish to the last ack
 
 
 def main() -> None:
     """Run the stages and print one line each."""
     domain = int(os.environ.get("ROS_DOMAIN_ID", "62"))
-    print(f"recorder throughput: {TOPIC} SignalFrame of {SAMPLES} float64 samples, "
-          "mcap_record in a separate process, 3 s per stage")
+    print(
+        f"recorder throughput: {TOPIC} SignalFrame of {SAMPLES} float64 samples, "
+        "mcap_record in a separate process, 3 s per stage"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         for rate in (1000, 2000, 4000, 8000, 16000):
             r = stage(rate, 3.0, Path(tmp) / f"rec-{rate}.mcap", domain)
-            print(f"  offered {r['offered']:5.0f} msg/s: recorded {r['msg_s']:7.0f} msg/s, "
-                  f"{r['mb_s']:6.1f} MB/s, sent {r['sent']}, recorded {r['recorded']}, "
-                  f"lost {r['lost']}" + (f", publisher blocked {r['refused']} times by the "
-                                         "recorder's back-pressure" if r["refused"] else ""))
+            print(
+                f"  offered {r['offered']:5.0f} msg/s: recorded {r['msg_s']:7.0f} msg/s, "
+                f"{r['mb_s']:6.1f} MB/s, sent {r['sent']}, recorded {r['recorded']}, "
+                f"lost {r['lost']}"
+                + (
+                    f", publisher blocked {r['refused']} times by the recorder's back-pressure"
+                    if r["refused"]
+                    else ""
+                )
+            )
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
 Run:  .venv/bin/python bench/bench_scanner_ukf.py [n_samples]
 Generates n AMDM samples (default 200,000 = 0.2 s at 1 MHz) with
-:class:`mems_sim.scanner_amdm.AmdmScannerDevice` (0..150 V drive, R = 1.92e-4 V^2), then prints
+:class:`mems_sim.devices.scanner_amdm.AmdmScannerDevice` (0..150 V drive, R = 1.92e-4 V^2), then prints
 samples/s and the real-time factor of :func:`ekf_run` / :func:`ukf_run` (numba) on frames of
 10,000 samples, of a plain per-sample numpy implementation of the same filters written here
 (reference for "matching estimates"), and -- if ``filterpy`` is installed in the venv --
@@ -11,6 +11,7 @@ model, reporting the ratio and the largest difference of the theta estimates.
 (filterpy's UKF re-uses the propagated sigma points in the update, ours re-draws them from
 the a-priori covariance, so its estimates match to a tolerance, not bit for bit.)
 """
+
 import math
 import os
 import sys
@@ -20,11 +21,16 @@ import numpy as np
 
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")))
 
-from mems_estimation import scanner_ukf as su  # noqa: E402
-from mems_sim import scanner_amdm as sa  # noqa: E402
+from mems_estimation.filters import scanner_amdm_filters as su
+from mems_sim.devices import scanner_amdm as sa
 
-RUN = dict(drive_voltage_max=150.0, sweep_start_hz=31.32e3, sweep_end_hz=31.27e3,
-           sweep_time_s=0.03, initial_angle=0.1)
+RUN = dict(
+    drive_voltage_max=150.0,
+    sweep_start_hz=31.32e3,
+    sweep_end_hz=31.27e3,
+    sweep_time_s=0.03,
+    initial_angle=0.1,
+)
 FS = 1.0e6
 
 
@@ -46,13 +52,13 @@ def g_np(x, v2, md):
     """Process model of the module (mid-step torque), numpy."""
     c0, th0 = md.meas[0], md.meas[1]
     tm = x[0] + 0.5 * md.T * x[1]
-    u = -2 * c0 * tm / th0 ** 2 * math.exp(-(tm / th0) ** 2) * v2 / (2 * md.J)
+    u = -2 * c0 * tm / th0**2 * math.exp(-((tm / th0) ** 2)) * v2 / (2 * md.J)
     return md.Phi @ x + md.Gam * u
 
 
 def h_np(th, md):
     c0, th0, cb, a, b = md.meas
-    return a * (c0 * math.exp(-(th / th0) ** 2) + cb) + b
+    return a * (c0 * math.exp(-((th / th0) ** 2)) + cb) + b
 
 
 def ukf_numpy(y, v2, x, P, md, wm, wc, gamma):
@@ -87,12 +93,19 @@ def ekf_numpy(y, v2, x, P, md):
     out = np.empty(y.size)
     for k in range(y.size):
         tm = x[0] + 0.5 * md.T * x[1]
-        du = 2 * c0 / th0 ** 2 * (2 * (tm / th0) ** 2 - 1) * math.exp(-(tm / th0) ** 2) \
-            * v2[k] / (2 * md.J)
+        du = (
+            2
+            * c0
+            / th0**2
+            * (2 * (tm / th0) ** 2 - 1)
+            * math.exp(-((tm / th0) ** 2))
+            * v2[k]
+            / (2 * md.J)
+        )
         G = md.Phi + np.outer(md.Gam, [du, 0.5 * md.T * du])
         x = g_np(x, v2[k], md)
         P = G @ P @ G.T + md.Q
-        H = np.array([md.meas[3] * c0 * (-2 * x[0] / th0 ** 2) * math.exp(-(x[0] / th0) ** 2), 0.0])
+        H = np.array([md.meas[3] * c0 * (-2 * x[0] / th0**2) * math.exp(-((x[0] / th0) ** 2)), 0.0])
         s = H @ P @ H + md.R
         K = P @ H / s
         x = x + K * (y[k] - h_np(x[0], md))
@@ -112,11 +125,44 @@ def kernel(kind, y, v2, x0, P0, f, frame=10_000):
         m = y[sl].size
         ox, op, on = np.empty((m, 2)), np.empty((m, 3)), np.empty(m)
         if kind == "ekf":
-            su.ekf_run(y[sl], v2[sl], x, P, md.Phi, md.Gam, md.Q, md.meas, md.J, md.R, md.T,
-                       True, ox, op, on)
+            su.ekf_run(
+                y[sl],
+                v2[sl],
+                x,
+                P,
+                md.Phi,
+                md.Gam,
+                md.Q,
+                md.meas,
+                md.J,
+                md.R,
+                md.T,
+                True,
+                ox,
+                op,
+                on,
+            )
         else:
-            su.ukf_run(y[sl], v2[sl], x, P, md.Phi, md.Gam, md.Q, md.meas, md.J, md.R, md.T,
-                       f.wm, f.wc, f.gamma, True, ox, op, on)
+            su.ukf_run(
+                y[sl],
+                v2[sl],
+                x,
+                P,
+                md.Phi,
+                md.Gam,
+                md.Q,
+                md.meas,
+                md.J,
+                md.R,
+                md.T,
+                f.wm,
+                f.wc,
+                f.gamma,
+                True,
+                ox,
+                op,
+                on,
+            )
         th[sl] = ox[:, 0]
     return y.size / (time.perf_counter() - t0), th
 
@@ -124,15 +170,24 @@ def kernel(kind, y, v2, x0, P0, f, frame=10_000):
 def filterpy_runs(y, v2, x0, P0, f):
     """filterpy EKF / UKF on the same data and model; None if filterpy is missing."""
     try:
-        from filterpy.kalman import (ExtendedKalmanFilter, MerweScaledSigmaPoints,
-                                     UnscentedKalmanFilter)
+        from filterpy.kalman import (
+            ExtendedKalmanFilter,
+            MerweScaledSigmaPoints,
+            UnscentedKalmanFilter,
+        )
     except ImportError:
         return None
     md = f.model
     p = f.p
     pts = MerweScaledSigmaPoints(2, alpha=p["ukf_alpha"], beta=p["ukf_beta"], kappa=p["ukf_kappa"])
-    ukf = UnscentedKalmanFilter(2, 1, md.T, hx=lambda x: np.array([h_np(x[0], md)]),
-                                fx=lambda x, dt, v2: g_np(x, v2, md), points=pts)
+    ukf = UnscentedKalmanFilter(
+        2,
+        1,
+        md.T,
+        hx=lambda x: np.array([h_np(x[0], md)]),
+        fx=lambda x, dt, v2: g_np(x, v2, md),
+        points=pts,
+    )
     ukf.x, ukf.P, ukf.Q, ukf.R = x0.copy(), P0.copy(), md.Q.copy(), np.array([[md.R]])
     th_u = np.empty(y.size)
     t0 = time.perf_counter()
@@ -153,14 +208,24 @@ def filterpy_runs(y, v2, x0, P0, f):
     t0 = time.perf_counter()
     for k in range(y.size):
         tm = ekf.x[0] + 0.5 * md.T * ekf.x[1]
-        du = 2 * c0 / th0 ** 2 * (2 * (tm / th0) ** 2 - 1) * math.exp(-(tm / th0) ** 2) \
-            * v2[k] / (2 * md.J)
+        du = (
+            2
+            * c0
+            / th0**2
+            * (2 * (tm / th0) ** 2 - 1)
+            * math.exp(-((tm / th0) ** 2))
+            * v2[k]
+            / (2 * md.J)
+        )
         ekf.F = md.Phi + np.outer(md.Gam, [du, 0.5 * md.T * du])
         ekf.predict(u=v2[k])
-        ekf.update(np.array([y[k]]),
-                   lambda x: np.array([[md.meas[3] * c0 * (-2 * x[0] / th0 ** 2)
-                                        * math.exp(-(x[0] / th0) ** 2), 0.0]]),
-                   lambda x: np.array([h_np(x[0], md)]))
+        ekf.update(
+            np.array([y[k]]),
+            lambda x: np.array(
+                [[md.meas[3] * c0 * (-2 * x[0] / th0**2) * math.exp(-((x[0] / th0) ** 2)), 0.0]]
+            ),
+            lambda x: np.array([h_np(x[0], md)]),
+        )
         th_e[k] = ekf.x[0]
     r_e = y.size / (time.perf_counter() - t0)
     return dict(ekf=(r_e, th_e), ukf=(r_u, th_u))
@@ -169,29 +234,37 @@ def filterpy_runs(y, v2, x0, P0, f):
 def main() -> None:
     n = int(sys.argv[1]) if len(sys.argv) > 1 else 200_000
     y, v2, x0, P0, f = data(n)
-    kernel("ekf", y[:1000], v2[:1000], x0, P0, f)          # warm-up / numba cache
+    kernel("ekf", y[:1000], v2[:1000], x0, P0, f)  # warm-up / numba cache
     kernel("ukf", y[:1000], v2[:1000], x0, P0, f)
     res = {k: kernel(k, y, v2, x0, P0, f) for k in ("ekf", "ukf")}
     for k, (r, _) in res.items():
-        print(f"{k.upper()} kernel (numba): {r / 1e6:7.2f} Msamples/s = {r / FS:6.2f} x real time "
-              f"at 1 MHz ({y.size} samples)")
+        print(
+            f"{k.upper()} kernel (numba): {r / 1e6:7.2f} Msamples/s = {r / FS:6.2f} x real time "
+            f"at 1 MHz ({y.size} samples)"
+        )
     m = min(y.size, 20_000)
-    for k, fn in (("ekf", lambda: ekf_numpy(y[:m], v2[:m], x0, P0, f.model)),
-                  ("ukf", lambda: ukf_numpy(y[:m], v2[:m], x0, P0, f.model, f.wm, f.wc, f.gamma))):
+    for k, fn in (
+        ("ekf", lambda: ekf_numpy(y[:m], v2[:m], x0, P0, f.model)),
+        ("ukf", lambda: ukf_numpy(y[:m], v2[:m], x0, P0, f.model, f.wm, f.wc, f.gamma)),
+    ):
         t0 = time.perf_counter()
         th = fn()
         r = m / (time.perf_counter() - t0)
         dmax = float(np.max(np.abs(th - res[k][1][:m])))
-        print(f"{k.upper()} plain numpy reference: {r / 1e3:7.1f} ksamples/s; kernel / numpy = "
-              f"{res[k][0] / r:6.0f}x; max |theta diff| = {dmax:.1e} rad")
+        print(
+            f"{k.upper()} plain numpy reference: {r / 1e3:7.1f} ksamples/s; kernel / numpy = "
+            f"{res[k][0] / r:6.0f}x; max |theta diff| = {dmax:.1e} rad"
+        )
     fp = filterpy_runs(y[:m], v2[:m], x0, P0, f)
     if fp is None:
         print("filterpy: not installed in .venv -- ratio to filterpy not measured")
     else:
         for k, (r, th) in fp.items():
             dmax = float(np.max(np.abs(th - res[k][1][:m])))
-            print(f"filterpy {k.upper()}: {r / 1e3:7.1f} ksamples/s; kernel / filterpy = "
-                  f"{res[k][0] / r:6.0f}x; max |theta diff| = {dmax:.1e} rad")
+            print(
+                f"filterpy {k.upper()}: {r / 1e3:7.1f} ksamples/s; kernel / filterpy = "
+                f"{res[k][0] / r:6.0f}x; max |theta diff| = {dmax:.1e} rad"
+            )
 
 
 if __name__ == "__main__":

@@ -8,17 +8,16 @@ samples, output noise on; then
 samples/s of KalmanObserver alone (time-varying and steady-state) and of
 AdaptiveObserver (7 and 8 states).  Numba compile / cache load is done before timing.
 """
+
 import os
 import sys
 import time
 
-import numpy as np
-
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")))
 
-from mems_estimation.adaptive_observer import AdaptiveObserver  # noqa: E402
-from mems_estimation.kalman_observer import KalmanObserver  # noqa: E402
-from mems_sim.sd_resonator import SdResonatorDevice  # noqa: E402
+from mems_estimation.filters.resonator_adaptive_observer import AdaptiveObserver
+from mems_sim.devices.resonator import SdResonatorDevice
+from mems_sim.kernels.resonator_observer import KalmanObserver
 
 FS, F0, Q = 1e6, 5e4, 100.0
 
@@ -26,7 +25,7 @@ FS, F0, Q = 1e6, 5e4, 100.0
 def _rate(fn, n, repeats=3):
     """Best samples/s over ``repeats`` runs (the machine is shared: the best run is the
     least disturbed one)."""
-    fn(1000)                                            # warm-up (numba cache / compile)
+    fn(1000)  # warm-up (numba cache / compile)
     best = 0.0
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -41,6 +40,7 @@ def bench_device(n: int, fast: bool, frame: int = 10_000) -> float:
     def run(m):
         for _ in range(max(1, m // frame)):
             d.step(min(frame, m))
+
     return _rate(run, n)
 
 
@@ -48,21 +48,26 @@ def main() -> None:
     n = int(sys.argv[1]) if len(sys.argv) > 1 else 5_000_000
     for fast in (True, False):
         r = bench_device(n if fast else n // 5, fast)
-        print(f"device, observer in the loop, fast={fast!s:5}: {r / 1e6:7.2f} Msamples/s = "
-              f"{r / FS:6.1f} x real time at fs = 1 MHz"
-              + ("  (target >= 10x)" if fast else ""))
+        print(
+            f"device, observer in the loop, fast={fast!s:5}: {r / 1e6:7.2f} Msamples/s = "
+            f"{r / FS:6.1f} x real time at fs = 1 MHz" + ("  (target >= 10x)" if fast else "")
+        )
     fr = SdResonatorDevice({"output_noise_std": 0.5}, seed=1).step(2_000_000)
-    io = (fr.bits, fr.pulses, fr.pulse_start, fr.pulse_width)     # sub-sample pulses
+    io = (fr.bits, fr.pulses, fr.pulse_start, fr.pulse_width)  # sub-sample pulses
     for ss in (False, True):
         ko = KalmanObserver(F0, Q, FS, 0.5, 1e-4, steady_state=ss)
         r = _rate(lambda m: ko.step(*(x[:m] for x in io)), 2_000_000 if ss else 1_000_000)
-        print(f"KalmanObserver alone, steady_state={ss!s:5}: {r / 1e6:7.2f} Msamples/s "
-              f"({r / FS:5.2f} x real time)")
+        print(
+            f"KalmanObserver alone, steady_state={ss!s:5}: {r / 1e6:7.2f} Msamples/s "
+            f"({r / FS:5.2f} x real time)"
+        )
     for eq in (False, True):
         ao = AdaptiveObserver(F0, Q, FS, 0.5, 1e-4, estimate_q=eq)
         r = _rate(lambda m: ao.step(*(x[:m] for x in io)), 500_000)
-        print(f"AdaptiveObserver alone ({8 if eq else 7} states): {r / 1e6:7.2f} Msamples/s "
-              f"({r / FS:5.2f} x real time)")
+        print(
+            f"AdaptiveObserver alone ({8 if eq else 7} states): {r / 1e6:7.2f} Msamples/s "
+            f"({r / FS:5.2f} x real time)"
+        )
 
 
 if __name__ == "__main__":

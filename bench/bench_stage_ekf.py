@@ -1,4 +1,4 @@
-"""Benchmark and sensitivity study of the micro-stage EKF (Chen 2018 ch. 3, issue 3).
+"""Benchmark and sensitivity study of the micro-stage EKF (Chen 2018 ch. 3).
 
 Run:  .venv/bin/python bench/bench_stage_ekf.py [--graph] [--graph-processes[=ROWS]]
                                                 [--sensitivity] [--drift]
@@ -12,8 +12,8 @@ Run:  .venv/bin/python bench/bench_stage_ekf.py [--graph] [--graph-processes[=RO
    EKF + calibration + MCAP recorder in one process), one stage instance and both
    temperatures at once, as fast as possible and paced by the wall clock;
 4. ``--graph-processes[=zstd,lz4,none,lz4-noimu,none:10000]``: the same graph (one stage, 22.9 C) the
-   way ROS users run it, one process per node (micro_stage_node paced by its own
-   wall-clock timer, stage_ekf_node, gyro_calibration_node, mcap_record --compression C),
+   way ROS users run it, one process per node (stage_node paced by its own
+   wall-clock timer, stage_ekf_node, stage_gyro_calibration_node, mcap_record --compression C),
    localhost discovery, ROS_DOMAIN_ID from the environment (77 if unset): the stage's
    real-time factor (first to last frame), frames published vs recorded, frame-index gaps
    in the MCAP, CPU per process; "DOES NOT KEEP UP" when the factor is below 0.99 or a
@@ -27,6 +27,7 @@ Run:  .venv/bin/python bench/bench_stage_ekf.py [--graph] [--graph-processes[=RO
    (22.9 C) and calibration (35.7 C): default Q, the thesis' Q, and the default Q with the
    actuator gain as a state (:func:`actuator_drift`).
 """
+
 import os
 import sys
 import time
@@ -35,11 +36,19 @@ import numpy as np
 
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")))
 
-from mems_estimation import stage_identification as si  # noqa: E402
-from mems_estimation.stage_ekf import FeedthroughCanceller, StageEkf  # noqa: E402
-from mems_sim.micro_stage import (EPS0, DriveSchedule, MicroStage, dcdtheta_single,  # noqa: E402
-                                  record)
-from mems_sim.scenarios.gyro_calibration import Plan, identify_stage  # noqa: E402
+from mems_estimation.filters.stage_ekf import FeedthroughCanceller, StageEkf
+from mems_estimation.identification import stage_identification as si
+from mems_estimation.identification.stage_gyro_calibration import (
+    T1,
+    T2,
+    Plan,
+    calibration_run,
+    identify_stage,
+    retrain_at,
+    training_record,
+)
+from mems_sim.devices.stage import DriveSchedule, MicroStage, record
+from mems_sim.devices.stage_capacitance import EPS0, dcdtheta_single
 
 
 def _best(fn, repeats=3):
@@ -58,10 +67,21 @@ def reference_ekf(model, y, u):
     ny = y.shape[1]
 
     def hvec(th):
-        return np.array([model.eta[c] * dcdtheta_single(th, model.gap[c], model.limits[c, 0],
-                                                        model.limits[c, 1], model.limits[c, 3]
-                                                        - model.limits[c, 2], EPS0)
-                         for c in range(ny)])
+        return np.array(
+            [
+                model.eta[c]
+                * dcdtheta_single(
+                    th,
+                    model.gap[c],
+                    model.limits[c, 0],
+                    model.limits[c, 1],
+                    model.limits[c, 3] - model.limits[c, 2],
+                    EPS0,
+                )
+                for c in range(ny)
+            ]
+        )
+
     out = np.empty((len(u), 2))
     try:
         from filterpy.kalman import ExtendedKalmanFilter
@@ -78,8 +98,11 @@ def reference_ekf(model, y, u):
         for k in range(len(u)):
             f.predict(u=np.array([up]))
             if np.all(np.isfinite(y[k])):
-                f.update(y[k], lambda x: np.column_stack([np.zeros(ny), hvec(x[0])]),
-                         lambda x: hvec(x[0]) * x[1])
+                f.update(
+                    y[k],
+                    lambda x: np.column_stack([np.zeros(ny), hvec(x[0])]),
+                    lambda x: hvec(x[0]) * x[1],
+                )
             up = u[k]
             out[k] = f.x
         return out, "filterpy.ExtendedKalmanFilter"
@@ -107,8 +130,10 @@ def bench(model):
     n = rec["u"].size
     yc = FeedthroughCanceller(4, fs).step(rec["y"], rec["v_bias"], rec["f_drive"])
     t = _best(lambda: StageEkf(model).step(yc, rec["u"]))
-    print(f"EKF kernel (4 channels):      {n / t / 1e6:7.2f} Msamples/s = {n / t / fs:6.1f} x "
-          f"real time at {fs / 1e3:g} kHz")
+    print(
+        f"EKF kernel (4 channels):      {n / t / 1e6:7.2f} Msamples/s = {n / t / fs:6.1f} x "
+        f"real time at {fs / 1e3:g} kHz"
+    )
     t = _best(lambda: FeedthroughCanceller(4, fs).step(rec["y"], rec["v_bias"], rec["f_drive"]))
     print(f"feedthrough canceller:        {n / t / 1e6:7.2f} Msamples/s")
     sched = DriveSchedule.amplitude_sweep(n_trials=2, periods=200)
@@ -118,8 +143,10 @@ def bench(model):
     for _ in range(m // 20000):
         st.step(20000)
     t = time.perf_counter() - t0
-    print(f"stage emulator (frames 20k):  {m / t / 1e6:7.2f} Msamples/s = {m / t / fs:6.2f} x "
-          "real time")
+    print(
+        f"stage emulator (frames 20k):  {m / t / 1e6:7.2f} Msamples/s = {m / t / fs:6.2f} x "
+        "real time"
+    )
     k = 20000
     ekf = StageEkf(model)
     x, _ = ekf.step(yc[:k], rec["u"][:k], corrected=False)
@@ -152,23 +179,25 @@ def sensitivity(model, seeds=(1, 2, 3, 4), scales=(0.5, 1.0, 2.0, 4.0)):
         ident, stoch = [], []
         for sd in seeds:
             tr = record(MicroStage(noise(s), train_sched, seed=1000 + sd))
-            m = si.reidentify_gap(model, tr)        # (D_n, eta) from noisy training data
+            m = si.reidentify_gap(model, tr)  # (D_n, eta) from noisy training data
             m.R = model.R * s * s
             ident.append(stage_scale(m, clean))
             mt = si.reidentify_gap(model, tr)
-            mt.gap = np.full(4, ref.gap)            # perfectly identified sensor model
+            mt.gap = np.full(4, ref.gap)  # perfectly identified sensor model
             mt.eta = ref.eta_true.copy()
             mt.R = model.R * s * s
             mt.alpha, mt.beta = 1.0, 0.0
             test = record(MicroStage(noise(s), test_sched, seed=2000 + sd))
             stoch.append(stage_scale(mt, test))
         sig = MicroStage(noise(s)).noise_std
-        print(f"{s * s:11.3g} | {sig * 1e6:12.1f} | {np.std(ident) * 1e6:22.0f} | "
-              f"{np.std(stoch) * 1e6:24.0f}")
+        print(
+            f"{s * s:11.3g} | {sig * 1e6:12.1f} | {np.std(ident) * 1e6:22.0f} | "
+            f"{np.std(stoch) * 1e6:24.0f}"
+        )
 
 
 class _WarmGainEkf:
-    """:class:`~mems_estimation.stage_ekf.GainAdaptiveStageEkf` started from a converged
+    """:class:`~mems_estimation.filters.stage_ekf.GainAdaptiveStageEkf` started from a converged
     gain, as a filter that has been running before the sweep would be: a first pass over
     the same data converges g, the second starts from that g and its variance."""
 
@@ -176,47 +205,71 @@ class _WarmGainEkf:
         self.model, self.gain_rw, self.oc = model, gain_rw, output_correction
 
     def step(self, y, u, corrected: bool = True):
-        from mems_estimation.stage_ekf import GainAdaptiveStageEkf
+        from mems_estimation.filters.stage_ekf import GainAdaptiveStageEkf
+
         first = GainAdaptiveStageEkf(self.model, self.gain_rw, output_correction=self.oc)
         first.step(y, u, corrected)
-        warm = GainAdaptiveStageEkf(self.model, self.gain_rw, p0=(1e-6, 1.0, first.P[2, 2]),
-                                    output_correction=self.oc, gain0=first.x[2])
+        warm = GainAdaptiveStageEkf(
+            self.model,
+            self.gain_rw,
+            p0=(1e-6, 1.0, first.P[2, 2]),
+            output_correction=self.oc,
+            gain0=first.x[2],
+        )
         return warm.step(y, u, corrected)
 
 
 def actuator_drift(seeds=(1, 2), tempcos=(0.0, 2e-4, 1e-3), gain_rw=0.0):
     """Scale-factor error when the stage's actuator gain b_c drifts with temperature
-    (``b_c_tempco_per_k``; the seed gives no coefficient, the default is 0) and nothing but
+    (``b_c_tempco_per_k``; Chen 2018 gives no coefficient, the default is 0) and nothing but
     (D_n, eta) is re-identified at 35.7 C (as in the paper). Three estimators: the default
     Q (from the reference: model-driven EKF), the thesis' one-step Q (measurement-driven),
     and the default Q with the actuator gain as a state (:class:`_WarmGainEkf`, random walk
     ``gain_rw`` 1/sqrt(s), its output correction fitted on the 22.9 C training sweep like
     the default's). Short plan."""
-    from mems_sim.scenarios import gyro_calibration as gc
     plan = Plan.short()
-    print("estimator | seed | b_c change 22.9->35.7 C | SF error [ppm] +- SE at 22.9 C | "
-          "at 35.7 C | omega RMSE 35.7 C [rad/s]")
+    print(
+        "estimator | seed | b_c change 22.9->35.7 C | SF error [ppm] +- SE at 22.9 C | "
+        "at 35.7 C | omega RMSE 35.7 C [rad/s]"
+    )
     for kind in ("reference", "one_step", "gain"):
         for seed in seeds:
-            model, _ = identify_stage(seed, plan, q_method="one_step" if kind == "one_step"
-                                      else "reference")
+            model, _ = identify_stage(
+                seed, plan, q_method="one_step" if kind == "one_step" else "reference"
+            )
             oc = None
             if kind == "gain":
-                tr = gc.training_record(seed, plan)
+                tr = training_record(seed, plan)
                 oc = si.output_correction(
-                    model, si.cancelled(tr), tr["u"], tr["ldv"], tr["phase"], tr["segment"],
-                    model.extra["ldv_delay_s"], model.extra["ldv_bias_rad_s"],
-                    estimator=_WarmGainEkf(model, gain_rw, (1.0, 0.0)))
+                    model,
+                    si.cancelled(tr),
+                    tr["u"],
+                    tr["ldv"],
+                    tr["phase"],
+                    tr["segment"],
+                    model.extra["ldv_delay_s"],
+                    model.extra["ldv_bias_rad_s"],
+                    estimator=_WarmGainEkf(model, gain_rw, (1.0, 0.0)),
+                )
             for tc in tempcos:
                 sp = {"b_c_tempco_per_k": tc}
-                ms = {gc.T1: model, gc.T2: gc.retrain_at(model, gc.T2, seed, plan,
-                                                         stage_params=sp)}
-                r = {T: gc.calibration_run(ms[T], T, seed, plan, stage_params=sp,
-                                           estimator=_WarmGainEkf(ms[T], gain_rw, oc)
-                                           if oc else None) for T in ms}
-                print(f"{kind:9s} | {seed:4d} | {100 * tc * (gc.T2 - gc.T1):+22.2f} % | "
-                      + " | ".join(f"{r[T]['ppm']:+7.0f} +- {r[T]['se_ppm']:4.0f}" for T in ms)
-                      + f" | {r[gc.T2]['eval']['rmse']:.4f}")
+                ms = {T1: model, T2: retrain_at(model, T2, seed, plan, stage_params=sp)}
+                r = {
+                    T: calibration_run(
+                        ms[T],
+                        T,
+                        seed,
+                        plan,
+                        stage_params=sp,
+                        estimator=_WarmGainEkf(ms[T], gain_rw, oc) if oc else None,
+                    )
+                    for T in ms
+                }
+                print(
+                    f"{kind:9s} | {seed:4d} | {100 * tc * (T2 - T1):+22.2f} % | "
+                    + " | ".join(f"{r[T]['ppm']:+7.0f} +- {r[T]['se_ppm']:4.0f}" for T in ms)
+                    + f" | {r[T2]['eval']['rmse']:.4f}"
+                )
 
 
 #: Calibration sweep of the graph benchmarks: 7 trials x 1600 drive periods at 1700 Hz
@@ -226,11 +279,13 @@ def actuator_drift(seeds=(1, 2), tempcos=(0.0, 2e-4, 1e-3), gain_rw=0.0):
 BENCH_PLAN = Plan(cal_periods=1600)
 
 
-def graph_rtf(model, realtime: bool, two: bool = False, domain_id: int | None = None,
-              plan: Plan = BENCH_PLAN) -> dict:
+def graph_rtf(
+    model, realtime: bool, two: bool = False, domain_id: int | None = None, plan: Plan = BENCH_PLAN
+) -> dict:
     """Real-time factor of the node graph of the scenario (stage at 625 kHz + gyro + EKF +
     calibration + MCAP recorder, one process) over the calibration sweep ``plan``:
-    one stage instance (the issue's benchmark) or both temperatures at once (the scenario).
+    one stage instance (the deployed graph's benchmark) or both temperatures at once (the
+    scenario).
 
     ``rtf`` = simulated s / wall s from the stages' start to the last frame recorded and
     estimated; paced by the wall clock it is at most 1 - latency/duration, so ``latency_s``
@@ -240,17 +295,23 @@ def graph_rtf(model, realtime: bool, two: bool = False, domain_id: int | None = 
     import tempfile
     from pathlib import Path
 
-    from mems_sim.scenarios import gyro_calibration as gc
-    from mems_sim.scenarios.base import ScenarioOptions
-    inst = gc.INSTANCES if two else {"stage_t1": gc.T1}
+    from mems_scenarios import stage_gyro_calibration as gc
+    from mems_scenarios.base import ScenarioOptions
+
+    inst = gc.INSTANCES if two else {"stage_t1": T1}
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "bench.mcap"
-        opts = ScenarioOptions(seed=1, out=out, domain_id=domain_id, progress=False,
-                               realtime=realtime)
-        g = gc.run_graph(opts, plan, {gc.T1: model, gc.T2: model}, out, instances=inst)
-    return {"rtf": g["simulated_s"] / g["wall_s"] * (2 if two else 1),
-            "latency_s": g["wall_s"] - g["simulated_s"], "simulated_s": g["simulated_s"],
-            "gaps": sum(g["recorder"]["gaps"].values()), "instances": len(inst)}
+        opts = ScenarioOptions(
+            seed=1, out=out, domain_id=domain_id, progress=False, realtime=realtime
+        )
+        g = gc.run_graph(opts, plan, {T1: model, T2: model}, out, instances=inst)
+    return {
+        "rtf": g["simulated_s"] / g["wall_s"] * (2 if two else 1),
+        "latency_s": g["wall_s"] - g["simulated_s"],
+        "simulated_s": g["simulated_s"],
+        "gaps": sum(g["recorder"]["gaps"].values()),
+        "instances": len(inst),
+    }
 
 
 def _cpu_ticks(pid: int) -> int:
@@ -291,13 +352,19 @@ def _reap(proc, timeout_s: float) -> float | None:
 GRAPH_PROCESS_ROWS = "zstd,lz4,none,lz4-noimu"
 
 
-def graph_processes(model, compression: str = "zstd", domain_id: int = 77,
-                    publish_imu: bool = True, plan: Plan | None = None,
-                    extra_env: dict | None = None, frame_size: int | None = None) -> dict:
+def graph_processes(
+    model,
+    compression: str = "zstd",
+    domain_id: int = 77,
+    publish_imu: bool = True,
+    plan: Plan | None = None,
+    extra_env: dict | None = None,
+    frame_size: int | None = None,
+) -> dict:
     """The scenario's graph for one stage instance (22.9 C) the way ROS users run it: one
-    process per node -- ``micro_stage_node`` paced by its own wall-clock timer
+    process per node -- ``stage_node`` paced by its own wall-clock timer
     (bench/paced_stage.py: the node, its timer started once the subscribers are matched),
-    ``stage_ekf_node`` (identified YAML), ``gyro_calibration_node`` and ``mcap_record
+    ``stage_ekf_node`` (identified YAML), ``stage_gyro_calibration_node`` and ``mcap_record
     --compression C`` -- all with localhost discovery in ``domain_id``.
 
     Returns the stage's real-time factor (simulated / wall span from its first to its last
@@ -314,19 +381,24 @@ def graph_processes(model, compression: str = "zstd", domain_id: int = 77,
 
     from mcap.reader import make_reader
 
-    from mems_estimation.stage_ekf import save_model
+    from mems_estimation.filters.stage_ekf import save_model
+    from mems_scenarios import stage_gyro_calibration as gc
     from mems_sim.bag.info import bag_info
-    from mems_sim.scenarios import gyro_calibration as gc
 
     plan = plan or BENCH_PLAN
     frame_size = int(frame_size or gc.FRAME)
     ns = "/stage_t1"
     py = sys.executable
     here = Path(__file__).resolve().parent
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               ROS_DOMAIN_ID=str(domain_id), PYTHONUNBUFFERED="1",
-               PYTHONPATH=os.pathsep.join([str(here.parent)]
-                                          + [x for x in [os.environ.get("PYTHONPATH")] if x]))
+    env = dict(
+        os.environ,
+        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+        ROS_DOMAIN_ID=str(domain_id),
+        PYTHONUNBUFFERED="1",
+        PYTHONPATH=os.pathsep.join(
+            [str(here.parent)] + [x for x in [os.environ.get("PYTHONPATH")] if x]
+        ),
+    )
     env.pop("ROS_LOCALHOST_ONLY", None)
     env.update(extra_env or {})
     topics = [f"{ns}/{t}" for t in gc.RECORDED] + ["/diagnostics"]
@@ -338,34 +410,76 @@ def graph_processes(model, compression: str = "zstd", domain_id: int = 77,
         save_model(model, str(yaml_path))
         out = tmp / "graph.mcap"
         cmds = {
-            "recorder": [py, "-m", "mems_sim.bag.recorder", "-o", str(out),
-                         "--compression", compression, *topics, "--ros-args", "--log-level",
-                         "warn"],
-            "ekf": [py, "-m", "mems_estimation.stage_ekf_node", *ros,
-                    "-p", f"stage_namespace:={ns}", "-p", f"params_yaml:={yaml_path}"],
-            "calibration": [py, "-m", "mems_estimation.gyro_calibration_node", *ros,
-                            "-p", f"stage_namespace:={ns}", "-p", f"n_trials:={plan.cal_trials}"],
-            "stage": [py, str(here / "paced_stage.py"),
-                      f"--wait-subs={ns}/adc:2,{ns}/drive:3,{ns}/truth:1,{ns}/gyro/adc:2,"
-                      f"{ns}/estimate:2", *ros,
-                      "-p", f"seed:={1 * 100 + 50}", "-p", f"temperature_c:={gc.T1}",
-                      "-p", f"n_trials:={plan.cal_trials}",
-                      "-p", f"periods_per_trial:={plan.cal_periods}",
-                      "-p", f"frame_size:={frame_size}", "-p", "frame_id:=stage_t1",
-                      "-p", f"publish_imu:={'true' if publish_imu else 'false'}"],
+            "recorder": [
+                py,
+                "-m",
+                "mems_sim.bag.recorder",
+                "-o",
+                str(out),
+                "--compression",
+                compression,
+                *topics,
+                "--ros-args",
+                "--log-level",
+                "warn",
+            ],
+            "ekf": [
+                py,
+                "-m",
+                "mems_estimation.nodes.stage_ekf_node",
+                *ros,
+                "-p",
+                f"stage_namespace:={ns}",
+                "-p",
+                f"params_yaml:={yaml_path}",
+            ],
+            "calibration": [
+                py,
+                "-m",
+                "mems_estimation.nodes.stage_gyro_calibration_node",
+                *ros,
+                "-p",
+                f"stage_namespace:={ns}",
+                "-p",
+                f"n_trials:={plan.cal_trials}",
+            ],
+            "stage": [
+                py,
+                str(here / "paced_stage.py"),
+                f"--wait-subs={ns}/adc:2,{ns}/drive:3,{ns}/truth:1,{ns}/gyro/adc:2,{ns}/estimate:2",
+                *ros,
+                "-p",
+                f"seed:={1 * 100 + 50}",
+                "-p",
+                f"temperature_c:={T1}",
+                "-p",
+                f"n_trials:={plan.cal_trials}",
+                "-p",
+                f"periods_per_trial:={plan.cal_periods}",
+                "-p",
+                f"frame_size:={frame_size}",
+                "-p",
+                "frame_id:=stage_t1",
+                "-p",
+                f"publish_imu:={'true' if publish_imu else 'false'}",
+            ],
         }
         procs, logs, cpu = {}, {}, {}
         try:
             for name, cmd in cmds.items():
                 logs[name] = open(tmp / f"{name}.log", "w+")
-                procs[name] = subprocess.Popen(cmd, env=env, stdout=logs[name],
-                                               stderr=subprocess.STDOUT, cwd=str(tmp))
+                procs[name] = subprocess.Popen(
+                    cmd, env=env, stdout=logs[name], stderr=subprocess.STDOUT, cwd=str(tmp)
+                )
             samples = []  # (monotonic, CPU ticks per process) while the stage runs
             deadline = time.monotonic() + 180.0
             while cpu.get("stage") is None:
-                samples.append((time.monotonic(), dict({n: _cpu_ticks(p.pid)
-                                                        for n, p in procs.items()},
-                                                       **_machine_ticks())))
+                samples.append(
+                    (
+                        time.monotonic(),
+                        dict({n: _cpu_ticks(p.pid) for n, p in procs.items()}, **_machine_ticks()),
+                    )
+                )
                 cpu["stage"] = _reap(procs["stage"], 0.05)
                 if time.monotonic() > deadline:
                     raise RuntimeError("the stage process did not finish in 180 s")
@@ -411,44 +525,69 @@ def graph_processes(model, compression: str = "zstd", domain_id: int = 77,
         info = bag_info(str(out))
         last, delay = {}, {}
         with open(out, "rb") as f:
-            for _, ch, m in make_reader(f).iter_messages(topics=[f"{ns}/{t}" for t in
-                                                                 frames_topics]):
+            for _, ch, m in make_reader(f).iter_messages(
+                topics=[f"{ns}/{t}" for t in frames_topics]
+            ):
                 last[ch.topic] = max(last.get(ch.topic, 0), m.log_time)
                 delay.setdefault(ch.topic.rsplit("/", 1)[1], []).append(
-                    (m.log_time - m.publish_time) / 1e9)    # publish_time = header stamp
+                    (m.log_time - m.publish_time) / 1e9
+                )  # publish_time = header stamp
     delayed = {}
     for t, d in delay.items():
         d = np.asarray(d) - np.median(d)
         delayed[t] = (float(d.max()), int(np.sum(d > 0.2)))
     tp = info["topics"]
-    recorded = {t: tp.get(f"{ns}/{t}", {}).get("count", 0)
-                for t in frames_topics + ("gyro/adc", "gyro_scale_factor")}
-    gaps = {t: tp[f"{ns}/{t}"]["gaps"] for t in frames_topics + ("gyro/adc",)
-            if "gaps" in tp.get(f"{ns}/{t}", {})}
+    recorded = {
+        t: tp.get(f"{ns}/{t}", {}).get("count", 0)
+        for t in frames_topics + ("gyro/adc", "gyro_scale_factor")
+    }
+    gaps = {
+        t: tp[f"{ns}/{t}"]["gaps"]
+        for t in frames_topics + ("gyro/adc",)
+        if "gaps" in tp.get(f"{ns}/{t}", {})
+    }
     missing = sum(tp[f"{ns}/{t}"].get("missing_samples", 0) for t in gaps)
-    lag = {t: (last[f"{ns}/{t}"] - st["t_last_ns"]) / 1e9 for t in frames_topics
-           if f"{ns}/{t}" in last}
+    lag = {
+        t: (last[f"{ns}/{t}"] - st["t_last_ns"]) / 1e9 for t in frames_topics if f"{ns}/{t}" in last
+    }
     # CPU of each process while the stage published (first frame's start to last frame)
     hz = os.sysconf("SC_CLK_TCK")
     w0, w1 = st["t_first"] - st["frame_size"] / st["fs"], st["t_last"]
     inside = [s_ for s_ in samples if w0 <= s_[0] <= w1]
     run_cpu = {}
     if len(inside) >= 2:
-        run_cpu = {n: (inside[-1][1][n] - inside[0][1][n]) / hz / (inside[-1][0] - inside[0][0])
-                   for n in inside[0][1] if n != "stage" or inside[-1][1][n]}
+        run_cpu = {
+            n: (inside[-1][1][n] - inside[0][1][n]) / hz / (inside[-1][0] - inside[0][0])
+            for n in inside[0][1]
+            if n != "stage" or inside[-1][1][n]
+        }
         # busy cores of other processes (another job on the machine slows the graph)
         machine = run_cpu.pop("machine")
-        run_cpu["others"] = max(machine - sum(v for k, v in run_cpu.items()
-                                              if k in procs), 0.0)
-    return dict(compression=compression, publish_imu=publish_imu, rtf=st["rtf"],
-                frame_size=frame_size, delayed=delayed,
-                max_late_s=st["max_late_s"],
-                sim_span_s=st["sim_span_s"], wall_span_s=st["wall_span_s"],
-                published=st["frames"], recorded=recorded, gaps=sum(gaps.values()),
-                gap_topics=gaps, missing_samples=missing, lag_s=lag, drain_s=drain_s,
-                acked=st["acked"], cpu_s=cpu, run_cpu=run_cpu, stage_loop_cpu_s=st["cpu_s"],
-                mb=info["file_size"] / 1e6, truncated=info["truncated"],
-                lost=sum(max(st["frames"] - recorded[t], 0) for t in frames_topics))
+        run_cpu["others"] = max(machine - sum(v for k, v in run_cpu.items() if k in procs), 0.0)
+    return dict(
+        compression=compression,
+        publish_imu=publish_imu,
+        rtf=st["rtf"],
+        frame_size=frame_size,
+        delayed=delayed,
+        max_late_s=st["max_late_s"],
+        sim_span_s=st["sim_span_s"],
+        wall_span_s=st["wall_span_s"],
+        published=st["frames"],
+        recorded=recorded,
+        gaps=sum(gaps.values()),
+        gap_topics=gaps,
+        missing_samples=missing,
+        lag_s=lag,
+        drain_s=drain_s,
+        acked=st["acked"],
+        cpu_s=cpu,
+        run_cpu=run_cpu,
+        stage_loop_cpu_s=st["cpu_s"],
+        mb=info["file_size"] / 1e6,
+        truncated=info["truncated"],
+        lost=sum(max(st["frames"] - recorded[t], 0) for t in frames_topics),
+    )
 
 
 def print_graph_processes(r: dict) -> None:
@@ -465,35 +604,45 @@ def print_graph_processes(r: dict) -> None:
     cpu = ", ".join(f"{k} {v:.2f}" for k, v in r["cpu_s"].items() if v is not None)
     rec = ", ".join(f"{k} {v}" for k, v in r["recorded"].items())
     lag = ", ".join(f"{k} {v * 1e3:.0f}" for k, v in r["lag_s"].items())
-    print(f"graph, 4 processes, realtime, recorder {r['compression']:4s}, "
-          f"publish_imu {'on ' if r['publish_imu'] else 'off'}, frames of "
-          f"{r['frame_size']}: {r['rtf']:5.3f} x real "
-          f"time (stage, first to last frame: {r['sim_span_s']:.3f} sim s in "
-          f"{r['wall_span_s']:.3f} wall s; worst frame {r['max_late_s'] * 1e3:.0f} ms late) -> "
-          + ("keeps up" if keeps else "DOES NOT KEEP UP")
-          + "".join(f"; last {k} frame recorded {v:.1f} s late (re-sent)" for k, v in late.items())
-          + (f" (machine busy: other jobs {r['run_cpu']['others']:.2f} cores, hypervisor "
-             f"steal {r['run_cpu']['steal']:.2f} cores)"
-             if r["run_cpu"].get("others", 0.0) + r["run_cpu"].get("steal", 0.0) > 0.2
-             else ""))
-    print(f"    frames published {r['published']}, recorded {rec}; frame-index gaps "
-          f"{r['gaps']} ({r['missing_samples']} samples missing); last frame recorded "
-          f"[ms after the stage published it]: {lag}")
+    print(
+        f"graph, 4 processes, realtime, recorder {r['compression']:4s}, "
+        f"publish_imu {'on ' if r['publish_imu'] else 'off'}, frames of "
+        f"{r['frame_size']}: {r['rtf']:5.3f} x real "
+        f"time (stage, first to last frame: {r['sim_span_s']:.3f} sim s in "
+        f"{r['wall_span_s']:.3f} wall s; worst frame {r['max_late_s'] * 1e3:.0f} ms late) -> "
+        + ("keeps up" if keeps else "DOES NOT KEEP UP")
+        + "".join(f"; last {k} frame recorded {v:.1f} s late (re-sent)" for k, v in late.items())
+        + (
+            f" (machine busy: other jobs {r['run_cpu']['others']:.2f} cores, hypervisor "
+            f"steal {r['run_cpu']['steal']:.2f} cores)"
+            if r["run_cpu"].get("others", 0.0) + r["run_cpu"].get("steal", 0.0) > 0.2
+            else ""
+        )
+    )
+    print(
+        f"    frames published {r['published']}, recorded {rec}; frame-index gaps "
+        f"{r['gaps']} ({r['missing_samples']} samples missing); last frame recorded "
+        f"[ms after the stage published it]: {lag}"
+    )
     dl = ", ".join(f"{k} {v[0] * 1e3:.0f} ({v[1]})" for k, v in r["delayed"].items())
     print(f"    worst frame delay beyond the run's median [ms] (frames delayed > 0.2 s): {dl}")
     run = ", ".join(f"{k} {v:.2f}" for k, v in r["run_cpu"].items())
     need = sum(r["run_cpu"].get(k, 0.0) for k in r["cpu_s"]) / r["rtf"]
-    print(f"    CPU [cores] while the stage published: {run} (of {os.cpu_count()}); "
-          f"at 1.0 x real time the 4 processes need {need:.1f} cores; CPU s incl. start-up: "
-          f"{cpu}; bag {r['mb']:.0f} MB")
+    print(
+        f"    CPU [cores] while the stage published: {run} (of {os.cpu_count()}); "
+        f"at 1.0 x real time the 4 processes need {need:.1f} cores; CPU s incl. start-up: "
+        f"{cpu}; bag {r['mb']:.0f} MB"
+    )
 
 
 def _latency(r: dict, realtime: bool) -> str:
     """How far behind the wall clock a realtime graph ended (see :func:`graph_rtf`)."""
     if not realtime:
         return ""
-    return (f" over {r['simulated_s']:.1f} sim s, ended {r['latency_s'] * 1e3:.0f} ms behind the"
-            " wall clock")
+    return (
+        f" over {r['simulated_s']:.1f} sim s, ended {r['latency_s'] * 1e3:.0f} ms behind the"
+        " wall clock"
+    )
 
 
 def main() -> None:
@@ -503,9 +652,12 @@ def main() -> None:
         for two in (False, True):
             for rt in (False, True):
                 r = graph_rtf(model, rt, two)
-                print(f"graph, {r['instances']} stage(s), {'realtime' if rt else 'fast':8s}: "
-                      f"{r['rtf']:5.2f} x real time (stage samples summed over instances)"
-                      + _latency(r, rt) + f", frame-index gaps {r['gaps']}")
+                print(
+                    f"graph, {r['instances']} stage(s), {'realtime' if rt else 'fast':8s}: "
+                    f"{r['rtf']:5.2f} x real time (stage samples summed over instances)"
+                    + _latency(r, rt)
+                    + f", frame-index gaps {r['gaps']}"
+                )
     gp = [a for a in sys.argv if a.split("=")[0] == "--graph-processes"]
     if gp:
         rows = (gp[-1].split("=", 1)[1] if "=" in gp[-1] else GRAPH_PROCESS_ROWS).split(",")
@@ -513,15 +665,24 @@ def main() -> None:
         if "--graph" not in sys.argv:
             for rt in (False, True):
                 r = graph_rtf(model, rt, domain_id=domain)
-                print(f"graph, 1 process, 1 stage, {'realtime' if rt else 'fast':8s}: "
-                      f"{r['rtf']:5.3f} x real time" + _latency(r, rt)
-                      + f", frame-index gaps {r['gaps']}")
+                print(
+                    f"graph, 1 process, 1 stage, {'realtime' if rt else 'fast':8s}: "
+                    f"{r['rtf']:5.3f} x real time"
+                    + _latency(r, rt)
+                    + f", frame-index gaps {r['gaps']}"
+                )
         for row in rows:
             row, _, frame = row.partition(":")
             comp, _, imu = row.partition("-")
-            print_graph_processes(graph_processes(model, comp, domain_id=domain,
-                                                  publish_imu=imu != "noimu",
-                                                  frame_size=int(frame) if frame else None))
+            print_graph_processes(
+                graph_processes(
+                    model,
+                    comp,
+                    domain_id=domain,
+                    publish_imu=imu != "noimu",
+                    frame_size=int(frame) if frame else None,
+                )
+            )
     if "--drift" in sys.argv:
         actuator_drift()
     if "--sensitivity" in sys.argv:

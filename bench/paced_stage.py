@@ -1,4 +1,4 @@
-"""Stage process of ``bench_stage_ekf.py --graph-processes``: ``micro_stage_node`` in a
+"""Stage process of ``bench_stage_ekf.py --graph-processes``: ``stage_node`` in a
 process of its own, paced by its own wall-clock timer (``PacedEmulator.start``), with
 per-frame publish times.
 
@@ -6,7 +6,7 @@ Run:  python bench/paced_stage.py --ros-args -r __ns:=/stage_t1 -p frame_size:=2
 
 The node is the executable's :class:`MicroStageNode` (same parameters, same publishers,
 same timer, spun by ``rclpy.spin``-like single-threaded executor); the only differences
-from ``micro_stage_node`` are that the timer starts once the subscribers of the graph are
+from ``stage_node`` are that the timer starts once the subscribers of the graph are
 matched (``--wait-subs=TOPIC:N,...``; the recorder subscribes only after it has
 seen the publishers, so frames published earlier would be missing from the bag), that the
 process exits once the schedule is published and acknowledged by every subscriber, and
@@ -17,6 +17,7 @@ that it prints one JSON line with the timing:
     the last frame, max_late_s = worst lateness of a frame's publication behind its due
     time (end of its last sample on the wall clock), cpu_s of this process.
 """
+
 from __future__ import annotations
 
 import json
@@ -32,8 +33,8 @@ def main() -> int:
     from rclpy.signals import SignalHandlerOptions
     from rclpy.utilities import remove_ros_args
 
-    from mems_sim.micro_stage_node import MicroStageNode
-    from mems_sim.ros_env import apply_defaults
+    from mems_sim.nodes.stage_node import MicroStageNode
+    from mems_sim.ros.env import apply_defaults
 
     args = remove_ros_args(sys.argv)[1:]
     wait = {}
@@ -68,9 +69,15 @@ def main() -> int:
         deadline = time.monotonic() + timeout_s
         while not all(node.count_subscribers(t) >= c for t, c in wait.items()):
             if time.monotonic() > deadline:
-                print(json.dumps({"error": "subscribers not matched",
-                                  "subs": {t: node.count_subscribers(t) for t in wait}}),
-                      flush=True)
+                print(
+                    json.dumps(
+                        {
+                            "error": "subscribers not matched",
+                            "subs": {t: node.count_subscribers(t) for t in wait},
+                        }
+                    ),
+                    flush=True,
+                )
                 return 3
             ex.spin_once(timeout_sec=0.02)
         cpu0 = resource.getrusage(resource.RUSAGE_SELF)
@@ -78,8 +85,10 @@ def main() -> int:
         while not node.finished:
             ex.spin_once(timeout_sec=0.1)
         cpu1 = resource.getrusage(resource.RUSAGE_SELF)
-        acked = all(p.wait_for_all_acked(Duration(seconds=30.0))
-                    for p in (node.pub_adc, node.pub_drive, node.pub_truth, node.pub_gyro))
+        acked = all(
+            p.wait_for_all_acked(Duration(seconds=30.0))
+            for p in (node.pub_adc, node.pub_drive, node.pub_truth, node.pub_gyro)
+        )
         t = node.pub_times
         fs = node.fs
         frame = node.p["frame_size"]
@@ -87,12 +96,22 @@ def main() -> int:
         span_wall = t[-1][0] - t[0][0]
         start = node._wall_start
         late = max(tm - (start + idx / fs / node.p["realtime_factor"]) for tm, _, idx in t)
-        out = dict(frames=node.frames_published, samples=node.next_index, fs=fs,
-                   frame_size=frame, t_first=t[0][0], t_last=t[-1][0],
-                   t_first_ns=t[0][1], t_last_ns=t[-1][1], sim_span_s=span_sim,
-                   wall_span_s=span_wall, rtf=span_sim / span_wall if span_wall > 0 else None,
-                   max_late_s=late, acked=acked,
-                   cpu_s=(cpu1.ru_utime + cpu1.ru_stime) - (cpu0.ru_utime + cpu0.ru_stime))
+        out = dict(
+            frames=node.frames_published,
+            samples=node.next_index,
+            fs=fs,
+            frame_size=frame,
+            t_first=t[0][0],
+            t_last=t[-1][0],
+            t_first_ns=t[0][1],
+            t_last_ns=t[-1][1],
+            sim_span_s=span_sim,
+            wall_span_s=span_wall,
+            rtf=span_sim / span_wall if span_wall > 0 else None,
+            max_late_s=late,
+            acked=acked,
+            cpu_s=(cpu1.ru_utime + cpu1.ru_stime) - (cpu0.ru_utime + cpu0.ru_stime),
+        )
     finally:
         if node is not None:
             node.destroy_node()

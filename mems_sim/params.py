@@ -5,11 +5,13 @@ Each device module declares its parameters once, as a tuple of
 core can validate a configuration without ROS and the node layer can declare
 ROS parameters with descriptors built from the same table.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any, Iterable, Mapping
+from typing import Any
 
 
 class ParameterError(ValueError):
@@ -65,38 +67,48 @@ class ParamSpec:
         if self.choices is not None:
             if value not in self.choices:
                 raise ParameterError(
-                    f"parameter '{self.name}' = {value!r} is invalid: allowed {self.range_text()}")
+                    f"parameter '{self.name}' = {value!r} is invalid: allowed {self.range_text()}"
+                )
             return value
         if isinstance(self.default, bool):
             if not isinstance(value, bool):
                 raise ParameterError(
-                    f"parameter '{self.name}' = {value!r} is invalid: expected true/false")
+                    f"parameter '{self.name}' = {value!r} is invalid: expected true/false"
+                )
             return value
         if isinstance(self.default, int) and not isinstance(self.default, bool):
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or (
-                    isinstance(value, float) and not value.is_integer()):
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, (int, float))
+                or (isinstance(value, float) and not value.is_integer())
+            ):
                 raise ParameterError(
                     f"parameter '{self.name}' = {value!r} is invalid: expected an integer "
-                    f"in {self.range_text()}")
+                    f"in {self.range_text()}"
+                )
             value = int(value)
         elif isinstance(self.default, float):
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise ParameterError(
                     f"parameter '{self.name}' = {value!r} is invalid: expected a number "
-                    f"in {self.range_text()}")
+                    f"in {self.range_text()}"
+                )
             value = float(value)
             if not math.isfinite(value):
                 raise ParameterError(
                     f"parameter '{self.name}' = {value!r} is invalid: must be finite, "
-                    f"allowed {self.range_text()}")
+                    f"allowed {self.range_text()}"
+                )
         else:
             return value
         low_bad = self.min is not None and (
-            value <= self.min if self.min_exclusive else value < self.min)
+            value <= self.min if self.min_exclusive else value < self.min
+        )
         high_bad = self.max is not None and value > self.max
         if low_bad or high_bad:
             raise ParameterError(
-                f"parameter '{self.name}' = {value!r} is out of range: allowed {self.range_text()}")
+                f"parameter '{self.name}' = {value!r} is out of range: allowed {self.range_text()}"
+            )
         return value
 
 
@@ -110,8 +122,9 @@ def spec_table(specs: Iterable[ParamSpec]) -> dict[str, ParamSpec]:
     return table
 
 
-def resolve(specs: Iterable[ParamSpec], overrides: Mapping[str, Any] | None = None
-            ) -> dict[str, Any]:
+def resolve(
+    specs: Iterable[ParamSpec], overrides: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
     """Defaults of ``specs`` updated with validated ``overrides``.
 
     Raises:
@@ -122,6 +135,7 @@ def resolve(specs: Iterable[ParamSpec], overrides: Mapping[str, Any] | None = No
     for name, value in (overrides or {}).items():
         if name not in table:
             raise ParameterError(
-                f"unknown parameter '{name}': known are {', '.join(sorted(table))}")
+                f"unknown parameter '{name}': known are {', '.join(sorted(table))}"
+            )
         values[name] = table[name].validate(value)
     return values

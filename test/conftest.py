@@ -1,14 +1,15 @@
 """Shared fixtures: localhost-only discovery, a private rclpy context per test."""
+
 import itertools
 import os
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("MPLBACKEND", "Agg")
-from mems_sim.ros_env import apply_defaults  # noqa: E402  (AMENT_PREFIX_PATH for in-process use)
+from mems_sim.ros.env import apply_defaults
 
 apply_defaults()
 
-import pytest  # noqa: E402
+import pytest
 
 _BASE = int(os.environ.get("ROS_DOMAIN_ID", "63"))
 _domains = itertools.count(0)
@@ -50,6 +51,7 @@ def subprocess_env(domain_id):
 def spin_until(executor, predicate, timeout=15.0):
     """Spin ``executor`` until ``predicate()`` holds or ``timeout`` s pass; return predicate()."""
     import time
+
     deadline = time.monotonic() + timeout
     while not predicate() and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.02)
@@ -59,6 +61,7 @@ def spin_until(executor, predicate, timeout=15.0):
 def params(**kw):
     """rclpy parameter overrides from keyword arguments."""
     from rclpy.parameter import Parameter
+
     return [Parameter(k, value=v) for k, v in kw.items()]
 
 
@@ -67,6 +70,7 @@ def graph(ros_context):
     """(context, executor, probe node) for tests that talk to nodes through real topics."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
+
     ex = SingleThreadedExecutor(context=ros_context)
     probe = rclpy.create_node("probe", context=ros_context)
     ex.add_node(probe)

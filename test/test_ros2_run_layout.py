@@ -1,5 +1,6 @@
 """`ros2 run` compatibility: colcon builds both packages, and an executable resolved the way
 `ros2 run` resolves it (ament index package prefix + lib/<pkg>/<exe>) starts and publishes."""
+
 import os
 import shutil
 import signal
@@ -12,7 +13,7 @@ import pytest
 from rclpy.executors import SingleThreadedExecutor
 
 from mems_msgs.msg import AdcFrame
-from mems_sim.qos import FRAME_QOS
+from mems_sim.ros.qos import FRAME_QOS
 
 REPO = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent
@@ -32,13 +33,33 @@ def colcon_install(tmp_path_factory):
     if shutil.which("colcon", path=str(VENV_BIN)) is None:
         pytest.fail("colcon is not installed in the venv (requirements.lock pins it)")
     ws = tmp_path_factory.mktemp("colcon_ws")
-    env = dict(os.environ, PATH=f"{VENV_BIN}:{os.environ['PATH']}",
-               CMAKE_PREFIX_PATH=str(PREFIX), AMENT_PREFIX_PATH=str(PREFIX))
+    env = dict(
+        os.environ,
+        PATH=f"{VENV_BIN}:{os.environ['PATH']}",
+        CMAKE_PREFIX_PATH=str(PREFIX),
+        AMENT_PREFIX_PATH=str(PREFIX),
+    )
     build = subprocess.run(
-        [str(VENV_BIN / "colcon"), "build", "--paths", str(REPO), str(REPO / "msg_defs"),
-         "--build-base", str(ws / "build"), "--install-base", str(ws / "install"),
-         "--cmake-args", "-DBUILD_TESTING=OFF", f"-DPython3_EXECUTABLE={sys.executable}"],
-        cwd=ws, env=env, capture_output=True, text=True, timeout=600)
+        [
+            str(VENV_BIN / "colcon"),
+            "build",
+            "--paths",
+            str(REPO),
+            str(REPO / "msg_defs"),
+            "--build-base",
+            str(ws / "build"),
+            "--install-base",
+            str(ws / "install"),
+            "--cmake-args",
+            "-DBUILD_TESTING=OFF",
+            f"-DPython3_EXECUTABLE={sys.executable}",
+        ],
+        cwd=ws,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert build.returncode == 0, build.stdout[-3000:] + build.stderr[-3000:]
     return ws / "install"
 
@@ -51,22 +72,49 @@ def _sourced(install: Path, command: str, env: dict) -> list[str]:
 
 def test_colcon_layout_has_executables_in_lib_pkg(colcon_install):
     lib = colcon_install / "mems_emulator" / "lib" / "mems_emulator"
-    for exe in ("run_scenario", "imu_noise_node", "noise_identifier_node", "mcap_record",
-                "mcap_play", "mcap_info", "identify_noise", "sd_resonator_node", "sd_observer_node"):
+    for exe in (
+        "run_scenario",
+        "imu_node",
+        "imu_noise_identifier_node",
+        "mcap_record",
+        "mcap_play",
+        "mcap_info",
+        "identify_noise",
+        "resonator_node",
+        "resonator_observer_node",
+    ):
         assert (lib / exe).is_file(), exe
-    assert (colcon_install / "mems_emulator" / "share" / "ament_index" / "resource_index"
-            / "packages" / "mems_emulator").is_file()
+    assert (
+        colcon_install
+        / "mems_emulator"
+        / "share"
+        / "ament_index"
+        / "resource_index"
+        / "packages"
+        / "mems_emulator"
+    ).is_file()
 
 
-def test_executable_resolved_like_ros2_run_starts_and_publishes(colcon_install, ros_context,
-                                                                subprocess_env):
+def test_executable_resolved_like_ros2_run_starts_and_publishes(
+    colcon_install, ros_context, subprocess_env
+):
     import rclpy
+
     env = dict(subprocess_env, AMENT_PREFIX_PATH=str(PREFIX), PATH=f"{VENV_BIN}:/usr/bin:/bin")
     env.pop("PYTHONPATH", None)
-    cmd = _sourced(colcon_install, f"exec python -c \"{RESOLVE}\" imu_noise_node "
-                   "--ros-args -p frame_size:=10 -p realtime_factor:=5.0", env)
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, start_new_session=True)
+    cmd = _sourced(
+        colcon_install,
+        f'exec python -c "{RESOLVE}" imu_node --ros-args -p frame_size:=10 -p realtime_factor:=5.0',
+        env,
+    )
+    proc = subprocess.Popen(
+        cmd,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
     try:
         node = rclpy.create_node("probe", context=ros_context)
         got = []
@@ -88,8 +136,12 @@ def test_executable_resolved_like_ros2_run_starts_and_publishes(colcon_install, 
 def test_run_scenario_list_through_ros2_run_lookup(colcon_install, subprocess_env):
     env = dict(subprocess_env, AMENT_PREFIX_PATH=str(PREFIX), PATH=f"{VENV_BIN}:/usr/bin:/bin")
     env.pop("PYTHONPATH", None)
-    run = subprocess.run(_sourced(colcon_install,
-                                  f"python -c \"{RESOLVE}\" run_scenario --list", env),
-                         env=env, capture_output=True, text=True, timeout=120)
+    run = subprocess.run(
+        _sourced(colcon_install, f'python -c "{RESOLVE}" run_scenario --list', env),
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert run.returncode == 0, run.stderr
     assert run.stdout.startswith("imu_noise")

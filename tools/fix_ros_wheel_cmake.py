@@ -4,9 +4,10 @@ The ROS 2 Kilted wheels on PyPI were built in a manylinux image; their
 ``share/*/cmake/*Export*.cmake`` files name that image's Python include
 directory and numpy include directory. CMake refuses imported targets with
 non-existent include paths, so building a rosidl message package against the
-venv fails until these strings point at this interpreter's directories
-(see shared/docs/ros2-on-pypi.md). Idempotent; run with the venv's python.
+venv fails until these strings point at this interpreter's directories.
+Idempotent; run with the venv's python.
 """
+
 import pathlib
 import sys
 import sysconfig

@@ -5,6 +5,7 @@ Run with the venv's python after installing or upgrading a dependency. Only
 ``*.egg-info`` metadata of their ament packages (``action_msgs`` for the wheel
 ``ros-action-msgs``) whose names are not installable from PyPI.
 """
+
 import importlib.metadata as md
 import pathlib
 import sys
@@ -20,8 +21,10 @@ def main() -> int:
         name = dist.metadata["Name"]
         if name.lower() not in SKIP:
             pins[name.lower()] = f"{name}=={dist.version}"
-    lines = ["# Exact versions of everything `make setup` installs into .venv (CPython 3.11, x86_64).",
-             "# Regenerate with `.venv/bin/python tools/lock_requirements.py` after changing a dependency."]
+    lines = [
+        "# Exact versions of everything `make setup` installs into .venv (CPython 3.11, x86_64).",
+        "# Regenerate with `.venv/bin/python tools/lock_requirements.py` after changing a dependency.",
+    ]
     lines += [pins[k] for k in sorted(pins)]
     out = pathlib.Path(__file__).resolve().parents[1] / "requirements.lock"
     out.write_text("\n".join(lines) + "\n")

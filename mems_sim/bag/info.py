@@ -6,29 +6,29 @@ are always scanned (CDR peek, no deserialisation) for sample rates, total
 samples and frame-index gaps. Files without a Summary (a recorder that was
 killed) are scanned up to the last readable chunk (``truncated`` = True).
 """
+
 from __future__ import annotations
 
 import argparse
 import os
 import sys
-from typing import Dict, List, Optional
 
 from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 
-from .player import BagReadError, _summary_or_none, open_bag
-from .schema import FRAME_LAYOUTS, GAP_CHECKED_TYPES, peek_frame_fields
-from .writer import FrameGapCounter
+from mems_sim.bag.player import BagReadError, _summary_or_none, open_bag
+from mems_sim.bag.schema import FRAME_LAYOUTS, GAP_CHECKED_TYPES, peek_frame_fields
+from mems_sim.bag.writer import FrameGapCounter
 
 
 def _scan(path: str) -> dict:
     """Scan all records in file order: channels, per-channel counts/times, frames, chunk compressions."""
-    schemas: Dict[int, Schema] = {}
-    channels: Dict[int, Channel] = {}
-    counts: Dict[int, int] = {}
-    frames: Dict[int, FrameGapCounter] = {}
-    rates: Dict[int, set] = {}
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    counts: dict[int, int] = {}
+    frames: dict[int, FrameGapCounter] = {}
+    rates: dict[int, set] = {}
     compressions = set()
     start = end = None
     truncated = False
@@ -53,11 +53,19 @@ def _scan(path: str) -> dict:
                         end = item.log_time if end is None else max(end, item.log_time)
                         counts[item.channel_id] = counts.get(item.channel_id, 0) + 1
                         _account_frame(item, channels, schemas, frames, rates)
-        except Exception:  # noqa: BLE001 - torn tail of a killed writer
+        except Exception:
             truncated = True
-    return {"schemas": schemas, "channels": channels, "counts": counts, "frames": frames,
-            "rates": rates, "compressions": compressions, "start": start, "end": end,
-            "truncated": truncated}
+    return {
+        "schemas": schemas,
+        "channels": channels,
+        "counts": counts,
+        "frames": frames,
+        "rates": rates,
+        "compressions": compressions,
+        "start": start,
+        "end": end,
+        "truncated": truncated,
+    }
 
 
 def _account_frame(message: Message, channels, schemas, frames, rates) -> None:
@@ -94,7 +102,7 @@ def bag_info(path: str) -> dict:
         reader = make_reader(handle)
         try:
             header = reader.get_header()
-        except Exception as exc:  # noqa: BLE001
+        except Exception as exc:
             raise BagReadError(f"{path}: unreadable MCAP header ({exc})") from None
         summary = _summary_or_none(reader)
     scan = _scan(path)
@@ -115,10 +123,14 @@ def bag_info(path: str) -> dict:
         if cid in scan["frames"]:
             counter = scan["frames"][cid]
             rates = scan["rates"].get(cid, set())
-            entry.update(sample_rate_hz=next(iter(rates)) if len(rates) == 1 else None,
-                         total_samples=counter.samples, frames=counter.frames,
-                         gaps=counter.gaps, missing_samples=counter.missing_samples,
-                         resets=counter.resets)
+            entry.update(
+                sample_rate_hz=next(iter(rates)) if len(rates) == 1 else None,
+                total_samples=counter.samples,
+                frames=counter.frames,
+                gaps=counter.gaps,
+                missing_samples=counter.missing_samples,
+                resets=counter.resets,
+            )
         topics[channel.topic] = entry
     if stats is not None and stats.message_count:
         start, end, total = stats.message_start_time, stats.message_end_time, stats.message_count
@@ -157,18 +169,21 @@ def format_info(info: dict) -> str:
         line = f"  {topic} [{t['type']}] {t['count']} msgs"
         if "total_samples" in t:
             rate = "varies" if t["sample_rate_hz"] is None else f"{t['sample_rate_hz']:g} Hz"
-            line += (f", {t['total_samples']} samples @ {rate}, {t['gaps']} gaps"
-                     f" ({t['missing_samples']} samples missing)")
+            line += (
+                f", {t['total_samples']} samples @ {rate}, {t['gaps']} gaps"
+                f" ({t['missing_samples']} samples missing)"
+            )
         lines.append(line)
     return "\n".join(lines)
 
 
-def main(argv: Optional[List[str]] = None) -> int:
+def main(argv: list[str] | None = None) -> int:
     """Entry point of ``mcap_info``; exit code 2 with a one-line error for a bad file."""
     parser = argparse.ArgumentParser(prog="mcap_info", description=__doc__.splitlines()[0])
     parser.add_argument("file")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
-    from ..ros_env import apply_defaults
+    from mems_sim.ros.env import apply_defaults
+
     apply_defaults()
     try:
         info = bag_info(args.file)

@@ -13,20 +13,22 @@ ROS-free readers for other code:
   message deserialised into its real Python class (``rclpy.serialization``),
   so equality tests against published messages are exact.
 """
+
 from __future__ import annotations
 
 import argparse
 import signal
 import sys
 import time
-from typing import Dict, Iterable, Iterator, List, NamedTuple, Optional, Tuple
+from collections.abc import Iterable, Iterator
+from typing import NamedTuple
 
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 
-from ..ros_env import apply_defaults, install_stop_request
+from mems_sim.ros.env import apply_defaults, install_stop_request
 
 
 class BagReadError(Exception):
@@ -65,11 +67,11 @@ def _summary_or_none(reader):
     """The file's Summary, or None when it is missing or damaged (e.g. recorder killed)."""
     try:
         return reader.get_summary()
-    except Exception:  # noqa: BLE001 - any damage means: no usable summary
+    except Exception:
         return None
 
 
-def iter_stream_records(handle) -> Iterator[Tuple[object, bool]]:
+def iter_stream_records(handle) -> Iterator[tuple[object, bool]]:
     """Yield ``(record, False)`` for every readable record of an MCAP stream, in file order.
 
     Stops quietly at a truncated or damaged record (a file whose writer was
@@ -82,12 +84,16 @@ def iter_stream_records(handle) -> Iterator[Tuple[object, bool]]:
             yield record, False
     except (McapError, EOFError, ValueError, OSError, IndexError, KeyError):  # truncated
         yield None, True
-    except Exception:  # noqa: BLE001 - zstd/struct errors of a torn chunk
+    except Exception:
         yield None, True
 
 
-def iter_raw(path: str, topics: Optional[Iterable[str]] = None, start_time_ns: Optional[int] = None,
-             end_time_ns: Optional[int] = None) -> Iterator[Tuple[Optional[Schema], Channel, Message]]:
+def iter_raw(
+    path: str,
+    topics: Iterable[str] | None = None,
+    start_time_ns: int | None = None,
+    end_time_ns: int | None = None,
+) -> Iterator[tuple[Schema | None, Channel, Message]]:
     """``(schema, channel, message)`` of the file in log-time order (file order without a Summary)."""
     topics = None if topics is None else set(topics)
     handle = open_bag(path)
@@ -95,12 +101,13 @@ def iter_raw(path: str, topics: Optional[Iterable[str]] = None, start_time_ns: O
         reader = make_reader(handle)
         summary = _summary_or_none(reader)
         if summary is not None and summary.chunk_indexes:
-            yield from reader.iter_messages(topics=topics, start_time=start_time_ns,
-                                            end_time=end_time_ns, log_time_order=True)
+            yield from reader.iter_messages(
+                topics=topics, start_time=start_time_ns, end_time=end_time_ns, log_time_order=True
+            )
             return
         handle.seek(0)
-        schemas: Dict[int, Schema] = {}
-        channels: Dict[int, Channel] = {}
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
         for record, _truncated in iter_stream_records(handle):
             if isinstance(record, Schema):
                 schemas[record.id] = record
@@ -117,7 +124,7 @@ def iter_raw(path: str, topics: Optional[Iterable[str]] = None, start_time_ns: O
                 yield schemas.get(channel.schema_id), channel, record
 
 
-def bag_start_time_ns(path: str) -> Optional[int]:
+def bag_start_time_ns(path: str) -> int | None:
     """log_time of the first message [ns] (from Statistics, else by scanning), None if empty."""
     handle = open_bag(path)
     with handle:
@@ -129,8 +136,9 @@ def bag_start_time_ns(path: str) -> Optional[int]:
     return None
 
 
-def iter_messages(path: str, topics: Optional[Iterable[str]] = None,
-                  start_offset_s: float = 0.0) -> Iterator[BagMessage]:
+def iter_messages(
+    path: str, topics: Iterable[str] | None = None, start_offset_s: float = 0.0
+) -> Iterator[BagMessage]:
     """Iterate the stored messages as :class:`BagMessage` in log-time order.
 
     :param topics: only these topics (None: all).
@@ -143,12 +151,14 @@ def iter_messages(path: str, topics: Optional[Iterable[str]] = None,
         start = None if first is None else first + int(round(start_offset_s * 1e9))
     for schema, channel, message in iter_raw(path, topics, start_time_ns=start):
         type_name = schema.name if schema is not None else ""
-        yield BagMessage(channel.topic, type_name, message.log_time, message.publish_time,
-                         message.data)
+        yield BagMessage(
+            channel.topic, type_name, message.log_time, message.publish_time, message.data
+        )
 
 
-def read_messages(path: str, topics: Optional[Iterable[str]] = None
-                  ) -> Iterator[Tuple[str, str, int, object]]:
+def read_messages(
+    path: str, topics: Iterable[str] | None = None
+) -> Iterator[tuple[str, str, int, object]]:
     """Iterate ``(topic, type_name, log_time_ns, msg)`` with ``msg`` deserialised into its real class.
 
     Uses ``rclpy.serialization.deserialize_message`` (no rclpy.init needed);
@@ -156,8 +166,9 @@ def read_messages(path: str, topics: Optional[Iterable[str]] = None
     """
     from rclpy.serialization import deserialize_message
 
-    from .schema import message_class
-    classes: Dict[str, type] = {}
+    from mems_sim.bag.schema import message_class
+
+    classes: dict[str, type] = {}
     for item in iter_messages(path, topics):
         cls = classes.get(item.type_name)
         if cls is None:
@@ -165,27 +176,31 @@ def read_messages(path: str, topics: Optional[Iterable[str]] = None
         yield item.topic, item.type_name, item.log_time_ns, deserialize_message(item.data, cls)
 
 
-def recorded_topics(path: str) -> Dict[str, Tuple[str, str]]:
+def recorded_topics(path: str) -> dict[str, tuple[str, str]]:
     """``{topic: (type_name, offered_qos_profiles_yaml)}`` of the file's channels."""
     handle = open_bag(path)
-    out: Dict[str, Tuple[str, str]] = {}
+    out: dict[str, tuple[str, str]] = {}
     with handle:
         summary = _summary_or_none(make_reader(handle))
         if summary is not None and summary.channels:
             for channel in summary.channels.values():
                 schema = summary.schemas.get(channel.schema_id)
-                out[channel.topic] = (schema.name if schema else "",
-                                      channel.metadata.get("offered_qos_profiles", ""))
+                out[channel.topic] = (
+                    schema.name if schema else "",
+                    channel.metadata.get("offered_qos_profiles", ""),
+                )
             return out
         handle.seek(0)
-        schemas: Dict[int, Schema] = {}
+        schemas: dict[int, Schema] = {}
         for record, _ in iter_stream_records(handle):
             if isinstance(record, Schema):
                 schemas[record.id] = record
             elif isinstance(record, Channel) and record.topic not in out:
                 schema = schemas.get(record.schema_id)
-                out[record.topic] = (schema.name if schema else "",
-                                     record.metadata.get("offered_qos_profiles", ""))
+                out[record.topic] = (
+                    schema.name if schema else "",
+                    record.metadata.get("offered_qos_profiles", ""),
+                )
     return out
 
 
@@ -200,20 +215,25 @@ def playback_qos(qos_yaml: str):
     """
     from rclpy.qos import HistoryPolicy, QoSProfile
 
-    from ..qos import FRAME_DEPTH, FRAME_QOS
-    from .schema import qos_profiles_from_yaml
+    from mems_sim.bag.schema import qos_profiles_from_yaml
+    from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS
+
     try:
         profiles = qos_profiles_from_yaml(qos_yaml)
-    except Exception:  # noqa: BLE001 - unparsable metadata: fall back
+    except Exception:
         profiles = []
     if not profiles:
         return FRAME_QOS
     first = profiles[0]
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(FRAME_DEPTH, int(first.depth)),
-                      reliability=first.reliability, durability=first.durability)
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=max(FRAME_DEPTH, int(first.depth)),
+        reliability=first.reliability,
+        durability=first.durability,
+    )
 
 
-def parse_remaps(remaps: Iterable[str]) -> Dict[str, str]:
+def parse_remaps(remaps: Iterable[str]) -> dict[str, str]:
     """``['FROM:=TO', ...]`` -> ``{FROM: TO}``; raises ValueError on a malformed entry."""
     out = {}
     for item in remaps or ():
@@ -233,25 +253,32 @@ class Player:
     :param remap: ``{recorded_topic: published_topic}``.
     """
 
-    def __init__(self, node, path: str, topics: Optional[Iterable[str]] = None,
-                 remap: Optional[Dict[str, str]] = None):
-        from .schema import message_class
+    def __init__(
+        self,
+        node,
+        path: str,
+        topics: Iterable[str] | None = None,
+        remap: dict[str, str] | None = None,
+    ):
+        from mems_sim.bag.schema import message_class
+
         self.node = node
         self.path = path
         self.topics = None if topics is None else list(topics)
         self.remap = dict(remap or {})
-        self.publishers: Dict[str, object] = {}
+        self.publishers: dict[str, object] = {}
         self.published = 0
         for topic, (type_name, qos_yaml) in recorded_topics(path).items():
             if self.topics is not None and topic not in self.topics:
                 continue
             try:
                 cls = message_class(type_name)
-            except Exception as exc:  # noqa: BLE001
+            except Exception as exc:
                 node.get_logger().warning(f"{topic}: not played, {exc}")
                 continue
             self.publishers[topic] = node.create_publisher(
-                cls, self.remap.get(topic, topic), playback_qos(qos_yaml))
+                cls, self.remap.get(topic, topic), playback_qos(qos_yaml)
+            )
 
     def wait_for_subscribers(self, count: int, timeout_s: float, stop=lambda: False) -> bool:
         """Wait until every publisher has at least ``count`` matched subscriptions; False on timeout."""
@@ -262,9 +289,16 @@ class Player:
             time.sleep(0.02)
         return all(p.get_subscription_count() >= count for p in self.publishers.values())
 
-    def play(self, rate: float = 1.0, fast: bool = False, start_offset_s: float = 0.0,
-             duration_s: Optional[float] = None, clock_publisher=None, clock_hz: float = 0.0,
-             stop=lambda: False) -> int:
+    def play(
+        self,
+        rate: float = 1.0,
+        fast: bool = False,
+        start_offset_s: float = 0.0,
+        duration_s: float | None = None,
+        clock_publisher=None,
+        clock_hz: float = 0.0,
+        stop=lambda: False,
+    ) -> int:
         """Publish the messages once, paced by log_time / rate (or as fast as possible).
 
         :param duration_s: play only this much bag time after the start offset [s].
@@ -272,6 +306,7 @@ class Player:
         Returns the number of messages published.
         """
         from rosgraph_msgs.msg import Clock
+
         wall0 = bag0 = None
         clock_period = 1.0 / clock_hz if clock_publisher is not None and clock_hz > 0 else None
         next_clock = time.monotonic()
@@ -315,36 +350,58 @@ class Player:
         """Publish the serialised bytes on the (possibly remapped) topic."""
         self.publishers[topic].publish(data)
 
-    def wait_acked(self, topic: Optional[str] = None, timeout_s: float = 5.0) -> bool:
+    def wait_acked(self, topic: str | None = None, timeout_s: float = 5.0) -> bool:
         """Wait until reliable subscribers acknowledged everything published (one topic or all)."""
         from rclpy.duration import Duration
+
         topics = [topic] if topic is not None else list(self.publishers)
         ok = True
         for name in topics:
             try:
                 ok &= bool(self.publishers[name].wait_for_all_acked(Duration(seconds=timeout_s)))
-            except Exception:  # noqa: BLE001 - best-effort publishers
+            except Exception:
                 pass
         return ok
 
 
-def _parse_args(argv: List[str]) -> argparse.Namespace:
+def _parse_args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="mcap_play", description=__doc__.splitlines()[0])
     parser.add_argument("file", help="MCAP file to play")
     parser.add_argument("--rate", "-r", type=float, default=1.0, help="playback rate factor (> 0)")
-    parser.add_argument("--as-fast-as-possible", action="store_true",
-                        help="ignore timing, publish as fast as possible")
+    parser.add_argument(
+        "--as-fast-as-possible",
+        action="store_true",
+        help="ignore timing, publish as fast as possible",
+    )
     parser.add_argument("--loop", "-l", action="store_true", help="play in a loop")
-    parser.add_argument("--clock", nargs="?", type=float, const=40.0, default=None, metavar="HZ",
-                        help="publish /clock at HZ (default 40 Hz)")
-    parser.add_argument("--start-offset", type=float, default=0.0, help="skip this much of the bag [s]")
+    parser.add_argument(
+        "--clock",
+        nargs="?",
+        type=float,
+        const=40.0,
+        default=None,
+        metavar="HZ",
+        help="publish /clock at HZ (default 40 Hz)",
+    )
+    parser.add_argument(
+        "--start-offset", type=float, default=0.0, help="skip this much of the bag [s]"
+    )
     parser.add_argument("--duration", type=float, default=None, help="play this much bag time [s]")
     parser.add_argument("--topics", nargs="+", default=None, help="play only these topics")
     parser.add_argument("--remap", nargs="+", default=[], metavar="FROM:=TO", help="topic remaps")
-    parser.add_argument("--wait-for-subscribers", type=int, default=0, metavar="N",
-                        help="wait until each topic has N subscribers before playing")
-    parser.add_argument("--wait-timeout", type=float, default=10.0,
-                        help="give up waiting for subscribers after this long [s]")
+    parser.add_argument(
+        "--wait-for-subscribers",
+        type=int,
+        default=0,
+        metavar="N",
+        help="wait until each topic has N subscribers before playing",
+    )
+    parser.add_argument(
+        "--wait-timeout",
+        type=float,
+        default=10.0,
+        help="give up waiting for subscribers after this long [s]",
+    )
     parser.add_argument("--delay", type=float, default=0.0, help="sleep before playing [s]")
     args = parser.parse_args(argv)
     if not args.rate > 0 or args.rate == float("inf"):
@@ -352,11 +409,12 @@ def _parse_args(argv: List[str]) -> argparse.Namespace:
     return args
 
 
-def main(argv: Optional[List[str]] = None) -> int:
+def main(argv: list[str] | None = None) -> int:
     """Entry point of ``mcap_play``; returns the process exit code (2 for a bad file)."""
     apply_defaults()
     argv = sys.argv[1:] if argv is None else list(argv)
     from rclpy.utilities import remove_ros_args
+
     args = _parse_args(remove_ros_args(["mcap_play"] + argv)[1:])
     try:
         remap = parse_remaps(args.remap)
@@ -382,15 +440,21 @@ def main(argv: Optional[List[str]] = None) -> int:
             return 2
         clock_pub = node.create_publisher(Clock, "/clock", 10) if args.clock else None
         if args.wait_for_subscribers > 0 and not player.wait_for_subscribers(
-                args.wait_for_subscribers, args.wait_timeout, lambda: stop["flag"]):
+            args.wait_for_subscribers, args.wait_timeout, lambda: stop["flag"]
+        ):
             node.get_logger().warning("not every topic has its subscribers; playing anyway")
         if args.delay > 0:
             time.sleep(args.delay)
         while not stop["flag"]:
-            player.play(rate=args.rate, fast=args.as_fast_as_possible,
-                        start_offset_s=args.start_offset, duration_s=args.duration,
-                        clock_publisher=clock_pub, clock_hz=args.clock or 0.0,
-                        stop=lambda: stop["flag"])
+            player.play(
+                rate=args.rate,
+                fast=args.as_fast_as_possible,
+                start_offset_s=args.start_offset,
+                duration_s=args.duration,
+                clock_publisher=clock_pub,
+                clock_hz=args.clock or 0.0,
+                stop=lambda: stop["flag"],
+            )
             if not args.loop:
                 break
         player.wait_acked(timeout_s=max(1.0, args.wait_timeout))  # deliver the tail before exit

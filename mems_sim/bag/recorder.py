@@ -5,7 +5,7 @@
 deserialise/serialise round trip) and a QoS adapted to the publishers
 (rosbag2's rule: reliable only if every publisher offers reliable,
 transient-local only if every publisher offers it; depth at least
-:data:`~mems_sim.qos.FRAME_DEPTH`). It records the publishers' offered QoS as
+:data:`~mems_sim.ros.qos.FRAME_DEPTH`). It records the publishers' offered QoS as
 ``offered_qos_profiles``. ``log_time`` is the receive time (wall clock, ns
 since the epoch); ``publish_time`` is the message's ``header.stamp`` when the
 type starts with a ``std_msgs/Header``, else the receive time. Frame-index
@@ -14,6 +14,7 @@ gaps of frame topics are counted (and logged as warnings when they appear).
 In-process users (the scenario runner) create a RecorderNode with their own
 context and executor and use :meth:`RecorderNode.received` to throttle.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -22,24 +23,30 @@ import re
 import signal
 import sys
 import time
-from typing import Dict, Iterable, List, Optional
+from collections.abc import Iterable
 
 from rclpy.node import Node
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile,
-                       ReliabilityPolicy)
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from ..qos import FRAME_DEPTH
-from ..ros_env import apply_defaults, install_stop_request
-from .schema import (SchemaError, has_header, message_class,
-                     normalize_type_name, peek_header_stamp_ns,
-                     qos_profiles_yaml, schema_text, type_hash)
-from .writer import McapBagWriter, gap_summary
+from mems_sim.bag.schema import (
+    SchemaError,
+    has_header,
+    message_class,
+    normalize_type_name,
+    peek_header_stamp_ns,
+    qos_profiles_yaml,
+    schema_text,
+    type_hash,
+)
+from mems_sim.bag.writer import McapBagWriter, gap_summary
+from mems_sim.ros.env import apply_defaults, install_stop_request
+from mems_sim.ros.qos import FRAME_DEPTH
 
 #: Topics skipped unless listed explicitly.
 DEFAULT_EXCLUDED = ("/rosout", "/parameter_events")
 
 
-def adapt_qos(offered: List[QoSProfile], keep_all: bool = True) -> QoSProfile:
+def adapt_qos(offered: list[QoSProfile], keep_all: bool = True) -> QoSProfile:
     """Subscription QoS that matches every offered publisher QoS (rosbag2's rule).
 
     Reliable if all offer reliable, else best effort; transient-local if all
@@ -49,8 +56,12 @@ def adapt_qos(offered: List[QoSProfile], keep_all: bool = True) -> QoSProfile:
     history; otherwise KEEP_LAST with depth max(FRAME_DEPTH, offered depths).
     """
     reliable = bool(offered) and all(q.reliability == ReliabilityPolicy.RELIABLE for q in offered)
-    latched = bool(offered) and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
-    depth = max([FRAME_DEPTH] + [int(q.depth) for q in offered if q.history == HistoryPolicy.KEEP_LAST])
+    latched = bool(offered) and all(
+        q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered
+    )
+    depth = max(
+        [FRAME_DEPTH] + [int(q.depth) for q in offered if q.history == HistoryPolicy.KEEP_LAST]
+    )
     return QoSProfile(
         history=HistoryPolicy.KEEP_ALL if (reliable and keep_all) else HistoryPolicy.KEEP_LAST,
         depth=depth,
@@ -77,10 +88,19 @@ class RecorderNode(Node):
     names (``output``, ``topics``, ``all``, ``regex``, ``exclude``).
     """
 
-    def __init__(self, output: str = "", topics: Iterable[str] = (), all_topics: bool = False,
-                 regex: Optional[str] = None, exclude: Optional[str] = None,
-                 discovery_period_s: float = 0.25, compression: str = "zstd",
-                 chunk_size: int = 1 << 20, node_name: str = "mcap_recorder", **kwargs):
+    def __init__(
+        self,
+        output: str = "",
+        topics: Iterable[str] = (),
+        all_topics: bool = False,
+        regex: str | None = None,
+        exclude: str | None = None,
+        discovery_period_s: float = 0.25,
+        compression: str = "zstd",
+        chunk_size: int = 1 << 20,
+        node_name: str = "mcap_recorder",
+        **kwargs,
+    ):
         super().__init__(node_name, **kwargs)
         output = self.declare_parameter("output", str(output)).value
         topics = list(self.declare_parameter("topics", list(topics) or [""]).value or [])
@@ -93,12 +113,13 @@ class RecorderNode(Node):
         self._all = all_topics
         self._regex = re.compile(regex) if regex else None
         self._exclude = re.compile(exclude) if exclude else None
-        self._bag = McapBagWriter(output, chunk_size=chunk_size, compression=compression,
-                                     on_gap=self._log_gap)
-        self._topic_subs: Dict[str, object] = {}
-        self._unusable: Dict[str, str] = {}
-        self._rx_counts: Dict[str, int] = {}
-        self._stamped: Dict[str, bool] = {}
+        self._bag = McapBagWriter(
+            output, chunk_size=chunk_size, compression=compression, on_gap=self._log_gap
+        )
+        self._topic_subs: dict[str, object] = {}
+        self._unusable: dict[str, str] = {}
+        self._rx_counts: dict[str, int] = {}
+        self._stamped: dict[str, bool] = {}
         self._rec_closed = False
         self._discovery_timer = self.create_timer(discovery_period_s, self.discover)
         self.discover()
@@ -134,7 +155,7 @@ class RecorderNode(Node):
                 continue  # only subscribers so far: try again when a publisher appears
             self._subscribe(topic, types[0], [p.qos_profile for p in publishers])
 
-    def _subscribe(self, topic: str, type_name: str, offered: List[QoSProfile]) -> None:
+    def _subscribe(self, topic: str, type_name: str, offered: list[QoSProfile]) -> None:
         try:
             type_name = normalize_type_name(type_name)
             msg_type = message_class(type_name)
@@ -143,16 +164,19 @@ class RecorderNode(Node):
         except SchemaError as exc:
             self._mark_unusable(topic, str(exc))
             return
-        self._bag.add_topic(topic, type_name, text, qos_profiles_yaml(offered),
-                               type_hash(type_name))
+        self._bag.add_topic(
+            topic, type_name, text, qos_profiles_yaml(offered), type_hash(type_name)
+        )
         self._rx_counts[topic] = 0
         self._stamped[topic] = stamped
         qos = adapt_qos(offered)
         self._topic_subs[topic] = self.create_subscription(
-            msg_type, topic, lambda data, t=topic: self._on_message(t, data), qos, raw=True)
+            msg_type, topic, lambda data, t=topic: self._on_message(t, data), qos, raw=True
+        )
         self.get_logger().info(
             f"recording {topic} [{type_name}] ({qos.reliability.name.lower()}, "
-            f"{qos.durability.name.lower()}, depth {qos.depth})")
+            f"{qos.durability.name.lower()}, depth {qos.depth})"
+        )
 
     def _mark_unusable(self, topic: str, reason: str) -> None:
         self._unusable[topic] = reason
@@ -171,7 +195,8 @@ class RecorderNode(Node):
     def _log_gap(self, topic: str, expected: int, first: int) -> None:
         self.get_logger().warning(
             f"{topic}: frame-index gap, expected first_sample_index {expected}, got {first} "
-            f"({first - expected} samples missing)")
+            f"({first - expected} samples missing)"
+        )
 
     # ---------------------------------------------------------------- queries
 
@@ -179,19 +204,19 @@ class RecorderNode(Node):
         """Messages received (and written) on ``topic`` so far (0 if not subscribed)."""
         return self._rx_counts.get(topic, 0)
 
-    def counts(self) -> Dict[str, int]:
+    def counts(self) -> dict[str, int]:
         """Messages written per recorded topic."""
         return self._bag.counts()
 
-    def gaps(self) -> Dict[str, int]:
+    def gaps(self) -> dict[str, int]:
         """Frame-index gaps per recorded frame topic."""
         return self._bag.gaps()
 
-    def gap_details(self) -> Dict[str, Dict[str, int]]:
+    def gap_details(self) -> dict[str, dict[str, int]]:
         """Per frame topic: gaps, missing_samples, resets, frames, samples."""
         return self._bag.gap_details()
 
-    def recorded_topics(self) -> Dict[str, str]:
+    def recorded_topics(self) -> dict[str, str]:
         """Type name per recorded topic."""
         return self._bag.topic_types()
 
@@ -214,8 +239,10 @@ class RecorderNode(Node):
         """Multi-line human-readable summary: topics, counts, gaps, file size."""
         counts, details = self.counts(), self.gap_details()
         size = os.path.getsize(self.output) if os.path.exists(self.output) else 0
-        lines = [f"{self.output}: {sum(counts.values())} messages, {len(counts)} topics, "
-                 f"{size / 1e6:.3f} MB"]
+        lines = [
+            f"{self.output}: {sum(counts.values())} messages, {len(counts)} topics, "
+            f"{size / 1e6:.3f} MB"
+        ]
         for topic, type_name in sorted(self.recorded_topics().items()):
             line = f"  {topic} [{type_name}]: {counts.get(topic, 0)} messages"
             if topic in details:
@@ -235,15 +262,16 @@ class RecorderNode(Node):
 # -------------------------------------------------------------------- CLI
 
 
-def _parse_args(argv: List[str]) -> argparse.Namespace:
+def _parse_args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="mcap_record", description=__doc__.splitlines()[0])
     parser.add_argument("topics", nargs="*", help="topics to record")
     parser.add_argument("-o", "--output", required=True, help="output file (.mcap)")
     parser.add_argument("-a", "--all", action="store_true", help="record all topics")
     parser.add_argument("--regex", "-e", default=None, help="record topics matching this regex")
     parser.add_argument("--exclude", "-x", default=None, help="exclude topics matching this regex")
-    parser.add_argument("--duration", "-d", type=float, default=None,
-                        help="stop after this many seconds [s]")
+    parser.add_argument(
+        "--duration", "-d", type=float, default=None, help="stop after this many seconds [s]"
+    )
     parser.add_argument("--compression", choices=["zstd", "lz4", "none"], default="zstd")
     parser.add_argument("--chunk-size", type=int, default=1 << 20, help="chunk size [bytes]")
     args = parser.parse_args(argv)
@@ -270,7 +298,7 @@ def drain(executor, recorder: RecorderNode, idle_s: float = 0.3, limit_s: float 
             return
 
 
-def main(argv: Optional[List[str]] = None) -> int:
+def main(argv: list[str] | None = None) -> int:
     """Entry point of ``mcap_record``; returns the process exit code."""
     apply_defaults()
     import rclpy
@@ -289,9 +317,15 @@ def main(argv: Optional[List[str]] = None) -> int:
     stop, previous = install_stop_request()
     recorder = None
     try:
-        recorder = RecorderNode(args.output, topics=args.topics, all_topics=args.all,
-                                regex=args.regex, exclude=args.exclude,
-                                compression=args.compression, chunk_size=args.chunk_size)
+        recorder = RecorderNode(
+            args.output,
+            topics=args.topics,
+            all_topics=args.all,
+            regex=args.regex,
+            exclude=args.exclude,
+            compression=args.compression,
+            chunk_size=args.chunk_size,
+        )
         executor = SingleThreadedExecutor()
         executor.add_node(recorder)
         deadline = None if args.duration is None else time.monotonic() + args.duration

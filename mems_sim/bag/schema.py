@@ -19,6 +19,7 @@ bytes themselves:
 Only the standard library and ``ament_index_python`` are needed at import
 time; rclpy is imported lazily by the QoS helpers.
 """
+
 from __future__ import annotations
 
 import functools
@@ -27,21 +28,36 @@ import json
 import os
 import re
 import struct
-from typing import Dict, Iterable, List, Optional, Tuple
+from collections.abc import Iterable
 
 #: Line that separates definitions in a ``ros2msg`` schema (exactly 80 '=').
 SEPARATOR = "=" * 80
 
 #: Builtin (primitive) field types of the ``.msg`` format.
-PRIMITIVE_TYPES = frozenset({
-    "bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16",
-    "uint16", "int32", "uint32", "int64", "uint64", "string", "wstring",
-})
+PRIMITIVE_TYPES = frozenset(
+    {
+        "bool",
+        "byte",
+        "char",
+        "float32",
+        "float64",
+        "int8",
+        "uint8",
+        "int16",
+        "uint16",
+        "int32",
+        "uint32",
+        "int64",
+        "uint64",
+        "string",
+        "wstring",
+    }
+)
 
 #: Frame types and the layout of their leading fields (see :func:`peek_frame_index`).
 #: ``frame``: header, uint64 first_sample_index, float64 sample_rate_hz, uint32 num_samples.
 #: ``noise_model``: header, uint64 first_sample_index, uint64 num_samples, float64 sample_rate_hz.
-FRAME_LAYOUTS: Dict[str, str] = {
+FRAME_LAYOUTS: dict[str, str] = {
     "mems_msgs/msg/AdcFrame": "frame",
     "mems_msgs/msg/SignalFrame": "frame",
     "mems_msgs/msg/StateEstimate": "frame",
@@ -51,8 +67,7 @@ FRAME_LAYOUTS: Dict[str, str] = {
 #: Types whose frames form a contiguous sample stream, so that a jump of
 #: ``first_sample_index`` is a drop. NoiseModel is not one of them: each
 #: result describes a (possibly growing, overlapping) window of data.
-GAP_CHECKED_TYPES = frozenset(
-    name for name, layout in FRAME_LAYOUTS.items() if layout == "frame")
+GAP_CHECKED_TYPES = frozenset(name for name, layout in FRAME_LAYOUTS.items() if layout == "frame")
 
 # A field or constant line: type (with optional array suffix), whitespace, name.
 _FIELD_RE = re.compile(r"^\s*([A-Za-z][A-Za-z0-9_/]*)(\[[^\]]*\])?\s+[A-Za-z]")
@@ -80,7 +95,7 @@ def normalize_type_name(type_name: str) -> str:
     raise SchemaError(f"type name not understood: {type_name!r} (expected pkg/msg/Type)")
 
 
-def split_type_name(type_name: str) -> Tuple[str, str, str]:
+def split_type_name(type_name: str) -> tuple[str, str, str]:
     """Split a type name into ``(package, namespace, Type)``, e.g. ``('std_msgs', 'msg', 'Header')``."""
     pkg, ns, name = normalize_type_name(type_name).split("/")
     return pkg, ns, name
@@ -107,16 +122,18 @@ def type_name_of(msg_class) -> str:
 
 
 def _share_directory(package: str) -> str:
-    from ament_index_python.packages import (PackageNotFoundError,
-                                             get_package_share_directory)
+    from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+
     try:
         return get_package_share_directory(package)
     except (PackageNotFoundError, LookupError, ValueError) as exc:
-        raise SchemaError(f"package {package!r} not found in the ament index "
-                          f"(AMENT_PREFIX_PATH={os.environ.get('AMENT_PREFIX_PATH', '')!r})") from exc
+        raise SchemaError(
+            f"package {package!r} not found in the ament index "
+            f"(AMENT_PREFIX_PATH={os.environ.get('AMENT_PREFIX_PATH', '')!r})"
+        ) from exc
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def msg_file_text(type_name: str) -> str:
     """Return the text of ``<share of pkg>/msg/Type.msg`` of a type, as installed."""
     pkg, ns, name = split_type_name(type_name)
@@ -142,7 +159,7 @@ def _strip_comment(line: str) -> str:
     return line
 
 
-def resolve_field_type(base_type: str, package: str) -> Optional[str]:
+def resolve_field_type(base_type: str, package: str) -> str | None:
     """Resolve a field's base type (array suffix removed) to ``pkg/msg/Type``.
 
     Returns None for builtin types (including bounded strings ``string<=N``).
@@ -166,7 +183,7 @@ def _package_has_msg(package: str, name: str) -> bool:
         return False
 
 
-def parse_fields(text: str, package: str) -> List[Tuple[str, Optional[str], str]]:
+def parse_fields(text: str, package: str) -> list[tuple[str, str | None, str]]:
     """Parse ``.msg`` text into ``(field_type, resolved_complex_type_or_None, name)``.
 
     Constants (``TYPE NAME=value``) are skipped. ``field_type`` keeps any array suffix.
@@ -179,7 +196,7 @@ def parse_fields(text: str, package: str) -> List[Tuple[str, Optional[str], str]
         parts = line.split(None, 2)
         if len(parts) < 2:
             raise SchemaError(f"cannot parse .msg line {raw!r}")
-        field_type, rest = parts[0], line[len(parts[0]):].strip()
+        field_type, rest = parts[0], line[len(parts[0]) :].strip()
         if "=" in rest.split(None, 1)[0] or re.match(r"^[A-Za-z0-9_]+\s*=", rest):
             continue  # constant
         name = rest.split()[0]
@@ -188,14 +205,14 @@ def parse_fields(text: str, package: str) -> List[Tuple[str, Optional[str], str]
     return fields
 
 
-def dependencies(type_name: str) -> List[str]:
+def dependencies(type_name: str) -> list[str]:
     """Direct complex dependencies of a type, in full form, sorted, without duplicates."""
     pkg, _, _ = split_type_name(type_name)
     deps = {resolved for _, resolved, _ in parse_fields(msg_file_text(type_name), pkg) if resolved}
     return sorted(deps)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def schema_text(type_name: str) -> str:
     """Return the ``ros2msg`` schema text of ``pkg/msg/Type`` (rosbag2's layout).
 
@@ -219,7 +236,7 @@ def schema_text(type_name: str) -> str:
     return append(root, 0)
 
 
-def split_schema(text: str) -> Dict[str, str]:
+def split_schema(text: str) -> dict[str, str]:
     """Split a ``ros2msg`` schema into ``{type_name: msg_text}``; the root is under ``''``."""
     parts = re.split(r"\n?^={80}\n", text, flags=re.MULTILINE)
     out = {"": parts[0]}
@@ -231,7 +248,7 @@ def split_schema(text: str) -> Dict[str, str]:
     return out
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def has_header(type_name: str) -> bool:
     """True when the first field of the type is a ``std_msgs/Header`` (so the CDR starts with a stamp)."""
     pkg, _, _ = split_type_name(type_name)
@@ -239,8 +256,8 @@ def has_header(type_name: str) -> bool:
     return bool(fields) and fields[0][1] == "std_msgs/msg/Header" and fields[0][0].find("[") < 0
 
 
-@functools.lru_cache(maxsize=None)
-def type_hash(type_name: str) -> Optional[str]:
+@functools.cache
+def type_hash(type_name: str) -> str | None:
     """Return the ``RIHS01_<hex>`` type hash of a type, or None when not available.
 
     Read from ``<share>/<pkg>/msg/Type.json`` (``type_hashes``), which rosidl
@@ -285,6 +302,7 @@ def _policy_name(policy) -> str:
 
 def qos_profile_dict(qos) -> dict:
     """rosbag2's dict form of one rclpy ``QoSProfile`` (durations as ``{sec, nsec}``)."""
+
     def time(duration) -> dict:
         ns = _duration_ns(duration)
         return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
@@ -326,8 +344,13 @@ def qos_profiles_from_yaml(text: str) -> list:
     """Parse ``offered_qos_profiles`` YAML (version 9 strings or older ints) into rclpy ``QoSProfile``s."""
     import yaml
     from rclpy.duration import Duration
-    from rclpy.qos import (DurabilityPolicy, HistoryPolicy, LivelinessPolicy,
-                           QoSProfile, ReliabilityPolicy)
+    from rclpy.qos import (
+        DurabilityPolicy,
+        HistoryPolicy,
+        LivelinessPolicy,
+        QoSProfile,
+        ReliabilityPolicy,
+    )
 
     def policy(enum, value):
         if isinstance(value, int):
@@ -343,17 +366,21 @@ def qos_profiles_from_yaml(text: str) -> list:
     profiles = []
     for entry in entries or []:
         history = policy(HistoryPolicy, entry.get("history", "keep_last"))
-        profiles.append(QoSProfile(
-            history=history,
-            depth=int(entry.get("depth", 10)),
-            reliability=policy(ReliabilityPolicy, entry.get("reliability", "reliable")),
-            durability=policy(DurabilityPolicy, entry.get("durability", "volatile")),
-            deadline=duration(entry.get("deadline")),
-            lifespan=duration(entry.get("lifespan")),
-            liveliness=policy(LivelinessPolicy, entry.get("liveliness", "system_default")),
-            liveliness_lease_duration=duration(entry.get("liveliness_lease_duration")),
-            avoid_ros_namespace_conventions=bool(entry.get("avoid_ros_namespace_conventions", False)),
-        ))
+        profiles.append(
+            QoSProfile(
+                history=history,
+                depth=int(entry.get("depth", 10)),
+                reliability=policy(ReliabilityPolicy, entry.get("reliability", "reliable")),
+                durability=policy(DurabilityPolicy, entry.get("durability", "volatile")),
+                deadline=duration(entry.get("deadline")),
+                lifespan=duration(entry.get("lifespan")),
+                liveliness=policy(LivelinessPolicy, entry.get("liveliness", "system_default")),
+                liveliness_lease_duration=duration(entry.get("liveliness_lease_duration")),
+                avoid_ros_namespace_conventions=bool(
+                    entry.get("avoid_ros_namespace_conventions", False)
+                ),
+            )
+        )
     return profiles
 
 
@@ -366,7 +393,7 @@ _FRAME = {True: struct.Struct("<QdI"), False: struct.Struct(">QdI")}
 _NOISE = {True: struct.Struct("<QQd"), False: struct.Struct(">QQd")}
 
 
-def _encapsulation(serialized: bytes) -> Tuple[bool, int]:
+def _encapsulation(serialized: bytes) -> tuple[bool, int]:
     """(little_endian, max_alignment) from the 4-byte CDR encapsulation header.
 
     Representation ids 0/1 are XCDR1 (CDR_BE/CDR_LE, 8-byte alignment of 64-bit
@@ -376,7 +403,7 @@ def _encapsulation(serialized: bytes) -> Tuple[bool, int]:
     return bool(rep_id & 1), (4 if rep_id >= 6 else 8)
 
 
-def peek_header_stamp_ns(serialized: bytes) -> Optional[int]:
+def peek_header_stamp_ns(serialized: bytes) -> int | None:
     """``header.stamp`` in ns of a CDR message that starts with ``std_msgs/Header``; None if too short."""
     if len(serialized) < 12:
         return None
@@ -385,7 +412,7 @@ def peek_header_stamp_ns(serialized: bytes) -> Optional[int]:
     return sec * 1_000_000_000 + nsec
 
 
-def peek_frame_index(serialized: bytes, layout: str = "frame") -> Optional[Tuple[int, int]]:
+def peek_frame_index(serialized: bytes, layout: str = "frame") -> tuple[int, int] | None:
     """Return ``(first_sample_index, num_samples)`` of a serialised frame message, or None.
 
     Reads only the leading fields of the CDR bytes:
@@ -403,7 +430,7 @@ def peek_frame_index(serialized: bytes, layout: str = "frame") -> Optional[Tuple
     return parsed[0], parsed[1]
 
 
-def peek_frame_fields(serialized: bytes, layout: str = "frame") -> Optional[Tuple[int, int, float]]:
+def peek_frame_fields(serialized: bytes, layout: str = "frame") -> tuple[int, int, float] | None:
     """Like :func:`peek_frame_index`, plus ``sample_rate_hz`` [Hz]: ``(first, num_samples, rate)``."""
     if len(serialized) < 16:
         return None

@@ -28,16 +28,16 @@ The writer also counts messages per topic and, for frame types
 (``first_sample_index`` of a frame differs from ``first + num_samples`` of the
 previous frame on the same topic), peeked from the CDR bytes.
 """
+
 from __future__ import annotations
 
 import os
 import queue
 import threading
-from typing import Dict, Optional, Tuple
 
 from mcap.writer import CompressionType, Writer
 
-from .schema import GAP_CHECKED_TYPES, normalize_type_name, peek_frame_index
+from mems_sim.bag.schema import GAP_CHECKED_TYPES, normalize_type_name, peek_frame_index
 
 _COMPRESSION = {
     "zstd": CompressionType.ZSTD,
@@ -92,7 +92,7 @@ class FrameGapCounter:
     """
 
     def __init__(self):
-        self.expected: Optional[int] = None
+        self.expected: int | None = None
         self.gaps = 0
         self.missing_samples = 0
         self.resets = 0
@@ -127,27 +127,34 @@ class McapBagWriter:
     :param queue_size: messages the writer thread may lag behind (module doc).
     """
 
-    def __init__(self, path: str, chunk_size: int = 1 << 20, compression: str = "zstd",
-                 on_gap=None, queue_size: int = 256):
+    def __init__(
+        self,
+        path: str,
+        chunk_size: int = 1 << 20,
+        compression: str = "zstd",
+        on_gap=None,
+        queue_size: int = 256,
+    ):
         if compression not in _COMPRESSION:
             raise ValueError(f"unknown compression {compression!r} (zstd, lz4 or none)")
         self.path = str(path)
         self.compression = compression or "none"
         self._stream = _WriteThroughFile(self.path)
-        self._writer = Writer(self._stream, chunk_size=chunk_size,
-                              compression=_COMPRESSION[compression])
+        self._writer = Writer(
+            self._stream, chunk_size=chunk_size, compression=_COMPRESSION[compression]
+        )
         self._writer.start(profile="ros2", library="mems_sim.bag/mcap-python")
         self._lock = threading.Lock()
-        self._schema_ids: Dict[str, int] = {}
-        self._channels: Dict[str, int] = {}
-        self._types: Dict[str, str] = {}
-        self._counts: Dict[str, int] = {}
-        self._gap_counters: Dict[str, FrameGapCounter] = {}
+        self._schema_ids: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self._types: dict[str, str] = {}
+        self._counts: dict[str, int] = {}
+        self._gap_counters: dict[str, FrameGapCounter] = {}
         self._on_gap = on_gap
         self._closed = False
-        self._wlock = threading.Lock()      # serialises every call into mcap's Writer
+        self._wlock = threading.Lock()  # serialises every call into mcap's Writer
         self._queue: queue.Queue = queue.Queue(maxsize=max(1, int(queue_size)))
-        self._error: Optional[BaseException] = None
+        self._error: BaseException | None = None
         self._thread = threading.Thread(target=self._drain, name="mcap-writer", daemon=True)
         self._thread.start()
 
@@ -158,13 +165,17 @@ class McapBagWriter:
             if item is None:
                 return
             if self._error is not None:
-                continue                     # keep draining so producers never block
+                continue  # keep draining so producers never block
             try:
                 with self._wlock:
-                    self._writer.add_message(channel_id=item[0], log_time=item[1],
-                                             data=item[2], publish_time=item[3],
-                                             sequence=item[4])
-            except BaseException as exc:     # noqa: BLE001 - reported by write()/close()
+                    self._writer.add_message(
+                        channel_id=item[0],
+                        log_time=item[1],
+                        data=item[2],
+                        publish_time=item[3],
+                        sequence=item[4],
+                    )
+            except BaseException as exc:
                 self._error = exc
 
     # ---------------------------------------------------------------- setup
@@ -173,8 +184,14 @@ class McapBagWriter:
         """True once :meth:`add_topic` was called for ``topic``."""
         return topic in self._channels
 
-    def add_topic(self, topic: str, type_name: str, schema_text: str, qos_yaml: str,
-                  type_hash: Optional[str] = None) -> int:
+    def add_topic(
+        self,
+        topic: str,
+        type_name: str,
+        schema_text: str,
+        qos_yaml: str,
+        type_hash: str | None = None,
+    ) -> int:
         """Register a topic (channel) and its type's schema; return the channel id.
 
         ``qos_yaml`` is the ``offered_qos_profiles`` string, ``type_hash`` the
@@ -190,15 +207,16 @@ class McapBagWriter:
             if schema_id is None:
                 with self._wlock:
                     schema_id = self._writer.register_schema(
-                        name=type_name, encoding="ros2msg", data=schema_text.encode("utf-8"))
+                        name=type_name, encoding="ros2msg", data=schema_text.encode("utf-8")
+                    )
                 self._schema_ids[type_name] = schema_id
             metadata = {"offered_qos_profiles": qos_yaml}
             if type_hash:
                 metadata["topic_type_hash"] = type_hash
             with self._wlock:
                 channel_id = self._writer.register_channel(
-                    topic=topic, message_encoding="cdr", schema_id=schema_id,
-                    metadata=metadata)
+                    topic=topic, message_encoding="cdr", schema_id=schema_id, metadata=metadata
+                )
             self._channels[topic] = channel_id
             self._types[topic] = type_name
             self._counts[topic] = 0
@@ -228,32 +246,46 @@ class McapBagWriter:
                     if counter.update(*peek):
                         gap = (expected, peek[0])
             sequence = self._counts[topic]
-            self._queue.put((channel_id, int(log_time_ns), bytes(data), int(publish_time_ns),
-                             sequence & 0xFFFFFFFF))
+            self._queue.put(
+                (
+                    channel_id,
+                    int(log_time_ns),
+                    bytes(data),
+                    int(publish_time_ns),
+                    sequence & 0xFFFFFFFF,
+                )
+            )
             self._counts[topic] = sequence + 1
         if gap is not None and self._on_gap is not None:
             self._on_gap(topic, gap[0], gap[1])
 
     # ---------------------------------------------------------------- stats
 
-    def counts(self) -> Dict[str, int]:
+    def counts(self) -> dict[str, int]:
         """Messages written per topic."""
         with self._lock:
             return dict(self._counts)
 
-    def gaps(self) -> Dict[str, int]:
+    def gaps(self) -> dict[str, int]:
         """Frame-index gaps per frame topic (topics of other types are absent)."""
         with self._lock:
             return {t: c.gaps for t, c in self._gap_counters.items()}
 
-    def gap_details(self) -> Dict[str, Dict[str, int]]:
+    def gap_details(self) -> dict[str, dict[str, int]]:
         """Per frame topic: gaps, missing_samples, resets, frames, samples."""
         with self._lock:
-            return {t: {"gaps": c.gaps, "missing_samples": c.missing_samples,
-                        "resets": c.resets, "frames": c.frames, "samples": c.samples}
-                    for t, c in self._gap_counters.items()}
+            return {
+                t: {
+                    "gaps": c.gaps,
+                    "missing_samples": c.missing_samples,
+                    "resets": c.resets,
+                    "frames": c.frames,
+                    "samples": c.samples,
+                }
+                for t, c in self._gap_counters.items()
+            }
 
-    def topic_types(self) -> Dict[str, str]:
+    def topic_types(self) -> dict[str, str]:
         """Type name (``pkg/msg/Type``) per registered topic."""
         return dict(self._types)
 
@@ -289,14 +321,16 @@ class McapBagWriter:
         if self._error is not None:
             raise OSError(f"bag {self.path}: writing failed: {self._error}") from self._error
 
-    def __enter__(self) -> "McapBagWriter":
+    def __enter__(self) -> McapBagWriter:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
 
 
-def gap_summary(details: Dict[str, Dict[str, int]]) -> Tuple[int, int]:
+def gap_summary(details: dict[str, dict[str, int]]) -> tuple[int, int]:
     """Total (gaps, missing_samples) over all topics of :meth:`McapBagWriter.gap_details`."""
-    return (sum(d["gaps"] for d in details.values()),
-            sum(d["missing_samples"] for d in details.values()))
+    return (
+        sum(d["gaps"] for d in details.values()),
+        sum(d["missing_samples"] for d in details.values()),
+    )

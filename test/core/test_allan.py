@@ -1,4 +1,5 @@
-"""Tests of the overlapping Allan deviation (mems_estimation.allan), no ROS."""
+"""Tests of the overlapping Allan deviation (mems_estimation.identification.allan), no ROS."""
+
 import os
 import sys
 
@@ -8,15 +9,25 @@ import pytest
 
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..")))
 
-from mems_estimation.allan import (allan_analysis, chi2_interval, edf_from_slope,  # noqa: E402
-                                   edf_oadev, oadev, tau_grid)
+from mems_estimation.identification.allan import (
+    allan_analysis,
+    chi2_interval,
+    edf_from_slope,
+    edf_oadev,
+    oadev,
+    tau_grid,
+)
 
 
 def _datasets():
     rng = np.random.default_rng(7)
     yield "white", rng.standard_normal(5000) * 0.3 + 1.7, 100.0
     yield "random_walk", np.cumsum(rng.standard_normal(4097)) * 1e-3, 50.0
-    yield "mixed_odd", rng.standard_normal(20001) + np.cumsum(rng.standard_normal(20001)) * 0.01, 100.0
+    yield (
+        "mixed_odd",
+        rng.standard_normal(20001) + np.cumsum(rng.standard_normal(20001)) * 0.01,
+        100.0,
+    )
     yield "tiny", rng.standard_normal(9), 1.0
 
 
@@ -42,8 +53,12 @@ def test_equals_allantools_explicit_taus():
 
 
 # allantools' 'all' grid costs O(n^2): compared up to 12345 samples only.
-GRID_CASES = [(n, k) for n in (9, 1000, 1023, 1024, 12345, 10 ** 6)
-              for k in ("octave", "decade", "all") if not (k == "all" and n > 20000)]
+GRID_CASES = [
+    (n, k)
+    for n in (9, 1000, 1023, 1024, 12345, 10**6)
+    for k in ("octave", "decade", "all")
+    if not (k == "all" and n > 20000)
+]
 
 
 @pytest.mark.parametrize("n, kind", GRID_CASES)
@@ -56,9 +71,9 @@ def test_tau_grid_matches_allantools(n, kind):
 
 
 def test_tau_grid_octave_limit():
-    taus = tau_grid(10 ** 6, 100.0, "octave")
+    taus = tau_grid(10**6, 100.0, "octave")
     m = np.round(taus * 100.0)
-    assert m[0] == 1 and m[-1] == 2 ** 18 and np.all(np.diff(np.log2(m)) == 1)
+    assert m[0] == 1 and m[-1] == 2**18 and np.all(np.diff(np.log2(m)) == 1)
     with pytest.raises(ValueError, match="tau grid"):
         tau_grid(100, 1.0, "weekly")
 
@@ -71,7 +86,7 @@ def test_white_noise_analytic():
     theory = N / np.sqrt(res.taus)
     sel = res.edf > 20
     assert sel.sum() >= 12
-    tol = 4.0 * np.sqrt(1.0 / (2.0 * res.edf[sel]))      # 4 sd of an ADEV estimate
+    tol = 4.0 * np.sqrt(1.0 / (2.0 * res.edf[sel]))  # 4 sd of an ADEV estimate
     assert np.all(np.abs(res.adev[sel] / theory[sel] - 1) < tol)
     inside = (res.ci_low <= theory) & (theory <= res.ci_high)
     assert inside.mean() >= 0.8
@@ -82,7 +97,8 @@ def test_edf_and_chi2_interval():
     # white FM at m = 1: about 3(N-1)/2 * 4/9
     assert edf_oadev(N, 1, 0) == pytest.approx((1.5 * (N - 1) - 2 * (N - 2) / N) * 4 / 9)
     assert edf_from_slope(N, np.array([1, 10]), np.array([-1.0, -1.0])) == pytest.approx(
-        edf_oadev(N, np.array([1, 10]), 0))
+        edf_oadev(N, np.array([1, 10]), 0)
+    )
     mid = edf_from_slope(N, np.array([100]), np.array([-0.5]))[0]
     assert mid == pytest.approx(0.5 * (edf_oadev(N, 100, 0) + edf_oadev(N, 100, -1)))
     lo, hi = chi2_interval(1.0, 10.0, 0.95)

@@ -1,23 +1,23 @@
 """Force-rebalance accelerometer core (Zhang 2010): physics against the thesis's equations
 and numbers, the three controller modes, bad input."""
+
 import math
 
 import numpy as np
 import pytest
 
-from mems_estimation.signal_metrics import coherent_snr_db
-from mems_sim import fr_accelerometer as fra
+from mems_estimation.identification.signal_metrics import coherent_snr_db
+from mems_sim.devices import accelerometer as fra
 from mems_sim.params import ParameterError
 
 G = fra.G0
 P = fra.validate_params({})
-SKIP = 20_000            # 20 ms start-up at 1 MHz
-N = 120_000              # 0.12 s: start-up + one 10 Hz period
+SKIP = 20_000  # 20 ms start-up at 1 MHz
+N = 120_000  # 0.12 s: start-up + one 10 Hz period
 
 
 def run(mode, amp_g, seed=1, n=N, **kw):
-    d = fra.ForceRebalanceAccelerometer(dict(mode=mode, accel_amplitude=amp_g * G, **kw),
-                                        seed=seed)
+    d = fra.ForceRebalanceAccelerometer(dict(mode=mode, accel_amplitude=amp_g * G, **kw), seed=seed)
     return d, d.step(n)
 
 
@@ -42,7 +42,7 @@ def test_table1_derived_numbers():
 
 def test_readout_is_eq_2_9_and_linearises_to_2_10():
     h = fra.readout_gain(P)
-    assert h == pytest.approx(2 * fra.EPS0 * 4 * 1.86e-6 * 0.6 / (20e-12 * 2.3e-6 ** 2))
+    assert h == pytest.approx(2 * fra.EPS0 * 4 * 1.86e-6 * 0.6 / (20e-12 * 2.3e-6**2))
     x = 1e-10
     assert fra.readout_voltage(x, P) == pytest.approx(-h * x, rel=1e-8)
     x = 0.3 * P["gap"]
@@ -53,10 +53,10 @@ def test_electrostatic_force_forms():
     """(2-12) with v_F = V_B = 0; small-signal (2-16) with the factor 2 on the bias terms."""
     ea, d0, v1 = fra.eps_area(P), P["gap"], P["carrier_amplitude"]
     x = 0.2 * d0
-    f212 = ea * v1 ** 2 / 4 * (1 / (d0 - x) ** 2 - 1 / (d0 + x) ** 2)  # <sin^2> = 1/2
+    f212 = ea * v1**2 / 4 * (1 / (d0 - x) ** 2 - 1 / (d0 + x) ** 2)  # <sin^2> = 1/2
     assert fra.electrostatic_force(x, 0.0, 0.0, P) == pytest.approx(f212, rel=1e-12)
     vb, vf, x = 0.17, 0.01, 1e-11
-    lin = -2 * ea * vb * vf / d0 ** 2 + ea * x * (v1 ** 2 + 2 * vb ** 2 + 2 * vf ** 2) / d0 ** 3
+    lin = -2 * ea * vb * vf / d0**2 + ea * x * (v1**2 + 2 * vb**2 + 2 * vf**2) / d0**3
     assert fra.electrostatic_force(x, vf, vb, P) == pytest.approx(lin, rel=1e-6)
     # a positive v_F pushes the mass to negative x (sign convention of the module)
     assert fra.electrostatic_force(0.0, 0.01, vb, P) < 0
@@ -78,8 +78,16 @@ def test_squeeze_film_damping_is_even_and_table1_at_rest():
     assert b[0] > b[1] > b[2]
 
 
-@pytest.mark.parametrize("name,value", [("mass", 0.0), ("gap", -1e-6), ("stiffness", 0.0),
-                                        ("sample_rate_hz", 1e3), ("mode", "bang_bang")])
+@pytest.mark.parametrize(
+    "name,value",
+    [
+        ("mass", 0.0),
+        ("gap", -1e-6),
+        ("stiffness", 0.0),
+        ("sample_rate_hz", 1e3),
+        ("mode", "bang_bang"),
+    ],
+)
 def test_invalid_physical_parameters_refused(name, value):
     with pytest.raises(ParameterError, match=name):
         fra.ForceRebalanceAccelerometer({name: value})
@@ -98,13 +106,19 @@ def test_input_profiles(tmp_path):
     f = tmp_path / "a.csv"
     f.write_text("# t, a\n0, 0\n1e-3, 9.8\n2e-3, 9.8\n")
     d = fra.ForceRebalanceAccelerometer({"profile": "file", "profile_file": str(f)})
-    np.testing.assert_allclose(d.input_at(np.array([0.0, 5e-4, 1.5e-3, 5.0])),
-                               [0.0, 4.9, 9.8, 9.8])
-    d = fra.ForceRebalanceAccelerometer({"profile": "step", "step_time": 1e-3,
-                                         "accel_amplitude": 2.0})
+    np.testing.assert_allclose(d.input_at(np.array([0.0, 5e-4, 1.5e-3, 5.0])), [0.0, 4.9, 9.8, 9.8])
+    d = fra.ForceRebalanceAccelerometer(
+        {"profile": "step", "step_time": 1e-3, "accel_amplitude": 2.0}
+    )
     np.testing.assert_array_equal(d.input_at(np.array([0.0, 0.999e-3, 1e-3])), [0, 0, 2.0])
-    d = fra.ForceRebalanceAccelerometer({"profile": "chirp", "accel_frequency": 10.0,
-                                         "chirp_end_frequency": 30.0, "chirp_duration": 1.0})
+    d = fra.ForceRebalanceAccelerometer(
+        {
+            "profile": "chirp",
+            "accel_frequency": 10.0,
+            "chirp_end_frequency": 30.0,
+            "chirp_duration": 1.0,
+        }
+    )
     t = np.linspace(0, 1, 200001)
     a = d.input_at(t)
     # linear sweep: the instantaneous frequency at mid-sweep is 20 Hz (zero-crossing spacing)
@@ -128,8 +142,13 @@ def test_plant_integration_converges():
     """Noise-free step response: RK4 with the default single step per sample agrees with 32
     substeps to 1e-7 relative and settles to the nonlinear static equilibrium
     k x - F_el(x) = m a."""
-    kw = dict(profile="step", accel_amplitude=G, brownian_accel_std=0.0,
-              electronic_accel_std=0.0, mode="open_loop")
+    kw = dict(
+        profile="step",
+        accel_amplitude=G,
+        brownian_accel_std=0.0,
+        electronic_accel_std=0.0,
+        mode="open_loop",
+    )
     d4 = fra.ForceRebalanceAccelerometer(kw)
     d32 = fra.ForceRebalanceAccelerometer(dict(kw, substeps=32))
     x4, x32 = d4.step(20_000).x, d32.step(20_000).x
@@ -143,7 +162,7 @@ def test_open_loop_pull_in_from_the_physics():
     """The open loop has no static equilibrium above a_pi (eq. 2-12 softening); a sinusoid
     beyond it drives the mass to the stop (contact), one below does not."""
     a_pi, x_pi = fra.pull_in_acceleration(P)
-    assert 11 * G < a_pi < 13.5 * G          # 12.2 g with Table I
+    assert 11 * G < a_pi < 13.5 * G  # 12.2 g with Table I
     assert 0.2 < x_pi / P["gap"] < 0.33
     _, f = run("open_loop", a_pi / G * 1.2, n=60_000)
     assert f.contact.any()
@@ -151,12 +170,16 @@ def test_open_loop_pull_in_from_the_physics():
     assert not f.contact.any()
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "Issue 4 asks the open loop to fail at 5 g (thesis Table III). With Table I's parameters "
-    "and the carrier force (2-12) the open loop's static pull-in is at 12.2 g: a 10 Hz, 5 g "
-    "input is tracked with max displacement 1.8e-7 m = 0.08 d0, no contact. The thesis's "
-    "7e-8 m at 1 g implies a softer loop (0.53 N/m instead of 1.05 N/m) than its own "
-    "Table I gives."))
+@pytest.mark.xfail(
+    strict=True,
+    reason=(
+        "Target: the open loop fails at 5 g (Zhang 2010 Table III). With Table I's parameters "
+        "and the carrier force (2-12) the open loop's static pull-in is at 12.2 g: a 10 Hz, 5 g "
+        "input is tracked with max displacement 1.8e-7 m = 0.08 d0, no contact. The thesis's "
+        "7e-8 m at 1 g implies a softer loop (0.53 N/m instead of 1.05 N/m) than its own "
+        "Table I gives."
+    ),
+)
 def test_open_loop_fails_at_5g_as_in_table_iii():
     _, f = run("open_loop", 5.0)
     assert f.contact.any()

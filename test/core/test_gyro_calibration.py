@@ -1,12 +1,20 @@
 """Core tests of the in-situ gyro calibration (eqs. 20-27, sec. 3.6.3)."""
+
 import math
 
 import numpy as np
 import pytest
 
-from mems_estimation.gyro_calibration import calibrate, least_squares_eq27
-from mems_sim.scenarios.gyro_calibration import (T1, T2, Plan, calibration_run, identify_stage,
-                                                 retrain_at)
+from mems_estimation.identification.stage_gyro_calibration import (
+    T1,
+    T2,
+    Plan,
+    calibrate,
+    calibration_run,
+    identify_stage,
+    least_squares_eq27,
+    retrain_at,
+)
 
 
 def test_least_squares_eq27_standard_errors():
@@ -52,7 +60,7 @@ def test_scale_factor_tracks_temperature(runs):
 
 
 def test_scale_factor_error_rms_100ppm(runs):
-    """Issue 3: <= 100 ppm RMS over the two temperatures (paper 286 ppm). With the thesis'
+    """Target: <= 100 ppm RMS over the two temperatures (Chen 2018 Table 3.6: 286 ppm). With the thesis'
     one-step Q (measurement-driven EKF) this was 630-2050 ppm, stochastic."""
     rms = math.sqrt(np.mean([runs[T]["ppm"] ** 2 for T in (T1, T2)]))
     assert rms <= 100.0

@@ -1,13 +1,15 @@
 """Hybrid EKF of the accelerometer (Zhang 2010, eqs. 4-48 .. 4-57): time update against the
 exact (Van Loan) discretisation, measurement update against the textbook form,
 consistency on seeded runs, Table IV's tuning direction."""
+
 import numpy as np
 import pytest
 import scipy.linalg
 
-from mems_estimation import hybrid_ekf as he
-from mems_estimation.signal_metrics import coherent_snr_db, consistency
-from mems_sim import fr_accelerometer as fra
+from mems_estimation.filters.accelerometer_ekf import HybridEkf
+from mems_estimation.identification.signal_metrics import coherent_snr_db, consistency
+from mems_sim.devices import accelerometer as fra
+from mems_sim.kernels import accelerometer_ekf as he
 
 G = fra.G0
 SKIP = 20_000
@@ -15,16 +17,16 @@ SKIP = 20_000
 
 def config(**kw):
     p = fra.validate_params(dict(mode="ekf_rebalance", **kw))
-    return p, he.HybridEkfConfig.from_device(p, fra.bias_voltage(p))
+    return p, fra.ekf_config(p, fra.bias_voltage(p))
 
 
 def linear_model(p, c):
     """Continuous (F, L Q L^T) of the model linearised at rest (x = v = 0, v_F = 0)."""
     m, k, b = p["mass"], p["stiffness"], p["damping"]
     vb = fra.bias_voltage(p)
-    ke = fra.eps_area(p) * (p["carrier_amplitude"] ** 2 + 2 * vb ** 2) / p["gap"] ** 3
+    ke = fra.eps_area(p) * (p["carrier_amplitude"] ** 2 + 2 * vb**2) / p["gap"] ** 3
     f = np.array([[0, 1, 0], [(-k + ke) / m, -b / m, 1], [0, 0, 0]])
-    qc = np.diag([0.0, c.q[0] / m ** 2, c.q[1]])
+    qc = np.diag([0.0, c.q[0] / m**2, c.q[1]])
     return f, qc
 
 
@@ -65,8 +67,11 @@ def test_measurement_update_is_4_55_to_4_57():
     hx, hd = he.measurement(s[0], c.model)
     assert hx == pytest.approx(fra.readout_voltage(s[0], p), rel=1e-12)
     eps = 1e-14
-    assert hd == pytest.approx((he.measurement(s[0] + eps, c.model)[0]
-                                - he.measurement(s[0] - eps, c.model)[0]) / (2 * eps), rel=1e-6)
+    assert hd == pytest.approx(
+        (he.measurement(s[0] + eps, c.model)[0] - he.measurement(s[0] - eps, c.model)[0])
+        / (2 * eps),
+        rel=1e-6,
+    )
     hm = np.array([[hd, 0, 0]])
     k = pm @ hm.T / (hm @ pm @ hm.T + c.r)
     s_ref = s + (k * (y - hx)).ravel()
@@ -81,20 +86,21 @@ def test_downstream_filter_reproduces_the_in_loop_estimate():
     """The same filter on the device's ADC and drive samples gives the in-loop estimate."""
     d = fra.ForceRebalanceAccelerometer({"mode": "ekf_rebalance", "accel_amplitude": G}, seed=2)
     f = d.step(30_000)
-    ekf = he.HybridEkf(d.ekf_config)
+    ekf = HybridEkf(d.ekf_config)
     out = ekf.run(f.code * d.lsb, f.v_f)
     np.testing.assert_array_equal(out["estimate"], f.estimate)
     np.testing.assert_array_equal(out["variance"], f.variance)
 
 
-@pytest.mark.parametrize("mode,amp_g", [("pi_rebalance", 1.0), ("ekf_rebalance", 0.1),
-                                        ("ekf_rebalance", 1.0)])
+@pytest.mark.parametrize(
+    "mode,amp_g", [("pi_rebalance", 1.0), ("ekf_rebalance", 0.1), ("ekf_rebalance", 1.0)]
+)
 def test_displacement_error_is_consistent(mode, amp_g):
-    """Issue 4: x_hat - x has zero mean (within 3 standard errors, batch means) and its std
+    """Consistency: x_hat - x has zero mean (within 3 standard errors, batch means) and its std
     matches the filter's predicted std within 20 %; P stays positive definite."""
     d = fra.ForceRebalanceAccelerometer({"mode": mode, "accel_amplitude": amp_g * G}, seed=4)
     f = d.step(120_000)
-    ekf = he.HybridEkf(d.ekf_config)
+    ekf = HybridEkf(d.ekf_config)
     out = ekf.run(f.code * d.lsb, f.v_f)
     c = consistency(out["estimate"][SKIP:, 0] - f.x[SKIP:], out["variance"][SKIP:, 0])
     assert abs(c["mean"]) <= 3 * c["stderr"], c
@@ -105,12 +111,20 @@ def test_displacement_error_is_consistent(mode, amp_g):
 def test_table_iv_tuning_direction():
     """At 0.1 g (electronic noise >> Brownian): Q/10 and R*10 raise the output SNR, Q*10 and
     R/10 lower it, Q/10 with R*10 is best (Zhang 2010 Table IV); P stays positive definite."""
-    cases = {"exact": (1, 1), "Qx10": (10, 1), "Q/10": (0.1, 1), "Rx10": (1, 10),
-             "R/10": (1, 0.1), "Rx10,Q/10": (0.1, 10)}
+    cases = {
+        "exact": (1, 1),
+        "Qx10": (10, 1),
+        "Q/10": (0.1, 1),
+        "Rx10": (1, 10),
+        "R/10": (1, 0.1),
+        "Rx10,Q/10": (0.1, 10),
+    }
     snr = {}
     for name, (qs, rs) in cases.items():
-        d = fra.ForceRebalanceAccelerometer(dict(mode="ekf_rebalance", accel_amplitude=0.1 * G,
-                                                 ekf_q_scale=qs, ekf_r_scale=rs), seed=5)
+        d = fra.ForceRebalanceAccelerometer(
+            dict(mode="ekf_rebalance", accel_amplitude=0.1 * G, ekf_q_scale=qs, ekf_r_scale=rs),
+            seed=5,
+        )
         f = d.step(120_000)
         t = np.arange(f.x.size) / d.fs
         snr[name] = coherent_snr_db(f.v_f[SKIP:], t[SKIP:], 10.0)

@@ -1,4 +1,5 @@
-"""Tests of the Petkov IMU noise model (mems_sim.imu_noise), no ROS."""
+"""Tests of the Petkov IMU noise model (mems_sim.devices.imu), no ROS."""
+
 import math
 import os
 import sys
@@ -8,10 +9,20 @@ import pytest
 
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..")))
 
-from mems_sim.imu_noise import (ACCEL_SPECS, DEG, G0, GYRO_SPECS, IMU_SPECS,  # noqa: E402
-                                ImuNoiseModel, covariance9, discrete_gm_coefficients,
-                                imu_covariances, quantize, truth_motion)
-from mems_sim.params import ParameterError  # noqa: E402
+from mems_sim.devices.imu import (
+    ACCEL_SPECS,
+    DEG,
+    G0,
+    GYRO_SPECS,
+    IMU_SPECS,
+    ImuNoiseModel,
+    covariance9,
+    discrete_gm_coefficients,
+    imu_covariances,
+    quantize,
+    truth_motion,
+)
+from mems_sim.params import ParameterError
 
 
 def test_discrete_gm_coefficients_match_paper():
@@ -19,14 +30,14 @@ def test_discrete_gm_coefficients_match_paper():
     a_d, b_d, sigma_eta_unit = discrete_gm_coefficients(120.0, 0.01)
     assert a_d == pytest.approx(0.999917, abs=5e-7)
     assert b_d == pytest.approx(8.33299e-5, rel=1e-6)
-    assert sigma_eta_unit * 1.55e-2 == pytest.approx(2.40125, rel=1e-5)   # B in deg/s as the paper
+    assert sigma_eta_unit * 1.55e-2 == pytest.approx(2.40125, rel=1e-5)  # B in deg/s as the paper
 
 
 def test_discrete_gm_stationary_variance():
     """(1 - a_d^2) B^2 = b_d^2 sigma_eta^2 (eq. (5) for the scalar system)."""
     for T, dt in ((120.0, 0.01), (80.0, 0.01), (0.5, 0.1)):
         a_d, b_d, s = discrete_gm_coefficients(T, dt)
-        assert (1 - a_d ** 2) == pytest.approx(b_d ** 2 * s ** 2, rel=1e-12)
+        assert (1 - a_d**2) == pytest.approx(b_d**2 * s**2, rel=1e-12)
 
 
 def test_defaults_are_si_conversions_of_paper_values():
@@ -46,8 +57,13 @@ def test_defaults_are_si_conversions_of_paper_values():
 
 def test_white_per_sample_std_at_100hz():
     """Per-sample white std equals Petkov's sigma_arw = 0.581188 deg/s within 1 %."""
-    p = {"gyro_bias_instability": 0.0, "gyro_random_walk": 0.0, "gyro_bias": 0.0,
-         "gyro_lsb": 1e-9, "bits": 32}
+    p = {
+        "gyro_bias_instability": 0.0,
+        "gyro_random_walk": 0.0,
+        "gyro_bias": 0.0,
+        "gyro_lsb": 1e-9,
+        "bits": 32,
+    }
     m = ImuNoiseModel(p, seed=11)
     f = m.generate(200_000)
     std_deg = np.std(f.gyro_si, axis=0) / DEG
@@ -57,8 +73,15 @@ def test_white_per_sample_std_at_100hz():
 def test_gm_state_stationary_std():
     """GM-only output has std B (eq. (6): sigma_x = B)."""
     B = 1e-3
-    p = {"gyro_bias_instability": B, "gyro_correlation_time": 0.2, "gyro_noise_density": 0.0,
-         "gyro_random_walk": 0.0, "gyro_bias": 0.0, "gyro_lsb": 1e-9, "bits": 32}
+    p = {
+        "gyro_bias_instability": B,
+        "gyro_correlation_time": 0.2,
+        "gyro_noise_density": 0.0,
+        "gyro_random_walk": 0.0,
+        "gyro_bias": 0.0,
+        "gyro_lsb": 1e-9,
+        "bits": 32,
+    }
     f = ImuNoiseModel(p, seed=2).generate(200_000)
     assert np.std(f.gyro_si) == pytest.approx(B, rel=0.03)
 
@@ -90,11 +113,11 @@ def test_quantize_rounding_and_two_complement_clipping():
 def test_saturation_counted():
     """A rate of twice the 14-bit full scale (8191 * 0.07326 deg/s = 600 deg/s) saturates every sample."""
     fs, n = 100.0, 1000
-    full_scale = (2 ** 13 - 1) * 0.07326 * DEG            # ~10.47 rad/s = 600 deg/s
+    full_scale = (2**13 - 1) * 0.07326 * DEG  # ~10.47 rad/s = 600 deg/s
     gyro, accel = truth_motion("constant_rate", 0, n, fs, rate=2.0 * full_scale)
     m = ImuNoiseModel({}, seed=0)
     f = m.generate(n, gyro, accel)
-    assert np.all(f.gyro_codes[:, 2] == 2 ** 13 - 1)
+    assert np.all(f.gyro_codes[:, 2] == 2**13 - 1)
     assert f.saturated.tolist() == [0, 0, n, 0, 0, 0]
     assert m.saturated_total.tolist() == [0, 0, n, 0, 0, 0]
 
@@ -126,10 +149,15 @@ def test_covariances():
     assert len(c9) == 9 and c9[0] == c9[4] == c9[8] and c9[1] == 0.0
 
 
-@pytest.mark.parametrize("name,value", [("gyro_correlation_time", 0.0),
-                                        ("accel_noise_density", -1.0),
-                                        ("bits", 40),
-                                        ("sample_rate_hz", -5.0)])
+@pytest.mark.parametrize(
+    "name,value",
+    [
+        ("gyro_correlation_time", 0.0),
+        ("accel_noise_density", -1.0),
+        ("bits", 40),
+        ("sample_rate_hz", -5.0),
+    ],
+)
 def test_invalid_parameter_refused_with_name_value_range(name, value):
     with pytest.raises(ParameterError) as err:
         ImuNoiseModel({name: value}, seed=0)

@@ -1,13 +1,23 @@
 """Chapter-4 micro-scanner core: capacitance (105), mechanics (66)-(67), readout (64)."""
+
 import math
 
 import numpy as np
 import pytest
 
-from mems_sim.micro_scanner import (MicroScannerDevice, ScannerParams, capacitance,
-                                    d2cap_dtheta2, dc_transimpedance_output, dcap_dtheta,
-                                    drive_waveform, psd_reference, resolve_scanner,
-                                    scanner_params, simulate_mechanics)
+from mems_sim.devices.scanner import (
+    MicroScannerDevice,
+    ScannerParams,
+    capacitance,
+    d2cap_dtheta2,
+    dc_transimpedance_output,
+    dcap_dtheta,
+    drive_waveform,
+    psd_reference,
+    resolve_scanner,
+    scanner_params,
+    simulate_mechanics,
+)
 from mems_sim.params import ParameterError
 
 
@@ -39,33 +49,33 @@ def test_free_decay_matches_wn_and_zeta():
     # peaks of theta: log decrement -> zeta, spacing -> damped frequency
     pk = np.where((th[1:-1] > th[:-2]) & (th[1:-1] >= th[2:]))[0] + 1
     period = np.diff(pk).mean() / fs
-    wd = 2 * math.pi * 624.6 * math.sqrt(1 - 0.0066 ** 2)
+    wd = 2 * math.pi * 624.6 * math.sqrt(1 - 0.0066**2)
     assert 2 * math.pi / period == pytest.approx(wd, rel=2e-3)
     n = len(pk) - 1
     delta = math.log(th[pk[0]] / th[pk[-1]]) / n
-    assert delta / math.sqrt(4 * math.pi ** 2 + delta ** 2) == pytest.approx(0.0066, rel=0.02)
+    assert delta / math.sqrt(4 * math.pi**2 + delta**2) == pytest.approx(0.0066, rel=0.02)
 
 
 def test_parametric_resonance_reaches_table_4_2_amplitude(run):
     dev, f = run
-    hold = f.theta[dev.plan.sweep_end:dev.plan.cutoff]
-    amp = np.abs(hold[-int(0.004 * dev.fs):]).max()
-    assert 0.12 < amp < 0.2                      # Table 4.2: 0.15 rad
+    hold = f.theta[dev.plan.sweep_end : dev.plan.cutoff]
+    amp = np.abs(hold[-int(0.004 * dev.fs) :]).max()
+    assert 0.12 < amp < 0.2  # Table 4.2: 0.15 rad
     # motion at half the drive frequency (625 Hz) during the hold
-    seg = hold[-int(0.02 * dev.fs):]
+    seg = hold[-int(0.02 * dev.fs) :]
     zc = np.where(np.diff(np.sign(seg - seg.mean())) > 0)[0]
     assert dev.fs / np.diff(zc).mean() == pytest.approx(625.0, rel=5e-3)
     # ring-down after cut-off: no drive, amplitude decays by > 5x within 100 ms
-    rd = f.theta[dev.plan.cutoff:]
-    assert np.all(f.drive[dev.plan.cutoff:] == 0)
+    rd = f.theta[dev.plan.cutoff :]
+    assert np.all(f.drive[dev.plan.cutoff :] == 0)
     assert np.abs(rd[-2000:]).max() < np.abs(rd[:2000]).max() / 5
 
 
 def test_far_from_resonance_no_motion():
     dev = MicroScannerDevice(seed=1, drive_frequency_hz=3000.0)
     f = dev.step(int(0.1 * dev.fs))
-    assert np.abs(f.theta).max() < 2e-3        # only the static/forced offset, no resonance
-    assert np.mean(f.y_clean ** 2) / 0.0435 ** 2 < 0.01
+    assert np.abs(f.theta).max() < 2e-3  # only the static/forced offset, no resonance
+    assert np.mean(f.y_clean**2) / 0.0435**2 < 0.01
 
 
 def test_readout_and_psd_delay(run):
@@ -87,8 +97,9 @@ def test_frames_concatenate_bit_identically(run):
     d2 = MicroScannerDevice(seed=3)
     parts = [d2.step(n) for n in (1000, 7, 5000, dev.total_samples - 6007)]
     for name in ("theta", "y", "psd", "drive"):
-        np.testing.assert_array_equal(np.concatenate([getattr(q, name) for q in parts]),
-                                      getattr(f, name))
+        np.testing.assert_array_equal(
+            np.concatenate([getattr(q, name) for q in parts]), getattr(f, name)
+        )
 
 
 def test_invalid_parameters_refused():
@@ -101,8 +112,7 @@ def test_invalid_parameters_refused():
     with pytest.raises(ParameterError, match="unknown parameter"):
         resolve_scanner({"bogus": 1.0})
     with pytest.raises(ParameterError, match="J"):
-        ScannerParams.from_physical(J=0.0, k=1.0, b=0.0, theta_th=0.0, c0=1e-12, theta0=0.2,
-                                    cb=0.0)
+        ScannerParams.from_physical(J=0.0, k=1.0, b=0.0, theta_th=0.0, c0=1e-12, theta0=0.2, cb=0.0)
     with pytest.raises(ValueError):
         simulate_mechanics(np.array([0.0, np.inf]), 500e3, scanner_params())
 
@@ -111,4 +121,4 @@ def test_drive_waveform_unipolar_sweep():
     plan = drive_waveform(500e3, 60.0, 1600.0, 1250.0, 0.01, 0.005, 0.002)
     assert plan.voltage.min() >= 0 and plan.voltage.max() <= 60.0 + 1e-12
     assert plan.frequency[0] == 1600.0 and plan.frequency[plan.sweep_end] == 1250.0
-    assert np.all(plan.voltage[plan.cutoff:] == 0)
+    assert np.all(plan.voltage[plan.cutoff :] == 0)

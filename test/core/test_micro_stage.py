@@ -1,16 +1,29 @@
 """Core tests of the micro-stage emulator and the gyro (Chen 2018 ch. 3)."""
+
 import math
 
 import numpy as np
 import pytest
 
-from mems_sim.micro_stage import (EPS0, K_BOLTZMANN, DriveSchedule, MicroStage, channel_limits,
-                                  dual_axis_capacitance, dual_axis_gradient, off_axis_rejection,
-                                  readout_noise_std, record, single_axis_dcdtheta,
-                                  steady_amplitude)
-from mems_sim.mems_gyro import DPS, MemsGyro
+from mems_estimation.identification.stage_identification import cancelled
+from mems_sim.devices.stage import (
+    K_BOLTZMANN,
+    DriveSchedule,
+    MicroStage,
+    off_axis_rejection,
+    readout_noise_std,
+    record,
+    steady_amplitude,
+)
+from mems_sim.devices.stage_capacitance import (
+    EPS0,
+    channel_limits,
+    dual_axis_capacitance,
+    dual_axis_gradient,
+    single_axis_dcdtheta,
+)
+from mems_sim.devices.stage_gyro import DPS, MemsGyro
 from mems_sim.params import ParameterError
-from mems_estimation.stage_identification import cancelled
 
 P = MicroStage().params
 LIM = channel_limits(P)
@@ -28,19 +41,25 @@ def test_gradient_matches_finite_difference_and_closed_form():
     """dC/dtheta (quadrature) vs central differences of C and vs the closed form of eq. (46)."""
     th, h = 2e-3, 1e-7
     g = dual_axis_gradient(5e-4, th, 19.2e-6, LIM)[0]
-    dy = (dual_axis_capacitance(5e-4, th + h, 19.2e-6, LIM) -
-          dual_axis_capacitance(5e-4, th - h, 19.2e-6, LIM))[0] / (2 * h)
-    dx = (dual_axis_capacitance(5e-4 + h, th, 19.2e-6, LIM) -
-          dual_axis_capacitance(5e-4 - h, th, 19.2e-6, LIM))[0] / (2 * h)
+    dy = (
+        dual_axis_capacitance(5e-4, th + h, 19.2e-6, LIM)
+        - dual_axis_capacitance(5e-4, th - h, 19.2e-6, LIM)
+    )[0] / (2 * h)
+    dx = (
+        dual_axis_capacitance(5e-4 + h, th, 19.2e-6, LIM)
+        - dual_axis_capacitance(5e-4 - h, th, 19.2e-6, LIM)
+    )[0] / (2 * h)
     np.testing.assert_allclose(g[:, 1], dy, rtol=1e-6)
     np.testing.assert_allclose(g[:, 0], dx, rtol=1e-5, atol=1e-18)
     for c in range(4):
         w1, w2, w3, w4 = LIM[c]
         t = math.tan(th)
+
         # eq. (46) with the sign corrected, differentiated numerically
         def cap(x):
             tt = math.tan(x)
             return EPS0 * (w4 - w3) / tt * math.log((19.2e-6 - w1 * tt) / (19.2e-6 - w2 * tt))
+
         num = (cap(th + 1e-6) - cap(th - 1e-6)) / 2e-6
         assert single_axis_dcdtheta(th, 19.2e-6, LIM[c])[0] == pytest.approx(num, rel=1e-5)
         assert t > 0
@@ -54,14 +73,17 @@ def _grad_gl16(tx, ty, dn, lim):
         wx = 0.5 * (w2 + w1) + 0.5 * (w2 - w1) * x[:, None]
         wy = 0.5 * (w4 + w3) + 0.5 * (w4 - w3) * x[None, :]
         d = dn - wx * math.tan(ty) + wy * math.tan(tx)
-        ww = np.outer(w, w) * 0.25 * (w2 - w1) * (w4 - w3) / d ** 2
-        out[c] = (-EPS0 * np.sum(ww * wy) / math.cos(tx) ** 2,
-                  EPS0 * np.sum(ww * wx) / math.cos(ty) ** 2)
+        ww = np.outer(w, w) * 0.25 * (w2 - w1) * (w4 - w3) / d**2
+        out[c] = (
+            -EPS0 * np.sum(ww * wy) / math.cos(tx) ** 2,
+            EPS0 * np.sum(ww * wx) / math.cos(ty) ** 2,
+        )
     return out
 
 
-@pytest.mark.parametrize("tx,ty", [(0.0, 3e-3), (5e-6, -4e-3), (2.5e-3, 3e-3), (4e-2, 1e-3),
-                                   (5.5e-2, -1e-3)])
+@pytest.mark.parametrize(
+    "tx,ty", [(0.0, 3e-3), (5e-6, -4e-3), (2.5e-3, 3e-3), (4e-2, 1e-3), (5.5e-2, -1e-3)]
+)
 def test_gradient_closed_form_inner_integral(tx, ty):
     """The emulator's gradient (closed-form w_Y integral + GL in w_X, series and log branches)
     against a 16 x 16 quadrature of eq. (40), asymmetric limits included."""
@@ -73,7 +95,7 @@ def test_gradient_closed_form_inner_integral(tx, ty):
 
 
 def test_temperature_moves_gap_only_by_default():
-    """The seed gives no stage temperature coefficient: wn and b_c stay put by default,
+    """Chen 2018 gives no stage temperature coefficient: wn and b_c stay put by default,
     D_n moves (re-identified in the paper); the tempcos remain study parameters."""
     st = MicroStage()
     wn, bc, gap = st.wn, st.b_c, st.gap
@@ -90,8 +112,9 @@ def test_rate_range_matches_table_3_2():
     rec = record(st)
     om = rec["omega"][-50000:, 0]
     assert np.ptp(om) == pytest.approx(46.3, rel=0.005)
-    assert np.ptp(om) == pytest.approx(2 * 2 * np.pi * 1700 * steady_amplitude(P, 1700, 1.3),
-                                       rel=2e-3)
+    assert np.ptp(om) == pytest.approx(
+        2 * 2 * np.pi * 1700 * steady_amplitude(P, 1700, 1.3), rel=2e-3
+    )
     # off-axis motion = coupling x main (0.1 %)
     assert np.ptp(rec["omega"][-50000:, 1]) / np.ptp(om) == pytest.approx(1e-3, rel=1e-6)
     # LDV: delayed rate + bias: mean difference = bias
@@ -129,10 +152,13 @@ def test_off_axis_rejection_1_percent():
     assert off_axis_rejection(th, om, 0.01, 19.2e-6, LIM) >= 0.9998
 
 
-@pytest.mark.xfail(strict=True, reason="measured R_off 99.974 % (10 %) and 99.871 % (50 %) vs "
-                   "asked 99.98 / 99.90 %: with Table A.1/A.2 geometry and +-3 mrad main-axis "
-                   "motion the leakage is second order in the off-axis angle (R_off = 1 - "
-                   "2.6e-3 r); the paper's flat 99.98 % at 1 % and 10 % is not reproduced")
+@pytest.mark.xfail(
+    strict=True,
+    reason="measured R_off 99.974 % (10 %) and 99.871 % (50 %) vs "
+    "asked 99.98 / 99.90 %: with Table A.1/A.2 geometry and +-3 mrad main-axis "
+    "motion the leakage is second order in the off-axis angle (R_off = 1 - "
+    "2.6e-3 r); the paper's flat 99.98 % at 1 % and 10 % is not reproduced",
+)
 @pytest.mark.parametrize("ratio,target", [(0.1, 0.9998), (0.5, 0.9990)])
 def test_off_axis_rejection_table_3_4(ratio, target):
     ph = np.linspace(0, 1, 2000, endpoint=False)
@@ -175,11 +201,10 @@ def test_gyro_model():
     dt = np.diff(rec["gyro_t"])
     assert np.allclose(dt, 1 / (8000 * (1 + 150e-6)))
     # exact input: gyro truth vs linear interpolation of the stage rate (error ~1e-5 rel)
-    interp = np.interp(rec["gyro_t"], np.arange(rec["omega"].shape[0]) / st.fs,
-                       rec["omega"][:, 0])
+    interp = np.interp(rec["gyro_t"], np.arange(rec["omega"].shape[0]) / st.fs, rec["omega"][:, 0])
     assert np.max(np.abs(rec["gyro_true"] - interp)) < 1e-3
     noise = rec["gyro_value"] - (rec["gyro_true"] + 2.0 * DPS)
-    assert np.std(noise) == pytest.approx(math.sqrt((0.1 * DPS) ** 2 + g.lsb ** 2 / 12), rel=0.05)
+    assert np.std(noise) == pytest.approx(math.sqrt((0.1 * DPS) ** 2 + g.lsb**2 / 12), rel=0.05)
 
 
 def test_adc_clipping_counted():

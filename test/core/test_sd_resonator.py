@@ -1,19 +1,35 @@
-"""Core tests of the pulse-actuated sigma-delta resonator (issue 6, Colinet et al.).
+"""Core tests of the pulse-actuated sigma-delta resonator (Colinet et al.).
 
-Acceptance figures 3, 5 (parameters) and 6, plus the exactness of the
-modulator's linearised model (eqs. (11)-(12)) and of the sub-sample pulse term.  Seeded; measured figures are printed.
+Acceptance figures: the comparator loop fails and the observer loop sustains under output
+noise equal to the amplitude (figure 3), parameter validation (figure 5) and frame-size
+independence (figure 6), plus the exactness of the modulator's linearised model
+(eqs. (11)-(12)) and of the sub-sample pulse term.  Seeded; measured figures are printed.
 """
+
 import math
 
 import numpy as np
 import pytest
 from scipy import signal
 
+from mems_sim.devices.resonator import (
+    RESONATOR_SPECS,
+    SdResonatorDevice,
+    default_pulse_amplitude,
+    validate_params,
+)
+from mems_sim.devices.resonator_models import (
+    NTF_NUM,
+    SD_DEN,
+    interval_input,
+    modulate,
+    next_crossing,
+    next_spill,
+    resonator_zoh_dt,
+    resonator_zoh_np,
+    stf_num,
+)
 from mems_sim.params import ParameterError
-from mems_sim.sd_models import (NTF_NUM, SD_DEN, interval_input, modulate, next_crossing,
-                                next_spill, resonator_zoh_dt, resonator_zoh_np, stf_num)
-from mems_sim.sd_resonator import (RESONATOR_SPECS, SdResonatorDevice, default_pulse_amplitude,
-                                   validate_params)
 
 FS = 1e6
 N = 200_000
@@ -44,8 +60,10 @@ def test_default_amplitude_and_observer_loop_without_noise():
     fr = d.step(N)
     a = _amp(fr.position[HALF:])
     npulse = np.count_nonzero(fr.pulses[HALF:])
-    print(f"\nsteady amplitude {a:.4f} V, {npulse} pulses in {HALF} samples "
-          f"(2 per period -> {2 * 0.05 * HALF:.0f})")
+    print(
+        f"\nsteady amplitude {a:.4f} V, {npulse} pulses in {HALF} samples "
+        f"(2 per period -> {2 * 0.05 * HALF:.0f})"
+    )
     assert 0.4 < a < 0.6
     assert abs(npulse - 2 * 0.05 * HALF) <= 0.005 * 2 * 0.05 * HALF
     assert fr.bits.dtype == np.int8 and set(np.unique(fr.bits)) <= {-1, 1}
@@ -68,25 +86,31 @@ def test_fig3_comparator_loop_fails_observer_loop_sustains():
         fo = obs.step(N)
         cmp_ = SdResonatorDevice({"mode": "comparator", "output_noise_std": 0.5}, seed=seed)
         fc = cmp_.step(N)
-        cmp_bits = SdResonatorDevice({"mode": "comparator", "comparator_input": "bitstream",
-                                      "output_noise_std": 0.5}, seed=seed).step(N)
+        cmp_bits = SdResonatorDevice(
+            {"mode": "comparator", "comparator_input": "bitstream", "output_noise_std": 0.5},
+            seed=seed,
+        ).step(N)
         cmp_clean = SdResonatorDevice({"mode": "comparator"}, seed=seed).step(N)
         a_o, a_c = _amp(fo.position[HALF:]), _amp(fc.position[HALF:])
         a_b, a_0 = _amp(cmp_bits.position[HALF:]), _amp(cmp_clean.position[HALF:])
         rel_s, rel_c, k = _pulse_positions(fo, a_o)
         rel_e = np.abs(fo.estimate - fo.position)[HALF:].max() / a_o
-        print(f"\nseed {seed}: amplitude observer loop {a_o:.4f} V, comparator loop (y+b) "
-              f"{a_c:.4f} V = {a_c / a_o:.1%}, comparator on decoded bits {a_b:.4f} V, "
-              f"noise-free comparator loop {a_0:.4f} V")
-        print(f"  observer-loop pulses ({k.size}, expected {0.1 * HALF:.0f}): |x| / A at the "
-              f"firing instant mean {rel_s.mean():.4f} max {rel_s.max():.4f}, at the pulse "
-              f"centre mean {rel_c.mean():.1e} max {rel_c.max():.1e}; "
-              f"max |x_hat - x| / A {rel_e:.1e}")
+        print(
+            f"\nseed {seed}: amplitude observer loop {a_o:.4f} V, comparator loop (y+b) "
+            f"{a_c:.4f} V = {a_c / a_o:.1%}, comparator on decoded bits {a_b:.4f} V, "
+            f"noise-free comparator loop {a_0:.4f} V"
+        )
+        print(
+            f"  observer-loop pulses ({k.size}, expected {0.1 * HALF:.0f}): |x| / A at the "
+            f"firing instant mean {rel_s.mean():.4f} max {rel_s.max():.4f}, at the pulse "
+            f"centre mean {rel_c.mean():.1e} max {rel_c.max():.1e}; "
+            f"max |x_hat - x| / A {rel_e:.1e}"
+        )
         assert a_c < 0.10 * a_o
         assert a_b < 0.10 * a_o
-        assert a_0 > 0.9 * a_o           # the comparator loop works without noise
+        assert a_0 > 0.9 * a_o  # the comparator loop works without noise
         assert a_o > 0.4
-        assert abs(k.size - 0.1 * HALF) <= 2   # one pulse per crossing, no spurious ones
+        assert abs(k.size - 0.1 * HALF) <= 2  # one pulse per crossing, no spurious ones
         assert rel_e <= 1e-9
         assert rel_s.max() <= 0.02 and rel_c.max() <= 0.02
 
@@ -96,16 +120,22 @@ def test_on_sample_timing_limit():
     |x| at the pulse reaches sin(2 pi f0/fs) = 31 % of A at 20 samples per period, however
     exact the estimate; with one-sample pulses (width 1/fs) it is the original loop."""
     for width in (0.05, 1.0):
-        p = {"output_noise_std": 0.5, "pulse_timing": "on_sample", "pulse_width_s": width / FS,
-             "pulse_amplitude": default_pulse_amplitude(width=width, timing="on_sample")}
+        p = {
+            "output_noise_std": 0.5,
+            "pulse_timing": "on_sample",
+            "pulse_width_s": width / FS,
+            "pulse_amplitude": default_pulse_amplitude(width=width, timing="on_sample"),
+        }
         fo = SdResonatorDevice(p, seed=11).step(N)
         a = _amp(fo.position[HALF:])
         rel_s, rel_c, k = _pulse_positions(fo, a)
         x = fo.position
         first = np.mean(np.sign(x[k]) != np.sign(x[k - 1]))
-        print(f"\non-sample, width {width} T: A = {a:.4f} V, |x| / A at firing mean "
-              f"{rel_s.mean():.3f} max {rel_s.max():.3f}; at the centre max {rel_c.max():.3f}; "
-              f"{first:.2%} of the pulses on the first sample after a true crossing")
+        print(
+            f"\non-sample, width {width} T: A = {a:.4f} V, |x| / A at firing mean "
+            f"{rel_s.mean():.3f} max {rel_s.max():.3f}; at the centre max {rel_c.max():.3f}; "
+            f"{first:.2%} of the pulses on the first sample after a true crossing"
+        )
         assert np.all(fo.pulse_start == 0)
         assert first >= 0.99
         assert 0.4 < a < 0.6
@@ -116,9 +146,10 @@ def test_sub_sample_pulse_term_is_exact():
     """interval_input (used by the device and the observers) equals the numerically
     integrated impulse response of eq. (7) for a pulse inside and across an interval."""
     from scipy.linalg import expm
+
     f0, Q, fs = 5e4, 100.0, 1e6
     w0 = 2 * np.pi * f0
-    Ac = np.array([[0.0, 1.0], [-w0 ** 2, -w0 / Q]])
+    Ac = np.array([[0.0, 1.0], [-(w0**2), -w0 / Q]])
     Bc = np.array([0.0, fs * w0])
 
     def numeric(a, b):
@@ -134,8 +165,10 @@ def test_sub_sample_pulse_term_is_exact():
         next_spill(2.0, s0, w, spill)
         interval_input(f0, Q, fs, gam, spill[0], spill[1], 0.0, 0.0, 1.0, tail, z, np.full(3, -1.0))
         ref_tail = 2.0 * numeric(0.0, max(s0 + w - 1.0, 0.0))
-        print(f"\ns={s0}, w={w}: rel. error {np.abs(out / ref - 1).max():.1e}, "
-              f"tail {tail} vs {ref_tail}")
+        print(
+            f"\ns={s0}, w={w}: rel. error {np.abs(out / ref - 1).max():.1e}, "
+            f"tail {tail} vs {ref_tail}"
+        )
         np.testing.assert_allclose(out, ref, rtol=1e-6)
         np.testing.assert_allclose(tail, ref_tail, rtol=1e-6, atol=1e-12 * np.abs(ref).max())
     # a one-sample pulse is Gam(T) exactly; the crossing time is a root of the free response
@@ -148,9 +181,17 @@ def test_sub_sample_pulse_term_is_exact():
     assert next_crossing(f0, Q, fs, y, yd, t, t + 1.0) == -1.0
 
 
-@pytest.mark.parametrize("name,value", [("sample_rate_hz", 0.0), ("sample_rate_hz", -1.0),
-                                        ("quality_factor", 0.0), ("quality_factor", -5.0),
-                                        ("mode", "pll"), ("output_noise_std", -0.1)])
+@pytest.mark.parametrize(
+    "name,value",
+    [
+        ("sample_rate_hz", 0.0),
+        ("sample_rate_hz", -1.0),
+        ("quality_factor", 0.0),
+        ("quality_factor", -5.0),
+        ("mode", "pll"),
+        ("output_noise_std", -0.1),
+    ],
+)
 def test_bad_parameters_refused(name, value):
     with pytest.raises(ParameterError, match=name):
         SdResonatorDevice({name: value})
@@ -173,26 +214,57 @@ def test_f0_at_or_above_nyquist_refused():
 
 def test_specs_complete():
     names = {s.name for s in RESONATOR_SPECS}
-    for n in ("sample_rate_hz", "f0_hz", "quality_factor", "pulse_amplitude", "output_noise_std",
-              "state_noise_std", "mode", "f0_drift_ppm_per_s", "f0_step_fraction",
-              "f0_step_time_s", "observer_f0_error", "observer_state_noise_std", "fast"):
+    for n in (
+        "sample_rate_hz",
+        "f0_hz",
+        "quality_factor",
+        "pulse_amplitude",
+        "output_noise_std",
+        "state_noise_std",
+        "mode",
+        "f0_drift_ppm_per_s",
+        "f0_step_fraction",
+        "f0_step_time_s",
+        "observer_f0_error",
+        "observer_state_noise_std",
+        "fast",
+    ):
         assert n in names
     for s in RESONATOR_SPECS:
         assert s.unit and s.source and s.description
     validate_params({s.name: s.default for s in RESONATOR_SPECS})
 
 
-@pytest.mark.parametrize("params", [
-    {"mode": "observer", "output_noise_std": 0.5, "state_noise_std": 1e-3,
-     "observer_state_noise_std": 1e-3, "fast": False},
-    {"mode": "observer", "output_noise_std": 0.5, "fast": True, "f0_drift_ppm_per_s": 50.0,
-     "f0_step_fraction": 0.02, "f0_step_time_s": 0.003},
-    {"mode": "observer", "output_noise_std": 0.2, "fast": False, "pulse_width_s": 0.9e-6,
-     "state_noise_std": 1e-3},
-    {"mode": "observer", "output_noise_std": 0.2, "pulse_timing": "on_sample"},
-    {"mode": "comparator", "comparator_input": "bitstream", "output_noise_std": 0.3},
-    {"mode": "comparator", "output_noise_std": 0.1, "state_noise_std": 1e-3},
-])
+@pytest.mark.parametrize(
+    "params",
+    [
+        {
+            "mode": "observer",
+            "output_noise_std": 0.5,
+            "state_noise_std": 1e-3,
+            "observer_state_noise_std": 1e-3,
+            "fast": False,
+        },
+        {
+            "mode": "observer",
+            "output_noise_std": 0.5,
+            "fast": True,
+            "f0_drift_ppm_per_s": 50.0,
+            "f0_step_fraction": 0.02,
+            "f0_step_time_s": 0.003,
+        },
+        {
+            "mode": "observer",
+            "output_noise_std": 0.2,
+            "fast": False,
+            "pulse_width_s": 0.9e-6,
+            "state_noise_std": 1e-3,
+        },
+        {"mode": "observer", "output_noise_std": 0.2, "pulse_timing": "on_sample"},
+        {"mode": "comparator", "comparator_input": "bitstream", "output_noise_std": 0.3},
+        {"mode": "comparator", "output_noise_std": 0.1, "state_noise_std": 1e-3},
+    ],
+)
 def test_frame_size_independence(params):
     """Figure 6: any framing gives bit-identical output."""
     n = 20_000
@@ -213,8 +285,9 @@ def test_frame_size_independence(params):
 
 
 def test_f0_step_and_drift_in_truth():
-    d = SdResonatorDevice({"f0_step_fraction": 0.02, "f0_step_time_s": 1e-3,
-                           "f0_drift_ppm_per_s": 100.0}, seed=0)
+    d = SdResonatorDevice(
+        {"f0_step_fraction": 0.02, "f0_step_time_s": 1e-3, "f0_drift_ppm_per_s": 100.0}, seed=0
+    )
     fr = d.step(2000)
     assert fr.f0[999] == pytest.approx(5e4 * (1 + 100e-6 * 999e-6))
     assert fr.f0[1000] == pytest.approx(5e4 * (1 + 100e-6 * 1e-3) * 1.02)

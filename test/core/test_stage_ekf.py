@@ -1,14 +1,18 @@
 """Core tests of the stage EKF (eqs. 48-53) and the identification (sec. 3.5.4)."""
-import math
 
 import numpy as np
 import pytest
 
-from mems_estimation.stage_ekf import (StageEkf, StageModel, load_model, model_from_dict,
-                                       model_to_dict, save_model)
-from mems_estimation.stage_identification import cancelled, evaluate
-from mems_sim.micro_stage import DriveSchedule, MicroStage, record
-from mems_sim.scenarios.gyro_calibration import Plan, identify_stage
+from mems_estimation.filters.stage_ekf import (
+    StageEkf,
+    load_model,
+    model_from_dict,
+    model_to_dict,
+    save_model,
+)
+from mems_estimation.identification.stage_gyro_calibration import Plan, identify_stage
+from mems_estimation.identification.stage_identification import cancelled, evaluate
+from mems_sim.devices.stage import DriveSchedule, MicroStage, record
 
 TRUE = MicroStage().params
 
@@ -44,10 +48,11 @@ def test_identified_stage_model(identified):
     # the thesis' one-step formula measures the LDV noise: e = n'[k] - n'[k-1] of the
     # delay-interpolated noise n' = (1 - f) n[i] + f n[i+1] -> var(e) = 2 sigma^2 (c0 - c1)
     f = (TRUE["ldv_delay_s"] * 625e3) % 1.0
-    c0, c1 = (1 - f) ** 2 + f ** 2, f * (1 - f)
+    c0, c1 = (1 - f) ** 2 + f**2, f * (1 - f)
     B1 = TRUE["b_c"] / 625e3
     assert rep["Q_one_step"] == pytest.approx(
-        2 * (c0 - c1) * TRUE["ldv_noise_std"] ** 2 / B1 ** 2, rel=0.2)
+        2 * (c0 - c1) * TRUE["ldv_noise_std"] ** 2 / B1**2, rel=0.2
+    )
 
 
 def test_Q_from_reference_selection(identified):
@@ -75,9 +80,11 @@ def test_ekf_rmse_and_alpha_on_test_data(identified, test_records):
 
 def _feedthrough_rmse(m, test_records) -> dict:
     out = {}
-    for name, rec, cancel in (("cancel", test_records["ft"], True),
-                              ("raw", test_records["ft"], False),
-                              ("noft", test_records["noft"], True)):
+    for name, rec, cancel in (
+        ("cancel", test_records["ft"], True),
+        ("raw", test_records["ft"], False),
+        ("noft", test_records["noft"], True),
+    ):
         x, _ = StageEkf(m).step(cancelled(rec, enabled=cancel), rec["u"])
         out[name] = evaluate(x[:, 1], rec["omega"][:, 0], rec["phase"], rec["segment"])["rmse"]
     return out
@@ -87,6 +94,7 @@ def test_feedthrough_cancellation_on_estimate(identified, test_records):
     """With the thesis' Q (measurement-driven EKF): without cancellation the RMSE is
     measurably worse; with it, within 10 % of a run without feedthrough (same seed)."""
     import copy
+
     m, rep = identified
     m = copy.deepcopy(m)
     m.Q = rep["Q_one_step"]
@@ -100,6 +108,7 @@ def test_feedthrough_irrelevant_with_reference_Q(identified, test_records):
     model only weakly: feedthrough, cancelled or not, moves the RMSE by < 25 %, and the
     RMSE is below the thesis-Q filter's."""
     import copy
+
     m, rep = identified
     out = _feedthrough_rmse(m, test_records)
     assert abs(out["raw"] / out["cancel"] - 1) < 0.25
@@ -111,7 +120,8 @@ def test_feedthrough_irrelevant_with_reference_Q(identified, test_records):
 
 def _reference_ekf(model, y, u):
     """Plain matrix form of eqs. (48)-(53) (np.linalg.inv), for the kernel check."""
-    from mems_sim.micro_stage import EPS0, dcdtheta_single
+    from mems_sim.devices.stage_capacitance import EPS0, dcdtheta_single
+
     A, B = model.matrices()
     B = B.reshape(2, 1)
     x = np.zeros(2)
@@ -122,10 +132,20 @@ def _reference_ekf(model, y, u):
         x = A @ x + B[:, 0] * up
         P = A @ P @ A.T + B @ B.T * model.Q
         if np.all(np.isfinite(y[k])):
-            h = np.array([model.eta[c] * dcdtheta_single(x[0], model.gap[c], model.limits[c, 0],
-                                                         model.limits[c, 1],
-                                                         model.limits[c, 3] - model.limits[c, 2],
-                                                         EPS0) for c in range(len(model.eta))])
+            h = np.array(
+                [
+                    model.eta[c]
+                    * dcdtheta_single(
+                        x[0],
+                        model.gap[c],
+                        model.limits[c, 0],
+                        model.limits[c, 1],
+                        model.limits[c, 3] - model.limits[c, 2],
+                        EPS0,
+                    )
+                    for c in range(len(model.eta))
+                ]
+            )
             H = np.column_stack([np.zeros_like(h), h])
             K = P @ H.T @ np.linalg.inv(H @ P @ H.T + model.R)
             x = x + K @ (y[k] - H @ x)
@@ -188,7 +208,8 @@ def test_yaml_roundtrip_and_refusals(identified, tmp_path):
 def test_gain_adaptive_ekf_reduces_to_eqs_48_53(identified, test_records):
     """With the gain frozen (no random walk, zero initial variance) the 3-state filter is
     the 2-state filter of eqs. (48)-(53)."""
-    from mems_estimation.stage_ekf import GainAdaptiveStageEkf
+    from mems_estimation.filters.stage_ekf import GainAdaptiveStageEkf
+
     m, _ = identified
     rec = test_records["ft"]
     yc = cancelled(rec)
@@ -202,7 +223,8 @@ def test_gain_adaptive_ekf_reduces_to_eqs_48_53(identified, test_records):
 def test_gain_adaptive_ekf_follows_actuator_drift(identified):
     """A stage whose b_c is 1 % above the identified model: the 2-state filter's omega
     scale is 1 % off, the gain state takes the 1 % and leaves the scale as without drift."""
-    from mems_estimation.stage_ekf import GainAdaptiveStageEkf
+    from mems_estimation.filters.stage_ekf import GainAdaptiveStageEkf
+
     m, _ = identified
     sched = DriveSchedule.amplitude_sweep(n_trials=3, periods=300)
     out = {}
@@ -211,8 +233,10 @@ def test_gain_adaptive_ekf_follows_actuator_drift(identified):
         yc = cancelled(rec)
         x, _ = GainAdaptiveStageEkf(m, gain_rw=1e-4).step(yc, rec["u"])
         x2, _ = StageEkf(m).step(yc, rec["u"])
-        ev = [evaluate(z[:, 1], rec["omega"][:, 0], rec["phase"], rec["segment"])["alpha"]
-              for z in (x, x2)]
+        ev = [
+            evaluate(z[:, 1], rec["omega"][:, 0], rec["phase"], rec["segment"])["alpha"]
+            for z in (x, x2)
+        ]
         out[k] = (x[-1, 2], ev[0], ev[1])
     assert out["drift"][0] / out["nominal"][0] == pytest.approx(1.01, abs=1e-3)
     assert out["drift"][1] == pytest.approx(out["nominal"][1], abs=5e-4)

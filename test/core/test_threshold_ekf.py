@@ -1,18 +1,29 @@
 """Threshold detector (DOG + NMS, causal) and the hybrid EKF of Table 4.1 (chapter 4)."""
+
 import numpy as np
 import pytest
 from scipy import stats
 
-from mems_sim.micro_scanner import MicroScannerDevice, resolve_scanner
+from mems_estimation.filters.scanner_threshold_detector import (
+    Detections,
+    OnlineThresholdDetector,
+    detect_offline,
+)
+from mems_estimation.filters.scanner_threshold_ekf import (
+    DRIFTED_SENSOR,
+    StreamingScannerEkf,
+    detection_errors,
+    model_from_device,
+    rmse,
+    run_ekf,
+    signal_snr,
+    threshold_trial,
+)
+from mems_sim.devices.scanner import MicroScannerDevice, resolve_scanner
 from mems_sim.params import ParameterError
-from mems_estimation.scanner_ekf import (DRIFTED_SENSOR, StreamingScannerEkf, detection_errors,
-                                         model_from_device, rmse, run_ekf, signal_snr,
-                                         threshold_trial)
-from mems_estimation.threshold_detector import (Detections, OnlineThresholdDetector,
-                                                detect_offline)
 
 SEEDS = (1, 2, 3)
-SIGMA = 45.0          # sigma_DOG used by the hybrid (Sec. 4.6.1: large sigma_DOG is better)
+SIGMA = 45.0  # sigma_DOG used by the hybrid (Sec. 4.6.1: large sigma_DOG is better)
 
 
 @pytest.fixture(scope="module")
@@ -29,7 +40,7 @@ def record():
 def test_online_detector_matches_offline_within_one_sample(record):
     dev, f = record
     det = OnlineThresholdDetector()
-    parts = [det.process(f.y[a:a + 777]) for a in range(0, f.y.size, 777)]
+    parts = [det.process(f.y[a : a + 777]) for a in range(0, f.y.size, 777)]
     on = Detections.concat(parts)
     off, _ = detect_offline(f.y)
     assert det.latency == 300
@@ -37,8 +48,8 @@ def test_online_detector_matches_offline_within_one_sample(record):
     np.testing.assert_array_equal(on.arrival - on.index, det.latency)
     assert len(on.index) == len(off.index)
     assert np.abs(on.index - off.index).max() <= 1
-    det2 = OnlineThresholdDetector()                  # long frames: FFT path
-    on2 = Detections.concat([det2.process(f.y[a:a + 5000]) for a in range(0, f.y.size, 5000)])
+    det2 = OnlineThresholdDetector()  # long frames: FFT path
+    on2 = Detections.concat([det2.process(f.y[a : a + 5000]) for a in range(0, f.y.size, 5000)])
     assert len(on2.index) == len(off.index) and np.abs(on2.index - off.index).max() <= 1
 
 
@@ -57,7 +68,8 @@ def test_detector_is_causal(record):
 
 def test_detection_errors_normal_and_sigma_dog(record):
     dev, f = record
-    from mems_estimation.scanner_ekf import snr_segments
+    from mems_estimation.filters.scanner_threshold_ekf import snr_segments
+
     segs = snr_segments(f.y_clean, 0.0435, dev.plan.cutoff, dev.fs)
     var = {}
     for sig in (15.0, SIGMA):
@@ -67,12 +79,12 @@ def test_detection_errors_normal_and_sigma_dog(record):
             m = (D.index >= lo) & (D.index < hi) & (np.abs(et) < 50)
             ee = e[m]
             var[sig, round(snr)] = ee.var() if ee.size > 2 else np.inf
-            if ee.size >= 8:   # Kolmogorov-Smirnov against N(mean, var) (Sec. 4.6.1)
+            if ee.size >= 8:  # Kolmogorov-Smirnov against N(mean, var) (Sec. 4.6.1)
                 p = stats.kstest((ee - ee.mean()) / ee.std(), "norm").pvalue
                 assert p > 0.05, (sig, snr, p)
     low = [s for (_, s) in var if s <= 6]
     assert low
-    for s in low:     # at low SNR a larger sigma_DOG lowers the detection-error variance
+    for s in low:  # at low SNR a larger sigma_DOG lowers the detection-error variance
         assert var[SIGMA, s] < var[15.0, s]
 
 
@@ -95,15 +107,20 @@ def test_hybrid_beats_plain_in_every_snr_segment(trials):
     assert 1 - np.sqrt(tot_h / tot_p) >= 0.10
 
 
-@pytest.mark.xfail(strict=True, reason="measured: reduction ~25 % at SNR 85 but only ~2-4 % at "
-                   "SNR 1 (paper 6.9 % vs 30.3 %): in the emulator the plain EKF's low-SNR error "
-                   "is an amplitude error from the drifted analog map, which a phase-type "
-                   "threshold measurement does not observe")
+@pytest.mark.xfail(
+    strict=True,
+    reason="measured: reduction ~25 % at SNR 85 but only ~2-4 % at "
+    "SNR 1 (paper 6.9 % vs 30.3 %): in the emulator the plain EKF's low-SNR error "
+    "is an amplitude error from the drifted analog map, which a phase-type "
+    "threshold measurement does not observe",
+)
 def test_reduction_largest_at_low_snr_like_table_4_3(trials):
     t = trials[0]
     th = t.record.theta
-    red = [1 - rmse(t.hybrid.theta[lo:hi], th[lo:hi]) / rmse(t.plain.theta[lo:hi], th[lo:hi])
-           for lo, hi, _ in t.segments]
+    red = [
+        1 - rmse(t.hybrid.theta[lo:hi], th[lo:hi]) / rmse(t.plain.theta[lo:hi], th[lo:hi])
+        for lo, hi, _ in t.segments
+    ]
     assert red[3] > red[0]
 
 
@@ -114,7 +131,7 @@ def test_filters_consistent(trials):
             assert r.min_det > 0
             assert np.all(r.P[:, 0] > 0) and np.all(r.P[:, 2] > 0)
             assert np.all(r.P[:, 0] * r.P[:, 2] - r.P[:, 1] ** 2 > 0)
-            assert r.max_p_theta <= 0.2 ** 2 + 1e-12      # never above the prior: no blow-up
+            assert r.max_p_theta <= 0.2**2 + 1e-12  # never above the prior: no blow-up
             # the error stays bounded in the ring-down (no divergence).  Note: with the
             # drifted analog map the filter is overconfident (|err|/sqrt(P) up to ~60 at the
             # amplitude peaks, reported by the scenario), but it never diverges.
@@ -127,7 +144,7 @@ def test_late_detections_equal_immediate_application(record):
     dev, f = record
     n = 200_000
     det = OnlineThresholdDetector()
-    D = Detections.concat([det.process(f.y[a:a + 1000]) for a in range(0, n, 1000)])
+    D = Detections.concat([det.process(f.y[a : a + 1000]) for a in range(0, n, 1000)])
     P = model_from_device(resolve_scanner({}))
     late = run_ekf(f.y[:n], f.drive[:n], P, detections=D, frame=1000)
     now = Detections(D.index, D.index.copy(), D.delta, D.response, D.timing_var)
@@ -150,7 +167,7 @@ def test_far_from_resonance_low_signal_no_divergence():
     r = run_ekf(f.y, f.drive, model_from_device(resolve_scanner({})), detections=D)
     assert np.all(np.isfinite(r.theta)) and r.min_det > 0
     assert np.abs(r.theta[-5000:]).max() < 0.02
-    assert r.max_p_theta <= 0.2 ** 2 + 1e-12
+    assert r.max_p_theta <= 0.2**2 + 1e-12
 
 
 def test_invalid_parameters_refused():

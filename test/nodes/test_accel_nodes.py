@@ -1,25 +1,31 @@
 """Force-rebalance accelerometer node and hybrid EKF node through real topics."""
+
 import numpy as np
 import pytest
 from conftest import params, spin_until
-
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from mems_estimation.hybrid_ekf import HybridEkf
-from mems_estimation.hybrid_ekf_node import HybridEkfNode
+
+from mems_estimation.filters.accelerometer_ekf import HybridEkf
+from mems_estimation.nodes.accelerometer_ekf_node import HybridEkfNode
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
-from mems_sim import fr_accelerometer as fra
-from mems_sim.fr_accelerometer_node import FrAccelerometerNode
+from mems_sim.devices import accelerometer as fra
+from mems_sim.nodes.accelerometer_node import FrAccelerometerNode
 from mems_sim.params import ParameterError
-from mems_sim.qos import FRAME_QOS
-from mems_sim.ros_frames import make_signal_frame
+from mems_sim.ros.frames import make_signal_frame
+from mems_sim.ros.qos import FRAME_QOS
 
 G = fra.G0
 
 
 def _collect(probe, ns, names):
     got = {n: [] for n in names}
-    types = {"adc": AdcFrame, "drive": SignalFrame, "truth": SignalFrame,
-             "loop_estimate": StateEstimate, "estimate": StateEstimate}
+    types = {
+        "adc": AdcFrame,
+        "drive": SignalFrame,
+        "truth": SignalFrame,
+        "loop_estimate": StateEstimate,
+        "estimate": StateEstimate,
+    }
     for n in names:
         probe.create_subscription(types[n], f"{ns}/{n}", got[n].append, FRAME_QOS)
     return got
@@ -31,17 +37,28 @@ def _cat(frames, field, width):
 
 def test_device_publishes_readout_drive_truth_and_loop_estimate(graph):
     ctx, ex, probe = graph
-    dev = FrAccelerometerNode(context=ctx, drive_externally=True, parameter_overrides=params(
-        seed=4, frame_size=2000, mode="ekf_rebalance", accel_amplitude=G))
+    dev = FrAccelerometerNode(
+        context=ctx,
+        drive_externally=True,
+        parameter_overrides=params(
+            seed=4, frame_size=2000, mode="ekf_rebalance", accel_amplitude=G
+        ),
+    )
     ex.add_node(dev)
     got = _collect(probe, "/accelerometer", ("adc", "drive", "truth", "loop_estimate"))
-    assert spin_until(ex, lambda: dev.pub_adc.get_subscription_count() == 1
-                       and dev.pub_estimate.get_subscription_count() == 1)
+    assert spin_until(
+        ex,
+        lambda: (
+            dev.pub_adc.get_subscription_count() == 1
+            and dev.pub_estimate.get_subscription_count() == 1
+        ),
+    )
     for _ in range(5):
         dev.step()
     assert spin_until(ex, lambda: all(len(v) == 5 for v in got.values()))
-    ref = fra.ForceRebalanceAccelerometer({"mode": "ekf_rebalance", "accel_amplitude": G},
-                                          seed=4).step(10_000)
+    ref = fra.ForceRebalanceAccelerometer(
+        {"mode": "ekf_rebalance", "accel_amplitude": G}, seed=4
+    ).step(10_000)
     assert [m.first_sample_index for m in got["adc"]] == list(range(0, 10_000, 2000))
     m = got["adc"][0]
     assert m.bits == 16 and list(m.channel_names) == ["readout"] and m.sample_rate_hz == 1e6
@@ -64,19 +81,24 @@ def test_ekf_node_on_the_device_topics_matches_the_core(graph):
     ex.add_node(dev)
     ex.add_node(ekf)
     got = _collect(probe, "/accelerometer", ("estimate",))
-    assert spin_until(ex, lambda: dev.pub_adc.get_subscription_count() == 1
-                       and ekf.pub.get_subscription_count() == 1)
+    assert spin_until(
+        ex,
+        lambda: dev.pub_adc.get_subscription_count() == 1 and ekf.pub.get_subscription_count() == 1,
+    )
     for _ in range(4):
         dev.step()
     assert spin_until(ex, lambda: len(got["estimate"]) == 4)
-    d = fra.ForceRebalanceAccelerometer({"mode": "pi_rebalance", "accel_amplitude": 0.5 * G},
-                                        seed=6)
+    d = fra.ForceRebalanceAccelerometer(
+        {"mode": "pi_rebalance", "accel_amplitude": 0.5 * G}, seed=6
+    )
     f = d.step(20_000)
     ref = HybridEkf(d.ekf_config).run(f.code * d.lsb, f.v_f)
-    np.testing.assert_allclose(_cat(got["estimate"], "states", 3), ref["estimate"],
-                               rtol=1e-12, atol=0)
-    np.testing.assert_allclose(_cat(got["estimate"], "variances", 3), ref["variance"],
-                               rtol=1e-12, atol=0)
+    np.testing.assert_allclose(
+        _cat(got["estimate"], "states", 3), ref["estimate"], rtol=1e-12, atol=0
+    )
+    np.testing.assert_allclose(
+        _cat(got["estimate"], "variances", 3), ref["variance"], rtol=1e-12, atol=0
+    )
 
 
 def test_ekf_node_rejects_non_finite_drive_and_keeps_running(graph):
@@ -89,35 +111,62 @@ def test_ekf_node_rejects_non_finite_drive_and_keeps_running(graph):
     got = _collect(probe, "/accelerometer", ("estimate",))
     diags = []
     probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
-    assert spin_until(ex, lambda: pub_a.get_subscription_count() == 1
-                       and pub_d.get_subscription_count() == 1)
-    from mems_sim.ros_frames import make_adc_frame
+    assert spin_until(
+        ex, lambda: pub_a.get_subscription_count() == 1 and pub_d.get_subscription_count() == 1
+    )
+    from mems_sim.ros.frames import make_adc_frame
+
     for k in range(3):
         f = d.step(1000)
-        pub_a.publish(make_adc_frame(f.code.reshape(-1, 1), k * 1000, 1e6, bits=16,
-                                     channel_names=("readout",), channel_units=("V",),
-                                     lsb=(d.lsb,), full_scale=(0.5,)))
+        pub_a.publish(
+            make_adc_frame(
+                f.code.reshape(-1, 1),
+                k * 1000,
+                1e6,
+                bits=16,
+                channel_names=("readout",),
+                channel_units=("V",),
+                lsb=(d.lsb,),
+                full_scale=(0.5,),
+            )
+        )
         v = np.column_stack([f.v_f, np.full(1000, d.v_b)])
         if k == 1:
             v[10, 0] = np.nan
-        pub_d.publish(make_signal_frame(v, k * 1000, 1e6, channel_names=("feedback_voltage",
-                                        "bias_voltage"), channel_units=("V", "V")))
-    assert spin_until(ex, lambda: len(got["estimate"]) == 2
-                       and ekf.diag.counters.get("rejected_frames", 0) == 1)
+        pub_d.publish(
+            make_signal_frame(
+                v,
+                k * 1000,
+                1e6,
+                channel_names=("feedback_voltage", "bias_voltage"),
+                channel_units=("V", "V"),
+            )
+        )
+    assert spin_until(
+        ex, lambda: len(got["estimate"]) == 2 and ekf.diag.counters.get("rejected_frames", 0) == 1
+    )
     assert [m.first_sample_index for m in got["estimate"]] == [0, 2000]
     assert np.all(np.isfinite(got["estimate"][1].states))
     assert any("non-finite" in w for w in ekf.diag.warnings)
     ekf.diag.publish()
-    assert spin_until(ex, lambda: any(s.name.startswith("hybrid_ekf") and
-                                       {kv.key: kv.value for kv in s.values}
-                                       .get("rejected_frames") == "1"
-                                       for m in diags for s in m.status))
+    assert spin_until(
+        ex,
+        lambda: any(
+            s.name.startswith("hybrid_ekf")
+            and {kv.key: kv.value for kv in s.values}.get("rejected_frames") == "1"
+            for m in diags
+            for s in m.status
+        ),
+    )
 
 
 def test_over_range_input_warns_on_diagnostics(graph):
     ctx, ex, probe = graph
-    dev = FrAccelerometerNode(context=ctx, drive_externally=True, parameter_overrides=params(
-        frame_size=20_000, mode="pi_rebalance", accel_amplitude=50 * G))
+    dev = FrAccelerometerNode(
+        context=ctx,
+        drive_externally=True,
+        parameter_overrides=params(frame_size=20_000, mode="pi_rebalance", accel_amplitude=50 * G),
+    )
     ex.add_node(dev)
     diags = []
     probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
@@ -126,16 +175,22 @@ def test_over_range_input_warns_on_diagnostics(graph):
     assert dev.diag.counters["over_range_samples"] > 0
     assert dev.diag.counters["feedback_saturated_samples"] > 0
     dev.diag.publish()
-    assert spin_until(ex, lambda: any(s.level == DiagnosticStatus.WARN and
-                                       s.name.startswith("fr_accelerometer")
-                                       for m in diags for s in m.status))
+    assert spin_until(
+        ex,
+        lambda: any(
+            s.level == DiagnosticStatus.WARN and s.name.startswith("fr_accelerometer")
+            for m in diags
+            for s in m.status
+        ),
+    )
     assert any("dynamic range" in w for w in dev.diag.warnings)
 
 
 @pytest.mark.parametrize("name,value", [("mass", 0.0), ("gap", 0.0), ("stiffness", -3.0)])
 def test_nodes_refuse_non_physical_parameters(ros_context, name, value):
     with pytest.raises(ParameterError, match=name):
-        FrAccelerometerNode(context=ros_context, drive_externally=True,
-                            parameter_overrides=params(**{name: value}))
+        FrAccelerometerNode(
+            context=ros_context, drive_externally=True, parameter_overrides=params(**{name: value})
+        )
     with pytest.raises(ParameterError, match=name):
         HybridEkfNode(context=ros_context, parameter_overrides=params(**{name: value}))

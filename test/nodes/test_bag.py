@@ -2,40 +2,47 @@
 
 Each test has its own rclpy context and ROS domain id; discovery stays on localhost.
 """
+
 import os
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 
-import signal  # noqa: E402
-import subprocess  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
-import pytest  # noqa: E402
+import pytest
 
-from mems_sim import ros_env  # noqa: E402
+from mems_sim.ros import env as ros_env
 
 ros_env.apply_defaults()
 
-import rclpy  # noqa: E402
-from mcap.reader import make_reader  # noqa: E402
-from mcap.stream_reader import StreamReader  # noqa: E402
-from mcap.records import Chunk, Message  # noqa: E402
-from mcap_ros2.decoder import DecoderFactory  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.serialization import serialize_message  # noqa: E402
-from sensor_msgs.msg import Imu  # noqa: E402
+import rclpy
+from mcap.reader import make_reader
+from mcap.records import Chunk, Message
+from mcap.stream_reader import StreamReader
+from mcap_ros2.decoder import DecoderFactory
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.serialization import serialize_message
+from sensor_msgs.msg import Imu
 
-from mems_msgs.msg import AdcFrame, NoiseModel  # noqa: E402
-from mems_sim.bag import info as bag_info_mod  # noqa: E402
-from mems_sim.bag.player import Player, read_messages  # noqa: E402
-from mems_sim.bag.recorder import RecorderNode  # noqa: E402
-from mems_sim.bag.schema import (SEPARATOR, peek_frame_index,  # noqa: E402
-                                 peek_header_stamp_ns, qos_profiles_from_yaml,
-                                 qos_profiles_yaml, schema_text, split_schema)
-from mems_sim.bag.writer import McapBagWriter  # noqa: E402
-from mems_sim.qos import FRAME_QOS, RESULT_QOS  # noqa: E402
+from mems_msgs.msg import AdcFrame, NoiseModel
+from mems_sim.bag import info as bag_info_mod
+from mems_sim.bag.player import Player, read_messages
+from mems_sim.bag.recorder import RecorderNode
+from mems_sim.bag.schema import (
+    SEPARATOR,
+    peek_frame_index,
+    peek_header_stamp_ns,
+    qos_profiles_from_yaml,
+    qos_profiles_yaml,
+    schema_text,
+    split_schema,
+)
+from mems_sim.bag.writer import McapBagWriter
+from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
 
 BIN = Path(sys.executable).parent
 DOMAIN_BASE = 40 + (os.getpid() % 50) * 2  # distinct from parallel runs of this file
@@ -104,8 +111,13 @@ def spin_until(executor, predicate, timeout_s: float) -> bool:
 
 def run_cli(args, domain: int, timeout: float = 30.0):
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain))
-    return subprocess.run([str(BIN / args[0])] + list(args[1:]), env=env, capture_output=True,
-                          text=True, timeout=timeout)
+    return subprocess.run(
+        [str(BIN / args[0])] + list(args[1:]),
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
 
 
 # ---------------------------------------------------------------- pure helpers
@@ -121,12 +133,20 @@ def test_schema_text_format():
     names = [m[5:] for m in msg_lines]
     assert names.count("std_msgs/msg/Header") == 1
     assert len(names) == len(set(names))
-    assert set(names) == {"std_msgs/msg/Header", "builtin_interfaces/msg/Time",
-                          "geometry_msgs/msg/Quaternion", "geometry_msgs/msg/Vector3"}
+    assert set(names) == {
+        "std_msgs/msg/Header",
+        "builtin_interfaces/msg/Time",
+        "geometry_msgs/msg/Quaternion",
+        "geometry_msgs/msg/Vector3",
+    }
     assert text.startswith(open(os.path.join(sys.prefix, "share/sensor_msgs/msg/Imu.msg")).read())
     parts = split_schema(schema_text("mems_msgs/msg/NoiseModel"))
-    assert {"mems_msgs/msg/AxisNoiseModel", "mems_msgs/msg/NoiseTerm",
-            "std_msgs/msg/Header", "builtin_interfaces/msg/Time"} == set(parts) - {""}
+    assert {
+        "mems_msgs/msg/AxisNoiseModel",
+        "mems_msgs/msg/NoiseTerm",
+        "std_msgs/msg/Header",
+        "builtin_interfaces/msg/Time",
+    } == set(parts) - {""}
 
 
 def test_peek_matches_rclpy_serialization():
@@ -150,14 +170,19 @@ def test_qos_yaml_round_trip():
     back = qos_profiles_from_yaml(text)
     assert [(q.reliability, q.durability, q.depth) for q in back] == [
         (FRAME_QOS.reliability, FRAME_QOS.durability, 1000),
-        (RESULT_QOS.reliability, RESULT_QOS.durability, 10)]
+        (RESULT_QOS.reliability, RESULT_QOS.durability, 10),
+    ]
 
 
 def test_writer_close_idempotent(tmp_path):
     path = str(tmp_path / "w.mcap")
     writer = McapBagWriter(path)
-    writer.add_topic("/f", "mems_msgs/msg/AdcFrame", schema_text("mems_msgs/msg/AdcFrame"),
-                     qos_profiles_yaml([FRAME_QOS]))
+    writer.add_topic(
+        "/f",
+        "mems_msgs/msg/AdcFrame",
+        schema_text("mems_msgs/msg/AdcFrame"),
+        qos_profiles_yaml([FRAME_QOS]),
+    )
     for k in (0, 1, 3):
         writer.write("/f", serialize_message(make_frame(k)), 10 + k, 10 + k)
     writer.close()
@@ -172,10 +197,15 @@ def test_writer_thread_order_and_error(tmp_path):
     failure inside the writer thread is not lost: the next write and close() raise it,
     and the file is closed."""
     from mcap.reader import make_reader
+
     path = str(tmp_path / "q.mcap")
     writer = McapBagWriter(path, queue_size=2, chunk_size=4096)
-    writer.add_topic("/f", "mems_msgs/msg/AdcFrame", schema_text("mems_msgs/msg/AdcFrame"),
-                     qos_profiles_yaml([FRAME_QOS]))
+    writer.add_topic(
+        "/f",
+        "mems_msgs/msg/AdcFrame",
+        schema_text("mems_msgs/msg/AdcFrame"),
+        qos_profiles_yaml([FRAME_QOS]),
+    )
     for k in range(300):
         writer.write("/f", serialize_message(make_frame(k)), 10 + k, 10 + k)
     writer.close()
@@ -184,11 +214,16 @@ def test_writer_thread_order_and_error(tmp_path):
     assert seq == list(range(300))
 
     bad = McapBagWriter(str(tmp_path / "bad.mcap"))
-    bad.add_topic("/f", "mems_msgs/msg/AdcFrame", schema_text("mems_msgs/msg/AdcFrame"),
-                  qos_profiles_yaml([FRAME_QOS]))
+    bad.add_topic(
+        "/f",
+        "mems_msgs/msg/AdcFrame",
+        schema_text("mems_msgs/msg/AdcFrame"),
+        qos_profiles_yaml([FRAME_QOS]),
+    )
 
     def fail(**_):
         raise OSError("disk full")
+
     bad._writer.add_message = fail
     bad.write("/f", serialize_message(make_frame(0)), 1, 1)
     deadline = time.monotonic() + 5.0
@@ -218,16 +253,24 @@ def test_record_and_read_back(ctx, tmp_path):
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(pub_node)
     executor.add_node(recorder)
-    assert spin_until(executor, lambda: pf.get_subscription_count() >= 1
-                      and pi.get_subscription_count() >= 1, 10.0)
+    assert spin_until(
+        executor,
+        lambda: pf.get_subscription_count() >= 1 and pi.get_subscription_count() >= 1,
+        10.0,
+    )
     for k, f in enumerate(frames):
         pf.publish(f)
         if k < n_imu:
             pi.publish(imus[k])
         if k % 20 == 0:
             executor.spin_once(timeout_sec=0)
-    assert spin_until(executor, lambda: recorder.received("/dev/adc") == n_frames
-                      and recorder.received("/dev/imu") == n_imu, 20.0), recorder.counts()
+    assert spin_until(
+        executor,
+        lambda: (
+            recorder.received("/dev/adc") == n_frames and recorder.received("/dev/imu") == n_imu
+        ),
+        20.0,
+    ), recorder.counts()
     recorder.close()
     assert recorder.counts() == {"/dev/adc": n_frames, "/dev/imu": n_imu}
     assert recorder.gaps() == {"/dev/adc": 0}
@@ -252,9 +295,13 @@ def test_record_and_read_back(ctx, tmp_path):
         decoded = {"/dev/adc": [], "/dev/imu": []}
         for schema, channel, message, ros_msg in reader.iter_decoded_messages():
             decoded[channel.topic].append((message, ros_msg))
-    assert [m.first_sample_index for _, m in decoded["/dev/adc"]] == [f.first_sample_index for f in frames]
+    assert [m.first_sample_index for _, m in decoded["/dev/adc"]] == [
+        f.first_sample_index for f in frames
+    ]
     assert [list(m.codes) for _, m in decoded["/dev/adc"]] == [list(f.codes) for f in frames]
-    assert [m.angular_velocity.x for _, m in decoded["/dev/imu"]] == [i.angular_velocity.x for i in imus]
+    assert [m.angular_velocity.x for _, m in decoded["/dev/imu"]] == [
+        i.angular_velocity.x for i in imus
+    ]
     # publish_time is the header stamp
     assert decoded["/dev/imu"][3][0].publish_time == 103 * 10**9
 
@@ -266,6 +313,7 @@ def test_record_and_read_back(ctx, tmp_path):
 
     # rosbags (independent reader; registers the types from the schema in the file)
     from rosbags.highlevel import AnyReader
+
     with AnyReader([Path(out)]) as rb:
         counts = {}
         for conn, timestamp, raw in rb.messages():
@@ -281,7 +329,11 @@ def test_record_and_read_back(ctx, tmp_path):
     info = bag_info_mod.bag_info(out)
     adc = info["topics"]["/dev/adc"]
     assert (adc["count"], adc["gaps"], adc["total_samples"], adc["sample_rate_hz"]) == (
-        n_frames, 0, n_frames * 100, 1000.0)
+        n_frames,
+        0,
+        n_frames * 100,
+        1000.0,
+    )
     assert info["compression"] == ["zstd"] and info["has_summary"]
     res = run_cli(["mcap_info", out], ctx.test_domain_id)
     assert res.returncode == 0 and "/dev/adc" in res.stdout and "0 gaps" in res.stdout
@@ -312,6 +364,7 @@ def test_gap_detected(ctx, tmp_path):
 def test_transient_local_and_best_effort(ctx, tmp_path):
     """Latched results recorded although published before the recorder started; best-effort topic matched."""
     from rclpy.qos import qos_profile_sensor_data
+
     out = str(tmp_path / "qos.mcap")
     pub_node = rclpy.create_node("test_pub", context=ctx)
     latched = pub_node.create_publisher(NoiseModel, "/q/noise_model", RESULT_QOS)
@@ -343,8 +396,12 @@ def test_player_round_trip(ctx, tmp_path):
     """Write a bag, play it (in-process Player), record the replay; bytes identical."""
     src = str(tmp_path / "src.mcap")
     writer = McapBagWriter(src)
-    writer.add_topic("/p/adc", "mems_msgs/msg/AdcFrame", schema_text("mems_msgs/msg/AdcFrame"),
-                     qos_profiles_yaml([FRAME_QOS]))
+    writer.add_topic(
+        "/p/adc",
+        "mems_msgs/msg/AdcFrame",
+        schema_text("mems_msgs/msg/AdcFrame"),
+        qos_profiles_yaml([FRAME_QOS]),
+    )
     payloads = [serialize_message(make_frame(k)) for k in range(50)]
     t0 = time.time_ns()
     for k, data in enumerate(payloads):
@@ -364,7 +421,9 @@ def test_player_round_trip(ctx, tmp_path):
     assert time.monotonic() - start >= 0.049 - 0.01  # 98 ms of bag time at rate 2
     assert spin_until(executor, lambda: recorder.received("/p/replayed") == 50, 10.0)
     recorder.close()
-    replayed = [m.data for m in __import__("mems_sim.bag.player", fromlist=["x"]).iter_messages(out)]
+    replayed = [
+        m.data for m in __import__("mems_sim.bag.player", fromlist=["x"]).iter_messages(out)
+    ]
     assert replayed == payloads
     executor.shutdown()
     recorder.destroy_node()
@@ -388,8 +447,13 @@ def test_cli_bad_input(tmp_path):
 
 def _start_recorder(out: str, domain: int, *topics):
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain))
-    return subprocess.Popen([str(BIN / "mcap_record"), "-o", out, *topics], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        [str(BIN / "mcap_record"), "-o", out, *topics],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 def _publish_until_matched(ctx, topic, timeout=15.0):
@@ -471,8 +535,12 @@ def test_cli_play_round_trip(ctx, tmp_path):
     """mcap_play (subprocess, --as-fast-as-possible, --clock) -> RecorderNode: no loss, same bytes."""
     src = str(tmp_path / "src.mcap")
     writer = McapBagWriter(src)
-    writer.add_topic("/c/adc", "mems_msgs/msg/AdcFrame", schema_text("mems_msgs/msg/AdcFrame"),
-                     qos_profiles_yaml([FRAME_QOS]))
+    writer.add_topic(
+        "/c/adc",
+        "mems_msgs/msg/AdcFrame",
+        schema_text("mems_msgs/msg/AdcFrame"),
+        qos_profiles_yaml([FRAME_QOS]),
+    )
     payloads = [serialize_message(make_frame(k)) for k in range(2000)]
     t0 = time.time_ns()
     for k, data in enumerate(payloads):
@@ -482,14 +550,28 @@ def test_cli_play_round_trip(ctx, tmp_path):
     recorder = RecorderNode(out, topics=["/c/adc", "/clock"], context=ctx)
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(recorder)
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               ROS_DOMAIN_ID=str(ctx.test_domain_id))
-    proc = subprocess.Popen([str(BIN / "mcap_play"), src, "--as-fast-as-possible",
-                             "--wait-for-subscribers", "1", "--clock", "100"],
-                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    env = dict(
+        os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(ctx.test_domain_id)
+    )
+    proc = subprocess.Popen(
+        [
+            str(BIN / "mcap_play"),
+            src,
+            "--as-fast-as-possible",
+            "--wait-for-subscribers",
+            "1",
+            "--clock",
+            "100",
+        ],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
-        assert spin_until(executor, lambda: recorder.received("/c/adc") == 2000, 120.0), \
+        assert spin_until(executor, lambda: recorder.received("/c/adc") == 2000, 120.0), (
             recorder.counts()
+        )
         stdout, stderr = proc.communicate(timeout=20)
     finally:
         if proc.poll() is None:
@@ -498,6 +580,7 @@ def test_cli_play_round_trip(ctx, tmp_path):
     assert proc.returncode == 0 and "published 2000 messages" in stdout, stderr
     assert recorder.gaps() == {"/c/adc": 0}
     from mems_sim.bag.player import iter_messages
+
     assert [m.data for m in iter_messages(out, ["/c/adc"])] == payloads
     executor.shutdown()
     recorder.destroy_node()

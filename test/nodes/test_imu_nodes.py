@@ -1,42 +1,39 @@
 """IMU emulator and noise-identifier nodes through real topics (rclpy executors)."""
+
 import array
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
 from conftest import params, spin_until
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
-
 from diagnostic_msgs.msg import DiagnosticArray
-from mems_estimation.noise_identifier_node import NoiseIdentifierNode
-from mems_msgs.msg import AdcFrame, NoiseModel, SignalFrame
-from mems_sim import imu_noise
-from mems_sim.imu_noise_node import ImuNoiseNode
-from mems_sim.params import ParameterError
-from mems_sim.qos import FRAME_QOS, RESULT_QOS
 from sensor_msgs.msg import Imu
 
-
-
-
-
-
+from mems_estimation.nodes.imu_noise_identifier_node import NoiseIdentifierNode
+from mems_msgs.msg import AdcFrame, NoiseModel, SignalFrame
+from mems_sim.devices import imu as imu_noise
+from mems_sim.nodes.imu_node import ImuNoiseNode
+from mems_sim.params import ParameterError
+from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
 
 
 def test_emulator_publishes_consecutive_frames_truth_and_imu(graph):
     ctx, ex, probe = graph
-    emu = ImuNoiseNode(context=ctx, drive_externally=True,
-                       parameter_overrides=params(seed=3, frame_size=20))
+    emu = ImuNoiseNode(
+        context=ctx, drive_externally=True, parameter_overrides=params(seed=3, frame_size=20)
+    )
     ex.add_node(emu)
     got = {"adc": [], "truth": [], "imu": []}
     probe.create_subscription(AdcFrame, "/imu/adc", got["adc"].append, FRAME_QOS)
     probe.create_subscription(SignalFrame, "/imu/truth", got["truth"].append, FRAME_QOS)
     probe.create_subscription(Imu, "/imu/data", got["imu"].append, FRAME_QOS)
-    assert spin_until(ex, lambda: emu.pub_adc.get_subscription_count() == 1
-                       and emu.pub_imu.get_subscription_count() == 1)
+    assert spin_until(
+        ex,
+        lambda: (
+            emu.pub_adc.get_subscription_count() == 1 and emu.pub_imu.get_subscription_count() == 1
+        ),
+    )
     for _ in range(5):
         emu.step()
     assert spin_until(ex, lambda: len(got["adc"]) == 5 and len(got["imu"]) == 100)
@@ -65,8 +62,11 @@ def test_emulator_publishes_consecutive_frames_truth_and_imu(graph):
 def test_emulator_frames_equal_core_model_output(graph):
     """The node adds nothing to the core: its codes are ImuNoiseModel's for the same seed."""
     ctx, ex, probe = graph
-    emu = ImuNoiseNode(context=ctx, drive_externally=True,
-                       parameter_overrides=params(seed=11, frame_size=50, publish_imu=False))
+    emu = ImuNoiseNode(
+        context=ctx,
+        drive_externally=True,
+        parameter_overrides=params(seed=11, frame_size=50, publish_imu=False),
+    )
     ex.add_node(emu)
     got = []
     probe.create_subscription(AdcFrame, "/imu/adc", got.append, FRAME_QOS)
@@ -81,24 +81,44 @@ def test_emulator_frames_equal_core_model_output(graph):
 
 def test_invalid_parameter_refused_with_name_value_range(ros_context):
     with pytest.raises(ParameterError) as err:
-        ImuNoiseNode(context=ros_context, drive_externally=True,
-                     parameter_overrides=params(gyro_correlation_time=-5.0))
+        ImuNoiseNode(
+            context=ros_context,
+            drive_externally=True,
+            parameter_overrides=params(gyro_correlation_time=-5.0),
+        )
     text = str(err.value)
     assert "gyro_correlation_time" in text and "-5.0" in text and "allowed" in text
 
 
 def test_node_executable_refuses_invalid_parameter(subprocess_env):
     exe = subprocess.run(
-        [sys.executable, "-m", "mems_sim.imu_noise_node", "--ros-args", "-p",
-         "sample_rate_hz:=-100.0"], env=subprocess_env, capture_output=True, text=True, timeout=60)
+        [
+            sys.executable,
+            "-m",
+            "mems_sim.nodes.imu_node",
+            "--ros-args",
+            "-p",
+            "sample_rate_hz:=-100.0",
+        ],
+        env=subprocess_env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert exe.returncode == 2
     lines = exe.stderr.strip().splitlines()
     assert len(lines) == 1 and "sample_rate_hz" in lines[0] and "-100.0" in lines[0]
 
 
 def _frame(first, n=100, fs=100.0, value=0.0):
-    m = AdcFrame(first_sample_index=first, sample_rate_hz=fs, num_samples=n, bits=14,
-                 channel_names=["gyro_x"], channel_units=["rad/s"])
+    m = AdcFrame(
+        first_sample_index=first,
+        sample_rate_hz=fs,
+        num_samples=n,
+        bits=14,
+        channel_names=["gyro_x"],
+        channel_units=["rad/s"],
+    )
     m.lsb = array.array("d", [1e-3])
     m.offset = array.array("d", [0.0])
     m.full_scale = array.array("d", [8.192])
@@ -109,9 +129,11 @@ def _frame(first, n=100, fs=100.0, value=0.0):
 
 def test_identifier_rejects_malformed_frames_and_counts_gaps(graph):
     ctx, ex, probe = graph
-    ident = NoiseIdentifierNode(context=ctx, namespace="imu",
-                                parameter_overrides=params(min_duration_s=5.0,
-                                                            publish_period_s=0.0))
+    ident = NoiseIdentifierNode(
+        context=ctx,
+        namespace="imu",
+        parameter_overrides=params(min_duration_s=5.0, publish_period_s=0.0),
+    )
     ex.add_node(ident)
     pub = probe.create_publisher(AdcFrame, "/imu/adc", FRAME_QOS)
     models, diags = [], []
@@ -119,7 +141,7 @@ def test_identifier_rejects_malformed_frames_and_counts_gaps(graph):
     probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
     assert spin_until(ex, lambda: pub.get_subscription_count() == 1)
     bad_size = _frame(100)
-    bad_size.num_samples = 99                      # 100 codes for 99 samples
+    bad_size.num_samples = 99  # 100 codes for 99 samples
     bad_lsb = _frame(100)
     bad_lsb.lsb = array.array("d", [float("nan")])  # non-finite scale
     frames = [_frame(0), bad_size, bad_lsb] + [_frame(i * 100) for i in range(1, 10)]
@@ -135,10 +157,17 @@ def test_identifier_rejects_malformed_frames_and_counts_gaps(graph):
     assert models[0].final and models[0].num_samples == 1900
     # the counters reach /diagnostics with level WARN
     ident.diag.publish()
-    assert spin_until(ex, lambda: any(
-        s.name.startswith("noise_identifier") and s.level == b"\x01" or
-        s.name.startswith("noise_identifier") and s.level == 1
-        for d in diags for s in d.status))
+    assert spin_until(
+        ex,
+        lambda: any(
+            s.name.startswith("noise_identifier")
+            and s.level == b"\x01"
+            or s.name.startswith("noise_identifier")
+            and s.level == 1
+            for d in diags
+            for s in d.status
+        ),
+    )
     status = [s for d in diags for s in d.status if s.name.startswith("noise_identifier")][-1]
     values = {kv.key: kv.value for kv in status.values}
     assert values["rejected_frames"] == "2" and values["gaps"] == "1"

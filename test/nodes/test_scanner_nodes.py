@@ -1,17 +1,21 @@
 """Micro-scanner device node (dc_transimpedance / shared_amdm) and threshold hybrid-EKF node."""
+
 import array
 
 import numpy as np
 import pytest
 from conftest import params, spin_until
-
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from mems_estimation.scanner_threshold_node import ScannerThresholdNode, detections_from_rows
+
+from mems_estimation.nodes.scanner_threshold_ekf_node import (
+    ScannerThresholdNode,
+    detections_from_rows,
+)
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
-from mems_sim.micro_scanner import MicroScannerDevice
-from mems_sim.micro_scanner_node import MicroScannerNode, quantize
+from mems_sim.devices.scanner import MicroScannerDevice
+from mems_sim.nodes.scanner_node import MicroScannerNode, quantize
 from mems_sim.params import ParameterError
-from mems_sim.qos import FRAME_QOS
+from mems_sim.ros.qos import FRAME_QOS
 
 # free decay from 0.1 rad: short, with threshold crossings at good SNR
 DECAY = dict(initial_angle=0.1, sweep_time_s=0.0, hold_time_s=0.0, ringdown_time_s=0.03)
@@ -22,19 +26,25 @@ def _subscribe(probe, ns, names):
     types = {"adc": AdcFrame, "estimate": StateEstimate, "estimate_plain": StateEstimate}
     for n in names:
         got[n] = []
-        probe.create_subscription(types.get(n, SignalFrame), f"{ns}/{n}", got[n].append,
-                                  FRAME_QOS)
+        probe.create_subscription(types.get(n, SignalFrame), f"{ns}/{n}", got[n].append, FRAME_QOS)
     return got
 
 
 def test_device_node_publishes_core_frames(graph):
     ctx, ex, probe = graph
-    dev = MicroScannerNode(context=ctx, drive_externally=True,
-                           parameter_overrides=params(seed=7, frame_size=1000, **DECAY))
+    dev = MicroScannerNode(
+        context=ctx,
+        drive_externally=True,
+        parameter_overrides=params(seed=7, frame_size=1000, **DECAY),
+    )
     ex.add_node(dev)
     got = _subscribe(probe, "/scanner", ("adc", "drive", "truth", "psd"))
-    assert spin_until(ex, lambda: dev.pub_adc.get_subscription_count() == 1
-                       and dev.pub_psd.get_subscription_count() == 1)
+    assert spin_until(
+        ex,
+        lambda: (
+            dev.pub_adc.get_subscription_count() == 1 and dev.pub_psd.get_subscription_count() == 1
+        ),
+    )
     for _ in range(5):
         dev.step()
     assert spin_until(ex, lambda: all(len(v) == 5 for v in got.values()))
@@ -54,36 +64,51 @@ def test_device_node_publishes_core_frames(graph):
 
 def test_threshold_node_tracks_through_topics(graph):
     ctx, ex, probe = graph
-    dev = MicroScannerNode(context=ctx, drive_externally=True,
-                           parameter_overrides=params(seed=2, frame_size=1000, **DECAY))
+    dev = MicroScannerNode(
+        context=ctx,
+        drive_externally=True,
+        parameter_overrides=params(seed=2, frame_size=1000, **DECAY),
+    )
     est = ScannerThresholdNode(context=ctx, parameter_overrides=params(dog_sigma=45.0))
     ex.add_node(dev)
     ex.add_node(est)
-    got = _subscribe(probe, "/scanner", ("estimate", "estimate_plain", "threshold_detections",
-                                         "truth"))
-    assert spin_until(ex, lambda: dev.pub_adc.get_subscription_count() == 1
-                       and dev.pub_drive.get_subscription_count() == 1
-                       and est.pub_hyb.get_subscription_count() == 1)
+    got = _subscribe(
+        probe, "/scanner", ("estimate", "estimate_plain", "threshold_detections", "truth")
+    )
+    assert spin_until(
+        ex,
+        lambda: (
+            dev.pub_adc.get_subscription_count() == 1
+            and dev.pub_drive.get_subscription_count() == 1
+            and est.pub_hyb.get_subscription_count() == 1
+        ),
+    )
     n_frames = 15
     for _ in range(n_frames):
         dev.step()
         ex.spin_once(timeout_sec=0.0)
-    assert spin_until(ex, lambda: est.frames_done == n_frames and len(got["estimate"]) == n_frames
-                       and len(got["truth"]) == n_frames
-                       and len(got["threshold_detections"]) == n_frames, timeout=30)
+    assert spin_until(
+        ex,
+        lambda: (
+            est.frames_done == n_frames
+            and len(got["estimate"]) == n_frames
+            and len(got["truth"]) == n_frames
+            and len(got["threshold_detections"]) == n_frames
+        ),
+        timeout=30,
+    )
     firsts = [m.first_sample_index for m in got["estimate"]]
     lag = est.hybrid.lag
-    assert firsts[0] == 0 and firsts[1] == 1000 - lag         # final estimates lag by `lag`
+    assert firsts[0] == 0 and firsts[1] == 1000 - lag  # final estimates lag by `lag`
     x = np.concatenate([np.asarray(m.states).reshape(-1, 2) for m in got["estimate"]])
     var = np.concatenate([np.asarray(m.variances).reshape(-1, 2) for m in got["estimate"]])
     truth = np.concatenate([np.asarray(m.data).reshape(-1, 2) for m in got["truth"]])
     n = x.shape[0]
     assert n == n_frames * 1000 - lag
     err = x[5000:, 0] - truth[5000:n, 0]
-    assert np.sqrt(np.mean(err ** 2)) < 0.01 and np.all(var > 0)
+    assert np.sqrt(np.mean(err**2)) < 0.01 and np.all(var > 0)
     assert len(got["threshold_detections"]) == n_frames
-    rows = np.concatenate([np.asarray(m.data).reshape(-1, 3)
-                           for m in got["threshold_detections"]])
+    rows = np.concatenate([np.asarray(m.data).reshape(-1, 3) for m in got["threshold_detections"]])
     D = detections_from_rows(rows, 0)
     assert D.index.size > 20
     np.testing.assert_array_equal(D.arrival - D.index, est.detector.latency)
@@ -93,16 +118,25 @@ def test_threshold_node_tracks_through_topics(graph):
 
 def test_low_signal_reported_far_from_resonance(graph):
     ctx, ex, probe = graph
-    dev = MicroScannerNode(context=ctx, drive_externally=True,
-                           parameter_overrides=params(seed=3, frame_size=1000, initial_angle=0.0,
-                                                      drive_frequency_hz=3000.0))
+    dev = MicroScannerNode(
+        context=ctx,
+        drive_externally=True,
+        parameter_overrides=params(
+            seed=3, frame_size=1000, initial_angle=0.0, drive_frequency_hz=3000.0
+        ),
+    )
     est = ScannerThresholdNode(context=ctx)
     ex.add_node(dev)
     ex.add_node(est)
     diags = []
     probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
-    assert spin_until(ex, lambda: dev.pub_adc.get_subscription_count() == 1
-                       and dev.pub_drive.get_subscription_count() == 1)
+    assert spin_until(
+        ex,
+        lambda: (
+            dev.pub_adc.get_subscription_count() == 1
+            and dev.pub_drive.get_subscription_count() == 1
+        ),
+    )
     for _ in range(12):
         dev.step()
         ex.spin_once(timeout_sec=0.0)
@@ -112,14 +146,27 @@ def test_low_signal_reported_far_from_resonance(graph):
     assert est.hybrid.counts["min_det"] > 0 and np.all(np.isfinite(est.hybrid.x))
     assert abs(est.hybrid.x[0]) < 0.02
     est.diag.publish()
-    assert spin_until(ex, lambda: any(s.name.startswith("scanner_threshold") and s.level == DiagnosticStatus.WARN
-                                       and "low signal" in s.message
-                                       for d in diags for s in d.status))
+    assert spin_until(
+        ex,
+        lambda: any(
+            s.name.startswith("scanner_threshold")
+            and s.level == DiagnosticStatus.WARN
+            and "low signal" in s.message
+            for d in diags
+            for s in d.status
+        ),
+    )
 
 
 def _y_frame(first, n, fs=500e3, name="y_cap"):
-    m = AdcFrame(first_sample_index=first, sample_rate_hz=fs, num_samples=n, bits=16,
-                 channel_names=[name], channel_units=["V"])
+    m = AdcFrame(
+        first_sample_index=first,
+        sample_rate_hz=fs,
+        num_samples=n,
+        bits=16,
+        channel_names=[name],
+        channel_units=["V"],
+    )
     m.lsb, m.offset, m.full_scale = (array.array("d", [v]) for v in (20 / 65536, 0.0, 10.0))
     m.codes = array.array("i", [0] * n)
     return m
@@ -131,25 +178,37 @@ def test_threshold_node_rejects_malformed_frames(graph):
     ex.add_node(est)
     pub_y = probe.create_publisher(AdcFrame, "/scanner/adc", FRAME_QOS)
     pub_v = probe.create_publisher(SignalFrame, "/scanner/drive", FRAME_QOS)
-    assert spin_until(ex, lambda: pub_y.get_subscription_count() == 1
-                       and pub_v.get_subscription_count() == 1)
-    pub_y.publish(_y_frame(0, 100, fs=1e6))            # wrong rate
-    pub_y.publish(_y_frame(0, 100, name="other"))      # wrong channel
-    bad = SignalFrame(first_sample_index=0, sample_rate_hz=500e3, num_samples=2,
-                      channel_names=["v_drive"], channel_units=["V"])
+    assert spin_until(
+        ex, lambda: pub_y.get_subscription_count() == 1 and pub_v.get_subscription_count() == 1
+    )
+    pub_y.publish(_y_frame(0, 100, fs=1e6))  # wrong rate
+    pub_y.publish(_y_frame(0, 100, name="other"))  # wrong channel
+    bad = SignalFrame(
+        first_sample_index=0,
+        sample_rate_hz=500e3,
+        num_samples=2,
+        channel_names=["v_drive"],
+        channel_units=["V"],
+    )
     bad.data = array.array("d", [0.0, float("nan")])
-    pub_v.publish(bad)                                  # non-finite
+    pub_v.publish(bad)  # non-finite
     assert spin_until(ex, lambda: est.diag.counters.get("rejected_frames", 0) == 3)
     assert est.frames_done == 0
 
 
 def test_invalid_parameters_refused(ros_context):
     with pytest.raises(ParameterError, match="damping_ratio"):
-        MicroScannerNode(context=ros_context, drive_externally=True,
-                         parameter_overrides=params(damping_ratio=-1.0))
+        MicroScannerNode(
+            context=ros_context,
+            drive_externally=True,
+            parameter_overrides=params(damping_ratio=-1.0),
+        )
     with pytest.raises(ParameterError, match="front_end"):
-        MicroScannerNode(context=ros_context, drive_externally=True,
-                         parameter_overrides=params(front_end="optical"))
+        MicroScannerNode(
+            context=ros_context,
+            drive_externally=True,
+            parameter_overrides=params(front_end="optical"),
+        )
     with pytest.raises(ParameterError, match="lag"):
         ScannerThresholdNode(context=ros_context, parameter_overrides=params(lag=100))
     with pytest.raises(ParameterError, match="dog_width"):
@@ -157,10 +216,13 @@ def test_invalid_parameters_refused(ros_context):
 
 
 def test_shared_amdm_front_end_publishes(graph):
-    pytest.importorskip("mems_sim.scanner_amdm")
+    pytest.importorskip("mems_sim.devices.scanner_amdm")
     ctx, ex, probe = graph
-    dev = MicroScannerNode(context=ctx, drive_externally=True,
-                           parameter_overrides=params(front_end="shared_amdm", frame_size=200))
+    dev = MicroScannerNode(
+        context=ctx,
+        drive_externally=True,
+        parameter_overrides=params(front_end="shared_amdm", frame_size=200),
+    )
     ex.add_node(dev)
     got = _subscribe(probe, "/scanner", ("adc", "truth"))
     assert dev.pub_psd is None

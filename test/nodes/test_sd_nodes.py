@@ -1,41 +1,44 @@
 """Sigma-delta resonator device node and observer node through real topics."""
+
 import array
-import time
 
 import numpy as np
 import pytest
 from conftest import params, spin_until
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
-
 from diagnostic_msgs.msg import DiagnosticArray
-from mems_estimation.kalman_observer import KalmanObserver
-from mems_estimation.sd_observer_node import SdObserverNode
+
+from mems_estimation.nodes.resonator_observer_node import SdObserverNode
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
+from mems_sim.devices.resonator import SdResonatorDevice
+from mems_sim.kernels.resonator_observer import KalmanObserver
+from mems_sim.nodes.resonator_node import SdResonatorNode
 from mems_sim.params import ParameterError
-from mems_sim.qos import FRAME_QOS
-from mems_sim.sd_resonator import SdResonatorDevice
-from mems_sim.sd_resonator_node import SdResonatorNode
-
-
-
-
-
-
+from mems_sim.ros.qos import FRAME_QOS
 
 
 def test_device_publishes_bits_pulses_truth_and_loop_estimate(graph):
     ctx, ex, probe = graph
-    dev = SdResonatorNode(context=ctx, drive_externally=True,
-                          parameter_overrides=params(seed=4, frame_size=500,
-                                                      output_noise_std=0.5))
+    dev = SdResonatorNode(
+        context=ctx,
+        drive_externally=True,
+        parameter_overrides=params(seed=4, frame_size=500, output_noise_std=0.5),
+    )
     ex.add_node(dev)
     got = {"adc": [], "drive": [], "truth": [], "loop_estimate": []}
-    for name, typ in (("adc", AdcFrame), ("drive", SignalFrame), ("truth", SignalFrame),
-                      ("loop_estimate", StateEstimate)):
+    for name, typ in (
+        ("adc", AdcFrame),
+        ("drive", SignalFrame),
+        ("truth", SignalFrame),
+        ("loop_estimate", StateEstimate),
+    ):
         probe.create_subscription(typ, f"/resonator/{name}", got[name].append, FRAME_QOS)
-    assert spin_until(ex, lambda: dev.pub_adc.get_subscription_count() == 1
-                       and dev.pub_estimate.get_subscription_count() == 1)
+    assert spin_until(
+        ex,
+        lambda: (
+            dev.pub_adc.get_subscription_count() == 1
+            and dev.pub_estimate.get_subscription_count() == 1
+        ),
+    )
     for _ in range(6):
         dev.step()
     assert spin_until(ex, lambda: all(len(v) == 6 for v in got.values()))
@@ -52,7 +55,7 @@ def test_device_publishes_bits_pulses_truth_and_loop_estimate(graph):
     np.testing.assert_array_equal(drive[:, 2], ref.pulse_width)
     assert list(got["drive"][0].channel_names) == ["pulse", "pulse_start", "pulse_width"]
     assert list(got["drive"][0].channel_units) == ["V", "s", "s"]
-    assert np.count_nonzero(drive[:, 1]) > 0            # sub-sample pulses (default)
+    assert np.count_nonzero(drive[:, 1]) > 0  # sub-sample pulses (default)
     truth = np.concatenate([np.asarray(x.data).reshape(-1, 5) for x in got["truth"]])
     np.testing.assert_array_equal(truth[:, 0], ref.position)
     np.testing.assert_array_equal(truth[:, 3], ref.x_pulse_start)
@@ -62,24 +65,39 @@ def test_device_publishes_bits_pulses_truth_and_loop_estimate(graph):
 
 def test_device_refuses_f0_above_nyquist_and_bad_q(ros_context):
     with pytest.raises(ParameterError, match="f0_hz"):
-        SdResonatorNode(context=ros_context, drive_externally=True,
-                        parameter_overrides=params(f0_hz=6e5))
+        SdResonatorNode(
+            context=ros_context, drive_externally=True, parameter_overrides=params(f0_hz=6e5)
+        )
     with pytest.raises(ParameterError, match="quality_factor"):
-        SdResonatorNode(context=ros_context, drive_externally=True,
-                        parameter_overrides=params(quality_factor=0.0))
+        SdResonatorNode(
+            context=ros_context,
+            drive_externally=True,
+            parameter_overrides=params(quality_factor=0.0),
+        )
 
 
 def _bit_frame(first, codes, fs=1e6):
-    m = AdcFrame(first_sample_index=first, sample_rate_hz=fs, num_samples=len(codes), bits=1,
-                 channel_names=["sd_bit"], channel_units=["V"])
+    m = AdcFrame(
+        first_sample_index=first,
+        sample_rate_hz=fs,
+        num_samples=len(codes),
+        bits=1,
+        channel_names=["sd_bit"],
+        channel_units=["V"],
+    )
     m.lsb, m.offset, m.full_scale = (array.array("d", [v]) for v in (1.0, 0.0, 1.0))
     m.codes = array.array("i", [int(c) for c in codes])
     return m
 
 
 def _pulse_frame(first, n, fs=1e6):
-    m = SignalFrame(first_sample_index=first, sample_rate_hz=fs, num_samples=n,
-                    channel_names=["pulse"], channel_units=["V"])
+    m = SignalFrame(
+        first_sample_index=first,
+        sample_rate_hz=fs,
+        num_samples=n,
+        channel_names=["pulse"],
+        channel_units=["V"],
+    )
     m.data = array.array("d", [0.0] * n)
     return m
 
@@ -93,30 +111,41 @@ def test_observer_node_rejects_bad_bit_streams_on_diagnostics(graph):
     estimates, diags = [], []
     probe.create_subscription(StateEstimate, "/resonator/estimate", estimates.append, FRAME_QOS)
     probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
-    assert spin_until(ex, lambda: pub_b.get_subscription_count() == 1
-                       and pub_p.get_subscription_count() == 1)
+    assert spin_until(
+        ex, lambda: pub_b.get_subscription_count() == 1 and pub_p.get_subscription_count() == 1
+    )
     rng = np.random.default_rng(0)
     good = rng.choice([-1, 1], size=100)
     pub_b.publish(_bit_frame(0, good))
     pub_p.publish(_pulse_frame(0, 100))
-    pub_b.publish(_bit_frame(100, [0, 2] + [1] * 98))     # values other than -1/+1
-    pub_b.publish(_bit_frame(200, good, fs=2e6))            # another sample rate
-    assert spin_until(ex, lambda: len(estimates) == 1
-                       and obs.diag.counters.get("rejected_frames", 0) == 2)
+    pub_b.publish(_bit_frame(100, [0, 2] + [1] * 98))  # values other than -1/+1
+    pub_b.publish(_bit_frame(200, good, fs=2e6))  # another sample rate
+    assert spin_until(
+        ex, lambda: len(estimates) == 1 and obs.diag.counters.get("rejected_frames", 0) == 2
+    )
     assert estimates[0].num_samples == 100 and np.all(np.isfinite(estimates[0].states))
     assert any("-1/+1" in w for w in obs.diag.warnings)
     obs.diag.publish()
-    assert spin_until(ex, lambda: any(s.name.startswith("sd_observer") and
-                                       {kv.key: kv.value for kv in s.values}
-                                       .get("rejected_frames") == "2"
-                                       for d in diags for s in d.status))
+    assert spin_until(
+        ex,
+        lambda: any(
+            s.name.startswith("sd_observer")
+            and {kv.key: kv.value for kv in s.values}.get("rejected_frames") == "2"
+            for d in diags
+            for s in d.status
+        ),
+    )
 
 
 def _drive_frame(first, pulses, starts, widths, fs=1e6):
     n = len(pulses)
-    m = SignalFrame(first_sample_index=first, sample_rate_hz=fs, num_samples=n,
-                    channel_names=["pulse", "pulse_start", "pulse_width"],
-                    channel_units=["V", "s", "s"])
+    m = SignalFrame(
+        first_sample_index=first,
+        sample_rate_hz=fs,
+        num_samples=n,
+        channel_names=["pulse", "pulse_start", "pulse_width"],
+        channel_units=["V", "s", "s"],
+    )
     m.data = array.array("d", np.column_stack([pulses, starts, widths]).ravel().tolist())
     return m
 
@@ -132,19 +161,20 @@ def test_observer_node_uses_sub_sample_pulse_timing(graph):
     pub_p = probe.create_publisher(SignalFrame, "/resonator/drive", FRAME_QOS)
     estimates = []
     probe.create_subscription(StateEstimate, "/resonator/estimate", estimates.append, FRAME_QOS)
-    assert spin_until(ex, lambda: pub_b.get_subscription_count() == 1
-                       and pub_p.get_subscription_count() == 1)
+    assert spin_until(
+        ex, lambda: pub_b.get_subscription_count() == 1 and pub_p.get_subscription_count() == 1
+    )
     fr = SdResonatorDevice({"output_noise_std": 0.5}, seed=5).step(4000)
     assert np.count_nonzero(fr.pulse_start) > 100
     for first in range(0, 4000, 1000):
         sl = slice(first, first + 1000)
         pub_b.publish(_bit_frame(first, fr.bits[sl]))
-        pub_p.publish(_drive_frame(first, fr.pulses[sl], fr.pulse_start[sl],
-                                   fr.pulse_width[sl]))
+        pub_p.publish(_drive_frame(first, fr.pulses[sl], fr.pulse_start[sl], fr.pulse_width[sl]))
     assert spin_until(ex, lambda: len(estimates) == 4)
     est = np.concatenate([np.asarray(m.states) for m in estimates])
-    ref, _ = KalmanObserver(5e4, 100.0, 1e6, 0.5, 0.0).step(fr.bits, fr.pulses, fr.pulse_start,
-                                                            fr.pulse_width)
+    ref, _ = KalmanObserver(5e4, 100.0, 1e6, 0.5, 0.0).step(
+        fr.bits, fr.pulses, fr.pulse_start, fr.pulse_width
+    )
     np.testing.assert_allclose(est, ref, rtol=0, atol=1e-12)
     naive, _ = KalmanObserver(5e4, 100.0, 1e6, 0.5, 0.0).step(fr.bits, fr.pulses)
     gap = np.abs(naive - ref)[2000:].max()

@@ -1,19 +1,20 @@
 """Micro-stage, stage EKF and gyro calibration nodes through real topics (issue 3)."""
+
 import array
 
 import numpy as np
 import pytest
 from conftest import params, spin_until
 
-from mems_estimation.gyro_calibration_node import GyroCalibrationNode
-from mems_estimation.stage_ekf import FeedthroughCanceller, StageEkf, load_model, save_model
-from mems_estimation.stage_ekf_node import StageEkfNode
+from mems_estimation.filters.stage_ekf import FeedthroughCanceller, StageEkf, load_model, save_model
+from mems_estimation.identification.stage_gyro_calibration import Plan, identify_stage
+from mems_estimation.nodes.stage_ekf_node import StageEkfNode
+from mems_estimation.nodes.stage_gyro_calibration_node import GyroCalibrationNode
 from mems_msgs.msg import AdcFrame, CalibrationResult, SignalFrame, StateEstimate
-from mems_sim.micro_stage_node import MicroStageNode
+from mems_sim.nodes.stage_node import MicroStageNode
 from mems_sim.params import ParameterError
-from mems_sim.qos import FRAME_QOS, RESULT_QOS
-from mems_sim.ros_frames import adc_physical, signal_data
-from mems_sim.scenarios.gyro_calibration import Plan, identify_stage
+from mems_sim.ros.frames import adc_physical, signal_data
+from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
 
 
 @pytest.fixture(scope="module")
@@ -26,8 +27,11 @@ def yaml_path(tmp_path_factory):
 
 def test_graph_estimate_and_calibration(graph, yaml_path):
     ctx, ex, probe = graph
-    dev = MicroStageNode(context=ctx, drive_externally=True, parameter_overrides=params(
-        seed=3, n_trials=3, periods_per_trial=120, frame_size=20000))
+    dev = MicroStageNode(
+        context=ctx,
+        drive_externally=True,
+        parameter_overrides=params(seed=3, n_trials=3, periods_per_trial=120, frame_size=20000),
+    )
     ekf = StageEkfNode(context=ctx, parameter_overrides=params(params_yaml=yaml_path))
     cal = GyroCalibrationNode(context=ctx, parameter_overrides=params(n_trials=3))
     for n in (dev, ekf, cal):
@@ -36,17 +40,22 @@ def test_graph_estimate_and_calibration(graph, yaml_path):
     probe.create_subscription(AdcFrame, "/stage/adc", adc.append, FRAME_QOS)
     probe.create_subscription(SignalFrame, "/stage/drive", drv.append, FRAME_QOS)
     probe.create_subscription(StateEstimate, "/stage/estimate", est.append, FRAME_QOS)
-    probe.create_subscription(CalibrationResult, "/stage/gyro_scale_factor", res.append,
-                              RESULT_QOS)
-    assert spin_until(ex, lambda: dev.pub_adc.get_subscription_count() >= 1
-                      and dev.pub_gyro.get_subscription_count() >= 1
-                      and ekf.pub.get_subscription_count() >= 2)
+    probe.create_subscription(CalibrationResult, "/stage/gyro_scale_factor", res.append, RESULT_QOS)
+    assert spin_until(
+        ex,
+        lambda: (
+            dev.pub_adc.get_subscription_count() >= 1
+            and dev.pub_gyro.get_subscription_count() >= 1
+            and ekf.pub.get_subscription_count() >= 2
+        ),
+    )
     frames = 0
     while dev.step():
         frames += 1
         spin_until(ex, lambda: ekf.frames_done >= frames, timeout=30)
-    assert spin_until(ex, lambda: len(est) == frames and len(adc) == frames
-                      and len(drv) == frames, timeout=30)
+    assert spin_until(
+        ex, lambda: len(est) == frames and len(adc) == frames and len(drv) == frames, timeout=30
+    )
     assert spin_until(ex, lambda: cal.estimates_received == frames, timeout=30)
     cal.close()
     assert spin_until(ex, lambda: len(res) >= 1, timeout=10)
@@ -67,31 +76,49 @@ def test_graph_estimate_and_calibration(graph, yaml_path):
 
 def test_refusals(ros_context, yaml_path, tmp_path):
     with pytest.raises(ParameterError, match="params_yaml"):
-        StageEkfNode(context=ros_context,
-                     parameter_overrides=params(params_yaml=str(tmp_path / "none.yaml")))
+        StageEkfNode(
+            context=ros_context, parameter_overrides=params(params_yaml=str(tmp_path / "none.yaml"))
+        )
     with pytest.raises(ParameterError, match="channels"):
-        StageEkfNode(context=ros_context,
-                     parameter_overrides=params(params_yaml=yaml_path, channels="1A,3C"))
+        StageEkfNode(
+            context=ros_context, parameter_overrides=params(params_yaml=yaml_path, channels="1A,3C")
+        )
     with pytest.raises(ParameterError, match="safe_tilt_rad"):
-        MicroStageNode(context=ros_context, drive_externally=True,
-                       parameter_overrides=params(amp_hi_v=4.0))
+        MicroStageNode(
+            context=ros_context, drive_externally=True, parameter_overrides=params(amp_hi_v=4.0)
+        )
     with pytest.raises(ParameterError, match="sample_rate_hz"):
-        MicroStageNode(context=ros_context, drive_externally=True,
-                       parameter_overrides=params(sample_rate_hz=0.0))
+        MicroStageNode(
+            context=ros_context,
+            drive_externally=True,
+            parameter_overrides=params(sample_rate_hz=0.0),
+        )
 
 
 def test_nonfinite_frames_rejected_and_counted(graph, yaml_path):
     ctx, ex, probe = graph
-    dev = MicroStageNode(context=ctx, drive_externally=True, parameter_overrides=params(
-        seed=1, n_trials=1, periods_per_trial=20, frame_size=2000, gyro_enabled=False))
+    dev = MicroStageNode(
+        context=ctx,
+        drive_externally=True,
+        parameter_overrides=params(
+            seed=1, n_trials=1, periods_per_trial=20, frame_size=2000, gyro_enabled=False
+        ),
+    )
     ekf = StageEkfNode(context=ctx, parameter_overrides=params(params_yaml=yaml_path))
     ex.add_node(dev)
     ex.add_node(ekf)
     bad_pub = probe.create_publisher(SignalFrame, "/stage/drive", FRAME_QOS)
-    assert spin_until(ex, lambda: dev.pub_adc.get_subscription_count() >= 1
-                      and bad_pub.get_subscription_count() >= 1)
-    bad = SignalFrame(first_sample_index=10**9, sample_rate_hz=625e3, num_samples=2,
-                      channel_names=["u", "v_bias", "f_drive"], channel_units=["V", "V", "Hz"])
+    assert spin_until(
+        ex,
+        lambda: dev.pub_adc.get_subscription_count() >= 1 and bad_pub.get_subscription_count() >= 1,
+    )
+    bad = SignalFrame(
+        first_sample_index=10**9,
+        sample_rate_hz=625e3,
+        num_samples=2,
+        channel_names=["u", "v_bias", "f_drive"],
+        channel_units=["V", "V", "Hz"],
+    )
     bad.data = array.array("d", [0.0, float("nan"), 0.0, 0.0, 1.0, 1700.0])
     bad_pub.publish(bad)
     assert spin_until(ex, lambda: ekf.diag.counters.get("rejected_frames", 0) == 1)
@@ -105,24 +132,36 @@ def test_imu_messages_match_gyro_frames(graph):
     """publish_imu: one sensor_msgs/Imu per gyro sample, same rate value as the gyro ADC frame
     and stamps in integer ns of the stage time base (reused message, rewritten fields)."""
     from sensor_msgs.msg import Imu
+
     ctx, ex, probe = graph
-    dev = MicroStageNode(context=ctx, drive_externally=True, parameter_overrides=params(
-        seed=2, n_trials=1, periods_per_trial=20, frame_size=5000, publish_imu=True))
+    dev = MicroStageNode(
+        context=ctx,
+        drive_externally=True,
+        parameter_overrides=params(
+            seed=2, n_trials=1, periods_per_trial=20, frame_size=5000, publish_imu=True
+        ),
+    )
     ex.add_node(dev)
     imu, gy = [], []
     probe.create_subscription(Imu, "/stage/gyro/imu", imu.append, FRAME_QOS)
     probe.create_subscription(AdcFrame, "/stage/gyro/adc", gy.append, FRAME_QOS)
-    assert spin_until(ex, lambda: dev.pub_imu.get_subscription_count() >= 1
-                      and dev.pub_gyro.get_subscription_count() >= 1)
+    assert spin_until(
+        ex,
+        lambda: (
+            dev.pub_imu.get_subscription_count() >= 1 and dev.pub_gyro.get_subscription_count() >= 1
+        ),
+    )
     for _ in range(2):
         dev.step()
     n = sum(m.num_samples for m in gy) if gy else -1
-    assert spin_until(ex, lambda: len(gy) == 2 and len(imu) == sum(m.num_samples for m in gy),
-                      timeout=20), (len(imu), n)
+    assert spin_until(
+        ex, lambda: len(gy) == 2 and len(imu) == sum(m.num_samples for m in gy), timeout=20
+    ), (len(imu), n)
     v = np.concatenate([adc_physical(m)[:, 0] for m in gy])
     np.testing.assert_array_equal([m.angular_velocity.y for m in imu], v)
     ns = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in imu])
     assert np.all(np.diff(ns) > 0)
     assert np.allclose(np.diff(ns), 1e9 / dev.gyro.rate, atol=1.0)
-    assert all(m.angular_velocity_covariance[0] > 0 and m.orientation_covariance[0] == -1.0
-               for m in imu)
+    assert all(
+        m.angular_velocity_covariance[0] > 0 and m.orientation_covariance[0] == -1.0 for m in imu
+    )

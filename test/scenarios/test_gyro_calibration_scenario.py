@@ -1,19 +1,23 @@
 """End-to-end: scenario gyro_calibration (the full plan, as `make demo` runs it) through the
-node graph (issue 3)."""
+node graph (Chen 2018 ch. 3, Tables 3.4-3.6)."""
+
 from pathlib import Path
 
 import pytest
 
-from mems_sim.scenarios import gyro_calibration
-from mems_sim.scenarios.base import ScenarioError, ScenarioOptions
+from mems_estimation.identification.stage_gyro_calibration import T1, T2
+from mems_scenarios import stage_gyro_calibration as gyro_calibration
+from mems_scenarios.base import ScenarioError, ScenarioOptions
 
 
 @pytest.fixture(scope="module")
 def result(tmp_path_factory):
     from conftest import next_domain_id
+
     out = tmp_path_factory.mktemp("gc") / "gyro_calibration-2.mcap"
-    return gyro_calibration.run(ScenarioOptions(seed=2, out=out, domain_id=next_domain_id(),
-                                                progress=False))
+    return gyro_calibration.run(
+        ScenarioOptions(seed=2, out=out, domain_id=next_domain_id(), progress=False)
+    )
 
 
 def test_recording_complete(result):
@@ -31,17 +35,17 @@ def test_recording_complete(result):
 def test_table_figures_through_graph(result):
     print("\n" + result["table"])
     f = result["figures"]
-    ev = f[gyro_calibration.T1]["eval"]
+    ev = f[T1]["eval"]
     assert ev["rmse"] <= 0.114 and abs(ev["alpha"] - 1) <= 8e-4
-    ev2 = f[gyro_calibration.T2]["eval"]
-    assert ev2["rmse"] <= 0.114      # D_n, eta re-identified at 35.7 C
-    k1 = f[gyro_calibration.T1]["cal"]["scale_factor"]
-    k2 = f[gyro_calibration.T2]["cal"]["scale_factor"]
+    ev2 = f[T2]["eval"]
+    assert ev2["rmse"] <= 0.114  # D_n, eta re-identified at 35.7 C
+    k1 = f[T1]["cal"]["scale_factor"]
+    k2 = f[T2]["cal"]["scale_factor"]
     assert k2 / k1 - 1 == pytest.approx(-0.0543, abs=0.01)
-    for T in (gyro_calibration.T1, gyro_calibration.T2):
-        assert abs(f[T]["ppm"]) < 4 * f[T]["se_ppm"] + 50   # honest standard error
-    rms = (0.5 * sum(f[T]["ppm"] ** 2 for T in (gyro_calibration.T1, gyro_calibration.T2)))
-    assert rms ** 0.5 <= 100.0      # issue 3: <= 100 ppm RMS over the two temperatures
+    for T in (T1, T2):
+        assert abs(f[T]["ppm"]) < 4 * f[T]["se_ppm"] + 50  # honest standard error
+    rms = 0.5 * sum(f[T]["ppm"] ** 2 for T in (T1, T2))
+    assert rms**0.5 <= 100.0  # target: <= 100 ppm RMS over the two temperatures
 
 
 def test_refuses_duration():

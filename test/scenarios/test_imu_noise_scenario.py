@@ -1,5 +1,5 @@
 """End-to-end: the imu_noise scenario through the node graph, its MCAP, replay, CLI errors."""
-import os
+
 import subprocess
 import sys
 import time
@@ -9,15 +9,15 @@ import pytest
 from mcap.reader import make_reader
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
-from rclpy.serialization import deserialize_message, serialize_message
+from rclpy.serialization import deserialize_message
 
-from mems_estimation.identify_noise_cli import identify_bag
-from mems_estimation.noise_identifier_node import NoiseIdentifierNode
+from mems_estimation.nodes.imu_noise_identifier_node import NoiseIdentifierNode
+from mems_estimation.tools.identify_noise import identify_bag
 from mems_msgs.msg import NoiseModel
+from mems_scenarios import imu_noise
+from mems_scenarios.base import ScenarioOptions
 from mems_sim.bag.info import bag_info
 from mems_sim.bag.player import Player, iter_messages, read_messages
-from mems_sim.scenarios import imu_noise
-from mems_sim.scenarios.base import ScenarioOptions
 
 BIN = Path(sys.executable).parent
 DATA_TOPICS = ("/imu/adc", "/imu/truth", "/imu/noise_model")
@@ -37,8 +37,10 @@ def _payloads(path):
 
 
 def _final_model(path) -> NoiseModel:
-    models = [deserialize_message(m.data, NoiseModel)
-              for m in iter_messages(str(path), ["/imu/noise_model"])]
+    models = [
+        deserialize_message(m.data, NoiseModel)
+        for m in iter_messages(str(path), ["/imu/noise_model"])
+    ]
     finals = [m for m in models if m.final]
     assert len(finals) == 1
     return finals[0]
@@ -49,11 +51,17 @@ def two_runs(tmp_path_factory):
     """The same scenario, seed and duration twice, as fast as possible."""
     base = tmp_path_factory.mktemp("runs")
     from conftest import next_domain_id
+
     results = []
     for k in range(2):
         out = base / f"imu_noise-{k}.mcap"
-        results.append(imu_noise.run(ScenarioOptions(
-            duration_s=600.0, seed=5, out=out, domain_id=next_domain_id(), progress=False)))
+        results.append(
+            imu_noise.run(
+                ScenarioOptions(
+                    duration_s=600.0, seed=5, out=out, domain_id=next_domain_id(), progress=False
+                )
+            )
+        )
     return results
 
 
@@ -89,10 +97,14 @@ def test_offline_identification_equals_live(two_runs):
 def test_replayed_bag_through_topics_gives_live_output(two_runs, ros_context):
     """Player -> topics -> a fresh identifier node: the same final model as live."""
     import rclpy
+
     path = two_runs[0]["mcap"]
     live = _final_model(path)
-    ident = NoiseIdentifierNode(context=ros_context, namespace="imu",
-                                parameter_overrides=[Parameter("publish_period_s", value=0.0)])
+    ident = NoiseIdentifierNode(
+        context=ros_context,
+        namespace="imu",
+        parameter_overrides=[Parameter("publish_period_s", value=0.0)],
+    )
     node = rclpy.create_node("player", context=ros_context)
     player = Player(node, str(path), topics=["/imu/adc"])
     ex = SingleThreadedExecutor(context=ros_context)
@@ -102,6 +114,7 @@ def test_replayed_bag_through_topics_gives_live_output(two_runs, ros_context):
     while ident.sub.get_publisher_count() < 1 and time.monotonic() < deadline:
         ex.spin_once(timeout_sec=0.05)
     import threading
+
     done = threading.Event()
     thread = threading.Thread(target=lambda: (player.play(fast=True), done.set()))
     thread.start()
@@ -117,9 +130,24 @@ def test_replayed_bag_through_topics_gives_live_output(two_runs, ros_context):
 
 def test_realtime_60s_run_reads_back_everywhere(tmp_path, subprocess_env):
     out = tmp_path / "rt.mcap"
-    run = subprocess.run([str(BIN / "run_scenario"), "imu_noise", "--realtime", "--duration", "60",
-                          "--seed", "2", "--out", str(out), "--no-plots"],
-                         env=subprocess_env, capture_output=True, text=True, timeout=240)
+    run = subprocess.run(
+        [
+            str(BIN / "run_scenario"),
+            "imu_noise",
+            "--realtime",
+            "--duration",
+            "60",
+            "--seed",
+            "2",
+            "--out",
+            str(out),
+            "--no-plots",
+        ],
+        env=subprocess_env,
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
     assert run.returncode == 0, run.stderr[-2000:]
     published = {"/imu/adc": 600, "/imu/truth": 600, "/imu/data": 6000, "/imu/noise_model": 1}
     # Statistics of the Summary equal the published counts
@@ -132,13 +160,17 @@ def test_realtime_60s_run_reads_back_everywhere(tmp_path, subprocess_env):
         assert counts[topic] == n, topic
     # mcap + mcap-ros2-support decode every message
     from mcap_ros2.decoder import DecoderFactory
+
     decoded = 0
     with open(out, "rb") as f:
-        for _, channel, _, msg in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+        for _, channel, _, msg in make_reader(
+            f, decoder_factories=[DecoderFactory()]
+        ).iter_decoded_messages():
             decoded += 1
     assert decoded == sum(counts.values())
     # rosbags decodes every message with the schemas embedded in the file
     from rosbags.highlevel import AnyReader
+
     with AnyReader([out]) as reader:
         n = 0
         for conn, _, raw in reader.messages():
@@ -152,20 +184,34 @@ def test_realtime_60s_run_reads_back_everywhere(tmp_path, subprocess_env):
     assert all(t.get("gaps", 0) == 0 for t in info["topics"].values())
 
 
-@pytest.mark.parametrize("args, needle", [
-    (["no_such_scenario"], "unknown scenario"),
-    (["imu_noise", "--duration", "-5"], "--duration"),
-    (["imu_noise", "--out", "x.txt"], "--out"),
-])
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["no_such_scenario"], "unknown scenario"),
+        (["imu_noise", "--duration", "-5"], "--duration"),
+        (["imu_noise", "--out", "x.txt"], "--out"),
+    ],
+)
 def test_bad_input_exits_nonzero_with_one_line(args, needle, subprocess_env, tmp_path):
-    run = subprocess.run([str(BIN / "run_scenario")] + args, env=subprocess_env, cwd=tmp_path,
-                         capture_output=True, text=True, timeout=60)
+    run = subprocess.run(
+        [str(BIN / "run_scenario")] + args,
+        env=subprocess_env,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert run.returncode != 0
     lines = run.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0], run.stderr
 
 
 def test_list(subprocess_env):
-    run = subprocess.run([str(BIN / "run_scenario"), "--list"], env=subprocess_env,
-                         capture_output=True, text=True, timeout=60)
+    run = subprocess.run(
+        [str(BIN / "run_scenario"), "--list"],
+        env=subprocess_env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert run.returncode == 0 and run.stdout.startswith("imu_noise")

@@ -1,14 +1,16 @@
 """End-to-end: scenario scanner_shared_electrodes through the node graph, figures from its MCAP
-(issue 5, chapter-5 half: Table 5.3 form, consistency, off-resonance low signal)."""
+(Chen 2018 ch. 5: Table 5.3 form, consistency, off-resonance low signal)."""
+
 import pytest
 
-from mems_sim.scenarios import scanner_shared_electrodes as sse
-from mems_sim.scenarios.base import ScenarioOptions
+from mems_scenarios import scanner_amdm_shared_electrodes as sse
+from mems_scenarios.base import ScenarioOptions
 
 
 @pytest.fixture(scope="module")
 def result(tmp_path_factory):
     from conftest import next_domain_id
+
     out = tmp_path_factory.mktemp("sse") / "scanner_shared_electrodes-2.mcap"
     return sse.run(ScenarioOptions(seed=2, out=out, domain_id=next_domain_id(), progress=False))
 
@@ -27,16 +29,16 @@ def test_table_5_3_ukf_phase_and_amplitude(result):
     f = result["figures"]
     print("\n" + result["table"])
     assert f["ukf_pairs"] > 500
-    assert f["ukf_phase_deg"] <= 0.39            # Table 5.3 (paper's UKF)
-    assert f["ukf_phase_deg"] <= 0.18            # target of eq. (79)
-    assert f["ukf_amp_deg"] <= 0.63              # Table 5.3 (paper's UKF)
+    assert f["ukf_phase_deg"] <= 0.39  # Table 5.3 (paper's UKF)
+    assert f["ukf_phase_deg"] <= 0.18  # target of eq. (79)
+    assert f["ukf_amp_deg"] <= 0.63  # Table 5.3 (paper's UKF)
 
 
 def test_filters_keep_a_positive_definite_bounded_covariance(result):
     f = result["figures"]
     for k in ("ekf", "ukf"):
         assert f[f"{k}_pd_failures"] == 0 and f[f"{k}_min_var"] > 0
-        assert f[f"{k}_max_var_theta_eval"] < 1e-4          # no blow-up after acquisition
+        assert f[f"{k}_max_var_theta_eval"] < 1e-4  # no blow-up after acquisition
         assert f[f"{k}_acquisitions"] == 1
 
 
@@ -47,11 +49,15 @@ def test_off_resonance_reports_low_signal(result):
     assert f["off_events"] == 0 and f["off_finite"] and f["off_pd_failures"] == 0
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "issue 5 asks the UKF to beat the EKF on amplitude and phase RMSE; measured (seed 2) "
-    "UKF/EKF = 1.000 on both (~0.05 deg amplitude, ~0.13 deg phase): at R = 1.92e-4 V^2 and "
-    "1 MHz the posterior std of theta (~1e-4 rad) is tiny against the 0.2 rad scale of the "
-    "Gaussian C_s, so linearisation costs the EKF nothing; both are limited by the AMDM "
-    "chain's unmodelled distortion (phase bias ~-0.13 deg)"))
+@pytest.mark.xfail(
+    strict=True,
+    reason=(
+        "target: the UKF beats the EKF on amplitude and phase RMSE (Chen 2018 Table 5.3); measured (seed 2) "
+        "UKF/EKF = 1.000 on both (~0.05 deg amplitude, ~0.13 deg phase): at R = 1.92e-4 V^2 and "
+        "1 MHz the posterior std of theta (~1e-4 rad) is tiny against the 0.2 rad scale of the "
+        "Gaussian C_s, so linearisation costs the EKF nothing; both are limited by the AMDM "
+        "chain's unmodelled distortion (phase bias ~-0.13 deg)"
+    ),
+)
 def test_ukf_beats_ekf(result):
     assert result["figures"]["ukf_beats_ekf"]

@@ -1,27 +1,29 @@
-"""End-to-end: scenario scanner_threshold through the node graph, figures from its MCAP (issue 5,
+"""End-to-end: scenario scanner_threshold through the node graph, figures from its MCAP (Chen 2018,
 chapter 4)."""
+
 import math
 
-import numpy as np
 import pytest
 
-from mems_sim.scenarios import scanner_threshold
-from mems_sim.scenarios.base import ScenarioError, ScenarioOptions
+from mems_scenarios import scanner_threshold
+from mems_scenarios.base import ScenarioError, ScenarioOptions
 
 
 @pytest.fixture(scope="module")
 def result(tmp_path_factory):
     from conftest import next_domain_id
+
     out = tmp_path_factory.mktemp("scanner") / "scanner_threshold-0.mcap"
-    return scanner_threshold.run(ScenarioOptions(seed=0, out=out, domain_id=next_domain_id(),
-                                                 progress=False))
+    return scanner_threshold.run(
+        ScenarioOptions(seed=0, out=out, domain_id=next_domain_id(), progress=False)
+    )
 
 
 def test_recording_complete(result):
     counts = result["recorder"]["counts"]
     for topic in ("adc", "drive", "truth", "psd", "threshold_detections"):
         assert counts[f"/scanner/{topic}"] == result["published"]
-    assert counts["/scanner/estimate"] == result["published"] + 1      # + the final flush
+    assert counts["/scanner/estimate"] == result["published"] + 1  # + the final flush
     assert all(g == 0 for g in result["recorder"]["gaps"].values())
     for png in result["figure_paths"]:
         assert png.stat().st_size > 20_000
@@ -33,7 +35,7 @@ def test_table_4_3_hybrid_better_everywhere(result):
     snrs = [s for _, _, s in f["segments"]]
     assert 60 < snrs[0] < 120 and 15 < snrs[1] < 35 and 3 < snrs[2] < 8 and 0.5 < snrs[3] < 2
     assert all(h < p for h, p in zip(f["rmse_hyb"], f["rmse_ekf"]))
-    assert f["reduction"][-1] >= 0.10                      # paper 15.1 %
+    assert f["reduction"][-1] >= 0.10  # paper 15.1 %
     # RMSE over the 50 samples after each detection (Table 4.3 lower half), overall
     assert f["rmse_th_hyb"][-1] < f["rmse_th_ekf"][-1]
 
@@ -41,9 +43,9 @@ def test_table_4_3_hybrid_better_everywhere(result):
 def test_detection_study(result):
     f = result["figures"]
     assert f["online_offline_same"] and f["latency"] == 300
-    assert all(k[3] > 0.05 for k in f["ks"])               # normal at every tested SNR
+    assert all(k[3] > 0.05 for k in f["ks"])  # normal at every tested SNR
     sw = f["sigma_sweep"]
-    for i in (2, 3):                                       # SNR ~5 and ~1
+    for i in (2, 3):  # SNR ~5 and ~1
         assert sw[45.0]["var"][i] < sw[15.0]["var"][i]
     rates = sorted({fs for (_, fs) in f["fs_study"]})
     assert all(not math.isnan(f["fs_study"][(1.0, r)][0]) for r in rates)

@@ -1,16 +1,19 @@
-"""End-to-end: scenario sd_resonator through the node graph, figures from its MCAP (issue 6)."""
+"""End-to-end: scenario sd_resonator through the node graph, figures from its MCAP (Colinet et al.)."""
+
 import pytest
 
-from mems_sim.scenarios import sd_resonator
-from mems_sim.scenarios.base import ScenarioOptions
+from mems_scenarios import resonator_sigma_delta as sd_resonator
+from mems_scenarios.base import ScenarioOptions
 
 
 @pytest.fixture(scope="module")
 def result(tmp_path_factory):
     from conftest import next_domain_id
+
     out = tmp_path_factory.mktemp("sd") / "sd_resonator-3.mcap"
-    return sd_resonator.run(ScenarioOptions(seed=3, out=out, domain_id=next_domain_id(),
-                                            progress=False))
+    return sd_resonator.run(
+        ScenarioOptions(seed=3, out=out, domain_id=next_domain_id(), progress=False)
+    )
 
 
 def test_recording_complete(result):
@@ -25,10 +28,10 @@ def test_recording_complete(result):
 def test_exact_model_error_and_noise_immunity(result):
     f = result["figures"]
     print("\n" + result["table"])
-    assert f["exact_err_rel"] <= 1e-9          # paper ~1e-10
-    assert f["amp_ratio"] < 0.10               # comparator loop does not build up
-    assert f["amp_observer"] > 0.4             # the observer loop sustains ~0.48 V
-    assert abs(f["pulses_per_half_period"] - 1.0) < 0.01   # one pulse per crossing
+    assert f["exact_err_rel"] <= 1e-9  # paper ~1e-10
+    assert f["amp_ratio"] < 0.10  # comparator loop does not build up
+    assert f["amp_observer"] > 0.4  # the observer loop sustains ~0.48 V
+    assert abs(f["pulses_per_half_period"] - 1.0) < 0.01  # one pulse per crossing
 
 
 def test_consistency_model_error_and_adaptive(result):
@@ -46,4 +49,4 @@ def test_pulses_at_two_percent_of_amplitude(result):
     f = result["figures"]
     assert f["pulse_x_rel_max"] <= 0.02
     assert f["pulse_center_rel_max"] <= 0.02
-    assert f["pulse_sub_sample"] > 0.9        # the pulses do fall between the samples
+    assert f["pulse_sub_sample"] > 0.9  # the pulses do fall between the samples

@@ -1,0 +1,904 @@
+"""EKF and UKF of the shared-electrode micro-scanner, per-period phase and amplitude (chapter 5).
+
+Source: Chen 2018, "High-accuracy Motion Estimation for MEMS Devices with Capacitive Sensors" (PhD thesis, U. Michigan),
+chapter 5: process model eqs. (81)-(84), measurement model eqs. (104)-(107), Algorithm 1 (EKF),
+Algorithm 2 (UKF), phase shift and RMSE definitions eqs. (109)-(110), Table 5.2 (model), Table 5.3.
+
+State x = [theta (rad), omega (rad/s)], one filter step per published AMDM sample (T = 1/fs).
+
+Process model.  Eq. (82) is the explicit-Euler discretisation of (81) and misprints the
+stiffness term as T k^2/J^2 (it is T k/J).  Explicit Euler is not used here: at the
+chapter-5 rates wn T ~ 0.1, so Euler's spurious growth |1 + j wn T| ~ 1.005 per step
+(~36 % per period) dwarfs the damping.  Implemented instead: the exact zero-order-hold
+discretisation of the linear part plus the electrostatic torque (80) held over the step::
+
+    x_k = Phi x_{k-1} + Gam u_k,     u_k = C_s'(theta_m) <V^2>_k / (2 J),
+    theta_m = theta_{k-1} + omega_{k-1} T/2   (torque at the mid-step angle: holding it at
+    theta_{k-1} lags the electrostatic stiffness by T/2, i.e. a negative damping
+    -k_e T/2 that is ~10 % of b here and biases the phase)
+    Phi = expm(A T), Gam = int_0^T expm(A s) ds [0, 1]^T,   A = [[0, 1], [-k/J, -b/J]]
+
+<V^2>_k is the mean square of the applied voltage over the step: the drive samples
+(linearly interpolated, mean of the square exactly) plus the carrier's V_c0^2/2.
+Process noise Q = Q_theta [[T^4/4, T^3/2], [T^3/2, T^2]] (84); Table 5.2 prints the unit
+of Q_a = 1e11 as m/s^2, it is an angular-acceleration variance (rad^2/s^4).
+
+Measurement h(theta) = a_cir (C_0 exp(-(theta/theta_0)^2) + C_b) + b_cir, variance R (106).
+h is even in theta: the sign of theta is not observable (the process model is odd-symmetric
+too), so both filters are initialised on the positive root and their theta may be the mirror
+image of the truth.  The phase (time from a drive peak to the next extremum of theta, in
+[0, pi) of the motion period) and the amplitude |theta| at the extrema are sign-invariant.
+
+Chain delay: the AMDM output at t_k describes theta(t_k - tau) (``chain_delay_s``, the
+group delay of the designed filters, Sec. 5.3.3 "phase shifts ... calibrated"); the filters
+therefore pair y_k with the drive at t_k - tau and their state k refers to t_k - tau.
+
+UKF (Algorithm 2, with the misprints corrected): scaled sigma points (2n+1 = 5, additive
+noise), sigma points re-drawn from the a-priori (x-, P-) for the measurement step,
+P_xy = sum W_c dX dy (the thesis adds R: wrong), P = P- - K P_y K^T (the thesis prints +).
+EKF (Algorithm 1) in Joseph form.  Both per-sample recursions are numba kernels.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any, NamedTuple
+
+import numba
+import numpy as np
+import scipy.linalg
+
+from mems_sim.devices.scanner_amdm import CIRCUIT_SPECS, DEVICE_SPECS, chain_delay
+from mems_sim.params import ParameterError, ParamSpec, resolve
+
+__all__ = [
+    "ESTIMATOR_SPECS",
+    "resolve_estimator",
+    "ScannerModel",
+    "scanner_model",
+    "ekf_run",
+    "ukf_run",
+    "ukf_weights",
+    "DriveAligner",
+    "ScannerFilter",
+    "PhaseAmplitudeTracker",
+    "PeriodEvents",
+    "match_events",
+    "event_rmse",
+    "ac_snr",
+]
+
+_CARRIER = next(s for s in CIRCUIT_SPECS if s.name == "carrier_amplitude")
+
+#: Estimator parameters: the Table 5.2 model (same names as the device) + filter settings.
+ESTIMATOR_SPECS: tuple[ParamSpec, ...] = DEVICE_SPECS + (
+    _CARRIER,
+    ParamSpec(
+        "accel_noise_var",
+        1.0e11,
+        "rad^2/s^4",
+        "Q_theta of eq. (84)",
+        "Chen 2018 Table 5.2 (Q_a = 1e11)",
+        min=0.0,
+        max=1.0e20,
+    ),
+    ParamSpec(
+        "sample_rate_hz",
+        1.0e6,
+        "Hz",
+        "rate of the AMDM samples (one filter step each)",
+        "mems_sim.devices.scanner_amdm default output rate",
+        min=1.0e3,
+        max=1.0e10,
+    ),
+    ParamSpec(
+        "chain_delay_s",
+        round(chain_delay(), 12),
+        "s",
+        "envelope delay of the AMDM chain (y_k describes theta(t_k - delay))",
+        "mems_sim.devices.scanner_amdm.chain_delay of the default circuit",
+        min=0.0,
+        max=1.0e-2,
+    ),
+    ParamSpec(
+        "ukf_alpha",
+        1.0,
+        "-",
+        "sigma-point spread alpha",
+        "Julier/Merwe scaled UT",
+        min=1.0e-4,
+        max=10.0,
+    ),
+    ParamSpec(
+        "ukf_beta",
+        2.0,
+        "-",
+        "prior-knowledge weight beta (2: Gaussian)",
+        "scaled UT",
+        min=0.0,
+        max=10.0,
+    ),
+    ParamSpec(
+        "ukf_kappa",
+        1.0,
+        "-",
+        "secondary scaling kappa (3 - n for n = 2)",
+        "scaled UT",
+        min=0.0,
+        max=10.0,
+    ),
+    ParamSpec(
+        "initial_angle_std",
+        0.01,
+        "rad",
+        "std of theta at acquisition (theta from the smoothed extremum of y)",
+        "chosen",
+        min=0.0,
+        max=10.0,
+        min_exclusive=True,
+    ),
+    ParamSpec(
+        "initial_rate_std",
+        2.0e3,
+        "rad/s",
+        "std of omega at acquisition (omega = 0 at the extremum, +-1 sample)",
+        "chosen: ~ wn^2 A T for A = 0.2 rad",
+        min=0.0,
+        max=1.0e9,
+        min_exclusive=True,
+    ),
+    ParamSpec(
+        "acquire_snr",
+        2.0,
+        "-",
+        "AC SNR (var(y) - R)/R over one motion period that starts tracking (below: low signal)",
+        "chosen: ~ 0.035 rad amplitude at the paper's R",
+        min=0.0,
+        max=1.0e6,
+        min_exclusive=True,
+    ),
+    ParamSpec(
+        "min_amplitude",
+        0.03,
+        "rad",
+        "smallest extremum |theta| counted as motion "
+        "(Schmitt hysteresis of the peak tracker; below: low signal)",
+        "chosen: C_s changes by < 2.2 % of C_0 (~ 3 sigma of y) at 0.03 rad",
+        min=0.0,
+        max=10.0,
+        min_exclusive=True,
+    ),
+)
+
+
+def resolve_estimator(overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """Validated estimator parameters (ParameterError on bad input)."""
+    p = resolve(ESTIMATOR_SPECS, overrides)
+    wn = math.sqrt(p["spring_constant"] / p["inertia"])
+    if not wn / (2 * math.pi) < p["sample_rate_hz"] / 4:
+        raise ParameterError(
+            f"parameter 'sample_rate_hz' = {p['sample_rate_hz']!r} is out of "
+            f"range: must exceed 4 x the natural frequency "
+            f"{wn / (2 * math.pi):.1f} Hz"
+        )
+    n_lam = p["ukf_alpha"] ** 2 * (2 + p["ukf_kappa"])
+    if not p["initial_angle_std"] * math.sqrt(n_lam) < p["min_amplitude"]:
+        raise ParameterError(
+            f"parameter 'initial_angle_std' = {p['initial_angle_std']!r} is out of range: "
+            f"must be below min_amplitude / sqrt(n + lambda) = "
+            f"{p['min_amplitude'] / math.sqrt(n_lam)!r} rad (at acquisition the sigma points "
+            "must not straddle theta = 0, where the even h makes the UKF collapse)"
+        )
+    if p["output_noise_var"] <= 0:
+        raise ParameterError(
+            f"parameter 'output_noise_var' = {p['output_noise_var']!r} is out "
+            "of range: the filters need R > 0"
+        )
+    return p
+
+
+class ScannerModel(NamedTuple):
+    """Discretised model (module doc). Phi (2,2), Gam (2,), Q (2,2); meas = (C0 [F],
+    theta0 [rad], Cb [F], a_cir [V/F], b_cir [V]); J [kg m^2]; R [V^2]; T [s];
+    vc2 = V_c0^2/2 [V^2]; delay [s]."""
+
+    Phi: np.ndarray
+    Gam: np.ndarray
+    Q: np.ndarray
+    meas: np.ndarray
+    J: float
+    R: float
+    T: float
+    vc2: float
+    delay: float
+
+
+def scanner_model(p: Mapping[str, Any]) -> ScannerModel:
+    """Exact ZOH discretisation of eq. (81) and Q of eq. (84) at T = 1/sample_rate_hz."""
+    J, k, b = p["inertia"], p["spring_constant"], p["damping"]
+    T = 1.0 / p["sample_rate_hz"]
+    M = np.zeros((3, 3))
+    M[:2, :2] = [[0.0, 1.0], [-k / J, -b / J]]
+    M[1, 2] = 1.0
+    E = scipy.linalg.expm(M * T)
+    q = p["accel_noise_var"]
+    Q = q * np.array([[T**4 / 4, T**3 / 2], [T**3 / 2, T**2]])
+    meas = np.array(
+        [p["cap_c0"], p["cap_theta0"], p["cap_cb"], p["circuit_gain"], p["circuit_bias"]]
+    )
+    return ScannerModel(
+        np.ascontiguousarray(E[:2, :2]),
+        np.ascontiguousarray(E[:2, 2]),
+        Q,
+        meas,
+        float(J),
+        float(p["output_noise_var"]),
+        T,
+        0.5 * p["carrier_amplitude"] ** 2,
+        float(p["chain_delay_s"]),
+    )
+
+
+# ----------------------------------------------------------------------------- kernels
+@numba.njit(cache=True, inline="always")
+def _h(th, m):
+    """h(theta) = a_cir (C0 exp(-(theta/theta0)^2) + Cb) + b_cir  (eq. (106))."""
+    u = th / m[1]
+    return m[3] * (m[0] * math.exp(-u * u) + m[2]) + m[4]
+
+
+@numba.njit(cache=True, inline="always")
+def _dh(th, m):
+    """dh/dtheta = a_cir C0 (-2 theta/theta0^2) exp(-(theta/theta0)^2)."""
+    u = th / m[1]
+    return m[3] * m[0] * (-2.0 * u / m[1]) * math.exp(-u * u)
+
+
+@numba.njit(cache=True, inline="always")
+def _torque_u(th, v2, m, J):
+    """u = C_s'(theta) <V^2> / (2 J) [rad/s^2]  (eq. (80) / J)."""
+    u = th / m[1]
+    return -2.0 * m[0] * u / m[1] * math.exp(-u * u) * v2 / (2.0 * J)
+
+
+@numba.njit(cache=True, inline="always")
+def _dtorque_u(th, v2, m, J):
+    """du/dtheta = C_s''(theta) <V^2> / (2 J)."""
+    u = th / m[1]
+    return 2.0 * m[0] / (m[1] * m[1]) * (2.0 * u * u - 1.0) * math.exp(-u * u) * v2 / (2.0 * J)
+
+
+@numba.njit(cache=True)
+def _store_posterior(P, Q, p00, p01, p11, x, k, out_x, out_p) -> int:
+    """Write the a-posteriori covariance into P and sample k's outputs; returns 1 if it was
+    not positive definite (then repaired: diagonal floored at Q, correlation dropped), else 0."""
+    bad = 0
+    if not (p00 > 0.0 and p11 > 0.0 and p00 * p11 - p01 * p01 > 0.0):
+        bad = 1
+        p01 = 0.0
+        p00 = max(p00, Q[0, 0])
+        p11 = max(p11, Q[1, 1])
+    P[0, 0] = p00
+    P[0, 1] = p01
+    P[1, 0] = p01
+    P[1, 1] = p11
+    out_x[k, 0] = x[0]
+    out_x[k, 1] = x[1]
+    out_p[k, 0] = p00
+    out_p[k, 1] = p11
+    out_p[k, 2] = p01
+    return bad
+
+
+@numba.njit(cache=True)
+def ekf_run(y, v2, x, P, Phi, Gam, Q, m, J, R, T, predict_first, out_x, out_p, out_nis):
+    """EKF (Algorithm 1, Joseph-form update) over a frame; x (2,), P (2,2) carried in place.
+
+    Args:
+        y: (n,) AMDM samples [V]. v2: (n,) <V^2> over the step ending at sample k [V^2].
+        predict_first: False on the very first sample (x, P already describe sample 0).
+        out_x (n,2), out_p (n,3) = (P_tt, P_ww, P_tw), out_nis (n,): a-posteriori outputs.
+
+    Returns:
+        number of steps whose covariance was not positive definite (repaired).
+    """
+    bad = 0
+    for k in range(y.shape[0]):
+        if k > 0 or predict_first:
+            tm = x[0] + 0.5 * T * x[1]
+            u = _torque_u(tm, v2[k], m, J)
+            du = _dtorque_u(tm, v2[k], m, J)
+            x0 = Phi[0, 0] * x[0] + Phi[0, 1] * x[1] + Gam[0] * u
+            x1 = Phi[1, 0] * x[0] + Phi[1, 1] * x[1] + Gam[1] * u
+            g00 = Phi[0, 0] + Gam[0] * du
+            g01 = Phi[0, 1] + Gam[0] * du * 0.5 * T
+            g10 = Phi[1, 0] + Gam[1] * du
+            g11 = Phi[1, 1] + Gam[1] * du * 0.5 * T
+            a00 = g00 * P[0, 0] + g01 * P[1, 0]
+            a01 = g00 * P[0, 1] + g01 * P[1, 1]
+            a10 = g10 * P[0, 0] + g11 * P[1, 0]
+            a11 = g10 * P[0, 1] + g11 * P[1, 1]
+            p00 = a00 * g00 + a01 * g01 + Q[0, 0]
+            p01 = a00 * g10 + a01 * g11 + Q[0, 1]
+            p11 = a10 * g10 + a11 * g11 + Q[1, 1]
+            x[0] = x0
+            x[1] = x1
+            P[0, 0] = p00
+            P[0, 1] = p01
+            P[1, 0] = p01
+            P[1, 1] = p11
+        hk = _dh(x[0], m)
+        nu = y[k] - _h(x[0], m)
+        s = hk * hk * P[0, 0] + R
+        k0 = P[0, 0] * hk / s
+        k1 = P[1, 0] * hk / s
+        x[0] += k0 * nu
+        x[1] += k1 * nu
+        # Joseph form: (I - K H) P (I - K H)^T + K R K^T, H = [hk, 0]
+        i00 = 1.0 - k0 * hk
+        i10 = -k1 * hk
+        p00 = i00 * i00 * P[0, 0] + k0 * k0 * R
+        p01 = i00 * (i10 * P[0, 0] + P[1, 0]) + k0 * k1 * R
+        p11 = i10 * i10 * P[0, 0] + 2.0 * i10 * P[1, 0] + P[1, 1] + k1 * k1 * R
+        bad += _store_posterior(P, Q, p00, p01, p11, x, k, out_x, out_p)
+        out_nis[k] = nu * nu / s
+    return bad
+
+
+def ukf_weights(n: int, alpha: float, beta: float, kappa: float):
+    """Scaled unscented-transform weights: (wm (2n+1,), wc (2n+1,), gamma = sqrt(n + lambda)).
+
+    lambda = alpha^2 (n + kappa) - n; wm0 = lambda/(n+lambda), wc0 = wm0 + 1 - alpha^2 + beta,
+    wm_i = wc_i = 1/(2(n+lambda)).
+    """
+    lam = alpha * alpha * (n + kappa) - n
+    if not n + lam > 0:
+        raise ParameterError(
+            f"UKF scaling gives n + lambda = {n + lam!r} <= 0 (alpha={alpha}, kappa={kappa})"
+        )
+    wm = np.full(2 * n + 1, 0.5 / (n + lam))
+    wc = wm.copy()
+    wm[0] = lam / (n + lam)
+    wc[0] = wm[0] + 1.0 - alpha * alpha + beta
+    return wm, wc, math.sqrt(n + lam)
+
+
+@numba.njit(cache=True, inline="always")
+def _sigma(x, P, gamma, S):
+    """Sigma points S (5,2) of (x, P): x, x +- gamma chol(P)[:, j]; False if P is not PD."""
+    if not P[0, 0] > 0.0:
+        return False
+    l00 = math.sqrt(P[0, 0])
+    l10 = P[1, 0] / l00
+    d = P[1, 1] - l10 * l10
+    if not d > 0.0:
+        return False
+    l11 = math.sqrt(d)
+    S[0, 0] = x[0]
+    S[0, 1] = x[1]
+    S[1, 0] = x[0] + gamma * l00
+    S[1, 1] = x[1] + gamma * l10
+    S[2, 0] = x[0] - gamma * l00
+    S[2, 1] = x[1] - gamma * l10
+    S[3, 0] = x[0]
+    S[3, 1] = x[1] + gamma * l11
+    S[4, 0] = x[0]
+    S[4, 1] = x[1] - gamma * l11
+    return True
+
+
+@numba.njit(cache=True)
+def ukf_run(
+    y, v2, x, P, Phi, Gam, Q, m, J, R, T, wm, wc, gamma, predict_first, out_x, out_p, out_nis
+):
+    """UKF (Algorithm 2, corrected; module doc) over a frame; x, P carried in place.
+
+    Arguments and outputs as :func:`ekf_run`; wm, wc (5,) weights, gamma = sqrt(n + lambda).
+
+    Returns:
+        number of steps whose covariance was not positive definite (repaired).
+    """
+    S = np.empty((5, 2))
+    Xp = np.empty((5, 2))
+    Y = np.empty(5)
+    bad = 0
+    for k in range(y.shape[0]):
+        if k > 0 or predict_first:
+            if not _sigma(x, P, gamma, S):
+                bad += 1
+                P[0, 1] = 0.0
+                P[1, 0] = 0.0
+                P[0, 0] = max(P[0, 0], Q[0, 0])
+                P[1, 1] = max(P[1, 1], Q[1, 1])
+                _sigma(x, P, gamma, S)
+            m0 = 0.0
+            m1 = 0.0
+            for i in range(5):
+                u = _torque_u(S[i, 0] + 0.5 * T * S[i, 1], v2[k], m, J)
+                Xp[i, 0] = Phi[0, 0] * S[i, 0] + Phi[0, 1] * S[i, 1] + Gam[0] * u
+                Xp[i, 1] = Phi[1, 0] * S[i, 0] + Phi[1, 1] * S[i, 1] + Gam[1] * u
+                m0 += wm[i] * Xp[i, 0]
+                m1 += wm[i] * Xp[i, 1]
+            p00 = Q[0, 0]
+            p01 = Q[0, 1]
+            p11 = Q[1, 1]
+            for i in range(5):
+                d0 = Xp[i, 0] - m0
+                d1 = Xp[i, 1] - m1
+                p00 += wc[i] * d0 * d0
+                p01 += wc[i] * d0 * d1
+                p11 += wc[i] * d1 * d1
+            x[0] = m0
+            x[1] = m1
+            P[0, 0] = p00
+            P[0, 1] = p01
+            P[1, 0] = p01
+            P[1, 1] = p11
+        if not _sigma(x, P, gamma, S):
+            bad += 1
+            P[0, 1] = 0.0
+            P[1, 0] = 0.0
+            P[0, 0] = max(P[0, 0], Q[0, 0])
+            P[1, 1] = max(P[1, 1], Q[1, 1])
+            _sigma(x, P, gamma, S)
+        ym = 0.0
+        for i in range(5):
+            Y[i] = _h(S[i, 0], m)
+            ym += wm[i] * Y[i]
+        py = R
+        c0 = 0.0
+        c1 = 0.0
+        for i in range(5):
+            dy = Y[i] - ym
+            py += wc[i] * dy * dy
+            c0 += wc[i] * (S[i, 0] - x[0]) * dy
+            c1 += wc[i] * (S[i, 1] - x[1]) * dy
+        k0 = c0 / py
+        k1 = c1 / py
+        nu = y[k] - ym
+        x[0] += k0 * nu
+        x[1] += k1 * nu
+        p00 = P[0, 0] - k0 * k0 * py
+        p01 = P[0, 1] - k0 * k1 * py
+        p11 = P[1, 1] - k1 * k1 * py
+        bad += _store_posterior(P, Q, p00, p01, p11, x, k, out_x, out_p)
+        out_nis[k] = nu * nu / py
+    return bad
+
+
+# ----------------------------------------------------------------------------- streaming
+class DriveAligner:
+    """Mean square of the applied voltage over each filter step, at the delayed times.
+
+    Sample k of the AMDM stream describes t_k - delay; the filter step ending at k needs
+    <V^2> over [t_{k-1} - delay, t_k - delay]: V_dr interpolated between drive samples
+    (4-point Lagrange; linear interpolation flattens the drive peaks and biased the phase by
+    ~0.05 deg), Simpson's rule, plus the carrier's V_c0^2/2.  Before the first drive sample
+    V_dr(t_0) is used.
+    """
+
+    def __init__(self, delay_samples: float, carrier_ms: float) -> None:
+        if not (delay_samples >= 0 and math.isfinite(delay_samples)):
+            raise ParameterError(
+                f"parameter 'chain_delay_s' gives {delay_samples!r} samples: allowed [0, inf)"
+            )
+        self.d = float(delay_samples)
+        self.vc2 = float(carrier_ms)
+        self._hist = np.zeros(0)
+        self._hist0 = 0
+        self._prev_v = None
+
+    def _interp(self, s: np.ndarray) -> np.ndarray:
+        """V_dr at fractional history positions s (4-point Lagrange, indices clamped)."""
+        h = self._hist
+        i = np.floor(s).astype(np.int64)
+        f = s - i
+        last = h.size - 1
+        v = np.zeros_like(s)
+        for off, w in (
+            (-1, -f * (f - 1) * (f - 2) / 6.0),
+            (0, (f + 1) * (f - 1) * (f - 2) / 2.0),
+            (1, -(f + 1) * f * (f - 2) / 2.0),
+            (2, (f + 1) * f * (f - 1) / 6.0),
+        ):
+            v += w * h[np.clip(i + off, 0, last)]
+        return v
+
+    def push(self, first: int, v: np.ndarray) -> np.ndarray:
+        """Add drive samples first..first+n-1 [V]; return <V^2> (n,) for the same indices.
+
+        <V^2>_k over [s_{k-1}, s_k], s = k - delay: Simpson's rule on the interpolated drive
+        (end points and mid point), plus V_c0^2/2.
+        """
+        v = np.asarray(v, dtype=float)
+        n = v.size
+        if self._hist.size == 0:
+            self._hist0 = first
+        self._hist = np.concatenate((self._hist, v))
+        k = first + np.arange(n)
+        s = np.maximum(k - self.d - self._hist0, 0.0)
+        sm = np.maximum(k - 0.5 - self.d - self._hist0, 0.0)
+        vd = self._interp(s)
+        vm = self._interp(sm)
+        prev = np.concatenate(([vd[0] if self._prev_v is None else self._prev_v], vd[:-1]))
+        self._prev_v = float(vd[-1])
+        keep = int(math.ceil(self.d)) + 4
+        if self._hist.size > keep:
+            cut = self._hist.size - keep
+            self._hist = self._hist[cut:]
+            self._hist0 += cut
+        return (prev * prev + 4.0 * vm * vm + vd * vd) / 6.0 + self.vc2
+
+
+class ScannerFilter:
+    """Streaming EKF or UKF on AMDM frames (state carried across frames), with acquisition.
+
+    Acquisition (symmetry breaking): h is even and the dynamics odd, so x = 0 is a fixed
+    point of the UKF (symmetric sigma points about 0 give P_xy = 0 exactly: no gain, ever)
+    and below ~0.03 rad the motion is not observable at the paper's R.  The filter therefore
+    waits ("acquiring", output x = 0 with the initial variances) until the AC SNR of y over
+    one motion period exceeds ``acquire_snr``; it then starts at the largest |theta| of that
+    period (theta from the positive root of h on 5-sample-smoothed y, omega = 0: an
+    extremum) and runs forward ("tracking").  If the tracked mean falls inside one standard
+    deviation of the origin (x^T P^-1 x < 1) for a whole period, the motion is lost and the
+    filter goes back to acquiring.
+
+    Args:
+        kind: ``"ekf"`` or ``"ukf"``.
+        params: overrides of :data:`ESTIMATOR_SPECS` (validated).
+    """
+
+    def __init__(self, kind: str, params: Mapping[str, Any] | None = None) -> None:
+        if kind not in ("ekf", "ukf"):
+            raise ParameterError(f"parameter 'kind' = {kind!r} is invalid: allowed 'ekf', 'ukf'")
+        self.kind = kind
+        self.p = p = resolve_estimator(params)
+        self.model = scanner_model(p)
+        self.wm, self.wc, self.gamma = ukf_weights(2, p["ukf_alpha"], p["ukf_beta"], p["ukf_kappa"])
+        self.P0 = np.diag([p["initial_angle_std"] ** 2, p["initial_rate_std"] ** 2])
+        self.x = np.zeros(2)
+        self.P = self.P0.copy()
+        wn = math.sqrt(p["spring_constant"] / p["inertia"])
+        self.window = max(8, int(round(2.0 * math.pi / wn * p["sample_rate_hz"])))
+        self.tracking = False
+        self.acquisitions = 0
+        self.pd_failures = 0
+        self.samples = 0
+        self.last_snr = math.nan
+        self._by = np.zeros(0)
+        self._bv = np.zeros(0)
+
+    def theta_abs(self, y: np.ndarray) -> np.ndarray:
+        """|theta| from the positive root of h(theta) = y [rad] (clipped to [0, 2 theta_0])."""
+        m = self.model.meas
+        c = ((np.asarray(y, dtype=float) - m[4]) / m[3] - m[2]) / m[0]
+        c = np.clip(c, math.exp(-4.0), 1.0)
+        return m[1] * np.sqrt(-np.log(c))
+
+    def _run(self, y, v2, predict_first, ox, op, on):
+        md = self.model
+        if self.kind == "ekf":
+            bad = ekf_run(
+                y,
+                v2,
+                self.x,
+                self.P,
+                md.Phi,
+                md.Gam,
+                md.Q,
+                md.meas,
+                md.J,
+                md.R,
+                md.T,
+                predict_first,
+                ox,
+                op,
+                on,
+            )
+        else:
+            bad = ukf_run(
+                y,
+                v2,
+                self.x,
+                self.P,
+                md.Phi,
+                md.Gam,
+                md.Q,
+                md.meas,
+                md.J,
+                md.R,
+                md.T,
+                self.wm,
+                self.wc,
+                self.gamma,
+                predict_first,
+                ox,
+                op,
+                on,
+            )
+        self.pd_failures += int(bad)
+
+    def _acquire(self, y, v2, ox, op, on) -> None:
+        """Look for the first motion period in the buffered + new samples; start there."""
+        n = y.size
+        by = np.concatenate((self._by, y))
+        bv = np.concatenate((self._bv, v2))
+        off = by.size - n  # index of y[0] in the buffer
+        W = self.window
+        R = self.model.R
+        if by.size >= W:
+            c1 = np.concatenate(([0.0], np.cumsum(by)))
+            c2 = np.concatenate(([0.0], np.cumsum(by * by)))
+            mean = (c1[W:] - c1[:-W]) / W
+            var = (c2[W:] - c2[:-W]) / W - mean * mean
+            snr = (var - R) / R  # window ending at buffer index e = i + W - 1
+            self.last_snr = float(snr[-1])
+            hit = np.flatnonzero(snr > self.p["acquire_snr"])
+            if hit.size:
+                e0 = hit[0]
+                ys = np.convolve(by, np.ones(5) / 5.0, mode="same")
+                th = self.theta_abs(ys[e0 : e0 + W])
+                ip = e0 + int(np.argmax(th))
+                self.x[:] = (th[ip - e0], 0.0)
+                self.P[:] = self.P0
+                self.tracking = True
+                self.acquisitions += 1
+                self._by = np.zeros(0)
+                self._bv = np.zeros(0)
+                rest = slice(ip + 1, by.size)
+                tail_y, tail_v = by[rest], bv[rest]
+                k = tail_y.size
+                tx, tp, tn = np.empty((k, 2)), np.empty((k, 3)), np.empty(k)
+                self._run(
+                    np.ascontiguousarray(tail_y), np.ascontiguousarray(tail_v), True, tx, tp, tn
+                )
+                # publish the part that belongs to this frame
+                j0 = max(ip + 1 - off, 0)
+                s0 = j0 + off - (ip + 1)
+                ox[j0:] = tx[s0:]
+                op[j0:] = tp[s0:]
+                on[j0:] = tn[s0:]
+                if 0 <= ip - off < n:
+                    ox[ip - off] = (th[ip - e0], 0.0)
+                return
+        self._by = by[-(W - 1) :] if W > 1 else np.zeros(0)
+        self._bv = bv[-(W - 1) :] if W > 1 else np.zeros(0)
+
+    def step(self, y: np.ndarray, v2: np.ndarray) -> dict[str, np.ndarray]:
+        """Filter one frame. y (n,) [V]; v2 (n,) <V^2> [V^2] (:class:`DriveAligner`).
+
+        Returns:
+            dict ``x`` (n,2) [rad, rad/s], ``p`` (n,3) (P_tt, P_ww, P_tw), ``nis`` (n,),
+            ``tracking`` (bool: the filter tracked motion at the end of the frame).
+        """
+        y = np.ascontiguousarray(y, dtype=float)
+        v2 = np.ascontiguousarray(v2, dtype=float)
+        n = y.size
+        ox = np.zeros((n, 2))
+        op = np.empty((n, 3))
+        op[:] = (self.P0[0, 0], self.P0[1, 1], 0.0)
+        on = np.zeros(n)
+        if n:
+            if self.tracking:
+                self._run(y, v2, True, ox, op, on)
+                W = min(self.window, n)
+                det = op[-W:, 0] * op[-W:, 1] - op[-W:, 2] ** 2
+                q = (
+                    op[-W:, 1] * ox[-W:, 0] ** 2
+                    - 2 * op[-W:, 2] * ox[-W:, 0] * ox[-W:, 1]
+                    + op[-W:, 0] * ox[-W:, 1] ** 2
+                ) / det
+                if n >= self.window and np.all(q < 1.0):
+                    self.tracking = False
+                    self.x[:] = 0.0
+                    self.P[:] = self.P0
+            else:
+                self._acquire(y, v2, ox, op, on)
+        self.samples += n
+        return dict(x=ox, p=op, nis=on, tracking=self.tracking)
+
+
+class PeriodEvents(NamedTuple):
+    """Per-extremum results: t [s] (time of the extremum of theta), phase [rad] in [0, pi)
+    (time from the previous drive peak / motion period x 2 pi), amplitude [rad] (|theta|
+    at the extremum), and their variances (from the filter covariance; 0 for truth)."""
+
+    t: np.ndarray
+    phase: np.ndarray
+    amplitude: np.ndarray
+    var_t: np.ndarray
+    var_phase: np.ndarray
+    var_amplitude: np.ndarray
+
+
+def _parabola(xm, x0, xp):
+    """Vertex offset delta (samples) and value of the parabola through (-1, xm), (0, x0), (1, xp)."""
+    den = xm - 2.0 * x0 + xp
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.where(den != 0, 0.5 * (xm - xp) / den, 0.0)
+    d = np.clip(d, -0.5, 0.5)
+    return d, x0 - 0.25 * (xm - xp) * d
+
+
+class PhaseAmplitudeTracker:
+    """Streaming per-period phase shift and amplitude (Sec. 5.5.3, eqs. (109)-(110)).
+
+    Drive peaks: local maxima of the drive samples (parabolic sub-sample interpolation).
+    Angle extrema: |theta| maxima between Schmitt-trigger sign changes of theta (hysteresis
+    +-``min_amplitude``/2, so wiggles below the motion floor make no extrema), parabolic
+    interpolation; the first (possibly truncated) half-cycle is skipped.  For each extremum
+    at t_e: phase = 2 pi (t_e - t_d)/T_m with t_d the last drive peak <= t_e and
+    T_m = 2 x (drive period), i.e. in [0, pi): sign-invariant (module doc).
+
+    Args:
+        min_amplitude: [rad]. fs: sample rate of theta and drive [Hz].
+        theta_offset_s: time of theta sample k is k/fs - theta_offset_s (chain delay).
+    """
+
+    def __init__(self, min_amplitude: float, fs: float, theta_offset_s: float = 0.0) -> None:
+        self.h = 0.5 * float(min_amplitude)
+        self.fs = float(fs)
+        self.off = float(theta_offset_s)
+        self._buf_k0 = None
+        self._bx = np.zeros(0)
+        self._bv = np.zeros((0, 2))
+        self._sign = 0
+        self._skip = True
+        self._dv = np.zeros(0)
+        self._dv_k0 = None
+        self.drive_peaks: list[float] = []
+        self.last_event_index = None
+
+    def push_drive(self, first: int, v: np.ndarray) -> None:
+        """Add drive samples first.. [V]; record the drive peaks now resolvable."""
+        v = np.asarray(v, dtype=float)
+        if self._dv_k0 is None:
+            self._dv_k0 = first
+        buf = np.concatenate((self._dv, v))
+        if buf.size >= 3:
+            a, b, c = buf[:-2], buf[1:-1], buf[2:]
+            idx = np.flatnonzero((b > a) & (b >= c))
+            d, _ = _parabola(a[idx], b[idx], c[idx])
+            self.drive_peaks.extend(((self._dv_k0 + idx + 1 + d) / self.fs).tolist())
+            self._dv = buf[-2:]
+            self._dv_k0 += buf.size - 2
+        else:
+            self._dv = buf
+
+    def push_theta(
+        self,
+        first: int,
+        theta: np.ndarray,
+        p_tt: np.ndarray | None = None,
+        p_ww: np.ndarray | None = None,
+    ) -> PeriodEvents:
+        """Add theta samples first.. (and their variances); return completed extrema."""
+        theta = np.asarray(theta, dtype=float)
+        n = theta.size
+        var = np.zeros((n, 2)) if p_tt is None else np.column_stack([p_tt, p_ww])
+        if self._buf_k0 is None:
+            self._buf_k0 = first
+        x = np.concatenate((self._bx, theta))
+        vv = np.concatenate((self._bv, var))
+        k0 = self._buf_k0
+        s = np.where(x > self.h, 1, np.where(x < -self.h, -1, 0))
+        # forward fill of the armed sign, seeded with the carried one
+        idx = np.where(s != 0, np.arange(x.size), -1)
+        idx = np.maximum.accumulate(idx)
+        armed = np.where(idx >= 0, s[np.maximum(idx, 0)], self._sign)
+        prev = np.concatenate(([self._sign], armed[:-1]))
+        flips = np.flatnonzero((armed != prev) & (prev != 0))
+        ev = []
+        start = 0
+        for f in flips:
+            seg_sign = prev[f]
+            if self._skip:
+                self._skip = False
+            else:
+                seg = x[start:f] * seg_sign
+                if seg.size:
+                    i = start + int(np.argmax(seg))
+                    if 0 < i < x.size - 1:
+                        d, val = _parabola(
+                            x[i - 1] * seg_sign, x[i] * seg_sign, x[i + 1] * seg_sign
+                        )
+                    else:
+                        d, val = 0.0, x[i] * seg_sign
+                    ev.append(
+                        (
+                            (k0 + i + float(d)) / self.fs - self.off,
+                            float(val),
+                            vv[i, 0],
+                            vv[i, 1],
+                            k0 + i,
+                        )
+                    )
+            start = f
+        if x.size and armed[-1] == 0 and self._sign == 0:
+            start = x.size  # nothing armed yet: drop
+        self._sign = int(armed[-1]) if x.size else self._sign
+        # keep the open segment (bounded: at most 4 s of samples is never needed; cap)
+        keep_from = max(start - 1, 0)
+        if x.size - keep_from > 100000:
+            keep_from = x.size - 100000
+        self._bx = x[keep_from:]
+        self._bv = vv[keep_from:]
+        self._buf_k0 = k0 + keep_from
+        out = self._events(ev)
+        # drop drive peaks no pending extremum can refer to (keep two before the open segment)
+        t_open = self._buf_k0 / self.fs - self.off
+        j = int(np.searchsorted(self.drive_peaks, t_open)) - 2
+        if j > 0:
+            del self.drive_peaks[:j]
+        return out
+
+    def _events(self, ev) -> PeriodEvents:
+        t, ph, am, vt, vp, va = [], [], [], [], [], []
+        dp = np.asarray(self.drive_peaks)
+        for te, amp, ptt, pww, kidx in ev:
+            j = np.searchsorted(dp, te, side="right") - 1
+            if j < 1:
+                continue
+            td, T = dp[j], dp[j] - dp[j - 1]
+            if not (0 < T and te - td < 1.5 * T):
+                continue
+            Tm = 2.0 * T
+            wm = 2.0 * math.pi / Tm
+            var_t = pww / (wm * wm * max(amp, 1e-12)) ** 2
+            t.append(te)
+            ph.append(2.0 * math.pi * ((te - td) % T) / Tm)
+            am.append(amp)
+            vt.append(var_t)
+            vp.append(var_t * wm * wm)
+            va.append(ptt)
+            self.last_event_index = kidx
+        return PeriodEvents(*(np.asarray(a, dtype=float) for a in (t, ph, am, vt, vp, va)))
+
+
+def concat_events(parts: list[PeriodEvents]) -> PeriodEvents:
+    """Concatenate event batches."""
+    if not parts:
+        return PeriodEvents(*(np.zeros(0) for _ in range(6)))
+    return PeriodEvents(
+        *(np.concatenate([getattr(p, f) for p in parts]) for f in PeriodEvents._fields)
+    )
+
+
+def match_events(est: PeriodEvents, ref: PeriodEvents, max_dt: float):
+    """Pair each estimated extremum with the nearest reference extremum within ``max_dt`` [s].
+
+    Returns:
+        (t, phase_error [rad] wrapped to [-pi/2, pi/2) (phase is defined mod pi),
+        amplitude_error [rad]) for the matched pairs.
+    """
+    if est.t.size == 0 or ref.t.size == 0:
+        z = np.zeros(0)
+        return z, z, z
+    j = np.clip(np.searchsorted(ref.t, est.t), 1, ref.t.size - 1)
+    j = np.where(np.abs(ref.t[j - 1] - est.t) < np.abs(ref.t[j] - est.t), j - 1, j)
+    ok = np.abs(ref.t[j] - est.t) <= max_dt
+    dph = np.mod(est.phase[ok] - ref.phase[j[ok]] + math.pi / 2, math.pi) - math.pi / 2
+    return est.t[ok], dph, est.amplitude[ok] - ref.amplitude[j[ok]]
+
+
+def event_rmse(est: PeriodEvents, ref: PeriodEvents, max_dt: float, t_min: float = 0.0):
+    """RMSE of phase and amplitude [rad] over matched extrema with t >= t_min (eqs. (109)-(110))
+    and the number of pairs."""
+    t, dph, dam = match_events(est, ref, max_dt)
+    sel = t >= t_min
+    if not np.any(sel):
+        return math.nan, math.nan, 0
+    return (
+        float(np.sqrt(np.mean(dph[sel] ** 2))),
+        float(np.sqrt(np.mean(dam[sel] ** 2))),
+        int(sel.sum()),
+    )
+
+
+def ac_snr(y: np.ndarray, noise_var: float) -> float:
+    """Signal-to-noise ratio of the AC part of y: (var(y) - R)/R (<= ~0: no motion)."""
+    y = np.asarray(y, dtype=float)
+    if y.size < 2:
+        return math.nan
+    return float((np.var(y) - noise_var) / noise_var)

@@ -1,0 +1,67 @@
+"""Figures of identified noise models: Allan deviation with the fitted terms."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from mems_estimation.identification.imu_noise_fit import avar_gm
+
+
+def plot_allan(model, path: Path) -> None:
+    """Allan deviation per axis with confidence bars, the fitted model and its terms."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, panels = plt.subplots(1, 2, figsize=(13, 5.2))
+    for panel, prefix, unit in ((panels[0], "gyro", "rad/s"), (panels[1], "accel", "m/s²")):
+        axes = [a for a in model.axes if a.axis.startswith(prefix)]
+        for k, axis in enumerate(axes):
+            tau, adev = np.asarray(axis.tau), np.asarray(axis.adev)
+            err = [adev - np.asarray(axis.adev_ci_low), np.asarray(axis.adev_ci_high) - adev]
+            line = panel.errorbar(
+                tau, adev, yerr=err, fmt="o", ms=3, capsize=2, label=f"{axis.axis} measured"
+            )[0]
+            n, b, kk, t, q = (
+                axis.white_noise_density.value,
+                axis.bias_instability.value,
+                axis.random_walk.value,
+                axis.correlation_time.value,
+                axis.quantization.value,
+            )
+            gm = avar_gm(tau, b, t) if b > 0 and math.isfinite(t) else 0 * tau
+            total = n**2 / tau + kk**2 * tau / 3 + gm + 3 * q**2 / tau**2
+            panel.loglog(
+                tau, np.sqrt(total), "-", color=line.get_color(), lw=1, label=f"{axis.axis} fit"
+            )
+            if k == 0:
+                panel.loglog(tau, n / np.sqrt(tau), "k--", lw=0.8, label=f"N/√τ, N={n:.3g}")
+                panel.loglog(
+                    tau, kk * np.sqrt(tau / 3), "k-.", lw=0.8, label=f"K√(τ/3), K={kk:.3g}"
+                )
+                panel.loglog(
+                    tau,
+                    np.sqrt(np.maximum(gm, 1e-300)),
+                    "k:",
+                    lw=1,
+                    label=f"Gauss-Markov B={b:.3g}, T={t:.0f} s",
+                )
+        panel.set_xscale("log")
+        panel.set_yscale("log")
+        lo = min(np.min(np.asarray(a.adev)) for a in axes)
+        panel.set_ylim(lo / 3, None)
+        panel.set_xlabel("averaging time τ [s]")
+        panel.set_ylabel(f"Allan deviation [{unit}]")
+        panel.set_title(f"{prefix}: overlapping Allan deviation ({model.tau_grid} τ)")
+        panel.grid(True, which="both", alpha=0.3)
+        panel.legend(fontsize=7)
+    fig.suptitle(
+        f"{model.num_samples} samples at {model.sample_rate_hz:g} Hz, identified noise model"
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

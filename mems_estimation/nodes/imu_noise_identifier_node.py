@@ -1,0 +1,191 @@
+"""ROS 2 node: Allan-variance noise identification on a stream of AdcFrames.
+
+Subscribes to ``input_topic`` (mems_msgs/AdcFrame, default ``/imu/adc``),
+accumulates the physical values of every channel, and publishes the
+identified noise model (mems_msgs/NoiseModel: N, B, K, T, Q per axis with
+confidence intervals, the discrete model and the Allan deviation) on
+``output_topic`` every ``publish_period_s`` of *data* (so replaying a bag
+gives exactly the live output) and once more, ``final = true``, at shutdown.
+Malformed frames are rejected and counted on /diagnostics; gaps in
+``first_sample_index`` are counted and reported, not bridged silently.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from rclpy.node import Node
+
+from mems_estimation.identification.imu_noise_fit import identify_axes
+from mems_estimation.nodes.imu_noise_messages import noise_model_msg
+from mems_msgs.msg import AdcFrame, NoiseModel
+from mems_sim.params import ParamSpec
+from mems_sim.ros.diagnostics import DiagnosticsReporter
+from mems_sim.ros.frames import (
+    FrameError,
+    IndexTracker,
+    adc_physical,
+    index_to_ns,
+    ns_to_time,
+    time_to_ns,
+)
+from mems_sim.ros.node_base import run_node
+from mems_sim.ros.params import declare_specs
+from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
+
+IDENTIFIER_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("input_topic", "/imu/adc", "-", "AdcFrame topic of the sensor at rest", ""),
+    ParamSpec("output_topic", "/imu/noise_model", "-", "NoiseModel topic", ""),
+    ParamSpec(
+        "tau_grid",
+        "octave",
+        "-",
+        "Allan averaging-time grid",
+        "allantools tau names",
+        choices=("octave", "decade", "all"),
+    ),
+    ParamSpec(
+        "publish_period_s",
+        3600.0,
+        "s",
+        "data time between periodic results; 0 publishes only at shutdown",
+        "",
+        min=0.0,
+        max=1.0e9,
+    ),
+    ParamSpec(
+        "min_duration_s",
+        60.0,
+        "s",
+        "least data before a model is identified",
+        "",
+        min=1.0,
+        max=1.0e9,
+    ),
+)
+
+
+class NoiseAccumulator:
+    """ROS-free store of the samples of one stream of AdcFrames (validated, gap-aware)."""
+
+    def __init__(self) -> None:
+        self.chunks: list[np.ndarray] = []
+        self.num_samples = 0
+        self.first_index: int | None = None
+        self.fs: float | None = None
+        self.channels: tuple[str, ...] = ()
+        self.units: tuple[str, ...] = ()
+        self.tracker = IndexTracker()
+        self.last_stamp_ns = 0
+
+    def add(self, msg: AdcFrame) -> int:
+        """Append a frame; return samples missing before it. Raises FrameError if malformed."""
+        values = adc_physical(msg)
+        if self.fs is None:
+            self.fs, self.first_index = float(msg.sample_rate_hz), int(msg.first_sample_index)
+            self.channels, self.units = tuple(msg.channel_names), tuple(msg.channel_units)
+        elif msg.sample_rate_hz != self.fs or tuple(msg.channel_names) != self.channels:
+            raise FrameError(
+                f"frame at {msg.first_sample_index}: sample rate or channels changed "
+                f"({msg.sample_rate_hz} Hz, {list(msg.channel_names)})"
+            )
+        missing = self.tracker.update(int(msg.first_sample_index), int(msg.num_samples))
+        self.chunks.append(values)
+        self.num_samples += values.shape[0]
+        self.last_stamp_ns = index_to_ns(values.shape[0] - 1, self.fs, time_to_ns(msg.header.stamp))
+        return missing
+
+    def data(self) -> np.ndarray:
+        """All samples so far, shape (n, channels)."""
+        if len(self.chunks) > 1:
+            self.chunks = [np.concatenate(self.chunks)]
+        return self.chunks[0] if self.chunks else np.zeros((0, len(self.channels)))
+
+    def duration_s(self) -> float:
+        """Data accumulated [s]."""
+        return self.num_samples / self.fs if self.fs else 0.0
+
+
+def identify_message(
+    acc: NoiseAccumulator, grid: str, final: bool, frame_id: str = ""
+) -> NoiseModel:
+    """Identify every channel of ``acc`` and build the NoiseModel message."""
+    data = acc.data()
+    results = identify_axes(data, acc.fs, grid)
+    return noise_model_msg(
+        results,
+        acc.channels,
+        acc.units,
+        data.mean(axis=0),
+        fs=acc.fs,
+        first_index=acc.first_index,
+        num_samples=acc.num_samples,
+        grid=grid,
+        final=final,
+        stamp=ns_to_time(acc.last_stamp_ns),
+        frame_id=frame_id,
+    )
+
+
+class NoiseIdentifierNode(Node):
+    """Accumulates AdcFrames and publishes identified noise models."""
+
+    def __init__(self, **node_kwargs) -> None:
+        super().__init__("noise_identifier", **node_kwargs)
+        self.p = declare_specs(self, IDENTIFIER_SPECS)
+        self.acc = NoiseAccumulator()
+        self.results: list[NoiseModel] = []
+        self.frames_received = 0
+        self._next_publish_s = self.p["publish_period_s"]
+        self._finalised = False
+        self.diag = DiagnosticsReporter(self, f"{self.get_name()}: noise identification")
+        self.pub = self.create_publisher(NoiseModel, self.p["output_topic"], RESULT_QOS)
+        self.sub = self.create_subscription(
+            AdcFrame, self.p["input_topic"], self.on_frame, FRAME_QOS
+        )
+
+    def on_frame(self, msg: AdcFrame) -> None:
+        """Validate and accumulate a frame; publish a periodic result when due."""
+        self.frames_received += 1
+        try:
+            missing = self.acc.add(msg)
+        except FrameError as exc:
+            self.diag.count("rejected_frames")
+            self.diag.warn(f"rejected frame: {exc}")
+            return
+        self.diag.count("frames")
+        if missing:
+            self.diag.count("gaps")
+            self.diag.warn(f"gap of {missing} samples before index {msg.first_sample_index}")
+        period = self.p["publish_period_s"]
+        if period > 0 and self.acc.duration_s() >= self._next_publish_s:
+            self._next_publish_s += period
+            self.publish_result(final=False)
+
+    def publish_result(self, final: bool) -> NoiseModel | None:
+        """Identify on all data so far and publish; None if too little data."""
+        if self.acc.duration_s() < self.p["min_duration_s"]:
+            if final:
+                self.diag.warn(
+                    f"only {self.acc.duration_s():.1f} s of data, less than "
+                    f"min_duration_s = {self.p['min_duration_s']} s: no model"
+                )
+            return None
+        msg = identify_message(self.acc, self.p["tau_grid"], final)
+        self.results.append(msg)
+        self.pub.publish(msg)
+        return msg
+
+    def close(self) -> None:
+        """Publish the final model (once)."""
+        if not self._finalised:
+            self._finalised = True
+            self.publish_result(final=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point ``imu_noise_identifier_node``."""
+    return run_node(NoiseIdentifierNode, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

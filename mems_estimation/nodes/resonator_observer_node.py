@@ -1,0 +1,286 @@
+"""ROS 2 node: Kalman observer (or adaptive observer) on a sigma-delta resonator's bit stream.
+
+Subscribes ``<device>/adc`` (one-bit AdcFrame, codes -1/+1) and ``<device>/drive``
+(the known pulses, SignalFrame: channel ``pulse`` [V] and, for sub-sample pulses,
+``pulse_start`` [s] and ``pulse_width`` [s]; without them the pulses are one-sample ZOH
+values), pairs the frames by ``first_sample_index``,
+runs :class:`mems_sim.kernels.resonator_observer.KalmanObserver` (6 states: resonator,
+STF, NTF; Colinet et al. eqs. 1-13) or, with ``adaptive: true``,
+:class:`mems_estimation.filters.resonator_adaptive_observer.AdaptiveObserver` (state augmented
+with f0), and publishes ``<device>/estimate`` or ``<device>/adaptive_estimate``
+(mems_msgs/StateEstimate: position [V] and, adaptive, f0 [Hz], with variances).
+A bit frame with codes other than -1/+1, a frame at another sample rate or of
+another length than its drive frame is rejected and counted on /diagnostics.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from rclpy.node import Node
+
+from mems_estimation.filters.resonator_adaptive_observer import AdaptiveObserver
+from mems_estimation.nodes.frame_input import FrameInputMixin, FramePairer
+from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
+from mems_sim.kernels.resonator_observer import KalmanObserver
+from mems_sim.params import ParameterError, ParamSpec
+from mems_sim.ros.diagnostics import DiagnosticsReporter
+from mems_sim.ros.frames import (
+    FrameError,
+    IndexTracker,
+    make_state_estimate,
+    signal_data,
+    time_to_ns,
+)
+from mems_sim.ros.node_base import run_node
+from mems_sim.ros.params import declare_specs
+from mems_sim.ros.qos import FRAME_QOS
+
+OBSERVER_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec(
+        "device_namespace", "/resonator", "-", "namespace of the device's adc/drive topics", ""
+    ),
+    ParamSpec(
+        "adaptive",
+        False,
+        "-",
+        "estimate f0 jointly with the state (adaptive observer)",
+        "Colinet et al. Sec. 7-8 (named as future work)",
+    ),
+    ParamSpec(
+        "sample_rate_hz",
+        1.0e6,
+        "Hz",
+        "sample rate of the bit stream (frames at another rate are rejected)",
+        "",
+        min=0.0,
+        max=1.0e9,
+        min_exclusive=True,
+    ),
+    ParamSpec(
+        "f0_hz",
+        5.0e4,
+        "Hz",
+        "resonance frequency of the observer's model (initial value when adaptive)",
+        "Colinet et al. Sec. 6: f0 = 0.05 fs",
+        min=0.0,
+        max=5.0e8,
+        min_exclusive=True,
+    ),
+    ParamSpec(
+        "quality_factor",
+        100.0,
+        "-",
+        "quality factor of the observer's model",
+        "Colinet et al. Sec. 6: Q = 100",
+        min=0.0,
+        max=1.0e9,
+        min_exclusive=True,
+    ),
+    ParamSpec(
+        "output_noise_std",
+        0.0,
+        "V",
+        "std of the white noise at the resonator output the observer assumes",
+        "",
+        min=0.0,
+        max=10.0,
+    ),
+    ParamSpec(
+        "state_noise_std",
+        0.0,
+        "V",
+        "std of the resonator state noise the observer assumes",
+        "",
+        min=0.0,
+        max=10.0,
+    ),
+    ParamSpec(
+        "f0_random_walk_ppm",
+        0.2,
+        "ppm/sqrt(sample)",
+        "random walk of f0 in the adaptive observer's model",
+        "",
+        min=0.0,
+        max=1.0e5,
+    ),
+    ParamSpec(
+        "output_topic",
+        "",
+        "-",
+        "StateEstimate topic; empty: <device_namespace>/estimate "
+        "or <device_namespace>/adaptive_estimate",
+        "",
+    ),
+    ParamSpec("steady_state", False, "-", "use the steady-state Kalman gain (fast)", ""),
+)
+
+
+def pulses_of(msg: SignalFrame) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """(heights V, starts s or None, widths s or None) of a drive frame.
+
+    Raises:
+        FrameError: non-finite data, no ``pulse`` channel, or only one of the two timing
+            channels.
+    """
+    data = signal_data(msg)
+    names = list(msg.channel_names)
+    if "pulse" not in names:
+        raise FrameError(
+            f"drive frame at {msg.first_sample_index}: no 'pulse' channel (channels {names})"
+        )
+    timing = [c in names for c in ("pulse_start", "pulse_width")]
+    if any(timing) and not all(timing):
+        raise FrameError(
+            f"drive frame at {msg.first_sample_index}: 'pulse_start' and "
+            "'pulse_width' must come together"
+        )
+    u = np.ascontiguousarray(data[:, names.index("pulse")])
+    if not all(timing):
+        return u, None, None
+    return (
+        u,
+        np.ascontiguousarray(data[:, names.index("pulse_start")]),
+        np.ascontiguousarray(data[:, names.index("pulse_width")]),
+    )
+
+
+def bits_of(msg: AdcFrame) -> np.ndarray:
+    """The -1/+1 codes of a one-bit AdcFrame.
+
+    Raises:
+        FrameError: not one channel, sizes inconsistent, or codes other than -1/+1
+            (the convention of this project's one-bit streams).
+    """
+    if len(msg.channel_names) != 1 or len(msg.codes) != msg.num_samples:
+        raise FrameError(
+            f"bit frame at {msg.first_sample_index}: expected one channel of "
+            f"{msg.num_samples} codes, got {len(msg.codes)} codes"
+        )
+    codes = np.asarray(msg.codes, dtype=np.int32)
+    if not np.all(np.abs(codes) == 1):
+        bad = codes[np.abs(codes) != 1][:3].tolist()
+        raise FrameError(
+            f"bit frame at {msg.first_sample_index}: codes {bad} are not -1/+1 "
+            "(one-bit convention: -1 and +1)"
+        )
+    return codes.astype(np.float64)
+
+
+class SdObserverNode(FrameInputMixin, Node):
+    """Kalman / adaptive observer on the bit stream and pulses of a sigma-delta resonator."""
+
+    def __init__(self, **node_kwargs) -> None:
+        super().__init__("sd_observer", **node_kwargs)
+        self.p = p = declare_specs(self, OBSERVER_SPECS)
+        self.fs = p["sample_rate_hz"]
+        if p["f0_hz"] >= p["sample_rate_hz"] / 2:
+            raise ParameterError(
+                f"parameter 'f0_hz' = {p['f0_hz']!r} is out of range: allowed "
+                f"(0, {p['sample_rate_hz'] / 2!r}) Hz (below fs/2)"
+            )
+        if p["adaptive"]:
+            self.observer = AdaptiveObserver(
+                p["f0_hz"],
+                p["quality_factor"],
+                p["sample_rate_hz"],
+                p["output_noise_std"],
+                p["state_noise_std"],
+                f0_random_walk_ppm=p["f0_random_walk_ppm"],
+            )
+            self.names, self.units, self.estimator = (
+                ("position", "f0"),
+                ("V", "Hz"),
+                "adaptive_observer",
+            )
+        else:
+            self.observer = KalmanObserver(
+                p["f0_hz"],
+                p["quality_factor"],
+                p["sample_rate_hz"],
+                p["output_noise_std"],
+                p["state_noise_std"],
+                steady_state=p["steady_state"],
+            )
+            self.names, self.units, self.estimator = ("position",), ("V",), "kalman_observer"
+        ns = p["device_namespace"].rstrip("/")
+        topic = p["output_topic"] or (
+            f"{ns}/adaptive_estimate" if p["adaptive"] else f"{ns}/estimate"
+        )
+        self.pub = self.create_publisher(StateEstimate, topic, FRAME_QOS)
+        self.pairer = FramePairer(("bits", "pulses"))
+        self.tracker = IndexTracker()
+        self.stamps: dict[int, int] = {}
+        self.frames_done = 0
+        self.diag = DiagnosticsReporter(self, f"{self.get_name()}: {self.estimator}")
+        self.create_subscription(AdcFrame, f"{ns}/adc", self.on_bits, FRAME_QOS)
+        self.create_subscription(SignalFrame, f"{ns}/drive", self.on_pulses, FRAME_QOS)
+
+    def on_bits(self, msg: AdcFrame) -> None:
+        """Validate a bit frame and process the pairs it completes."""
+        try:
+            self._check_rate(msg)
+            values = bits_of(msg)
+        except FrameError as exc:
+            self._reject(str(exc))
+            return
+        self.stamps[msg.first_sample_index] = time_to_ns(msg.header.stamp)
+        self._process(self.pairer.add("bits", msg.first_sample_index, values))
+
+    def on_pulses(self, msg: SignalFrame) -> None:
+        """Validate a pulse frame and process the pairs it completes."""
+        try:
+            self._check_rate(msg)
+            values = pulses_of(msg)
+        except FrameError as exc:
+            self._reject(str(exc))
+            return
+        self._process(self.pairer.add("pulses", msg.first_sample_index, values))
+
+    def _process(self, pairs) -> None:
+        for first, bits, (pulses, starts, widths) in pairs:
+            if bits.shape != pulses.shape:
+                self._reject(f"frames at {first}: {bits.size} bits for {pulses.size} pulses")
+                continue
+            missing = self.tracker.update(first, bits.size)
+            if missing:
+                self.diag.count("gaps")
+                self.diag.warn(
+                    f"gap of {missing} samples before index {first}: the estimate "
+                    "continues without those samples"
+                )
+            try:
+                out = self.observer.step(bits, pulses, starts, widths)
+            except ValueError as exc:  # pulse timing outside [0, T) / (0, T]
+                self.stamps.pop(first, None)
+                self._reject(f"frames at {first}: {exc}")
+                continue
+            if self.p["adaptive"]:
+                pos, pos_var, f0, f0_var = out
+                states, var = np.column_stack([pos, f0]), np.column_stack([pos_var, f0_var])
+            else:
+                pos, pos_var = out
+                states, var = pos.reshape(-1, 1), pos_var.reshape(-1, 1)
+            t0 = self.stamps.pop(first)  # stamp of the frame's first sample
+            msg = make_state_estimate(
+                states,
+                var,
+                first,
+                self.p["sample_rate_hz"],
+                estimator=self.estimator,
+                state_names=self.names,
+                state_units=self.units,
+                frame_id="resonator",
+            )
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t0, 10**9)
+            self.pub.publish(msg)
+            self.frames_done += 1
+            self.diag.count("frames")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point ``resonator_observer_node``."""
+    return run_node(SdObserverNode, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

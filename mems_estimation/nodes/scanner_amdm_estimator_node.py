@@ -1,0 +1,226 @@
+"""ROS 2 node: EKF and UKF of the shared-electrode micro-scanner on its AMDM output (Chen 2018 ch. 5).
+
+Thin wrapper of :mod:`mems_estimation.filters.scanner_amdm_filters`.  Subscribes ``<device>/adc`` (AdcFrame,
+channel ``y_cap`` [V]) and ``<device>/drive`` (SignalFrame, channel ``v_drive`` [V]), pairs
+the frames by ``first_sample_index`` and runs both filters on every pair.
+
+Publishes (``<device>`` = ``device_namespace``):
+    ``<device>/ekf/estimate``, ``<device>/ukf/estimate``  mems_msgs/StateEstimate
+        theta [rad], omega [rad/s] with variances, one per AMDM sample; sample k describes
+        t_k - chain_delay_s (the header stamp is shifted accordingly; first_sample_index is
+        the AMDM index).  Before motion is acquired the states are 0 with the initial variances.
+    ``<device>/ekf/phase_amplitude``, ``<device>/ukf/phase_amplitude``  mems_msgs/StateEstimate
+        one entry per extremum of theta: t_peak [s], phase [rad] (time from the previous drive
+        peak, as a fraction of the motion period, in [0, pi)), amplitude [rad] (|theta| at the
+        extremum), with variances from the filter covariance; first_sample_index counts the
+        extrema, sample_rate_hz = twice the model's natural frequency (nominal rate).
+    ``/diagnostics``  frames, rejected frames, gaps, AC SNR, tracking state, PD failures;
+        WARN "low signal" while no motion is observable (drive far from parametric resonance).
+A frame at another sample rate, without the expected channel, with non-finite values or of
+another length than its partner is rejected and counted; a gap resets both filters.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from rclpy.node import Node
+
+from mems_estimation.filters import scanner_amdm_filters as su
+from mems_estimation.nodes.frame_input import FrameInputMixin
+from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
+from mems_sim.params import ParamSpec
+from mems_sim.ros.diagnostics import DiagnosticsReporter
+from mems_sim.ros.frames import (
+    FrameError,
+    IndexTracker,
+    adc_physical,
+    make_state_estimate,
+    signal_data,
+    time_to_ns,
+)
+from mems_sim.ros.node_base import run_node
+from mems_sim.ros.params import declare_specs
+from mems_sim.ros.qos import FRAME_QOS
+
+NODE_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec(
+        "device_namespace", "/scanner_amdm", "-", "namespace of the device's adc/drive topics", ""
+    ),
+    ParamSpec("frame_id", "scanner", "-", "frame_id of the published estimates", ""),
+)
+
+STATE_NAMES, STATE_UNITS = ("theta", "omega"), ("rad", "rad/s")
+EVENT_NAMES, EVENT_UNITS = ("t_peak", "phase", "amplitude"), ("s", "rad", "rad")
+KINDS = ("ekf", "ukf")
+
+
+class ScannerAmdmEstimatorNode(FrameInputMixin, Node):
+    """EKF + UKF on the AMDM output of the shared-electrode scanner (module doc)."""
+
+    def __init__(self, **node_kwargs) -> None:
+        super().__init__("scanner_amdm_estimator", **node_kwargs)
+        self.p = p = declare_specs(self, su.ESTIMATOR_SPECS + NODE_SPECS)
+        est = {s.name: p[s.name] for s in su.ESTIMATOR_SPECS}
+        self.est_params = est
+        self.fs = p["sample_rate_hz"]
+        self._make_filters()
+        ns = p["device_namespace"].rstrip("/")
+        self.pub_est = {
+            k: self.create_publisher(StateEstimate, f"{ns}/{k}/estimate", FRAME_QOS) for k in KINDS
+        }
+        self.pub_evt = {
+            k: self.create_publisher(StateEstimate, f"{ns}/{k}/phase_amplitude", FRAME_QOS)
+            for k in KINDS
+        }
+        self.event_rate = 2.0 * math.sqrt(p["spring_constant"] / p["inertia"]) / (2 * math.pi)
+        self.events_published = {k: 0 for k in KINDS}
+        self.event_msgs = {k: 0 for k in KINDS}
+        self._low_warned = False
+        self._adc: dict[int, tuple[np.ndarray, int]] = {}
+        self._drv: dict[int, np.ndarray] = {}
+        self.tracker = IndexTracker()
+        self.frames_done = 0
+        self.diag = DiagnosticsReporter(self, f"{self.get_name()}: EKF/UKF (shared electrodes)")
+        self.create_subscription(AdcFrame, f"{ns}/adc", self.on_adc, FRAME_QOS)
+        self.create_subscription(SignalFrame, f"{ns}/drive", self.on_drive, FRAME_QOS)
+
+    def _make_filters(self) -> None:
+        est, fs = self.est_params, self.fs
+        self.filters = {k: su.ScannerFilter(k, est) for k in KINDS}
+        delay = est["chain_delay_s"]
+        self.aligner = su.DriveAligner(delay * fs, self.filters["ekf"].model.vc2)
+        self.trackers = {
+            k: su.PhaseAmplitudeTracker(est["min_amplitude"], fs, delay) for k in KINDS
+        }
+
+    # ------------------------------------------------------------------ input
+
+    @staticmethod
+    def _channel(msg, data: np.ndarray, name: str) -> np.ndarray:
+        names = list(msg.channel_names)
+        if name not in names:
+            raise FrameError(
+                f"frame at {msg.first_sample_index}: no channel '{name}' (has {names})"
+            )
+        col = data[:, names.index(name)]
+        if not np.all(np.isfinite(col)):
+            raise FrameError(f"frame at {msg.first_sample_index}: non-finite '{name}'")
+        return col
+
+    def on_adc(self, msg: AdcFrame) -> None:
+        """Validate an AMDM frame and process the pairs it completes."""
+        try:
+            self._check_rate(msg)
+            y = self._channel(msg, adc_physical(msg), "y_cap")
+        except FrameError as exc:
+            self._reject(str(exc))
+            return
+        if msg.saturated_count:
+            self.diag.count("saturated_samples", int(msg.saturated_count))
+        self._adc[msg.first_sample_index] = (y, time_to_ns(msg.header.stamp))
+        self._process()
+
+    def on_drive(self, msg: SignalFrame) -> None:
+        """Validate a drive frame and process the pairs it completes."""
+        try:
+            self._check_rate(msg)
+            v = self._channel(msg, signal_data(msg), "v_drive")
+        except FrameError as exc:
+            self._reject(str(exc))
+            return
+        self._drv[msg.first_sample_index] = v
+        self._process()
+
+    # ------------------------------------------------------------------ processing
+    def _process(self) -> None:
+        for first in sorted(set(self._adc) & set(self._drv)):
+            (y, stamp), v = self._adc.pop(first), self._drv.pop(first)
+            if y.size != v.size:
+                self._reject(f"frames at {first}: {y.size} AMDM samples for {v.size} drive samples")
+                continue
+            missing = self.tracker.update(first, y.size)
+            if missing:
+                self.diag.count("gaps")
+                self.diag.warn(
+                    f"gap of {missing} samples before index {first}: filters reset (re-acquire)"
+                )
+                self._make_filters()
+            self.process_frame(first, stamp, y, v)
+
+    def process_frame(self, first: int, stamp_ns: int, y: np.ndarray, v: np.ndarray) -> None:
+        """Run both filters on one paired frame and publish estimates and extrema."""
+        v2 = self.aligner.push(first, v)
+        delay_ns = int(round(self.est_params["chain_delay_s"] * 1e9))
+        for k in KINDS:
+            out = self.filters[k].step(y, v2)
+            tr = self.trackers[k]
+            tr.push_drive(first, v)
+            ev = tr.push_theta(first, out["x"][:, 0], out["p"][:, 0], out["p"][:, 1])
+            var = np.column_stack([out["p"][:, 0], out["p"][:, 1]])
+            msg = make_state_estimate(
+                out["x"],
+                var,
+                first,
+                self.fs,
+                estimator=f"scanner_{k}",
+                state_names=STATE_NAMES,
+                state_units=STATE_UNITS,
+                frame_id=self.p["frame_id"],
+            )
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(
+                max(stamp_ns - delay_ns, 0), 10**9
+            )
+            self.pub_est[k].publish(msg)
+            if ev.t.size:
+                states = np.column_stack([ev.t, ev.phase, ev.amplitude])
+                vars_ = np.column_stack([ev.var_t, ev.var_phase, ev.var_amplitude])
+                em = make_state_estimate(
+                    states,
+                    vars_,
+                    self.events_published[k],
+                    self.event_rate,
+                    estimator=f"scanner_{k}_phase",
+                    state_names=EVENT_NAMES,
+                    state_units=EVENT_UNITS,
+                    frame_id=self.p["frame_id"],
+                )
+                t_ns = int(round(ev.t[0] * 1e9))
+                em.header.stamp.sec, em.header.stamp.nanosec = divmod(max(t_ns, 0), 10**9)
+                self.pub_evt[k].publish(em)
+                self.events_published[k] += int(ev.t.size)
+                self.event_msgs[k] += 1
+            f = self.filters[k]
+            self.diag.counters[f"{k}_tracking"] = str(f.tracking)
+            self.diag.counters[f"{k}_pd_failures"] = f.pd_failures
+            self.diag.counters[f"{k}_acquisitions"] = f.acquisitions
+            self.diag.counters[f"{k}_extrema"] = self.events_published[k]
+        snr = su.ac_snr(y, self.est_params["output_noise_var"])
+        self.diag.counters["ac_snr"] = f"{snr:.3g}"
+        if any(f.tracking for f in self.filters.values()):
+            self._low_warned = False
+        else:
+            self.diag.count("low_signal_frames")
+            if self.filters["ekf"].samples >= self.filters["ekf"].window and not self._low_warned:
+                self._low_warned = True  # logged once per loss of motion, counted always
+                self.diag.warn(
+                    "low signal: no motion observable on the AMDM output (AC SNR "
+                    f"< acquire_snr {self.est_params['acquire_snr']}, see ac_snr); "
+                    "drive far from parametric resonance? estimates held at 0"
+                )
+        for k, f in self.filters.items():
+            if f.pd_failures and not self.diag.counters.get(f"{k}_pd_warned"):
+                self.diag.counters[f"{k}_pd_warned"] = 1
+                self.diag.warn(f"{k}: covariance lost positive definiteness (repaired)")
+        self.frames_done += 1
+        self.diag.count("frames")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point ``scanner_amdm_estimator_node``."""
+    return run_node(ScannerAmdmEstimatorNode, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

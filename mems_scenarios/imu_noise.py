@@ -1,0 +1,239 @@
+"""Scenario ``imu_noise``: IMU noise emulator -> Allan noise identification -> MCAP.
+
+Graph (one process): ``/imu/imu_noise`` (mems_sim.nodes.imu_node) publishes
+``/imu/adc``, ``/imu/truth`` (and ``/imu/data`` in --realtime runs);
+``/imu/noise_identifier`` identifies N, B, K, T per axis from ``/imu/adc`` and
+publishes ``/imu/noise_model``; the recorder writes everything to MCAP.
+Prints configured vs identified N, B, K, T per axis and writes an Allan
+deviation figure with the fitted terms.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from rclpy.parameter import Parameter
+
+from mems_estimation.identification.imu_noise_plots import plot_allan
+from mems_estimation.nodes.imu_noise_identifier_node import NoiseIdentifierNode
+from mems_scenarios.base import (
+    Graph,
+    Progress,
+    ScenarioError,
+    ScenarioOptions,
+    default_domain_id,
+    drive_fast,
+    format_table,
+)
+from mems_sim.bag.recorder import RecorderNode
+from mems_sim.nodes.imu_node import ImuNoiseNode
+from mems_sim.ros.frames import index_to_ns
+
+NAME = "imu_noise"
+DESCRIPTION = (
+    "ADIS16350-like IMU at rest (Petkov): emulator -> Allan-variance identification "
+    "of N, B, K, T per axis -> MCAP"
+)
+DEFAULT_DURATION_S = 10000.0
+#: Frame size in fast runs (1 s of data per frame at 100 Hz) and in real-time runs.
+FAST_FRAME = 100
+REALTIME_FRAME = 10
+#: Frames the emulator may run ahead of the slowest consumer in fast runs.
+WINDOW = 50
+TOPICS = ["/imu/adc", "/imu/truth", "/imu/noise_model", "/diagnostics"]
+
+PARAM_NAMES = (
+    ("N", "noise_density"),
+    ("B", "bias_instability"),
+    ("K", "random_walk"),
+    ("T", "correlation_time"),
+)
+FIELD = {
+    "N": "white_noise_density",
+    "B": "bias_instability",
+    "K": "random_walk",
+    "T": "correlation_time",
+}
+
+
+def _overrides(values: dict) -> list[Parameter]:
+    return [Parameter(k, value=v) for k, v in values.items()]
+
+
+def build_graph(options: ScenarioOptions, out: Path, duration_s: float):
+    """Create the context, nodes and recorder of the scenario."""
+    graph = Graph(options.domain_id if options.domain_id is not None else default_domain_id())
+    emu_params = {
+        "seed": int(options.seed),
+        "duration_s": float(duration_s),
+        "frame_size": REALTIME_FRAME if options.realtime else FAST_FRAME,
+        "publish_imu": bool(options.realtime),
+    }
+    emu_params.update(options.extra.get("emulator", {}))
+    emu = graph.add(
+        ImuNoiseNode(
+            context=graph.context,
+            drive_externally=not options.realtime,
+            autostart=False,
+            parameter_overrides=_overrides(emu_params),
+        )
+    )
+    ident = graph.add(
+        NoiseIdentifierNode(
+            context=graph.context,
+            namespace="imu",
+            parameter_overrides=_overrides(
+                {"publish_period_s": 0.0 if duration_s < 7200 else 3600.0}
+            ),
+        )
+    )
+    topics = TOPICS + (["/imu/data"] if options.realtime else [])
+    rec = graph.add(RecorderNode(str(out), topics=topics, context=graph.context))
+    return graph, emu, ident, rec
+
+
+def _wait_matched(graph: Graph, emu: ImuNoiseNode, ident, rec) -> None:
+    def matched() -> bool:
+        return (
+            emu.pub_adc.get_subscription_count() >= 2
+            and emu.pub_truth.get_subscription_count() >= 1
+            and (emu.pub_imu is None or emu.pub_imu.get_subscription_count() >= 1)
+            and ident.pub.get_subscription_count() >= 1
+        )
+
+    graph.spin_until(matched, 20.0, "the recorder and identifier to subscribe")
+
+
+def run_fast(graph: Graph, emu: ImuNoiseNode, ident, rec, progress: Progress) -> None:
+    """Step the emulator as fast as the consumers take its frames (no loss, deterministic)."""
+    drive_fast(
+        graph,
+        [emu],
+        lambda _: min(rec.received("/imu/adc"), ident.frames_received),
+        progress,
+        WINDOW,
+    )
+
+
+def run_realtime(graph: Graph, emu: ImuNoiseNode, progress: Progress) -> None:
+    """Spin with the emulator's own wall-clock timer until its duration is published."""
+    emu.start()
+    while not emu.finished:
+        graph.executor.spin_once(timeout_sec=0.05)
+        graph.publish_clock(index_to_ns(emu.next_index, emu.fs))
+        progress.update_to(emu.next_index / emu.fs)
+
+
+def drain(graph: Graph, emu: ImuNoiseNode, ident, rec) -> None:
+    """Wait until every frame reached the identifier and the recorder; publish the final model."""
+    published = emu.frames_published
+    graph.spin_until(
+        lambda: (
+            rec.received("/imu/adc") >= published
+            and rec.received("/imu/truth") >= published
+            and ident.frames_received >= published
+            and (emu.pub_imu is None or rec.received("/imu/data") >= emu.next_index)
+        ),
+        60.0,
+        "the last frames to be delivered",
+    )
+    before = rec.received("/imu/noise_model")
+    final = ident.publish_result(final=True)
+    ident._finalised = True
+    if final is None:
+        raise ScenarioError(
+            "no noise model: too little data (use --duration of at least "
+            f"{ident.p['min_duration_s']:.0f} s)"
+        )
+    graph.spin_until(
+        lambda: rec.received("/imu/noise_model") > before,
+        20.0,
+        "the recorder to receive the final noise model",
+    )
+
+
+def configured_values(emu: ImuNoiseNode) -> dict:
+    """Configured N, B, K, T of the gyro and accelerometer (SI)."""
+    return {s: {sym: emu.p[f"{s}_{name}"] for sym, name in PARAM_NAMES} for s in ("gyro", "accel")}
+
+
+def results_table(model, configured: dict) -> tuple[str, list[dict]]:
+    """Configured vs identified N, B, K, T per axis with relative errors."""
+    rows, records = [], []
+    for axis in model.axes:
+        sensor = "gyro" if axis.axis.startswith("gyro") else "accel"
+        for sym, _ in PARAM_NAMES:
+            term = getattr(axis, FIELD[sym])
+            conf = configured[sensor][sym]
+            rel = (term.value - conf) / conf if conf else math.nan
+            unit = {
+                "N": f"{axis.unit}/sqrt(Hz)",
+                "B": axis.unit,
+                "K": f"{axis.unit}/sqrt(s)",
+                "T": "s",
+            }[sym]
+            rows.append(
+                [
+                    axis.axis,
+                    sym,
+                    unit,
+                    f"{conf:.4g}",
+                    f"{term.value:.4g}",
+                    f"[{term.ci_low:.3g}, {term.ci_high:.3g}]",
+                    f"{100 * rel:+.1f} %",
+                ]
+            )
+            records.append(
+                dict(
+                    axis=axis.axis, param=sym, configured=conf, identified=term.value, rel_error=rel
+                )
+            )
+    header = ["axis", "param", "unit", "configured", "identified", "95 % CI", "rel. error"]
+    return format_table(header, rows), records
+
+
+def run(options: ScenarioOptions) -> dict:
+    """Run the scenario; return a dict with the table, records, paths and counts."""
+    duration = DEFAULT_DURATION_S if options.duration_s is None else options.duration_s
+    out = options.out or Path("runs") / f"{NAME}-{options.seed}.mcap"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    graph, emu, ident, rec = build_graph(options, out, duration)
+    progress = Progress(duration, options.progress, NAME)
+    try:
+        _wait_matched(graph, emu, ident, rec)
+        if options.realtime:
+            run_realtime(graph, emu, progress)
+        else:
+            run_fast(graph, emu, ident, rec, progress)
+        progress.close()
+        drain(graph, emu, ident, rec)
+        configured = configured_values(emu)
+        model = ident.results[-1]
+        published = {
+            "/imu/adc": emu.frames_published,
+            "/imu/truth": emu.frames_published,
+            "/imu/noise_model": len(ident.results),
+        }
+        if emu.pub_imu is not None:
+            published["/imu/data"] = emu.next_index
+    finally:
+        progress.close()
+        rec.close()
+        summary = dict(counts=rec.counts(), gaps=rec.gaps(), text=rec.summary())
+        graph.close()
+    table, records = results_table(model, configured)
+    figure = None
+    if options.plots:
+        figure = out.with_name(out.stem + "-allan.png")
+        plot_allan(model, figure)
+    return dict(
+        table=table,
+        records=records,
+        mcap=out,
+        figure=figure,
+        model=model,
+        recorder=summary,
+        published=published,
+        duration_s=duration,
+    )

@@ -1,0 +1,420 @@
+"""Scenario ``sd_resonator``: pulse-actuated resonator, one-bit sigma-delta, Kalman observers.
+
+Four device instances run side by side in one graph (Colinet et al., Sec. 6):
+
+``/sd_comparator``  the naive loop of Fig. 1 (pulses from the comparator), output noise
+                    std = the oscillation amplitude;
+``/sd_observer``    the proposed loop (pulses from the in-loop Kalman observer, fired at the
+                    crossing it predicts, sub-sample timing), same noise, exact model, no
+                    state noise (the paper's case);
+``/sd_noisy``       observer loop at 0.25 V with output noise 0.25 V and thermomechanical
+                    state noise; downstream observer nodes: exact model (consistency),
+                    5 % f0 error, and the adaptive observer started from that 5 % error;
+``/sd_step``        comparator loop with low noise and a +2 % f0 step at mid-run; the
+                    adaptive observer node tracks the frequency.
+
+Every figure is computed from the recorded MCAP, after the run.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from rclpy.parameter import Parameter
+
+from mems_estimation.nodes.resonator_observer_node import SdObserverNode
+from mems_scenarios.base import (
+    Graph,
+    Progress,
+    ScenarioError,
+    ScenarioOptions,
+    default_domain_id,
+    drive_fast,
+    format_table,
+    run_recorded,
+    topic_frames,
+)
+from mems_sim.bag.recorder import RecorderNode
+from mems_sim.devices.resonator import default_pulse_amplitude
+from mems_sim.nodes.resonator_node import SdResonatorNode
+
+NAME = "sd_resonator"
+DESCRIPTION = (
+    "pulse-actuated resonator through a one-bit sigma-delta (Colinet): comparator vs "
+    "Kalman-observer loop, model error, adaptive f0 tracking"
+)
+DEFAULT_DURATION_S = 0.4
+FS, F0, Q = 1.0e6, 5.0e4, 100.0
+NOISE_LOOP = 0.5  # output noise std of the comparator/observer comparison [V]
+AMP_NOISY, NOISE_NOISY, STATE_NOISE = 0.25, 0.25, 5e-4
+NOISE_STEP = 0.05
+SKIP_S = 0.05  # start-up excluded from steady-state figures [s]
+
+
+def _params(d: dict) -> list[Parameter]:
+    return [Parameter(k, value=v) for k, v in d.items()]
+
+
+def device_cases(duration: float) -> dict[str, dict]:
+    """Device parameters of each instance (namespace -> overrides)."""
+    noisy = dict(
+        mode="observer",
+        output_noise_std=NOISE_NOISY,
+        state_noise_std=STATE_NOISE,
+        observer_state_noise_std=STATE_NOISE,
+        fast=False,
+        pulse_amplitude=default_pulse_amplitude(AMP_NOISY),
+    )
+    return {
+        "sd_comparator": dict(mode="comparator", output_noise_std=NOISE_LOOP),
+        "sd_observer": dict(mode="observer", output_noise_std=NOISE_LOOP),
+        "sd_noisy": noisy,
+        "sd_step": dict(
+            mode="comparator",
+            output_noise_std=NOISE_STEP,
+            state_noise_std=STATE_NOISE,
+            f0_step_fraction=0.02,
+            f0_step_time_s=round(duration / 2, 6),
+        ),
+    }
+
+
+def observer_cases() -> dict[str, tuple[str, dict]]:
+    """Downstream observer nodes: name -> (device namespace, parameters)."""
+    noisy = dict(output_noise_std=NOISE_NOISY, state_noise_std=STATE_NOISE)
+    return {
+        "exact": ("sd_noisy", dict(noisy, f0_hz=F0)),
+        "f0_error": ("sd_noisy", dict(noisy, f0_hz=F0 * 1.05)),
+        "adaptive": ("sd_noisy", dict(noisy, f0_hz=F0 * 1.05, adaptive=True)),
+        "tracking": (
+            "sd_step",
+            dict(output_noise_std=NOISE_STEP, state_noise_std=STATE_NOISE, f0_hz=F0, adaptive=True),
+        ),
+    }
+
+
+def build_graph(options: ScenarioOptions, out: Path, duration: float):
+    """Devices, observer nodes and the recorder in one context."""
+    graph = Graph(options.domain_id if options.domain_id is not None else default_domain_id())
+    devices = {}
+    for k, (ns, params) in enumerate(device_cases(duration).items()):
+        p = dict(
+            params, seed=int(options.seed) * 10 + k, duration_s=float(duration), frame_size=1000
+        )
+        devices[ns] = graph.add(
+            SdResonatorNode(
+                context=graph.context,
+                namespace=ns,
+                drive_externally=not options.realtime,
+                autostart=False,
+                parameter_overrides=_params(p),
+            )
+        )
+    observers = {}
+    for name, (ns, params) in observer_cases().items():
+        p = dict(params, device_namespace=f"/{ns}", output_topic=f"/{ns}/{name}/estimate")
+        observers[name] = graph.add(
+            SdObserverNode(
+                context=graph.context, namespace=f"{ns}/{name}", parameter_overrides=_params(p)
+            )
+        )
+    rec = graph.add(RecorderNode(str(out), regex=r"^/sd_", context=graph.context))
+    return graph, devices, observers, rec
+
+
+def _delivered(rec, observers):
+    by_ns: dict[str, list] = {}
+    for name, (ns, _) in observer_cases().items():
+        by_ns.setdefault(ns, []).append(observers[name])
+
+    def delivered(device) -> int:
+        ns = device.get_namespace()
+        counts = [rec.received(f"{ns}/{t}") for t in ("adc", "drive", "truth")]
+        counts += [o.frames_done for o in by_ns.get(ns.lstrip("/"), [])]
+        return min(counts)
+
+    return delivered
+
+
+def run_graph(options: ScenarioOptions, out: Path, duration: float, progress: Progress) -> dict:
+    """Run the graph until every device published ``duration``; return publish counts."""
+    graph, devices, observers, rec = build_graph(options, out, duration)
+    delivered = _delivered(rec, observers)
+    try:
+
+        def matched() -> bool:
+            return all(
+                d.pub_adc.get_subscription_count() >= 1
+                and d.pub_truth.get_subscription_count() >= 1
+                and len(rec.recorded_topics()) >= 3 * len(devices)
+                for d in devices.values()
+            )
+
+        graph.spin_until(matched, 30.0, "the recorder and observers to subscribe")
+        graph.spin_until(
+            lambda: all(o.pub.get_subscription_count() >= 1 for o in observers.values()),
+            30.0,
+            "the recorder to subscribe to the observers' estimates",
+        )
+        if options.realtime:
+            for d in devices.values():
+                d.start()
+            graph.spin_until(
+                lambda: all(d.finished for d in devices.values()),
+                duration * 50 + 60,
+                "the devices to finish",
+            )
+        else:
+            drive_fast(graph, list(devices.values()), delivered, progress)
+        graph.spin_until(
+            lambda: all(delivered(d) >= d.frames_published for d in devices.values()),
+            60.0,
+            "the last frames",
+        )
+        graph.spin_until(
+            lambda: all(
+                rec.received(f"/{ns}/{name}/estimate") >= observers[name].frames_done
+                for name, (ns, _) in observer_cases().items()
+            ),
+            60.0,
+            "the last estimates",
+        )
+        published = {ns: d.frames_published for ns, d in devices.items()}
+    finally:
+        rec.close()
+        summary = dict(counts=rec.counts(), gaps=rec.gaps())
+        graph.close()
+    return dict(published=published, recorder=summary)
+
+
+def _amp(x: np.ndarray) -> float:
+    return math.sqrt(2.0) * float(np.std(x))
+
+
+def _settling(rel: np.ndarray, k0: int, tol: float) -> int | None:
+    """Samples after k0 until |rel| stays <= tol to the end (None: never settles)."""
+    bad = np.flatnonzero(np.abs(rel[k0:]) > tol)
+    if bad.size and bad[-1] == rel.size - k0 - 1:
+        return None
+    return int(bad[-1] + 1) if bad.size else 0
+
+
+def figures(path: Path, duration: float) -> dict:
+    """Every acceptance figure of the scenario, from the recorded MCAP."""
+    skip = int(SKIP_S * FS)
+    tr = {ns: topic_frames(path, f"/{ns}/truth")["data"] for ns in device_cases(duration)}
+    drive = topic_frames(path, "/sd_observer/drive")["data"]
+    pulses = {"sd_observer": drive[:, 0]}
+    loop = topic_frames(path, "/sd_observer/loop_estimate")["data"][:, 0]
+    est = {
+        name: topic_frames(path, f"/{ns}/{name}/estimate")
+        for name, (ns, _) in observer_cases().items()
+    }
+    f: dict = {}
+    x_obs = tr["sd_observer"][:, 0]
+    a_obs = _amp(x_obs[skip:])
+    f["amp_observer"], f["amp_comparator"] = a_obs, _amp(tr["sd_comparator"][skip:, 0])
+    f["amp_ratio"] = f["amp_comparator"] / a_obs
+    f["exact_err_rel"] = float(np.sqrt(np.mean((loop - x_obs)[skip:] ** 2)) / a_obs)
+    # truth at each pulse's firing instant (start sample) and centre (sample containing it)
+    k = np.flatnonzero(pulses["sd_observer"][skip:]) + skip
+    kc = k + np.floor((drive[k, 1] + 0.5 * drive[k, 2]) * FS).astype(int)
+    k, kc = k[kc < x_obs.size], kc[kc < x_obs.size]
+    x_start = np.abs(tr["sd_observer"][k, 3]) / a_obs
+    x_center = np.abs(tr["sd_observer"][kc, 4]) / a_obs
+    nan = math.nan
+    f["pulses"] = int(k.size)
+    f["pulses_per_half_period"] = float(k.size / ((x_obs.size - skip) * 2 * F0 / FS))
+    f["pulse_x_rel_max"] = float(x_start.max()) if k.size else nan
+    f["pulse_x_rel_mean"] = float(x_start.mean()) if k.size else nan
+    f["pulse_center_rel_max"] = float(x_center.max()) if k.size else nan
+    f["pulse_sub_sample"] = float(np.mean(drive[k, 1] > 0)) if k.size else nan
+    f["pulse_est_err_rel"] = float(np.max(np.abs(loop - x_obs)[skip:]) / a_obs)
+    x_noisy = tr["sd_noisy"][:, 0]
+    a_noisy = _amp(x_noisy[skip:])
+    half = x_noisy.size // 2
+    err = {n: est[n]["data"][:, 0] - x_noisy for n in ("exact", "f0_error", "adaptive")}
+    f["consistency"] = float(
+        np.var(err["exact"][skip:]) / np.mean(est["exact"]["variances"][skip:, 0])
+    )
+    f["exact_noisy_rel"] = float(np.std(err["exact"][half:]) / a_noisy)
+    e = err["exact"][skip:] - np.mean(err["exact"][skip:])
+    f["error_acf1"] = float(np.dot(e[:-1], e[1:]) / np.dot(e, e))
+    f["error_corr_x"] = float(np.corrcoef(err["exact"][skip:], x_noisy[skip:])[0, 1])
+    f["f0_error_corr_x"] = float(np.corrcoef(err["f0_error"][skip:], x_noisy[skip:])[0, 1])
+    f["f0_error_ratio"] = float(np.std(err["f0_error"][half:]) / np.std(err["exact"][half:]))
+    f["adaptive_ratio"] = float(np.std(err["adaptive"][half:]) / np.std(err["exact"][half:]))
+    f["adaptive_f0_ppm"] = float((est["adaptive"]["data"][-1, 1] / F0 - 1) * 1e6)
+    f0_true = tr["sd_step"][:, 2]
+    f0_est = est["tracking"]["data"][:, 1]
+    rel = f0_est / f0_true - 1.0
+    k0 = int(np.flatnonzero(np.diff(f0_true) != 0)[0]) + 1
+    s = _settling(rel, k0, 100e-6)
+    f["settle_periods"] = None if s is None else s * f0_true[-1] / FS
+    f["tracking_tail_ppm"] = float(np.mean(rel[-int(0.05 * FS) :]) * 1e6)
+    f["series"] = dict(
+        x_obs=x_obs,
+        loop=loop,
+        pulses=pulses["sd_observer"],
+        pulse_t=np.flatnonzero(drive[:, 0]) / FS
+        + drive[drive[:, 0] != 0, 1]
+        + 0.5 * drive[drive[:, 0] != 0, 2],
+        x_center=tr["sd_observer"][:, 4],
+        x_cmp=tr["sd_comparator"][:, 0],
+        rel=rel,
+        k0=k0,
+    )
+    return f
+
+
+def table(f: dict) -> str:
+    """The scenario's results next to the paper's figures and the targets."""
+
+    def ok(cond: bool) -> str:
+        return "yes" if cond else "NO"
+
+    settle = "never" if f["settle_periods"] is None else f"{f['settle_periods']:.0f} periods"
+    settle += f" (last 50 ms: mean {f['tracking_tail_ppm']:+.0f} ppm)"
+    rows = [
+        [
+            "exact model, no state noise: RMS error / amplitude",
+            "~1e-10",
+            "<= 1e-9",
+            f"{f['exact_err_rel']:.1e}",
+            ok(f["exact_err_rel"] <= 1e-9),
+        ],
+        [
+            "noise = amplitude: comparator amplitude / observer amplitude",
+            "never starts",
+            "< 10 %",
+            f"{100 * f['amp_ratio']:.1f} % ({f['amp_comparator']:.3f} / {f['amp_observer']:.3f} V)",
+            ok(f["amp_ratio"] < 0.1),
+        ],
+        [
+            "observer loop: |x| at the firing instant / amplitude (mean, max)",
+            "0 (at crossings)",
+            "<= 2 %",
+            f"{100 * f['pulse_x_rel_mean']:.2f} %, {100 * f['pulse_x_rel_max']:.2f} %",
+            ok(f["pulse_x_rel_max"] <= 0.02),
+        ],
+        [
+            "observer loop: |x| at the pulse centre / amplitude (max)",
+            "0",
+            "-",
+            f"{100 * f['pulse_center_rel_max']:.4f} % ({f['pulses']} pulses, "
+            f"{f['pulses_per_half_period']:.4f} per half period, "
+            f"{100 * f['pulse_sub_sample']:.0f} % between samples; max estimate error "
+            f"{f['pulse_est_err_rel']:.0e} of A)",
+            "-",
+        ],
+        [
+            "state noise: measured / predicted error variance",
+            "-",
+            "1 +- 0.2",
+            f"{f['consistency']:.3f}",
+            ok(0.8 <= f["consistency"] <= 1.2),
+        ],
+        [
+            "state noise: error lag-1 autocorrelation (white: ~0)",
+            "white",
+            "white",
+            f"{f['error_acf1']:.3f} (narrow-band at f0)",
+            ok(abs(f["error_acf1"]) < 0.1),
+        ],
+        [
+            "corr(error, true position): exact model / 5 % f0 error",
+            "small / strong",
+            "-",
+            f"{f['error_corr_x']:+.3f} / {f['f0_error_corr_x']:+.3f}",
+            "-",
+        ],
+        [
+            "5 % f0 model error: error / exact-model error",
+            "substantial",
+            ">= 10x",
+            f"{f['f0_error_ratio']:.1f}x",
+            ok(f["f0_error_ratio"] >= 10),
+        ],
+        [
+            "adaptive observer from 5 % error: error / exact-model error",
+            "(future work)",
+            "<= 2x",
+            f"{f['adaptive_ratio']:.2f}x (f0 {f['adaptive_f0_ppm']:+.0f} ppm)",
+            ok(f["adaptive_ratio"] <= 2),
+        ],
+        [
+            "+2 % f0 step: adaptive f0 within 100 ppm after",
+            "-",
+            "settles",
+            settle,
+            ok(f["settle_periods"] is not None),
+        ],
+    ]
+    return format_table(["figure", "paper", "target", "measured", "met"], rows)
+
+
+def plot(f: dict, path: Path) -> None:
+    """Estimated vs true position with pulses; loop amplitudes; adaptive f0 around the step."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    s = f["series"]
+    fig, ax = plt.subplots(3, 1, figsize=(11, 10))
+    k = np.arange(int(0.2 * FS), int(0.2 * FS) + 100)
+    ax[0].plot(k / FS * 1e3, s["x_obs"][k], "k.-", lw=1.5, label="true position (samples)")
+    ax[0].plot(k / FS * 1e3, s["loop"][k], "C1x", ms=7, label="Kalman observer estimate")
+    tp = s["pulse_t"][(s["pulse_t"] >= k[0] / FS) & (s["pulse_t"] < (k[-1] + 1) / FS)]
+    xc = s["x_center"][np.floor(tp * FS + 1e-9).astype(int)]
+    ax[0].plot(tp * 1e3, xc, "rv", ms=9, label="pulse centres (true position there)")
+    ax[0].axhline(0.0, color="0.6", lw=0.5)
+    ax[0].set(
+        xlabel="time [ms]",
+        ylabel="position [V]",
+        title="observer loop: estimate vs truth; sub-sample pulses at the predicted "
+        "crossings (output noise std 0.5 V)",
+    )
+    ax[0].legend(fontsize=8)
+    t = np.arange(s["x_obs"].size) / FS * 1e3
+    ax[1].plot(t, s["x_obs"], lw=0.3, label="observer loop")
+    ax[1].plot(t, s["x_cmp"], lw=0.3, label="comparator loop")
+    ax[1].set(xlabel="time [ms]", ylabel="position [V]", title="start-up from rest")
+    ax[1].legend(fontsize=8)
+    ax[2].plot(t, s["rel"] * 1e6, lw=0.8)
+    ax[2].axvline(s["k0"] / FS * 1e3, color="k", ls=":", label="+2 % f0 step")
+    ax[2].axhspan(-100, 100, color="g", alpha=0.15, label="±100 ppm")
+    ax[2].set_ylim(-2000, 2000)
+    ax[2].set(
+        xlabel="time [ms]",
+        ylabel="f0 estimate - true [ppm]",
+        title="adaptive observer: resonance-frequency estimate",
+    )
+    ax[2].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _check_duration(duration: float) -> None:
+    if duration < 0.2:
+        raise ScenarioError(
+            f"--duration = {duration!r} is too short for sd_resonator: at least "
+            "0.2 s (start-up, steady state, and the f0 step at mid-run)"
+        )
+
+
+def run(options: ScenarioOptions) -> dict:
+    """Run the scenario; return the table, figures and paths."""
+    return run_recorded(
+        options,
+        name=NAME,
+        default_duration_s=DEFAULT_DURATION_S,
+        check_duration=_check_duration,
+        run_graph=run_graph,
+        figures=lambda out, _res, duration: figures(out, duration),
+        table=table,
+        plot=plot,
+    )

@@ -1,0 +1,448 @@
+"""Scenario ``scanner_shared_electrodes``: shared drive/sense electrodes, AMDM read-out, EKF vs UKF.
+
+Chen 2018 chapter 5 (Table 5.3).  Two device instances in one graph:
+
+``/scanner_amdm``      Table 5.2 device, unipolar drive 0..150 V (above the parametric
+                       threshold, see :mod:`mems_sim.devices.scanner_amdm`) swept 31.32 -> 31.26 kHz,
+                       500 kHz carrier on the same electrodes, R = 1.92e-4 V^2 at the AMDM
+                       output; the estimator node runs the EKF and the UKF.
+``/scanner_amdm_off``  same device driven at 25 kHz (far from 2 f_n = 31.13 kHz): the mirror
+                       rings down from 0.02 rad and stays at rest; its estimator must report
+                       low signal instead of diverging.
+
+Every figure is computed from the recorded MCAP after the run: Table 5.3 (RMSE of the
+per-extremum amplitude and phase shift, eqs. (109)-(110), after ``T_EVAL``), consistency
+(NEES of theta against the sign-aligned truth, covariance positive definite over the whole
+run), and the off-resonance check.  PNGs in the form of Figs. 5.8 and 5.9.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from rclpy.parameter import Parameter
+from scipy.interpolate import CubicSpline
+
+from mems_estimation.filters import scanner_amdm_filters as su
+from mems_estimation.nodes.scanner_amdm_estimator_node import ScannerAmdmEstimatorNode
+from mems_scenarios.base import (
+    Graph,
+    Progress,
+    ScenarioError,
+    ScenarioOptions,
+    default_domain_id,
+    drive_fast,
+    format_table,
+    run_recorded,
+    topic_frames,
+)
+from mems_sim.bag.recorder import RecorderNode
+from mems_sim.devices import scanner_amdm as sa
+from mems_sim.nodes.scanner_amdm_node import ScannerAmdmNode
+
+NAME = "scanner_shared_electrodes"
+DESCRIPTION = (
+    "micro-scanner with shared drive/sense electrodes, AMDM read-out (Chen 2018 ch. 5): "
+    "EKF vs UKF amplitude and phase (Table 5.3), off-resonance low signal"
+)
+DEFAULT_DURATION_S = 0.06
+T_EVAL = 0.02  # motion grown and both filters acquired [s]
+FS = 1.0e6
+DEVICE = dict(
+    drive_voltage_max=150.0,
+    sweep_start_hz=31.32e3,
+    sweep_end_hz=31.26e3,
+    sweep_start_s=0.0,
+    sweep_time_s=0.06,
+    initial_angle=0.02,
+)
+OFF = dict(DEVICE, sweep_start_hz=25.0e3, sweep_end_hz=25.0e3)
+PAPER = {"ekf": (5.04, 1.82), "ukf": (0.63, 0.39)}  # Table 5.3: amplitude, phase [deg]
+TARGET_PHASE_DEG = 0.18  # eq. (79)
+
+
+def _params(d: dict) -> list[Parameter]:
+    return [Parameter(k, value=v) for k, v in d.items()]
+
+
+def cases() -> dict[str, dict]:
+    """Device namespace -> device parameter overrides."""
+    return {"scanner_amdm": DEVICE, "scanner_amdm_off": OFF}
+
+
+def build_graph(options: ScenarioOptions, out: Path, duration: float):
+    """Devices, estimator nodes and the recorder in one context."""
+    graph = Graph(options.domain_id if options.domain_id is not None else default_domain_id())
+    devices, estimators = {}, {}
+    for k, (ns, dev) in enumerate(cases().items()):
+        p = dict(dev, seed=int(options.seed) * 10 + k, duration_s=float(duration), frame_size=1000)
+        devices[ns] = graph.add(
+            ScannerAmdmNode(
+                context=graph.context,
+                namespace=ns,
+                drive_externally=not options.realtime,
+                autostart=False,
+                parameter_overrides=_params(p),
+            )
+        )
+        delay = devices[ns].device.delay
+        estimators[ns] = graph.add(
+            ScannerAmdmEstimatorNode(
+                context=graph.context,
+                namespace=f"{ns}/estimator",
+                parameter_overrides=_params(dict(device_namespace=f"/{ns}", chain_delay_s=delay)),
+            )
+        )
+    rec = graph.add(RecorderNode(str(out), regex=r"^/scanner_amdm", context=graph.context))
+    return graph, devices, estimators, rec
+
+
+def run_graph(options: ScenarioOptions, out: Path, duration: float, progress: Progress) -> dict:
+    """Run the graph until both devices published ``duration``; return counts and node state."""
+    graph, devices, estimators, rec = build_graph(options, out, duration)
+
+    def delivered(device) -> int:
+        ns = device.get_namespace()
+        counts = [rec.received(f"{ns}/{t}") for t in ("adc", "drive", "truth")]
+        return min(counts + [estimators[ns.lstrip("/")].frames_done])
+
+    try:
+
+        def matched() -> bool:
+            return all(
+                d.pub_adc.get_subscription_count() >= 2
+                and d.pub_drive.get_subscription_count() >= 2
+                and d.pub_truth.get_subscription_count() >= 1
+                for d in devices.values()
+            ) and all(
+                e.pub_est[k].get_subscription_count() >= 1
+                for e in estimators.values()
+                for k in ("ekf", "ukf")
+            )
+
+        graph.spin_until(matched, 30.0, "the recorder and estimators to subscribe")
+        if options.realtime:
+            for d in devices.values():
+                d.start()
+            graph.spin_until(
+                lambda: all(d.finished for d in devices.values()),
+                duration * 200 + 60,
+                "the devices to finish",
+            )
+        else:
+            drive_fast(graph, list(devices.values()), delivered, progress)
+        graph.spin_until(
+            lambda: all(delivered(d) >= d.frames_published for d in devices.values()),
+            60.0,
+            "the last frames",
+        )
+        graph.spin_until(
+            lambda: all(
+                rec.received(f"/{ns}/{k}/estimate") >= e.frames_done
+                for ns, e in estimators.items()
+                for k in ("ekf", "ukf")
+            ),
+            60.0,
+            "the last estimates",
+        )
+        graph.spin_until(
+            lambda: all(
+                rec.received(f"/{ns}/{k}/phase_amplitude") >= _evt_msgs(e, k)
+                for ns, e in estimators.items()
+                for k in ("ekf", "ukf")
+            ),
+            60.0,
+            "the last phase/amplitude messages",
+        )
+        state = {
+            ns: dict(
+                tracking={k: f.tracking for k, f in e.filters.items()},
+                pd_failures={k: f.pd_failures for k, f in e.filters.items()},
+                acquisitions={k: f.acquisitions for k, f in e.filters.items()},
+                warnings=list(e.diag.warnings),
+                delay=devices[ns].device.delay,
+            )
+            for ns, e in estimators.items()
+        }
+        published = {ns: d.frames_published for ns, d in devices.items()}
+    finally:
+        rec.close()
+        summary = dict(counts=rec.counts(), gaps=rec.gaps())
+        graph.close()
+    return dict(published=published, recorder=summary, state=state)
+
+
+def _evt_msgs(est, kind) -> int:
+    """Messages the estimator published on a phase/amplitude topic."""
+    return est.event_msgs[kind]
+
+
+def _events(path: Path, topic: str) -> su.PeriodEvents:
+    try:
+        d = topic_frames(path, topic)
+    except ScenarioError:
+        return su.concat_events([])
+    s, v = d["data"], d["variances"]
+    return su.PeriodEvents(s[:, 0], s[:, 1], s[:, 2], v[:, 0], v[:, 1], v[:, 2])
+
+
+def figures(path: Path, state: dict) -> dict:
+    """Every acceptance figure of the scenario, from the recorded MCAP (+ node end state)."""
+    f: dict = {}
+    tr = topic_frames(path, "/scanner_amdm/truth")["data"]
+    drive = topic_frames(path, "/scanner_amdm/drive")["data"][:, 0]
+    y = topic_frames(path, "/scanner_amdm/adc")["data"][:, 0]
+    tk = su.PhaseAmplitudeTracker(0.03, FS)
+    tk.push_drive(0, drive)
+    ref = tk.push_theta(0, tr[:, 0])
+    delay = state["scanner_amdm"]["delay"]
+    t = np.arange(tr.shape[0]) / FS
+    k_eval = int(T_EVAL * FS)
+    est, ev = {}, {}
+    for k in ("ekf", "ukf"):
+        e = topic_frames(path, f"/scanner_amdm/{k}/estimate")
+        est[k] = e
+        ev[k] = _events(path, f"/scanner_amdm/{k}/phase_amplitude")
+        rp, ra, n = su.event_rmse(ev[k], ref, 0.25 / 31.3e3, T_EVAL)
+        f[f"{k}_phase_deg"], f[f"{k}_amp_deg"], f[f"{k}_pairs"] = (
+            math.degrees(rp),
+            math.degrees(ra),
+            n,
+        )
+        # theta RMSE (eq. (110)) against the sign-aligned truth at t_k - delay, and NEES
+        th_true = CubicSpline(t, tr[:, 0])(np.maximum(t - delay, 0.0))
+        th = e["data"][:, 0]
+        sel = slice(k_eval, None)
+        s = np.sign(np.sum(th[sel] * th_true[sel])) or 1.0
+        err = th[sel] - s * th_true[sel]
+        f[f"{k}_theta_rmse_deg"] = math.degrees(float(np.sqrt(np.mean(err**2))))
+        f[f"{k}_nees"] = float(np.mean(err**2 / e["variances"][sel, 0]))
+        var = e["variances"]
+        f[f"{k}_min_var"] = float(np.min(var))
+        f[f"{k}_max_var_theta_eval"] = float(np.max(var[sel, 0]))
+        f[f"{k}_pd_failures"] = state["scanner_amdm"]["pd_failures"][k]
+        f[f"{k}_acquisitions"] = state["scanner_amdm"]["acquisitions"][k]
+        t_e, dph, dam = su.match_events(ev[k], ref, 0.25 / 31.3e3)
+        f[f"{k}_phase_bias_deg"] = (
+            math.degrees(float(np.mean(dph[t_e >= T_EVAL]))) if np.any(t_e >= T_EVAL) else math.nan
+        )
+    # "beats": at least 5 % lower on both (the paper's gap is 3-8x; equal filters differ
+    # by ~1e-4 relative either way, which is not a result)
+    f["ukf_beats_ekf"] = (
+        f["ukf_phase_deg"] <= 0.95 * f["ekf_phase_deg"]
+        and f["ukf_amp_deg"] <= 0.95 * f["ekf_amp_deg"]
+    )
+    f["amplitude_range_deg"] = (
+        math.degrees(float(ref.amplitude[ref.t >= T_EVAL].min())),
+        math.degrees(float(ref.amplitude[ref.t >= T_EVAL].max())),
+    )
+    f["phase_range_deg"] = (
+        math.degrees(float(ref.phase[ref.t >= T_EVAL].min())),
+        math.degrees(float(ref.phase[ref.t >= T_EVAL].max())),
+    )
+    # off resonance
+    off_tr = topic_frames(path, "/scanner_amdm_off/truth")["data"][:, 0]
+    f["off_final_amplitude"] = float(np.max(np.abs(off_tr[-5000:])))
+    f["off_events"] = sum(
+        _events(path, f"/scanner_amdm_off/{k}/phase_amplitude").t.size for k in ("ekf", "ukf")
+    )
+    st = state["scanner_amdm_off"]
+    f["off_tracking"] = any(st["tracking"].values())
+    f["off_low_signal_warned"] = any("low signal" in w for w in st["warnings"])
+    f["off_pd_failures"] = sum(st["pd_failures"].values())
+    off_est = [topic_frames(path, f"/scanner_amdm_off/{k}/estimate") for k in ("ekf", "ukf")]
+    f["off_finite"] = all(
+        np.all(np.isfinite(e["data"])) and np.all(np.isfinite(e["variances"])) for e in off_est
+    )
+    f["off_final_theta_est"] = max(float(np.max(np.abs(e["data"][-5000:, 0]))) for e in off_est)
+    f["series"] = dict(
+        t=t,
+        truth=tr[:, 0],
+        drive=drive,
+        y=y,
+        delay=delay,
+        est={k: est[k]["data"][:, 0] for k in est},
+        ev=ev,
+        ref=ref,
+    )
+    return f
+
+
+def table(f: dict) -> str:
+    """Table 5.3 form next to the paper, plus consistency and the off-resonance check."""
+
+    def ok(c: bool) -> str:
+        return "yes" if c else "NO"
+
+    rows = []
+    for k in ("ekf", "ukf"):
+        rows.append(
+            [
+                f"{k.upper()} RMSE amplitude [deg]",
+                f"{PAPER[k][0]:.2f}",
+                "UKF < EKF",
+                f"{f[f'{k}_amp_deg']:.3f}",
+                "-",
+            ]
+        )
+        rows.append(
+            [
+                f"{k.upper()} RMSE phase shift [deg]",
+                f"{PAPER[k][1]:.2f}",
+                "UKF <= 0.39 (0.18 target)" if k == "ukf" else "UKF < EKF",
+                f"{f[f'{k}_phase_deg']:.3f} (bias {f[f'{k}_phase_bias_deg']:+.3f}, "
+                f"{f[f'{k}_pairs']} extrema)",
+                ok(f["ukf_phase_deg"] <= 0.39)
+                + (", target " + ok(f["ukf_phase_deg"] <= TARGET_PHASE_DEG))
+                if k == "ukf"
+                else "-",
+            ]
+        )
+    rows.append(
+        [
+            "UKF beats EKF (>= 5 % lower) on amplitude and phase",
+            "yes",
+            "yes",
+            f"ukf/ekf = {f['ukf_amp_deg'] / f['ekf_amp_deg']:.4f}, "
+            f"{f['ukf_phase_deg'] / f['ekf_phase_deg']:.4f}",
+            ok(f["ukf_beats_ekf"]),
+        ]
+    )
+    for k in ("ekf", "ukf"):
+        rows.append(
+            [
+                f"{k.upper()} theta RMSE (sign-aligned) [deg] / NEES",
+                "-",
+                "consistent",
+                f"{f[f'{k}_theta_rmse_deg']:.3f} / {f[f'{k}_nees']:.2f}",
+                "-",
+            ]
+        )
+        rows.append(
+            [
+                f"{k.upper()} covariance PD over the run (failures, min var)",
+                "-",
+                "0",
+                f"{f[f'{k}_pd_failures']}, {f[f'{k}_min_var']:.1e}",
+                ok(f[f"{k}_pd_failures"] == 0 and f[f"{k}_min_var"] > 0),
+            ]
+        )
+    rows.append(
+        [
+            "off resonance (25 kHz): final |theta| true / est [rad]",
+            "-",
+            "no motion",
+            f"{f['off_final_amplitude']:.1e} / {f['off_final_theta_est']:.1e}",
+            ok(f["off_final_amplitude"] < 1e-3),
+        ]
+    )
+    rows.append(
+        [
+            "off resonance: low-signal diagnostics, no extrema, finite",
+            "-",
+            "yes",
+            f"warned={f['off_low_signal_warned']}, tracking={f['off_tracking']}, "
+            f"extrema={f['off_events']}, finite={f['off_finite']}",
+            ok(f["off_low_signal_warned"] and not f["off_tracking"] and f["off_finite"]),
+        ]
+    )
+    return format_table(["figure", "paper", "target", "measured", "met"], rows)
+
+
+def plot(f: dict, path58: Path, path59: Path) -> None:
+    """Fig. 5.8 form (drive, angle, AMDM output) and Fig. 5.9 form (per-extremum amplitude,
+    phase and their errors)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    s = f["series"]
+    t, d = s["t"], s["delay"]
+    k = slice(int(0.04 * FS), int(0.04 * FS) + 300)
+    sign = {}
+    for name, th in s["est"].items():
+        sign[name] = np.sign(np.sum(th[k] * np.interp(t[k] - d, t, s["truth"]))) or 1.0
+    fig, ax = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
+    ax[0].plot(t[k] * 1e3, s["drive"][k], "k")
+    ax[0].set(ylabel="V_dr [V]", title="Fig. 5.8 form: drive, tilt angle, AMDM output")
+    ax[1].plot(t[k] * 1e3, np.degrees(s["truth"][k]), "k", lw=2, label="truth")
+    for name, c in (("ekf", "C0--"), ("ukf", "C1:")):
+        ax[1].plot(
+            (t[k] - d) * 1e3, np.degrees(sign[name] * s["est"][name][k]), c, label=name.upper()
+        )
+    ax[1].set(ylabel="theta [deg]")
+    ax[1].legend(fontsize=8)
+    p = sa.resolve_amdm()
+    ax[2].plot(t[k] * 1e3, s["y"][k], "k.", ms=2, label="measured y_cap")
+    for name, c in (("ekf", "C0-"), ("ukf", "C1--")):
+        ax[2].plot(
+            t[k] * 1e3, sa.measurement_model(s["est"][name][k], p), c, label=f"h({name.upper()})"
+        )
+    ax[2].set(xlabel="time [ms]", ylabel="y_cap [V]")
+    ax[2].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path58, dpi=110)
+    plt.close(fig)
+
+    ref = s["ref"]
+    fig, ax = plt.subplots(2, 2, figsize=(12, 8))
+    ax[0, 0].plot(ref.t * 1e3, np.degrees(ref.amplitude), "k", lw=2, label="truth")
+    ax[0, 1].plot(ref.t * 1e3, np.degrees(ref.phase), "k", lw=2, label="truth")
+    for name, c in (("ekf", "C0"), ("ukf", "C1")):
+        ev = s["ev"][name]
+        te, dph, dam = su.match_events(ev, ref, 0.25 / 31.3e3)
+        ax[0, 0].plot(ev.t * 1e3, np.degrees(ev.amplitude), c, lw=0.8, label=name.upper())
+        ax[0, 1].plot(ev.t * 1e3, np.degrees(ev.phase), c, lw=0.8, label=name.upper())
+        ax[1, 0].plot(
+            te * 1e3,
+            np.degrees(dam),
+            c,
+            lw=0.8,
+            label=f"{name.upper()} RMSE {f[name + '_amp_deg']:.3f} deg",
+        )
+        ax[1, 1].plot(
+            te * 1e3,
+            np.degrees(dph),
+            c,
+            lw=0.8,
+            label=f"{name.upper()} RMSE {f[name + '_phase_deg']:.3f} deg",
+        )
+    for a in ax.ravel():
+        a.axvline(T_EVAL * 1e3, color="g", ls=":")
+        a.legend(fontsize=8)
+        a.set_xlabel("time [ms]")
+    ax[0, 0].set(
+        ylabel="amplitude |theta| at extrema [deg]", title="Fig. 5.9 form: per-extremum amplitude"
+    )
+    ax[0, 1].set(ylabel="phase shift [deg of motion period]", title="phase shift")
+    ax[1, 0].set(ylabel="amplitude error [deg]", ylim=(-0.5, 0.5))
+    ax[1, 1].set(ylabel="phase error [deg]", ylim=(-1.5, 1.5))
+    fig.tight_layout()
+    fig.savefig(path59, dpi=110)
+    plt.close(fig)
+
+
+def _check_duration(duration: float) -> None:
+    if duration < 0.04:
+        raise ScenarioError(
+            f"--duration = {duration!r} is too short for {NAME}: at least 0.04 s "
+            f"(growth of the motion, acquisition, evaluation after {T_EVAL} s)"
+        )
+
+
+def run(options: ScenarioOptions) -> dict:
+    """Run the scenario; return the table, figures and paths."""
+    return run_recorded(
+        options,
+        name=NAME,
+        default_duration_s=DEFAULT_DURATION_S,
+        check_duration=_check_duration,
+        run_graph=run_graph,
+        figures=lambda out, res, _d: figures(out, res["state"]),
+        table=table,
+        plot=plot,
+        png_suffixes=("-fig5_8", "-fig5_9"),
+    )

@@ -1,0 +1,515 @@
+"""Scenario ``scanner_threshold``: comb-drive micro-scanner, causal threshold detection and the
+hybrid EKF of Table 4.1 (Chen 2018, chapter 4, Table 4.3).
+
+Graph: ``/scanner`` (:class:`mems_sim.nodes.scanner_node.MicroScannerNode`, ``dc_transimpedance``:
+0-60 V sweep 1600 -> 1250 Hz into parametric resonance, 50 ms hold, cut-off, 100 ms ring-down,
+fs 500 kHz, sigma_n 0.0435 V) and ``/scanner`` estimator
+(:class:`mems_estimation.nodes.scanner_threshold_ekf_node.ScannerThresholdNode`: online DOG + NMS, hybrid
+and plain EKF), recorded to MCAP.  The emulated sensing comb has drifted from the identified
+analog map (gain +20 %, width +10 %: :data:`mems_estimation.filters.scanner_threshold_ekf.DRIFTED_SENSOR`, the
+temperature effect that motivates chapter 4, Sec. 4.2.1); theta_th is unchanged.  The filters
+use the identified (nominal) model.
+
+Results, from the recording:
+
+* Table 4.3 form: theta RMSE of EKF and HYB per ring-down segment of SNR ~85/22/5/1 and
+  overall, and theta RMSE over the 50 samples after each detection (theta_RMSE,th).
+* Detection-error study (Sec. 4.5-4.6.1): normality (Kolmogorov-Smirnov against the fitted
+  normal) of e_theta,th per segment; variance of e_theta,th vs sigma_DOG per segment (Fig. 4.11)
+  with the hybrid's NRMSE (Fig. 4.12); variance vs sampling rate on the paper's sinusoidal
+  set-up (Fig. 4.6(a): A = 0.15 rad, 625 Hz, filter size scaled with fs, sigma_n x 1 and x 10).
+* PNGs: Fig. 4.10 analogue (snapshots, trajectories, y_cap + DOG response) and the study.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+from rclpy.parameter import Parameter
+from scipy import stats
+
+from mems_estimation.filters.scanner_threshold_detector import (
+    Detections,
+    OnlineThresholdDetector,
+    detect_offline,
+)
+from mems_estimation.filters.scanner_threshold_ekf import (
+    DRIFTED_SENSOR,
+    detection_errors,
+    model_from_device,
+    rmse,
+    run_ekf,
+    snr_segments,
+)
+from mems_estimation.nodes.scanner_threshold_ekf_node import (
+    ScannerThresholdNode,
+    detections_from_rows,
+)
+from mems_scenarios.base import (
+    Graph,
+    Progress,
+    ScenarioError,
+    ScenarioOptions,
+    default_domain_id,
+    drive_fast,
+    format_table,
+    run_recorded,
+    topic_frames,
+)
+from mems_sim.bag.recorder import RecorderNode
+from mems_sim.devices.scanner import dc_transimpedance_output, resolve_scanner, scanner_params
+from mems_sim.nodes.scanner_node import MicroScannerNode
+
+NAME = "scanner_threshold"
+DESCRIPTION = (
+    "comb-drive micro-scanner (Chen ch. 4): causal DOG threshold detector + hybrid EKF "
+    "vs plain EKF by SNR segment (Table 4.3), detection-error study"
+)
+DEFAULT_DURATION_S = 0.4  # the whole drive programme: 0.25 + 0.05 + 0.1 s
+DOG_SIGMA = 45.0  # sigma_DOG of the hybrid (Sec. 4.6.1: large sigma_DOG better)
+SIGMAS = (5.0, 15.0, 30.0, 45.0)  # sigma_DOG sweep (paper: 1.5 .. 45)
+PAPER = dict(
+    ekf=(0.0050, 0.0029, 0.0026, 0.0025, 0.0034),
+    hyb=(0.0047, 0.0023, 0.0019, 0.0018, 0.0029),
+    red=(6.9, 21.4, 27.6, 30.3, 15.1),
+)
+NS = "scanner"
+FRAME = 5000  # samples per frame (10 ms at 500 kHz)
+
+
+def _params(d: dict) -> list[Parameter]:
+    return [Parameter(k, value=v) for k, v in d.items()]
+
+
+def device_overrides(duration: float) -> dict:
+    """Device parameters: drifted sensing comb; the ring-down fills the rest of ``duration``."""
+    p = dict(DRIFTED_SENSOR)
+    p["ringdown_time_s"] = round(duration - 0.25 - 0.05, 9)
+    return p
+
+
+def run_graph(
+    options: ScenarioOptions,
+    out: Path,
+    duration: float,
+    progress: Progress,
+    frame: int = FRAME,
+    record: bool = True,
+) -> dict:
+    """Device + threshold/EKF node + recorder; returns publish counts and recorder summary.
+
+    ``frame``: samples per frame; ``record``: False leaves the recorder out (benchmark).
+    """
+    graph = Graph(options.domain_id if options.domain_id is not None else default_domain_id())
+    p = dict(
+        device_overrides(duration),
+        seed=int(options.seed),
+        duration_s=float(duration),
+        frame_size=int(frame),
+    )
+    dev = graph.add(
+        MicroScannerNode(
+            context=graph.context,
+            namespace=NS,
+            drive_externally=not options.realtime,
+            autostart=False,
+            parameter_overrides=_params(p),
+        )
+    )
+    est = graph.add(
+        ScannerThresholdNode(
+            context=graph.context,
+            namespace=f"{NS}/threshold",
+            parameter_overrides=_params(dict(device_namespace=f"/{NS}", dog_sigma=DOG_SIGMA)),
+        )
+    )
+    rec = (
+        graph.add(RecorderNode(str(out), regex=rf"^/{NS}/", context=graph.context))
+        if record
+        else None
+    )
+
+    def delivered(_d) -> int:
+        if rec is None:
+            return est.frames_done
+        return min(
+            [
+                rec.received(f"/{NS}/{t}")
+                for t in ("adc", "drive", "truth", "psd", "threshold_detections")
+            ]
+            + [est.frames_done]
+        )
+
+    try:
+        nsub = 2 if rec is not None else 1
+        graph.spin_until(
+            lambda: (
+                dev.pub_adc.get_subscription_count() >= nsub
+                and dev.pub_drive.get_subscription_count() >= nsub
+                and (
+                    rec is None
+                    or (
+                        dev.pub_psd.get_subscription_count() >= 1
+                        and est.pub_hyb.get_subscription_count() >= 1
+                        and est.pub_plain.get_subscription_count() >= 1
+                        and est.pub_det.get_subscription_count() >= 1
+                    )
+                )
+            ),
+            30.0,
+            "the recorder and the estimator to subscribe",
+        )
+        t_start = time.perf_counter()
+        if options.realtime:
+            dev.start()
+            graph.spin_until(lambda: dev.finished, duration * 50 + 60, "the device to finish")
+        else:
+            drive_fast(graph, [dev], delivered, progress)
+        graph.spin_until(lambda: delivered(dev) >= dev.frames_published, 60.0, "the last frames")
+        t_run = time.perf_counter() - t_start
+        est.flush()
+        n_est = est.frames_done + 1
+        graph.spin_until(
+            lambda: (
+                rec is None
+                or (
+                    rec.received(f"/{NS}/estimate") >= n_est
+                    and rec.received(f"/{NS}/estimate_plain") >= n_est
+                )
+            ),
+            60.0,
+            "the last estimates",
+        )
+        for _ in range(20):
+            graph.executor.spin_once(timeout_sec=0.01)
+        published = dev.frames_published
+        counts = est.hybrid.counts
+    finally:
+        summary = None
+        if rec is not None:
+            rec.close()
+            summary = dict(counts=rec.counts(), gaps=rec.gaps())
+        graph.close()
+    return dict(published=published, recorder=summary, detector_counts=counts, wall_s=t_run)
+
+
+def _seg_stats(th, est, segs):
+    return [rmse(est[lo:hi], th[lo:hi]) for lo, hi, _ in segs]
+
+
+def _rmse_after(th, est, det_idx, segs, n_after=50):
+    """theta RMSE over the ``n_after`` samples after each detection, per segment (Table 4.3)."""
+    out = []
+    for lo, hi, _ in segs:
+        c = det_idx[(det_idx >= lo) & (det_idx < hi)]
+        idx = (c[:, None] + np.arange(n_after)[None, :]).ravel() if c.size else np.zeros(0, int)
+        idx = idx[idx < th.size]
+        out.append(rmse(est[idx], th[idx]))
+    return out
+
+
+def sampling_rate_study(
+    seed: int,
+    rates=(1.0e5, 2.5e5, 5.0e5, 1.0e6, 2.5e6),
+    noise_factors=(1.0, 10.0),
+    duration_s: float = 0.04,
+) -> dict:
+    """Var(e_theta,th) vs fs on the paper's set-up (Sec. 4.5.1): theta = 0.15 sin(2 pi 625 t),
+    y from eq. (71) (nominal comb) + noise sigma_n x factor; sigma_DOG = 15 and w_DOG = 400
+    scaled with fs / 500 kHz (fixed ratio of filter size to period)."""
+    sp = scanner_params()
+    rng = np.random.default_rng(seed + 1000)
+    res = {}
+    for fac in noise_factors:
+        for fs in rates:
+            t = np.arange(int(duration_s * fs)) / fs
+            w = 2 * math.pi * 625.0
+            th = 0.15 * np.sin(w * t + 0.3)
+            om = 0.15 * w * np.cos(w * t + 0.3)
+            y = dc_transimpedance_output(th, om, sp) + rng.standard_normal(t.size) * 0.0435 * fac
+            scale = fs / 5.0e5
+            sig = 15.0 * scale
+            width = max(int(round(400 * scale)), int(math.ceil(6 * sig)) + 2)
+            D, _ = detect_offline(
+                y,
+                dog_sigma=sig,
+                dog_width=width,
+                nms_half_window=max(1, int(round(100 * scale))),
+                noise_std=0.0435 * fac,
+            )
+            e, et = detection_errors(th, D, sp.theta_th)
+            ok = np.abs(et) < 50 * scale
+            res[(fac, fs)] = (float(np.var(e[ok])) if ok.sum() > 2 else math.nan, int(ok.sum()))
+    return res
+
+
+def figures(path: Path, duration: float, seed: int) -> dict:
+    """Every result of the scenario from the recorded MCAP (plus the offline studies)."""
+    dp = resolve_scanner(device_overrides(duration))
+    sp = scanner_params(dp)
+    fs = dp["sample_rate_hz"]
+    truth = topic_frames(path, f"/{NS}/truth")["data"]
+    th, om = truth[:, 0], truth[:, 1]
+    y = topic_frames(path, f"/{NS}/adc")["data"][:, 0]
+    v = topic_frames(path, f"/{NS}/drive")["data"][:, 0]
+    hyb = topic_frames(path, f"/{NS}/estimate")
+    pla = topic_frames(path, f"/{NS}/estimate_plain")
+    n = th.size
+    if hyb["data"].shape[0] != n or pla["data"].shape[0] != n or hyb["first_index"] != 0:
+        raise ScenarioError(
+            f"estimates cover {hyb['data'].shape[0]} / {pla['data'].shape[0]} of {n} samples"
+        )
+    dt = topic_frames(path, f"/{NS}/threshold_detections")
+    D = detections_from_rows(dt["data"], dt["first_index"])
+    y_clean = dc_transimpedance_output(th, om, sp, dp["sense_resistance"], dp["bias_voltage"])
+    cutoff = int(round((dp["sweep_time_s"] + dp["hold_time_s"]) * fs))
+    segs = snr_segments(y_clean, dp["noise_std"], cutoff, fs)
+    allseg = segs + [(segs[0][0], segs[-1][1], math.nan)]
+    th_h, th_p = hyb["data"][:, 0], pla["data"][:, 0]
+    f: dict = {"segments": segs}
+    f["rmse_ekf"] = _seg_stats(th, th_p, allseg)
+    f["rmse_hyb"] = _seg_stats(th, th_h, allseg)
+    f["reduction"] = [1 - h / p for h, p in zip(f["rmse_hyb"], f["rmse_ekf"])]
+    f["rmse_th_ekf"] = _rmse_after(th, th_p, D.index, allseg)
+    f["rmse_th_hyb"] = _rmse_after(th, th_h, D.index, allseg)
+    amp = []
+    for lo, hi, _ in allseg:
+        amp.append(float(np.mean(np.abs(th[lo:hi])) * math.pi / 2))  # mean amplitude of a sine
+    f["nrmse_hyb"] = [r / a for r, a in zip(f["rmse_hyb"], amp)]
+    # consistency: PD throughout and the normalised error
+    for name, e in (("hyb", hyb), ("ekf", pla)):
+        var = e["variances"]
+        f[f"min_var_{name}"] = float(var.min())
+        f[f"max_var_theta_{name}"] = float(var[:, 0].max())
+        z = (e["data"][cutoff:, 0] - th[cutoff:]) / np.sqrt(var[cutoff:, 0])
+        f[f"z99_{name}"] = float(np.percentile(np.abs(z), 99))
+    # detection errors of the online detections
+    e_th, e_t = detection_errors(th, D, sp.theta_th)
+    f["latency"] = int(np.unique(D.arrival - D.index)[0]) if D.index.size else None
+    ks = []
+    for lo, hi, _ in segs:
+        m = (D.index >= lo) & (D.index < hi) & (np.abs(e_t) < 50)
+        ee = e_th[m]
+        p = stats.kstest((ee - ee.mean()) / ee.std(), "norm").pvalue if ee.size >= 8 else math.nan
+        ks.append(
+            (
+                int(m.sum()),
+                float(ee.mean()) if ee.size else math.nan,
+                float(ee.std()) if ee.size else math.nan,
+                float(p),
+            )
+        )
+    f["ks"] = ks
+    # online vs offline (same filter, non-causal)
+    off, r_off = detect_offline(y, dog_sigma=DOG_SIGMA)
+    f["online_offline_same"] = bool(
+        off.index.size == D.index.size and np.all(np.abs(off.index - D.index) <= 1)
+    )
+    f["n_detections"] = int(D.index.size)
+    # sigma_DOG sweep (Fig. 4.11, 4.12): offline detections on the recorded y, hybrid EKF re-run
+    P = model_from_device(resolve_scanner({}))
+    sweep = {}
+    for sig in SIGMAS:
+        det = OnlineThresholdDetector(dog_sigma=sig)
+        Ds = Detections.concat([det.process(y[a : a + 1000]) for a in range(0, n, 1000)])
+        e_s, et_s = detection_errors(th, Ds, sp.theta_th)
+        var_seg = []
+        for lo, hi, _ in segs:
+            m = (Ds.index >= lo) & (Ds.index < hi) & (np.abs(et_s) < 50)
+            var_seg.append(float(np.var(e_s[m])) if m.sum() > 2 else math.nan)
+        hr = run_ekf(y, v, P, detections=Ds, frame=1000)
+        nr = [rmse(hr.theta[lo:hi], th[lo:hi]) / a for (lo, hi, _), a in zip(allseg, amp)]
+        sweep[sig] = dict(var=var_seg, nrmse=nr)
+    f["sigma_sweep"] = sweep
+    # the same filters with the full measurement Jacobian [h' omega, h] instead of Table 4.1's
+    # [0, h] (offline, on the recorded y and the online detections)
+    Pf = dict(P, jacobian="full")
+    f["rmse_full_ekf"] = _seg_stats(th, run_ekf(y, v, Pf, frame=1000).theta, allseg)
+    f["rmse_full_hyb"] = _seg_stats(th, run_ekf(y, v, Pf, detections=D, frame=1000).theta, allseg)
+    f["fs_study"] = sampling_rate_study(seed)
+    f["series"] = dict(
+        th=th, th_h=th_h, th_p=th_p, y=y, r=r_off, det=D.index, segs=segs, fs=fs, e_th=e_th, e_t=e_t
+    )
+    return f
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.1f}%"
+
+
+def table(f: dict) -> str:
+    """Table 4.3 form + detection study, next to the paper's figures."""
+    hdr = ["", *[f"SNR {s:.0f}" for _, _, s in f["segments"]], "overall"]
+    r = [
+        ["EKF theta_RMSE [rad]", *[f"{x:.5f}" for x in f["rmse_ekf"]]],
+        ["HYB theta_RMSE [rad]", *[f"{x:.5f}" for x in f["rmse_hyb"]]],
+        ["theta_RMSE reduction", *[_pct(x) for x in f["reduction"]]],
+        ["  paper reduction", *[f"{x}%" for x in PAPER["red"]]],
+        ["EKF, full Jacobian [rad]", *[f"{x:.5f}" for x in f["rmse_full_ekf"]]],
+        ["HYB, full Jacobian [rad]", *[f"{x:.5f}" for x in f["rmse_full_hyb"]]],
+        ["EKF theta_RMSE,th", *[f"{x:.5f}" for x in f["rmse_th_ekf"]]],
+        ["HYB theta_RMSE,th", *[f"{x:.5f}" for x in f["rmse_th_hyb"]]],
+        [
+            "theta_RMSE,th reduction",
+            *[_pct(1 - h / p) for h, p in zip(f["rmse_th_hyb"], f["rmse_th_ekf"])],
+        ],
+        ["  paper", "26.0%", "11.6%", "2.6%", "8.1%", "12.3%"],
+        [
+            "e_theta,th n / mean / std [mrad]",
+            *[f"{k[0]} / {1e3 * k[1]:.2f} / {1e3 * k[2]:.2f}" for k in f["ks"]],
+            "-",
+        ],
+        ["KS p-value (normal if > 0.05)", *[f"{k[3]:.2f}" for k in f["ks"]], "-"],
+    ]
+    for sig, d in f["sigma_sweep"].items():
+        r.append([f"var(e_theta) sigma_DOG={sig:g} [rad^2]", *[f"{x:.2e}" for x in d["var"]], "-"])
+    for sig, d in f["sigma_sweep"].items():
+        r.append([f"HYB NRMSE sigma_DOG={sig:g}", *[f"{x:.4f}" for x in d["nrmse"]]])
+    out = format_table(hdr, r)
+    rates = sorted({fs for (_, fs) in f["fs_study"]})
+    facs = sorted({fac for (fac, _) in f["fs_study"]})
+    r2 = [
+        [
+            f"sigma_n x {fac:g}",
+            *[f"{f['fs_study'][(fac, fs)][0]:.2e} ({f['fs_study'][(fac, fs)][1]})" for fs in rates],
+        ]
+        for fac in facs
+    ]
+    out += "\n\nvar(e_theta,th) [rad^2] (detections) vs sampling rate, sinusoid 0.15 rad 625 Hz:\n"
+    out += format_table(["", *[f"{fs / 1e3:g} kHz" for fs in rates]], r2)
+    out += (
+        f"\n\ndetector latency {f['latency']} samples; {f['n_detections']} online detections;"
+        f" online = offline within one sample: {f['online_offline_same']}; "
+        f"min variance (PD): HYB {f['min_var_hyb']:.2e}, EKF {f['min_var_ekf']:.2e}; "
+        f"max var(theta) HYB {f['max_var_theta_hyb']:.2e}, EKF {f['max_var_theta_ekf']:.2e};"
+        f" 99th pct |err|/sigma in the ring-down: HYB {f['z99_hyb']:.1f}, "
+        f"EKF {f['z99_ekf']:.1f} (overconfident under the drifted analog map)"
+    )
+    return out
+
+
+def plot(f: dict, path: Path, path2: Path) -> None:
+    """Fig. 4.10 analogue (path) and the detection-error study (path2)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    s = f["series"]
+    fs = s["fs"]
+    t = np.arange(s["th"].size) / fs * 1e3
+    fig = plt.figure(figsize=(13, 11))
+    gs = fig.add_gridspec(4, 4)
+    det = s["det"]
+    for i, (lo, hi, snr) in enumerate(s["segs"]):
+        c = det[(det >= lo) & (det < hi)]
+        if not c.size:
+            continue
+        c0 = int(c[len(c) // 2])
+        k = np.arange(max(0, c0 - 60), min(s["th"].size, c0 + 120))
+        ax = fig.add_subplot(gs[0, i])
+        ax.plot(t[k], s["th"][k], "k", lw=1.5, label="truth")
+        ax.plot(t[k], s["th_p"][k], "C0--", label="EKF")
+        ax.plot(t[k], s["th_h"][k], "C3", label="HYB")
+        ax.axvline(t[c0], color="g", ls=":")
+        ax.set_title(f"(a) SNR {snr:.0f}", fontsize=9)
+        ax.set_xlabel("t [ms]", fontsize=8)
+        if i == 0:
+            ax.set_ylabel("theta [rad]")
+            ax.legend(fontsize=7)
+        ax2 = fig.add_subplot(gs[3, i])
+        ax2.plot(t[k], s["y"][k], lw=0.6, label="y_cap")
+        rr = s["r"][k]
+        ax2.plot(
+            t[k], rr / np.nanmax(np.abs(rr)) * np.abs(s["y"][k]).max(), "C3", label="DOG (scaled)"
+        )
+        ax2.axvline(t[c0], color="g", ls=":")
+        ax2.set_title(f"(d) SNR {snr:.0f}", fontsize=9)
+        ax2.set_xlabel("t [ms]", fontsize=8)
+        if i == 0:
+            ax2.set_ylabel("y_cap [V]")
+            ax2.legend(fontsize=7)
+    ax = fig.add_subplot(gs[1, :])
+    ax.plot(t, s["th"], "k", lw=0.4, label="truth")
+    ax.plot(t, s["th_p"], "C0", lw=0.3, label="EKF")
+    ax.plot(t, s["th_h"], "C3", lw=0.3, label="HYB")
+    for lo, hi, _ in s["segs"]:
+        ax.axvspan(t[lo], t[min(hi, t.size - 1)], alpha=0.08)
+    ax.set(ylabel="theta [rad]", title="(b) tilting angle: sweep, hold, cut-off, ring-down")
+    ax.legend(fontsize=8)
+    ax = fig.add_subplot(gs[2, :])
+    ax.plot(t, s["y"], lw=0.3, label="y_cap")
+    ax.plot(t, s["r"] / np.nanmax(np.abs(s["r"])) * 2, "C3", lw=0.4, label="DOG response (scaled)")
+    ax.set(xlabel="time [ms]", ylabel="[V]", title="(c) sensing signal and DOG response")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(1, 3, figsize=(15, 4.5))
+    segs = s["segs"]
+    for i, (lo, hi, snr) in enumerate(segs):
+        ax[0].semilogy(
+            list(f["sigma_sweep"]),
+            [d["var"][i] for d in f["sigma_sweep"].values()],
+            "o-",
+            label=f"SNR {snr:.0f}",
+        )
+    ax[0].set(
+        xlabel="sigma_DOG [samples]",
+        ylabel="var(e_theta,th) [rad^2]",
+        title="Fig. 4.11: detection-error variance vs sigma_DOG",
+    )
+    ax[0].legend(fontsize=8)
+    rates = sorted({fs_ for (_, fs_) in f["fs_study"]})
+    for fac in sorted({fac for (fac, _) in f["fs_study"]}):
+        ax[1].loglog(
+            np.array(rates) / 1e3,
+            [f["fs_study"][(fac, r)][0] for r in rates],
+            "o-",
+            label=f"sigma_n x {fac:g}",
+        )
+    ax[1].set(
+        xlabel="fs [kHz]",
+        ylabel="var(e_theta,th) [rad^2]",
+        title="Fig. 4.6(a): variance vs sampling rate",
+    )
+    ax[1].legend(fontsize=8)
+    lo, hi, snr = segs[1]
+    m = (s["det"] >= lo) & (s["det"] < hi) & (np.abs(s["e_t"]) < 50)
+    e = s["e_th"][m] * 1e3
+    if e.size > 2:
+        ax[2].hist(e, bins=15, density=True, alpha=0.6, label=f"e_theta,th (SNR {snr:.0f})")
+        xx = np.linspace(e.min(), e.max(), 200)
+        ax[2].plot(xx, stats.norm.pdf(xx, e.mean(), e.std()), "k", label="normal fit")
+    ax[2].set(xlabel="e_theta,th [mrad]", title="Fig. 4.8/4.9: error vs normal")
+    ax[2].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path2, dpi=100)
+    plt.close(fig)
+
+
+def _check_duration(duration: float) -> None:
+    if not 0.38 <= duration <= 2.0:
+        raise ScenarioError(
+            f"--duration = {duration!r} is invalid for {NAME}: 0.38 .. 2 s (sweep "
+            "0.25 s + hold 0.05 s + a ring-down of at least 80 ms, Sec. 4.4.1)"
+        )
+
+
+def run(options: ScenarioOptions) -> dict:
+    """Run the scenario; return the table, figures and paths."""
+    return run_recorded(
+        options,
+        name=NAME,
+        default_duration_s=DEFAULT_DURATION_S,
+        check_duration=_check_duration,
+        run_graph=run_graph,
+        figures=lambda out, _res, duration: figures(out, duration, int(options.seed)),
+        table=table,
+        plot=plot,
+        png_suffixes=("", "-detection"),
+    )

@@ -1,0 +1,437 @@
+"""Scenario ``gyro_calibration``: piezo tilt micro-stage, capacitive EKF, in-situ gyro
+scale-factor calibration at two temperatures (Chen 2018, chapter 3, Tables 3.4-3.6).
+
+Steps (all seeded; identification never reads the emulator's truth):
+
+1. identification at 22.9 C: stepped-sine sweep 1711-1719 Hz at 0.8 V (circle fit ->
+   wn, zeta, b_c, LDV delay), training amplitude sweep 1.0-1.3 V at 1700 Hz with the LDV
+   (D_n, eta per channel; Q; output correction), zero drive (R);
+2. at 22.9 C and at 35.7 C (sensor parameters D_n, eta re-identified there from a
+   training sweep): a separate calibration amplitude sweep with the on-stage gyro;
+   EKF on the feedthrough-cancelled channels; peak-to-peak pairing; eq. (27);
+3. table in the form of Tables 3.4-3.6 and PNG figures.
+
+Identification (step 1) runs the ROS-free cores on emulator records (drive, cancelled ADC
+channels, LDV); the calibration (step 2) runs through the node graph: per temperature a
+``stage_node`` (namespaces ``/stage_t1`` = 22.9 C, ``/stage_t2`` = 35.7 C) with its
+gyro, a ``stage_ekf_node`` loading the identified parameter YAML and a
+``stage_gyro_calibration_node`` publishing ``/<stage>/gyro_scale_factor``; everything recorded
+to MCAP and the table computed from the recording and the published results.
+:func:`run_pipeline` is the same scenario on the cores only (no ROS).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from mems_estimation.filters.stage_ekf import save_model
+from mems_estimation.identification.stage_gyro_calibration import (
+    T1,
+    T2,
+    Plan,
+    calibration_run,
+    identify_stage,
+    off_axis_table,
+    retrain_at,
+)
+from mems_estimation.identification.stage_identification import evaluate, fold_period
+
+NAME = "gyro_calibration"
+DESCRIPTION = (
+    "piezo tilt micro-stage (Chen 2018 ch. 3): capacitive sensing + EKF, in-situ "
+    "MPU-6500-like gyro scale-factor calibration at 22.9 and 35.7 C"
+)
+#: simulated calibration span per temperature (7 trials x 400 periods at 1700 Hz); fixed by
+#: the drive schedules (``--duration`` is refused)
+DEFAULT_DURATION_S = round(7 * 400 / 1700.0, 3)
+
+
+def write_plots(out_dir: Path, runs: dict) -> list[Path]:
+    """Fig. 3.14-like averaged period and Fig. 3.15-like peak-to-peak plot."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    r = runs[T1]
+    rec = r["rec"]
+    last = rec["segment"] == rec["segment"].max()
+    idx = np.flatnonzero(last)
+    idx = idx[idx.size // 2 :]
+    fe = fold_period(r["x"][idx, 1], rec["phase"][idx])
+    ft = fold_period(rec["omega"][idx, 0], rec["phase"][idx])
+    fig, (ax, ae) = plt.subplots(
+        2, 1, figsize=(6, 5), sharex=True, gridspec_kw={"height_ratios": [2, 1]}
+    )
+    ph = (np.arange(fe.size) + 0.5) / fe.size
+    ax.plot(ph, ft, "k-", label="truth")
+    ax.plot(ph, fe, "r--", label="EKF (stage)")
+    ax.set_ylabel("omega [rad/s]")
+    ax.legend()
+    ax.set_title(f"one averaged period, last trial, 1700 Hz, {T1} C")
+    err = fe - ft  # the estimate's error is small against omega: its own panel
+    ae.plot(ph, 1e3 * err, "r-")
+    ae.axhline(0.0, color="k", lw=0.5)
+    ae.set_xlabel("drive phase [cycles]")
+    ae.set_ylabel("EKF - truth [mrad/s]")
+    ae.set_title(f"error, RMS {1e3 * np.sqrt(np.mean(err**2)):.2f} mrad/s", fontsize=9)
+    fig.tight_layout()
+    p = out_dir / f"{NAME}_period.png"
+    fig.savefig(p, dpi=100)
+    plt.close(fig)
+    paths.append(p)
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    for (T, r), color in zip(runs.items(), ("tab:blue", "tab:red")):
+        s = np.array([q["stage_pp"] for q in r["cal"]["pairs"]])
+        g = np.array([q["gyro_pp"] for q in r["cal"]["pairs"]])
+        ax.plot(s, g, "o", color=color, label=f"{T} C")
+        xs = np.linspace(s.min(), s.max(), 2)
+        ax.plot(
+            xs,
+            r["cal"]["scale_factor"] * xs + r["cal"]["bias"],
+            "-",
+            color=color,
+            label=f"eq. 27 fit: SF {r['cal']['scale_factor']:.5f} "
+            f"+- {r['cal']['scale_factor_se']:.5f}",
+        )
+    ax.set_xlabel("stage omega_pp [rad/s]")
+    ax.set_ylabel("gyro omega_pp [rad/s]")
+    ax.set_title("gyro vs stage peak-to-peak rate per trial")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    p = out_dir / f"{NAME}_peak_to_peak.png"
+    fig.savefig(p, dpi=100)
+    plt.close(fig)
+    paths.append(p)
+    return paths
+
+
+def run_pipeline(
+    seed: int = 0, plan: Plan | None = None, out_dir: Path | None = None, plots: bool = True
+) -> dict:
+    """Whole scenario without ROS; returns figures, table text and file paths."""
+    from mems_scenarios.base import format_table
+
+    plan = plan or Plan()
+    model, rep = identify_stage(seed, plan)
+    models = {T1: model, T2: retrain_at(model, T2, seed, plan)}
+    runs = {T: calibration_run(models[T], T, seed, plan) for T in (T1, T2)}
+    limits = model.limits
+    rows = [
+        [
+            "off-axis rejection R_off",
+            f"{100 * r:g} % off-axis",
+            f"{100 * v:.3f} %",
+            ">= 99.98 %" if r <= 0.1 else ">= 99.90 %",
+        ]
+        for r, v in off_axis_table(float(np.mean(model.gap)), limits)
+    ]
+    ev = runs[T1]["eval"]
+    rows += [
+        ["omega RMSE (1 period avg)", f"{T1} C", f"{ev['rmse']:.4f} rad/s", "<= 0.114"],
+        ["stage alpha", f"{T1} C", f"{ev['alpha']:.5f}", "|a-1| <= 8e-4"],
+        ["stage beta", f"{T1} C", f"{ev['beta']:.4f} rad/s", "(paper -0.0207)"],
+    ]
+    for T in (T1, T2):
+        r = runs[T]
+        rows.append(
+            [
+                f"SF_IMU by stage (true {r['k_true']:.5f})",
+                f"{T} C",
+                f"{r['cal']['scale_factor']:.5f} +- {r['cal']['scale_factor_se']:.5f}",
+                f"{r['ppm']:+.0f} ppm",
+            ]
+        )
+    rms = math.sqrt(np.mean([runs[T]["ppm"] ** 2 for T in (T1, T2)]))
+    rows.append(["SF error RMS over temps", f"{T1}/{T2} C", f"{rms:.0f} ppm", "<= 100 ppm"])
+    table = format_table(["quantity", "condition", "value", "target / note"], rows)
+    paths = []
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        save_model(model, str(out_dir / f"{NAME}_stage_params_{T1}C.yaml"))
+        save_model(models[T2], str(out_dir / f"{NAME}_stage_params_{T2}C.yaml"))
+        if plots:
+            paths = write_plots(out_dir, runs)
+    return {
+        "table": table,
+        "model": model,
+        "models": models,
+        "runs": runs,
+        "sf_rms_ppm": rms,
+        "identification": rep,
+        "plots": paths,
+    }
+
+
+INSTANCES = {"stage_t1": T1, "stage_t2": T2}
+RECORDED = ("adc", "drive", "truth", "estimate", "gyro/adc", "gyro_scale_factor", "temperature")
+FRAME = 20000
+
+
+def run_graph(options, plan: Plan, models: dict, out: Path, instances: dict | None = None) -> dict:
+    """Calibration phase through the node graph: per temperature one stage_node
+    (+ gyro), stage_ekf_node (identified YAML) and stage_gyro_calibration_node; one recorder.
+    ``instances``: namespace -> temperature (default :data:`INSTANCES`, both temperatures
+    at once; the benchmark runs one)."""
+    INSTANCES = instances or globals()["INSTANCES"]
+    from rclpy.parameter import Parameter
+
+    from mems_estimation.nodes.stage_ekf_node import StageEkfNode
+    from mems_estimation.nodes.stage_gyro_calibration_node import GyroCalibrationNode
+    from mems_scenarios.base import Graph, Progress, default_domain_id, drive_fast
+    from mems_sim.bag.recorder import RecorderNode
+    from mems_sim.nodes.stage_node import MicroStageNode
+
+    def prm(d):
+        return [Parameter(k, value=v) for k, v in d.items()]
+
+    graph = Graph(options.domain_id if options.domain_id is not None else default_domain_id())
+    devs, ekfs, cals = {}, {}, {}
+    topics = [f"/{ns}/{t}" for ns in INSTANCES for t in RECORDED] + ["/diagnostics"]
+    try:
+        for k, (ns, T) in enumerate(INSTANCES.items()):
+            yaml_path = out.parent / f"{NAME}_stage_params_{T}C.yaml"
+            save_model(models[T], str(yaml_path))
+            devs[ns] = graph.add(
+                MicroStageNode(
+                    context=graph.context,
+                    namespace=ns,
+                    drive_externally=not options.realtime,
+                    autostart=False,
+                    parameter_overrides=prm(
+                        dict(
+                            seed=int(options.seed) * 100 + 50 + k,
+                            temperature_c=T,
+                            n_trials=plan.cal_trials,
+                            periods_per_trial=plan.cal_periods,
+                            frame_size=FRAME,
+                            frame_id=ns,
+                            publish_imu=bool(options.realtime),
+                        )
+                    ),
+                )
+            )
+            ekfs[ns] = graph.add(
+                StageEkfNode(
+                    context=graph.context,
+                    namespace=ns,
+                    parameter_overrides=prm(
+                        dict(stage_namespace=f"/{ns}", params_yaml=str(yaml_path))
+                    ),
+                )
+            )
+            cals[ns] = graph.add(
+                GyroCalibrationNode(
+                    context=graph.context,
+                    namespace=ns,
+                    parameter_overrides=prm(
+                        dict(stage_namespace=f"/{ns}", n_trials=plan.cal_trials)
+                    ),
+                )
+            )
+        rec = graph.add(RecorderNode(str(out), topics=topics, context=graph.context))
+
+        def delivered(d) -> int:
+            ns = d.get_namespace()
+            return min(
+                [rec.received(f"{ns}/{t}") for t in ("adc", "drive", "truth")]
+                + [ekfs[ns.lstrip("/")].frames_done]
+            )
+
+        graph.spin_until(
+            lambda: (
+                all(
+                    d.pub_adc.get_subscription_count() >= 2
+                    and d.pub_gyro.get_subscription_count() >= 2
+                    for d in devs.values()
+                )
+                and all(e.pub.get_subscription_count() >= 2 for e in ekfs.values())
+            ),
+            30.0,
+            "the recorder, EKF and calibration nodes to subscribe",
+        )
+        total = max(d.total_samples for d in devs.values()) / next(iter(devs.values())).fs
+        progress = Progress(total, options.progress, NAME)
+        import time as _time
+
+        wall0 = _time.monotonic()
+        if options.realtime:
+            for d in devs.values():
+                d.start()
+            graph.spin_until(
+                lambda: all(d.finished for d in devs.values()),
+                total * 50 + 120,
+                "the stages to finish",
+            )
+        else:
+            drive_fast(graph, list(devs.values()), delivered, progress, window=20)
+        graph.spin_until(
+            lambda: all(delivered(d) >= d.frames_published for d in devs.values()),
+            120.0,
+            "the last frames",
+        )
+        wall = _time.monotonic() - wall0
+        progress.close()
+        graph.spin_until(
+            lambda: all(cals[ns].estimates_received >= ekfs[ns].frames_done for ns in INSTANCES),
+            60.0,
+            "the calibration nodes to receive the last estimates",
+        )
+        for ns, c in cals.items():
+            c.close()
+        graph.spin_until(
+            lambda: all(rec.received(f"/{ns}/gyro_scale_factor") >= 1 for ns in INSTANCES),
+            30.0,
+            "the calibration results",
+        )
+        graph.spin_until(
+            lambda: all(
+                rec.received(f"/{ns}/estimate") >= ekfs[ns].frames_done for ns in INSTANCES
+            ),
+            60.0,
+            "the last estimates",
+        )
+        k_true = {ns: devs[ns].gyro.scale_factor() for ns in INSTANCES}
+        results = {ns: cals[ns].results[-1] for ns in INSTANCES}
+        rejected = {ns: ekfs[ns].diag.counters.get("rejected_frames", 0) for ns in INSTANCES}
+        published = {ns: d.frames_published for ns, d in devs.items()}
+    finally:
+        rec.close()
+        summary = dict(counts=rec.counts(), gaps=rec.gaps())
+        graph.close()
+    return dict(
+        k_true=k_true,
+        results=results,
+        recorder=summary,
+        published=published,
+        rejected=rejected,
+        wall_s=wall,
+        simulated_s=total,
+    )
+
+
+def graph_figures(out: Path, g: dict) -> dict:
+    """RMSE/alpha/beta per temperature from the recorded MCAP and the calibration results."""
+    from mems_scenarios.base import topic_frames
+
+    figs = {}
+    for ns, T in INSTANCES.items():
+        est = topic_frames(out, f"/{ns}/estimate")["data"]
+        tru = topic_frames(out, f"/{ns}/truth")["data"]
+        drv = topic_frames(out, f"/{ns}/drive")["data"]
+        n = min(len(est), len(tru), len(drv))
+        ev = evaluate(est[:n, 1], tru[:n, 1], drv[:n, 3], drv[:n, 4].astype(int))
+        r = g["results"][ns]
+        k = g["k_true"][ns]
+        figs[T] = dict(
+            eval=ev,
+            cal=r,
+            k_true=k,
+            ppm=(r["scale_factor"] / k - 1) * 1e6,
+            se_ppm=r["scale_factor_se"] / k * 1e6,
+            est=est[:n],
+            truth=tru[:n],
+            drive=drv[:n],
+        )
+    return figs
+
+
+def run(options) -> dict:
+    """``run_scenario gyro_calibration``: identification (ROS-free cores), then the
+    calibration at both temperatures through the node graph, recorded to MCAP.
+    ``options.extra['short']`` selects the short plan (tests)."""
+    from mems_scenarios.base import ScenarioError, format_table
+
+    if options.duration_s not in (None, 0.0):
+        raise ScenarioError(
+            "gyro_calibration: the duration follows from the drive schedules "
+            "(7 trials x 400 periods at 1700 Hz); omit --duration"
+        )
+    plan = Plan.short() if options.extra.get("short") else Plan()
+    out = Path(options.out or Path("runs") / f"{NAME}-{options.seed}.mcap")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    seed = int(options.seed)
+    model, rep = identify_stage(seed, plan)
+    models = {T1: model, T2: retrain_at(model, T2, seed, plan)}
+    g = run_graph(options, plan, models, out)
+    figs = graph_figures(out, g)
+    rows = [
+        [
+            "off-axis rejection R_off",
+            f"{100 * r:g} % off-axis",
+            f"{100 * v:.3f} %",
+            ">= 99.98 %" if r <= 0.1 else ">= 99.90 %",
+        ]
+        for r, v in off_axis_table(float(np.mean(model.gap)), model.limits)
+    ]
+    for T in (T1, T2):
+        ev = figs[T]["eval"]
+        rows += [
+            [
+                "omega RMSE (1 period avg)",
+                f"{T} C",
+                f"{ev['rmse']:.4f} rad/s",
+                "<= 0.114 (paper 0.1140)",
+            ],
+            [
+                "stage alpha / beta",
+                f"{T} C",
+                f"{ev['alpha']:.5f} / {ev['beta']:+.4f}",
+                "|a-1| <= 8e-4 (paper 1.0008/-0.0207)",
+            ],
+        ]
+    for T in (T1, T2):
+        f = figs[T]
+        rows.append(
+            [
+                f"SF_IMU by stage (true {f['k_true']:.5f})",
+                f"{T} C",
+                f"{f['cal']['scale_factor']:.5f} +- {f['cal']['scale_factor_se']:.5f}",
+                f"{f['ppm']:+.0f} ppm (paper -340/+220)",
+            ]
+        )
+    rms = math.sqrt(np.mean([figs[T]["ppm"] ** 2 for T in (T1, T2)]))
+    rows.append(
+        ["SF error RMS over temps", f"{T1}/{T2} C", f"{rms:.0f} ppm", "<= 100 ppm (paper 286)"]
+    )
+    rows.append(
+        [
+            "graph",
+            "fast" if not options.realtime else "realtime",
+            f"{g['simulated_s']:.2f} s sim in {g['wall_s']:.1f} s wall",
+            f"RTF {g['simulated_s'] / g['wall_s']:.2f}",
+        ]
+    )
+    table = format_table(["quantity", "condition", "value", "target / note"], rows)
+    plots = []
+    if options.plots:
+        plots = _graph_plots(out.parent, figs)
+    return {
+        "table": table,
+        "duration_s": g["simulated_s"],
+        "mcap": str(out),
+        "recorder": g["recorder"],
+        "figure": ", ".join(str(p) for p in plots),
+        "figures": figs,
+        "sf_rms_ppm": rms,
+        "rejected": g["rejected"],
+        "published": g["published"],
+        "model": model,
+    }
+
+
+def _graph_plots(out_dir: Path, figs: dict) -> list:
+    """PNG figures from the graph run (Fig. 3.14 / 3.15 forms)."""
+    runs = {}
+    for T, f in figs.items():
+        rec = {
+            "segment": f["drive"][:, 4].astype(int),
+            "phase": f["drive"][:, 3],
+            "omega": f["truth"][:, [1, 3]],
+        }
+        runs[T] = {"rec": rec, "x": f["est"], "cal": f["cal"]}
+    return write_plots(out_dir, runs)

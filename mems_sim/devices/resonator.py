@@ -1,0 +1,894 @@
+"""Pulse-actuated micro-resonator read through a one-bit second-order sigma-delta ADC.
+
+Source: Colinet, Galayko & Juillard, "Pulse-actuated micromechanical resonator
+using digital Kalman observer": resonator eqs. (7)-(9),
+modulator eqs. (10)-(12), observer loop eq. (13) and Fig. 4, simulation set-up
+Sec. 6 (f0 = 0.05 fs, Q = 100, output noise of the order of the signal).
+Models and unit conventions are in :mod:`mems_sim.devices.resonator_models` (position and
+pulses in volts at the modulator input, H(s) = fs*w0/(s^2 + s w0/Q + w0^2)).
+
+Per sample k (all carried across frames)::
+
+    x(k)   = y(k) + b(k)                         b ~ N(0, output_noise_std^2)   [V]
+    v(k), q(k) = modulator(x(k))                 eqs. (10)-(12), v in {-1, +1}
+    s(k)   = position signal used by the controller (see below)
+    u(k)   = pulse_amplitude * sign(s(k) - s(k-1))   if sign s(k) != sign s(k-1), else 0
+             (``on_sample`` timing: one pulse per zero crossing fired at the sample
+             instant, sign = direction of motion; sign(z) = +1 for z >= 0)
+    [y, dy/dt](k+1) = Phi(f0(k)) [y, dy/dt](k) + g(k) + Gam(f0(k)) f(k),
+                                                 f ~ N(0, state_noise_std^2) [V]
+
+where g(k) is the exact effect of the pulse force (height u, width pulse_width_s, fired
+at t_p = k T + s(k) T) over the interval: :func:`mems_sim.devices.resonator_models.interval_input`
+(the impulse response integrated over the part of the pulse inside the interval, the
+tail outlasting it carried into the next one).  With pulse_width_s = T and s = 0 this is
+the one-sample ZOH pulse Gam u(k) of eqs. (8)-(9).
+
+Pulse timing (``pulse_timing``, observer mode; the comparator loop is always
+``on_sample`` since the naive loop has no predictor):
+
+* ``"sub_sample"`` (default): the pulse driver is timed by a clock much faster than
+  the ADC (taken as continuous).  At each sample the controller takes the observer's
+  a-posteriori estimate [y, dy/dt](k|k), predicts its free response with the model
+  (eq. (7)) and, if it crosses zero within (w/2, 1 + w/2] T (w = pulse width / T),
+  fires the pulse at s = t_c - w/2 so that the pulse is centred on the predicted
+  crossing t_c (closed-form zero of the damped sinusoid,
+  :func:`mems_sim.devices.resonator_models.next_crossing`).  A crossing that an estimate update has
+  moved before the window (sign of the prediction at w/2 differs from the sign expected
+  at the end of the previous window) fires at once (s = 0).  This is the paper's claim
+  that "the generated pulses happen exactly at the equilibrium position instants"
+  (Sec. 6), which one-sample pulses at 20 samples per period cannot achieve (|x| up to
+  sin(2 pi f0/fs) = 31 % of the amplitude at the first sample after a crossing).
+* ``"on_sample"``: the rule above on s(k) = y(k|k), the pulse fired at the sample
+  instant (s = 0); with pulse_width_s = 1/fs this is the original one-sample loop.
+
+The observer's known-input model uses the same exact pulse term (model f0), so with
+the exact model the estimate stays exact.  Truth also records the position at each
+pulse's start (firing instant, at the start sample) and at its centre (at the sample
+whose interval contains the centre).
+
+Start-up (both modes): the resonator and the modulator start at rest (all
+states 0) and a single kick u(0) = +pulse_amplitude is applied at k = 0 of the
+device; from k = 1 the controller rule above applies.
+
+Controller ``mode``:
+
+* ``"observer"`` (Fig. 4): s(k) = y(k|k), the position estimate of the
+  6-state Kalman observer (:class:`mems_sim.kernels.resonator_observer.KalmanObserver`
+  model) run in the loop on v(k) and the applied pulses.
+* ``"comparator"`` (Fig. 1, naive loop), ``comparator_input``:
+  ``"resonator"`` (default): s(k) = y(k) + b(k), the one-bit comparator of Fig. 1
+  on the noisy resonator output (the modulator still produces the bit stream);
+  ``"bitstream"``: s(k) = sum of the last ``comparator_window`` bits v(k-W+1..k)
+  (W odd, so s is never 0; W = 1 is the raw bit stream).  The bit-stream variant
+  never builds up oscillation even without noise (measured amplitude < 0.006 V for
+  W = 1..21: the modulator's idle pattern makes the decoded sign toggle almost every
+  sample), so it cannot show the effect of the noise; the default is Fig. 1's loop,
+  which oscillates like the observer loop without noise and fails with it.
+
+f0(t) = f0_hz * (1 + f0_drift_ppm_per_s*1e-6*t) * (1 + f0_step_fraction if t >= f0_step_time_s),
+t = k/fs; the resonator is re-discretised (closed-form ZOH) whenever f0 changes.
+
+Default pulse amplitude: a pulse of height U and width w T adds about U w (V) to the
+amplitude (the velocity jump fs w0 U w T over w0); with one pulse per half period the
+steady amplitude A obeys A = A exp(-pi/(2Q)) + U w cos(phi) (phi: the phase of the pulse
+centre from the crossing: 0 for sub-sample timing, ~pi f0/fs on average on sample
+instants) -> U = A (1 - exp(-pi/(2Q)))/(w cos(phi)): 0.156 V for A = 0.5 V, Q = 100,
+w = 0.05 (the default 50 ns pulses at 1 MHz), sub-sample.  Default width: short pulses
+(the paper's premise, Sec. 1) so that the position stays within 0.8 % of the amplitude
+over the whole pulse (pi f0/fs w = 0.008).
+
+Determinism: ``np.random.SeedSequence(seed).spawn(2)`` -> one PCG64 stream for b,
+one for f; drawn frame by frame, so frames concatenate bit-identically.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any, NamedTuple
+
+import numba
+import numpy as np
+
+from mems_sim.devices.resonator_models import (
+    interval_input,
+    next_crossing,
+    next_spill,
+    resonator_zoh,
+    resonator_zoh_dt,
+    sd_step,
+    segment_response,
+)
+from mems_sim.kernels.resonator_observer import (
+    DEFAULT_QUANTIZATION_VAR,
+    add_pulse_input,
+    kf_predict,
+    kf_update,
+    observer_model,
+    ss_step6,
+    steady_state_gains,
+)
+from mems_sim.params import ParameterError, ParamSpec, resolve
+
+__all__ = [
+    "RESONATOR_SPECS",
+    "validate_params",
+    "SdFrame",
+    "SdResonatorDevice",
+    "default_pulse_amplitude",
+]
+
+_FS = 1.0e6
+_F0 = 0.05 * _FS
+_Q = 100.0
+_A_TARGET = 0.5
+
+
+_WIDTH = 0.05  # default pulse width, fraction of T
+
+
+def default_pulse_amplitude(
+    amplitude: float = _A_TARGET,
+    Q: float = _Q,
+    f0_over_fs: float = 0.05,
+    width: float = _WIDTH,
+    timing: str = "sub_sample",
+) -> float:
+    """U = A (1 - exp(-pi/(2Q))) / (w cos(phi)), V (see module doc).
+
+    Args:
+        amplitude: target steady amplitude A, V. Q: quality factor. f0_over_fs: f0/fs.
+        width: pulse width w, fraction of the sample period. timing: "sub_sample" (pulse
+            centred on the crossing, phi = 0) or "on_sample" (fired at the first sample
+            after the crossing: phi = pi f0/fs on average, plus half the width).
+    """
+    phi = 0.0 if timing == "sub_sample" else math.pi * f0_over_fs * (1.0 + width)
+    return amplitude * -math.expm1(-math.pi / (2.0 * Q)) / (width * math.cos(phi))
+
+
+_U = round(default_pulse_amplitude(), 6)
+
+RESONATOR_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec(
+        "sample_rate_hz",
+        _FS,
+        "Hz",
+        "sample rate fs of the modulator and the digital loop",
+        "chosen: 1 MHz (Colinet et al. work in units of fs, Sec. 6)",
+        min=0.0,
+        max=1.0e10,
+        min_exclusive=True,
+    ),
+    ParamSpec(
+        "f0_hz",
+        _F0,
+        "Hz",
+        "resonator natural frequency f0 (must be < fs/2)",
+        "Colinet Sec. 6: f0 = 0.05 fs (oversampling ratio 20)",
+        min=0.0,
+        max=5.0e9,
+        min_exclusive=True,
+    ),
+    ParamSpec(
+        "quality_factor",
+        _Q,
+        "-",
+        "quality factor Q of eq. (7) (> 0.5: underdamped)",
+        "Colinet Sec. 6: Q = 100",
+        min=0.5,
+        max=1.0e7,
+        min_exclusive=True,
+    ),
+    ParamSpec(
+        "pulse_amplitude",
+        _U,
+        "V",
+        "pulse height U, normalised input volts of eq. (7)",
+        "chosen for a steady amplitude ~0.5 V with the default 50 ns sub-sample pulses: "
+        "U = A(1-exp(-pi/2Q))/w, A = 0.5 V, w = 0.05 (default_pulse_amplitude)",
+        min=0.0,
+        max=100.0,
+        min_exclusive=True,
+    ),
+    ParamSpec(
+        "pulse_width_s",
+        _WIDTH / _FS,
+        "s",
+        "width of the force pulse (<= 1/fs)",
+        "short-pulse actuation (Colinet Sec. 1); 50 ns = 0.05 T at 1 MHz keeps |x| "
+        "over the pulse within 0.8 % of the amplitude; 1/fs = one-sample ZOH pulse",
+        min=0.0,
+        max=1.0,
+        min_exclusive=True,
+    ),
+    ParamSpec(
+        "pulse_timing",
+        "sub_sample",
+        "-",
+        "observer mode: pulses centred on the "
+        "crossing predicted from the estimate (sub_sample, fast timing clock) or fired at "
+        "the first sample after the estimate's crossing (on_sample); the comparator "
+        "loop is always on_sample",
+        "Colinet Sec. 6 ('pulses happen exactly at the "
+        "equilibrium position instants'); see module doc",
+        choices=("sub_sample", "on_sample"),
+    ),
+    ParamSpec(
+        "output_noise_std",
+        0.0,
+        "V",
+        "std of white noise b added at the resonator output (modulator input)",
+        "Colinet Sec. 6: 'of the order of the signal' (scenarios set ~0.5 V); default 0",
+        min=0.0,
+        max=10.0,
+    ),
+    ParamSpec(
+        "state_noise_std",
+        0.0,
+        "V",
+        "std of thermomechanical force noise added to u each sample (process noise f of eq. (2))",
+        "Colinet Sec. 7; default 0 (paper's Fig. 5)",
+        min=0.0,
+        max=1.0,
+    ),
+    ParamSpec(
+        "mode",
+        "observer",
+        "-",
+        "pulse controller: zero crossings of the Kalman estimate "
+        "(observer, Fig. 4) or of the decoded bit stream (comparator, Fig. 1)",
+        "Colinet Figs. 1 and 4",
+        choices=("comparator", "observer"),
+    ),
+    ParamSpec(
+        "comparator_input",
+        "resonator",
+        "-",
+        "comparator mode: signal whose zero "
+        "crossings fire the pulses: the noisy resonator output y+b (Fig. 1's one-bit "
+        "comparator) or the decoded bit stream",
+        "Colinet Fig. 1 (see module doc)",
+        choices=("resonator", "bitstream"),
+    ),
+    ParamSpec(
+        "comparator_window",
+        5,
+        "samples",
+        "comparator mode: bits summed to decode the position (odd; 1 = raw bit stream)",
+        "simplest boxcar decoder; 5 samples = 1/4 period at f0 = 0.05 fs",
+        min=1,
+        max=1001,
+    ),
+    ParamSpec(
+        "f0_drift_ppm_per_s",
+        0.0,
+        "ppm/s",
+        "linear drift of the true f0",
+        "scenario knob; default none",
+        min=-1.0e6,
+        max=1.0e6,
+    ),
+    ParamSpec(
+        "f0_step_fraction",
+        0.0,
+        "-",
+        "relative step of the true f0 at f0_step_time_s",
+        "scenario knob (acceptance: +0.02)",
+        min=-0.5,
+        max=0.5,
+    ),
+    ParamSpec(
+        "f0_step_time_s",
+        0.0,
+        "s",
+        "time of the f0 step (ignored if the fraction is 0)",
+        "scenario knob",
+        min=0.0,
+        max=1.0e9,
+    ),
+    ParamSpec(
+        "observer_f0_error",
+        0.0,
+        "-",
+        "fractional error of f0 in the observer's model",
+        "Colinet Sec. 7, Fig. 6: 5 % error",
+        min=-0.5,
+        max=0.5,
+    ),
+    ParamSpec(
+        "observer_state_noise_std",
+        0.0,
+        "V",
+        "force-noise std the observer assumes",
+        "Colinet Sec. 7: F = 0 when the state noise is absent",
+        min=0.0,
+        max=1.0,
+    ),
+    ParamSpec(
+        "observer_initial_std",
+        0.0,
+        "V",
+        "std of the observer's initial resonator "
+        "position/velocity uncertainty (0: it knows the rest start)",
+        "start-up rule of this device (resonator at rest at k = 0)",
+        min=0.0,
+        max=10.0,
+    ),
+    ParamSpec(
+        "quantization_var",
+        DEFAULT_QUANTIZATION_VAR,
+        "V^2",
+        "quantisation-error variance assumed by the observer",
+        "Delta^2/12 with Delta = 2 V (one-bit +-1 V)",
+        min=0.0,
+        max=10.0,
+        min_exclusive=True,
+    ),
+    ParamSpec(
+        "quantizer_gain",
+        1.0,
+        "-",
+        "quantiser gain kappa assumed by the in-loop observer "
+        "(v = kappa q + w; 1: paper's eqs. (11)-(12))",
+        "Bussgang alternative: "
+        "sqrt(2/pi)/0.64 = 1.247 (mems_sim.kernels.resonator_observer.bussgang_quantizer)",
+        min=0.0,
+        max=10.0,
+        min_exclusive=True,
+    ),
+    ParamSpec(
+        "sd_feedforward",
+        0.5,
+        "-",
+        "modulator input feed-in c into the 2nd integrator "
+        "(0.5: STF of eq. (11); 0: plain double loop, STF 0.5 z^-2/D)",
+        "Colinet eqs. (10)-(12), see mems_sim.devices.resonator_models",
+        min=0.0,
+        max=0.5,
+    ),
+    ParamSpec(
+        "fast",
+        True,
+        "-",
+        "steady-state (DARE) gain for the in-loop observer",
+        "speed option; the exact time-varying gain otherwise",
+    ),
+)
+
+
+def validate_params(p: Mapping[str, Any]) -> None:
+    """Cross-parameter checks of a resolved parameter dict.
+
+    Raises:
+        ParameterError: f0 (or f0 after the step) >= fs/2, a pulse longer than 1/fs, or an
+            even comparator window.
+    """
+    fs, f0 = p["sample_rate_hz"], p["f0_hz"]
+    if not f0 < fs / 2:
+        raise ParameterError(
+            f"parameter 'f0_hz' = {f0!r} is out of range: must be below "
+            f"sample_rate_hz/2 = {fs / 2!r} Hz (Nyquist)"
+        )
+    f1 = f0 * (1.0 + p["f0_step_fraction"])
+    if not f1 < fs / 2:
+        raise ParameterError(
+            f"parameter 'f0_step_fraction' = {p['f0_step_fraction']!r} is out "
+            f"of range: f0 after the step ({f1!r} Hz) must be below "
+            f"sample_rate_hz/2 = {fs / 2!r} Hz"
+        )
+    fm = f0 * (1.0 + p["observer_f0_error"])
+    if not fm < fs / 2:
+        raise ParameterError(
+            f"parameter 'observer_f0_error' = {p['observer_f0_error']!r} is out "
+            f"of range: the observer's f0 ({fm!r} Hz) must be below fs/2"
+        )
+    if not p["pulse_width_s"] * fs <= 1.0 + 1e-12:
+        raise ParameterError(
+            f"parameter 'pulse_width_s' = {p['pulse_width_s']!r} is out of "
+            f"range: must be in (0, 1/sample_rate_hz = {1.0 / fs!r}] s"
+        )
+    if p["comparator_window"] % 2 == 0:
+        raise ParameterError(
+            f"parameter 'comparator_window' = {p['comparator_window']!r} is "
+            f"invalid: must be odd (so the decoded signal is never 0)"
+        )
+
+
+class SdFrame(NamedTuple):
+    """One frame of the device.
+
+    bits: (n,) int8 in {-1, +1} modulator output.  pulses: (n,) height u(k) of the pulse
+    fired in [k T, (k+1) T), V (0 or +-pulse_amplitude).  pulse_start: (n,) its firing
+    offset after the sample instant, s (0 where no pulse).  pulse_width: (n,) its width, s
+    (0 where no pulse).  position: (n,) true y(k), V.  velocity: (n,) true dy/dt(k), V/s.
+    f0: (n,) true f0 used from k to k+1, Hz.  estimate: (n,) observer position estimate
+    y(k|k), V (NaN in comparator mode).  estimate_var: (n,) its variance, V^2 (NaN in
+    comparator mode).  x_pulse_start: (n,) true position at the firing instant of the
+    pulse fired in interval k, V (0 where none).  x_pulse_center: (n,) true position at the
+    centre of a pulse whose centre falls in [k T, (k+1) T), V (0 where none).
+    """
+
+    bits: np.ndarray
+    pulses: np.ndarray
+    pulse_start: np.ndarray
+    pulse_width: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    f0: np.ndarray
+    estimate: np.ndarray
+    estimate_var: np.ndarray
+    x_pulse_start: np.ndarray
+    x_pulse_center: np.ndarray
+
+
+@numba.njit(cache=True)
+def _position_at(f0, Q, fs, y, yd, t, spill_u, spill_end, u, s, w, f, o2, z):
+    """True position at t*T (0 <= t <= 1) inside an interval from the state [y, yd] at its
+    start: free response Phi(t T) plus the force segments acting in it (previous pulse's
+    tail, the new pulse, the ZOH force noise f), each by :func:`segment_response`."""
+    resonator_zoh_dt(f0, Q, fs, t / fs, z)
+    pos = z[0] * y + z[1] * yd
+    if spill_u != 0.0:
+        segment_response(f0, Q, fs, 0.0, spill_end, t, o2, z)
+        pos += spill_u * o2[0]
+    if u != 0.0:
+        segment_response(f0, Q, fs, s, min(s + w, 1.0), t, o2, z)
+        pos += u * o2[0]
+    if f != 0.0:
+        segment_response(f0, Q, fs, 0.0, 1.0, t, o2, z)
+        pos += f * o2[0]
+    return pos
+
+
+@numba.njit(cache=True)
+def _zoh_t(f0, Q, fs, dt):
+    """:func:`mems_sim.devices.resonator_models.resonator_zoh_dt` as a tuple (Phi11, Phi12, Phi21, Phi22,
+    Gam1, Gam2) (no array argument: cheap to call on every pulse)."""
+    w0 = 2.0 * math.pi * f0
+    sig = w0 / (2.0 * Q)
+    wd = w0 * math.sqrt(1.0 - 1.0 / (4.0 * Q * Q))
+    E = math.exp(-sig * dt)
+    c = math.cos(wd * dt)
+    s = math.sin(wd * dt)
+    p12 = E * s / wd
+    p11 = E * (c + sig / wd * s)
+    g = fs * w0
+    return p11, p12, -w0 * w0 * p12, E * (c - sig / wd * s), g * (1.0 - p11) / (w0 * w0), g * p12
+
+
+@numba.njit(cache=True)
+def _pulse_cache(f0, Q, fs, width, cache, o):
+    """Per-f0 constants of a pulse of width w T (exact, closed-form exponentials), written
+    to cache[o:o+15] = [f0, Phi(w/2 T) (4), Gam(w/2 T) (2), Phi(T) Phi(-w T) (4),
+    Phi((1 - w) T) Gam(w T) (2), fs/w0, fs w0]."""
+    h = _zoh_t(f0, Q, fs, 0.5 * width / fs)
+    cache[o] = f0
+    for m in range(6):
+        cache[o + 1 + m] = h[m]
+    p = _zoh_t(f0, Q, fs, 1.0 / fs)
+    zw = _zoh_t(f0, Q, fs, width / fs)
+    idet = 1.0 / (zw[0] * zw[3] - zw[1] * zw[2])
+    i11, i12, i21, i22 = zw[3] * idet, -zw[1] * idet, -zw[2] * idet, zw[0] * idet
+    cache[o + 7] = p[0] * i11 + p[1] * i21
+    cache[o + 8] = p[0] * i12 + p[1] * i22
+    cache[o + 9] = p[2] * i11 + p[3] * i21
+    cache[o + 10] = p[2] * i12 + p[3] * i22
+    r = _zoh_t(f0, Q, fs, (1.0 - width) / fs)
+    cache[o + 11] = r[0] * zw[4] + r[1] * zw[5]
+    cache[o + 12] = r[2] * zw[4] + r[3] * zw[5]
+    w0 = 2.0 * math.pi * f0
+    cache[o + 13] = fs / w0
+    cache[o + 14] = fs * w0
+
+
+@numba.njit(cache=True)
+def _pulse_simple(f0, Q, fs, width, f0m, Qm, w0m, y, yd, f, u, s0, obs_mode, st, xp, cache):
+    """Interval with a pulse wholly inside it and no tail of a previous one (the common
+    case; kept out of the main loop with few array arguments, since it runs on every pulse).
+
+    Exact: Phi((1 - s - w) T) = [Phi(T) Phi(-w T)] Phi(-s T), one matrix exponential
+    Phi(s T) per pulse, the rest cached per f0 (:func:`_pulse_cache`; truth at cache[0:15],
+    observer model at cache[15:30]).  Adds the observer model's pulse term to the predicted
+    state xp (observer mode) and propagates the true state st piecewise over [0, s)
+    (force f), the two halves of the pulse (f + u) and [s + w, 1) (f).
+    Returns (true position at the firing instant, at the pulse centre), V."""
+    if cache[0] != f0:
+        _pulse_cache(f0, Q, fs, width, cache, 0)
+    if s0 == 0.0:  # on-sample pulse: Phi(0) = I, Gam(0) = 0
+        zs = (1.0, 0.0, 0.0, 1.0, 0.0, 0.0)
+    else:
+        zs = _zoh_t(f0, Q, fs, s0 / fs)
+    idet = 1.0 / (zs[0] * zs[3] - zs[1] * zs[2])
+    if obs_mode:
+        if cache[15] < 0.0:
+            _pulse_cache(f0m, Qm, fs, width, cache, 15)
+        if f0m == f0 and Qm == Q:
+            zm = zs
+            idm = idet
+        elif s0 == 0.0:
+            zm = (1.0, 0.0, 0.0, 1.0, 0.0, 0.0)
+            idm = 1.0
+        else:
+            zm = _zoh_t(f0m, Qm, fs, s0 / fs)
+            idm = 1.0 / (zm[0] * zm[3] - zm[1] * zm[2])
+        # Phi_m(-s T) [Phi_m((1 - w) T) Gam_m(w T)] u
+        xp[0] += (zm[3] * cache[26] - zm[1] * cache[27]) * idm * u
+        xp[1] += (-zm[2] * cache[26] + zm[0] * cache[27]) * idm * u / w0m
+    a0 = zs[0] * y + zs[1] * yd + zs[4] * f
+    a1 = zs[2] * y + zs[3] * yd + zs[5] * f
+    x_s = a0
+    fu = f + u
+    c0 = cache[1] * a0 + cache[2] * a1 + cache[5] * fu
+    c1 = cache[3] * a0 + cache[4] * a1 + cache[6] * fu
+    x_c = c0
+    a0 = cache[1] * c0 + cache[2] * c1 + cache[5] * fu
+    a1 = cache[3] * c0 + cache[4] * c1 + cache[6] * fu
+    i11 = zs[3] * idet
+    i12 = -zs[1] * idet
+    i21 = -zs[2] * idet
+    i22 = zs[0] * idet
+    r11 = cache[7] * i11 + cache[8] * i21
+    r12 = cache[7] * i12 + cache[8] * i22
+    r21 = cache[9] * i11 + cache[10] * i21
+    r22 = cache[9] * i12 + cache[10] * i22
+    # Gam(r T) from Phi(r T): Gam1 = (fs/w0) (1 - Phi11), Gam2 = fs w0 Phi12
+    st[0] = r11 * a0 + r12 * a1 + cache[13] * (1.0 - r11) * f
+    st[1] = r21 * a0 + r22 * a1 + cache[14] * r12 * f
+    return x_s, x_c
+
+
+@numba.njit(cache=True)
+def _pulse_general(
+    f0, Q, fs, width, f0m, Qm, w0m, y, yd, f, u, s0, obs_mode, st, zoh, carry, xp, gam_m
+):
+    """Interval with a tail of the previous pulse and/or a pulse outlasting it (rare):
+    :func:`mems_sim.devices.resonator_models.interval_input` for the observer model's pulse term and the
+    truth, :func:`_position_at` for the true positions at the pulse instants (the centre
+    possibly in the next interval: carry[4]).  Returns (x at firing, x at a centre), V."""
+    z = np.empty(6)
+    o2 = np.empty(2)
+    eff = np.empty(2)
+    sp = np.empty(2)
+    wc = np.full(3, -1.0)
+    x_s = 0.0
+    x_c = 0.0
+    if obs_mode and (u != 0.0 or carry[2] != 0.0):
+        sp[0] = carry[2]
+        sp[1] = carry[3]
+        add_pulse_input(xp, f0m, Qm, fs, w0m, gam_m, sp, u, s0, width, eff, z, wc)
+        carry[2] = sp[0]
+        carry[3] = sp[1]
+    if carry[4] >= 0.0:
+        x_c = _position_at(f0, Q, fs, y, yd, carry[4], carry[0], carry[1], 0.0, 0.0, 1.0, f, o2, z)
+        carry[4] = -1.0
+    if u != 0.0:
+        x_s = _position_at(f0, Q, fs, y, yd, s0, carry[0], carry[1], 0.0, 0.0, 1.0, f, o2, z)
+        tcen = s0 + 0.5 * width
+        if tcen <= 1.0:
+            x_c = _position_at(f0, Q, fs, y, yd, tcen, carry[0], carry[1], u, s0, width, f, o2, z)
+        else:
+            carry[4] = tcen - 1.0
+    gam_t = np.empty(2)
+    gam_t[0] = zoh[4]
+    gam_t[1] = zoh[5]
+    wc[0] = -1.0
+    interval_input(f0, Q, fs, gam_t, carry[0], carry[1], u, s0, width, eff, z, wc)
+    sp[0] = carry[0]
+    sp[1] = carry[1]
+    next_spill(u, s0, width, sp)
+    carry[0] = sp[0]
+    carry[1] = sp[1]
+    st[0] = zoh[0] * y + zoh[1] * yd + eff[0] + zoh[4] * f
+    st[1] = zoh[2] * y + zoh[3] * yd + eff[1] + zoh[5] * f
+    return x_s, x_c
+
+
+@numba.njit(cache=True)
+def _device_run(
+    k0,
+    n,
+    fs,
+    f0_base,
+    Q,
+    drift,
+    step_frac,
+    step_time,
+    U,
+    width,
+    sub_sample,
+    c_ff,
+    out_noise,
+    force_noise,
+    st,
+    zoh,
+    sd,
+    win,
+    xp,
+    P,
+    A,
+    B,
+    C,
+    Cp,
+    F,
+    G,
+    M,
+    Lss,
+    Kss,
+    ss_var,
+    obs_mode,
+    fast,
+    res_m,
+    gam_m,
+    pred,
+    carry,
+    bits,
+    pulses,
+    starts,
+    widths,
+    pos,
+    vel,
+    f0o,
+    est,
+    estv,
+    x_start,
+    x_center,
+):
+    # st = [y, ydot, s_prev (sign state in sub-sample mode), f0_cur, win_sum, win_pos]
+    # carry = [truth spill u, truth spill end, observer spill u, observer spill end,
+    #          pending pulse centre in the next interval (T, -1 none)]
+    # pred = [Phi11(w/2), Phi12(w/2), Phi11(1 + w/2), Phi12(1 + w/2)] of the observer model
+    nx = xp.shape[0]
+    xf = np.empty(nx)
+    PC = np.empty(nx)
+    L = np.empty(nx)
+    AP = np.empty((nx, nx))
+    tmp = np.empty(nx)
+    cache = np.full(30, -1.0)  # pulse constants: truth [0:15], observer model [15:30]
+    W = win.shape[0]
+    varying = drift != 0.0 or step_frac != 0.0
+    f0m, Qm, w0m = res_m[0], res_m[1], res_m[3]
+    nu = 0.0
+    S = 1.0
+    for i in range(n):
+        k = k0 + i
+        if varying:
+            t = k / fs
+            f0 = f0_base * (1.0 + drift * 1e-6 * t)
+            if step_frac != 0.0 and t >= step_time:
+                f0 = f0 * (1.0 + step_frac)
+            if f0 != st[3]:
+                resonator_zoh(f0, Q, fs, zoh)
+                st[3] = f0
+        else:
+            f0 = f0_base
+        y = st[0]
+        yd = st[1]
+        x_in = y + out_noise[i]
+        v, q = sd_step(x_in, sd, c_ff)
+        # position signal used by the controller
+        xf1 = 0.0
+        if obs_mode:
+            if fast:
+                nu = v - (C[2] * xp[2] + C[3] * xp[3] + C[4] * xp[4] + C[5] * xp[5])
+                s_sig = xp[0] + Kss[0] * nu
+                xf1 = xp[1] + Kss[1] * nu
+                sv = ss_var
+            else:
+                nu, S, s_sig, sv = kf_update(xp, P, C, G, Cp, v, xf, PC)
+                xf1 = xf[1]
+            est[i] = s_sig
+            estv[i] = sv
+        elif W == 0:
+            s_sig = x_in
+            est[i] = np.nan
+            estv[i] = np.nan
+        else:
+            j = int(st[5])
+            st[4] += v - win[j]
+            win[j] = v
+            st[5] = (j + 1) % W
+            s_sig = st[4]
+            est[i] = np.nan
+            estv[i] = np.nan
+        # ---- pulse decision: height u, firing offset s0 (fraction of T)
+        u = 0.0
+        s0 = 0.0
+        if k == 0:
+            u = U
+            st[2] = 1.0
+        elif obs_mode and sub_sample:
+            # predict the estimate's free response over the window (w/2, 1 + w/2] T whose
+            # crossing puts the centre of a pulse fired in [k, k+1) T on the crossing
+            vd = xf1 * w0m
+            up_lo = pred[0] * s_sig + pred[1] * vd >= 0.0
+            up_hi = pred[2] * s_sig + pred[3] * vd >= 0.0
+            was_up = st[2] > 0.0
+            if up_lo != was_up:
+                # the crossing moved before this window (estimate update): fire at once
+                u = U if up_lo else -U
+            elif up_hi != up_lo:
+                tc = next_crossing(f0m, Qm, fs, s_sig, vd, 0.5 * width, 1.0 + 0.5 * width)
+                if tc >= 0.0:
+                    s0 = min(max(tc - 0.5 * width, 0.0), 1.0 - 1e-12)
+                u = U if up_hi else -U
+            st[2] = 1.0 if up_hi else -1.0
+        else:
+            sp = st[2]
+            if (s_sig >= 0.0) != (sp >= 0.0):
+                u = U if s_sig > sp else -U
+            st[2] = s_sig
+        # ---- observer time update (pulse term added below), truth update
+        f = force_noise[i]
+        if obs_mode:
+            if fast:
+                ss_step6(xp, A, B, C, Lss, 0.0, v, 0.0)
+            else:
+                kf_predict(xp, P, A, B, F, M, 0.0, nu, S, PC, L, AP, tmp)
+        quiet = carry[0] == 0.0 and carry[2] == 0.0 and carry[4] < 0.0
+        if u == 0.0 and quiet:
+            x_start[i] = 0.0
+            x_center[i] = 0.0
+            st[0] = zoh[0] * y + zoh[1] * yd + zoh[4] * f
+            st[1] = zoh[2] * y + zoh[3] * yd + zoh[5] * f
+        elif quiet and s0 + width <= 1.0:
+            x_start[i], x_center[i] = _pulse_simple(
+                f0, Q, fs, width, f0m, Qm, w0m, y, yd, f, u, s0, obs_mode, st, xp, cache
+            )
+        else:
+            x_start[i], x_center[i] = _pulse_general(
+                f0, Q, fs, width, f0m, Qm, w0m, y, yd, f, u, s0, obs_mode, st, zoh, carry, xp, gam_m
+            )
+        bits[i] = v
+        pulses[i] = u
+        starts[i] = s0 / fs
+        widths[i] = width / fs if u != 0.0 else 0.0
+        pos[i] = y
+        vel[i] = yd
+        f0o[i] = f0
+
+
+class SdResonatorDevice:
+    """Pulse-actuated resonator + one-bit sigma-delta + pulse controller, carried state.
+
+    Args:
+        params: overrides of :data:`RESONATOR_SPECS`; validated (ParameterError names
+            the parameter, value and range; cross checks by :func:`validate_params`).
+        seed: run seed for ``np.random.SeedSequence``.
+    """
+
+    def __init__(self, params: Mapping[str, Any] | None = None, seed: int = 0) -> None:
+        p = resolve(RESONATOR_SPECS, params)
+        validate_params(p)
+        self.params = p
+        self.seed = int(seed)
+        gens = [
+            np.random.Generator(np.random.PCG64(s))
+            for s in np.random.SeedSequence(self.seed).spawn(2)
+        ]
+        self._gen_b, self._gen_f = gens
+        fs, f0, Q = p["sample_rate_hz"], p["f0_hz"], p["quality_factor"]
+        self._zoh = np.empty(6)
+        resonator_zoh(f0, Q, fs, self._zoh)
+        self._st = np.array([0.0, 0.0, 0.0, f0, float(p["comparator_window"]), 0.0])
+        # bit history (sum starts at +W); an empty window selects the analog comparator
+        self._win = np.ones(p["comparator_window"] if p["comparator_input"] == "bitstream" else 0)
+        self._sd = np.zeros(2)
+        self.observer_mode = p["mode"] == "observer"
+        self.model = observer_model(
+            f0 * (1.0 + p["observer_f0_error"]),
+            Q,
+            fs,
+            p["output_noise_std"],
+            p["observer_state_noise_std"],
+            p["quantization_var"],
+            p["sd_feedforward"],
+            quantizer_gain=p["quantizer_gain"],
+        )
+        s0 = p["observer_initial_std"] ** 2
+        self._xp = np.zeros(6)
+        self._P = np.diag([s0, s0, 0.0, 0.0, 0.0, 0.0])
+        if p["fast"]:
+            ss = steady_state_gains(self.model)
+            self._L = np.ascontiguousarray(ss["L"])
+            self._K = np.ascontiguousarray(ss["K"])
+            self._ss_var = ss["pos_var"]
+        else:
+            self._L = np.zeros(6)
+            self._K = np.zeros(6)
+            self._ss_var = 0.0
+        m = self.model
+        self.width = p["pulse_width_s"] * fs  # fraction of T
+        self.sub_sample = self.observer_mode and p["pulse_timing"] == "sub_sample"
+        self._res_m = np.array([m.f0, m.Q, m.fs, m.w0])
+        # free-response rows Phi(w/2 T)[0, :] and Phi((1 + w/2) T)[0, :] of the model
+        z = np.empty(6)
+        self._pred = np.empty(4)
+        resonator_zoh_dt(m.f0, m.Q, fs, 0.5 * self.width / fs, z)
+        self._pred[0:2] = z[0:2]
+        resonator_zoh_dt(m.f0, m.Q, fs, (1.0 + 0.5 * self.width) / fs, z)
+        self._pred[2:4] = z[0:2]
+        self._carry = np.array([0.0, 0.0, 0.0, 0.0, -1.0])
+        self._zeros = np.zeros(0)
+        self._next = 0
+
+    @property
+    def next_index(self) -> int:
+        """Index of the next sample to be produced."""
+        return self._next
+
+    @property
+    def fs(self) -> float:
+        """Sample rate, Hz."""
+        return self.params["sample_rate_hz"]
+
+    def step(self, n: int) -> SdFrame:
+        """Produce the next n samples (see module doc for the per-sample equations)."""
+        n = int(n)
+        if n < 0:
+            raise ValueError(f"n = {n} must be >= 0")
+        p = self.params
+        sb, sf = p["output_noise_std"], p["state_noise_std"]
+        b = self._gen_b.standard_normal(n) * sb if sb > 0 else np.zeros(n)
+        if sf > 0:
+            f = self._gen_f.standard_normal(n) * sf
+        else:  # shared read-only zeros (speed)
+            if self._zeros.shape[0] < n:
+                self._zeros = np.zeros(n)
+            f = self._zeros[:n]
+        bits, pulses, starts, widths, pos, vel, f0o, est, estv, xs, xc = np.empty((11, n))
+        m = self.model
+        fs = p["sample_rate_hz"]
+        _device_run(
+            self._next,
+            n,
+            fs,
+            p["f0_hz"],
+            p["quality_factor"],
+            p["f0_drift_ppm_per_s"],
+            p["f0_step_fraction"],
+            p["f0_step_time_s"],
+            p["pulse_amplitude"],
+            self.width,
+            self.sub_sample,
+            p["sd_feedforward"],
+            b,
+            f,
+            self._st,
+            self._zoh,
+            self._sd,
+            self._win,
+            self._xp,
+            self._P,
+            m.A,
+            m.B,
+            m.C,
+            m.C_pos,
+            m.F,
+            m.G,
+            m.M,
+            self._L,
+            self._K,
+            self._ss_var,
+            self.observer_mode,
+            p["fast"],
+            self._res_m,
+            m.gam,
+            self._pred,
+            self._carry,
+            bits,
+            pulses,
+            starts,
+            widths,
+            pos,
+            vel,
+            f0o,
+            est,
+            estv,
+            xs,
+            xc,
+        )
+        self._next += n
+        return SdFrame(
+            bits.astype(np.int8), pulses, starts, widths, pos, vel, f0o, est, estv, xs, xc
+        )

@@ -1,0 +1,926 @@
+"""Piezo tilt micro-stage with rotational parallel-plate capacitive sensing (emulator core).
+
+Source: Y. Chen, "High-accuracy Motion Estimation for MEMS Devices with Capacitive
+Sensors", PhD thesis, U. Michigan 2018, chapter 3:
+stage tilt mode eqs. (31)-(34), Table 3.3; capacitance eqs. (35)-(47), Tables A.1/A.2;
+transimpedance readout eqs. (28)-(30); feedthrough cancellation sec. 3.5.4;
+off-axis rejection eqs. (56)-(57); LDV reference sec. 3.5.2 / 3.5.4.
+
+Per stage sample k (sample period dt = 1/fs, everything carried across frames)::
+
+    u(k)        drive voltage the DAC holds over [t_k, t_k+1)  (sinusoid, schedule)
+    x(k+1)      = A_d x(k) + B_d (u(k) + w(k))         main axis, exact ZOH of eqs. (31)-(33)
+    x_off(k+1)  = A_d x_off(k) + B_d c_off (u(k) + w(k))   off axis (coupling c_off)
+    y_c(k)      = -V_b(k) R_s dC_c/dt (k)  + feedthrough_c(k) + n_c(k)     eq. (30), per channel
+    dC_c/dt     = dC/dtheta_X * omega_X + dC/dtheta_Y * omega_Y            eq. (43), dual-axis C
+    feedthrough = -R_s C_ft,c du/dt (the parasitic capacitance C_ft from the drive to the
+                  amplifier input carries a current C_ft du/dt; du/dt of the DAC's
+                  reconstruction (analog) output, i.e. of the continuous sinusoid)
+    code_c(k)   = round(y_c(k) / lsb) clipped to the ADC range
+
+``V_b`` is the sensing bias: ON on odd drive periods, OFF on even ones (period index =
+floor(drive phase / 2 pi)); schedule changes take effect only at the start of an even
+(bias-off) period, so each bias-on period is preceded by a bias-off period with the same
+drive, and ``y_on(t) - y_off(t - T)`` cancels the feedthrough exactly (sec. 3.5.4).
+
+Main axis convention: the stage tilts about Y (theta_Y, the paper's main axis of eq. 38);
+the four channels 1A/1B/2A/2B sense theta_Y; the off axis is theta_X.
+
+Misprints found in the source (the physics is implemented):
+
+* Table A.1, channel 2A: ``w2 = 0.5W - W_SA - W_SB`` gives w2 < w1 (negative area). The
+  outer right stator mirrors 1A: ``[0.5W - W_SA, 0.5W]``.
+* Eq. (46): the leading minus sign is wrong; integrating eq. (40) with theta_X = 0 gives
+  ``C = +eps (w4-w3)/tan(theta) * ln((D_n - w1 tan)/(D_n - w2 tan))`` (> 0 for w2 > w1).
+* Eq. (42): the ``- w_Y tan(theta_X)`` term cancels in the four-term sum of eq. (41)
+  (any separable term does); eq. (41) itself suffers catastrophic cancellation for small
+  angles (1/(tan tan)), so the emulator evaluates eq. (40) by Gauss-Legendre quadrature
+  and its derivatives with the w_Y integral in closed form (cancellation-free series) and
+  Gauss-Legendre in w_X (exact to < 1e-11 relative for the gap modulation here, tested
+  against a 16 x 16 quadrature).
+* Eq. (56): E_y is a voltage and the motion ratio is dimensionless; E_y is normalised by
+  the RMS of the single-axis signal.
+
+Electronic noise (never tuned to a result) is the sum of the documented physical sources
+of the transimpedance readout, white over the ADC's Nyquist band B = fs/2 (brick-wall
+anti-alias filter, no averaging across periods):
+
+    S_y = 4 k T R_s + (i_n R_s)^2 + e_n^2 |1 + j 2 pi f R_s C_in|^2
+    sigma_y^2 = (4 k T R_s + i_n^2 R_s^2) B + e_n^2 (B + (2 pi R_s C_in)^2 B^3 / 3)
+
+plus the ADC's own quantisation (codes are rounded).  The transimpedance bandwidth is
+assumed >> fs, so no signal phase lag is modelled.
+
+Temperature: D_n(T) = D_n0 (1 + gap_tempco (T - T_ref)) (the paper re-identifies D_n at
+35.7 C, sec. 3.5.3/3.6.3, but gives no coefficient: the default is an assumption). The
+thesis names no temperature effect on the stage's tilt mode: chapter 3 only says capacitive
+sensing is "susceptible to gain and bias drift due to ... temperature" (sec. 1, ch. 4.2.1:
+geometry between electrodes) and re-identifies D_n and eta; Table 3.3 gives wn, zeta, b_c
+at room temperature only. wn and b_c therefore do NOT drift by default
+(``freq_tempco_per_k = b_c_tempco_per_k = 0``); both coefficients stay available as
+parameters (source 'assumption') for robustness studies of the estimator, which is
+never re-identified for them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any, NamedTuple
+
+import numba
+import numpy as np
+
+from mems_sim.devices.stage_capacitance import (
+    _GL_W,
+    _GL_X,
+    EPS0,
+    _grad_channel,
+    _grad_channel_small,
+    _small_offaxis,
+    channel_limits,
+    dcdtheta_single,
+    dcdtheta_single_tan,
+    dual_axis_capacitance,
+    dual_axis_gradient,
+    single_axis_dcdtheta,
+)
+from mems_sim.params import ParameterError, ParamSpec, resolve
+
+__all__ = [
+    "STAGE_SPECS",
+    "CHANNELS",
+    "EPS0",
+    "K_BOLTZMANN",
+    "stage_matrices",
+    "channel_limits",
+    "dual_axis_capacitance",
+    "dual_axis_gradient",
+    "single_axis_dcdtheta",
+    "dcdtheta_single",
+    "dcdtheta_single_tan",
+    "readout_noise_std",
+    "off_axis_rejection",
+    "DriveSchedule",
+    "StageFrame",
+    "MicroStage",
+    "steady_amplitude",
+    "validate_params",
+    "LdvReference",
+    "gap_at",
+    "record",
+]
+
+K_BOLTZMANN = 1.380649e-23  # J/K
+CHANNELS = ("1A", "1B", "2A", "2B")
+
+STAGE_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec(
+        "sample_rate_hz",
+        625.0e3,
+        "Hz",
+        "stage sample rate (DAC, ADC, LDV)",
+        "Chen 2018 sec. 3.5.2: saved at 625 kHz",
+        min=0.0,
+        max=1.0e8,
+        min_exclusive=True,
+    ),
+    ParamSpec(
+        "natural_freq_hz",
+        1714.5,
+        "Hz",
+        "tilt-mode natural frequency wn/2pi",
+        "Chen 2018 Table 3.3",
+        min=1.0,
+        max=1.0e6,
+    ),
+    ParamSpec(
+        "damping_ratio",
+        0.005,
+        "-",
+        "tilt-mode damping ratio zeta",
+        "Table 3.3",
+        min=0.0,
+        max=0.7,
+        min_exclusive=True,
+    ),
+    ParamSpec(
+        "b_c",
+        3782.5,
+        "rad/s^2/V",
+        "input gain b_c of eq. (33)",
+        "Table 3.3",
+        min=0.0,
+        max=1.0e8,
+        min_exclusive=True,
+    ),
+    ParamSpec(
+        "off_axis_coupling",
+        0.001,
+        "-",
+        "off-axis tilt / main-axis tilt",
+        "sec. 3.3.1: < 0.1 % with compensation [17]",
+        min=0.0,
+        max=1.0,
+    ),
+    ParamSpec(
+        "neutral_gap_m",
+        19.2e-6,
+        "m",
+        "neutral plate distance D_n at T_ref",
+        "Table 3.3",
+        min=1.0e-6,
+        max=1.0e-3,
+    ),
+    ParamSpec(
+        "gap_tempco_per_k",
+        4.0e-4,
+        "1/K",
+        "relative change of D_n per kelvin",
+        "assumption (paper re-identifies D_n at 35.7 C, gives no value)",
+        min=-1.0e-2,
+        max=1.0e-2,
+    ),
+    ParamSpec(
+        "freq_tempco_per_k",
+        0.0,
+        "1/K",
+        "relative change of wn per kelvin",
+        "assumption: Chen 2018 gives no stage temperature effect (Table 3.3 at room "
+        "temperature only), so 0; study knob (e.g. -30e-6: f ~ sqrt(E) of Si)",
+        min=-1e-2,
+        max=1e-2,
+    ),
+    ParamSpec(
+        "b_c_tempco_per_k",
+        0.0,
+        "1/K",
+        "relative change of the actuator gain b_c per kelvin",
+        "assumption: Chen 2018 gives no value, so 0; study knob (PZT d31 "
+        "drifts ~0.1 %/K); the estimator is not re-identified for it (only D_n, eta are, "
+        "sec. 3.5.3)",
+        min=-1e-1,
+        max=1e-1,
+    ),
+    ParamSpec(
+        "ref_temperature_c",
+        22.9,
+        "degC",
+        "reference temperature T_ref",
+        "Table 3.2 (room temperature run)",
+        min=-60.0,
+        max=150.0,
+    ),
+    ParamSpec(
+        "temperature_c",
+        22.9,
+        "degC",
+        "stage temperature",
+        "Table 3.2: 22.9 / 35.7 C",
+        min=-60.0,
+        max=150.0,
+    ),
+    ParamSpec(
+        "w_sa_m",
+        400e-6,
+        "m",
+        "width of large stator electrode W_SA",
+        "Table A.2",
+        min=1e-6,
+        max=1e-2,
+    ),
+    ParamSpec(
+        "w_sb_m",
+        320e-6,
+        "m",
+        "width of small stator electrode W_SB",
+        "Table A.2",
+        min=1e-6,
+        max=1e-2,
+    ),
+    ParamSpec(
+        "w_r_m",
+        520e-6,
+        "m",
+        "width of each rotor electrode W_R (>= stator: the overlap is the stator area)",
+        "Table A.2",
+        min=1e-6,
+        max=1e-2,
+    ),
+    ParamSpec("w_m", 2780e-6, "m", "width of sensing stage W", "Table A.2", min=1e-5, max=0.1),
+    ParamSpec("d_w_m", 195e-6, "m", "distance between stators D_W", "Table A.2", min=0.0, max=1e-2),
+    ParamSpec("eps_r", 1.0, "-", "relative permittivity", "sec. 3.4.3 (air)", min=1.0, max=100.0),
+    ParamSpec(
+        "v_bias",
+        10.0,
+        "V",
+        "sensing bias V_bias (eq. 29)",
+        "assumption: V_bias R_s = |eta| of Table 3.3",
+        min=0.0,
+        max=200.0,
+        min_exclusive=True,
+    ),
+    ParamSpec(
+        "r_s_ohm",
+        2.40752e6,
+        "ohm",
+        "transimpedance feedback resistance R_s (eq. 28)",
+        "|eta| / V_bias, Table 3.3",
+        min=1.0,
+        max=1.0e10,
+    ),
+    ParamSpec(
+        "channel_gain_mismatch",
+        0.01,
+        "-",
+        "std of the per-channel relative gain "
+        "mismatch of the readout (fixed per channel from the seed)",
+        "assumption: 1 % resistor/amplifier tolerance",
+        min=0.0,
+        max=0.2,
+    ),
+    ParamSpec(
+        "device_seed",
+        2018,
+        "-",
+        "seed of the manufacturing tolerances (channel gain "
+        "mismatch): fixed per emulated device, independent of the run seed",
+        "deterministic: manufacturing spread is drawn from its own device seed",
+        min=0,
+        max=2**62,
+    ),
+    ParamSpec(
+        "feedthrough_cap_f",
+        50e-15,
+        "F",
+        "mean parasitic drive-to-sense capacitance "
+        "C_ft (channels 1A..2B use 0.8, 1.1, 0.9, 1.2 times it)",
+        "assumption; sec. 3.4.2 (feedthrough from parasitic capacitance)",
+        min=0.0,
+        max=1e-9,
+    ),
+    ParamSpec(
+        "amp_voltage_noise",
+        7.0e-9,
+        "V/sqrt(Hz)",
+        "amplifier input voltage noise e_n",
+        "typical JFET-input op-amp",
+        min=0.0,
+        max=1e-5,
+    ),
+    ParamSpec(
+        "amp_current_noise",
+        1.5e-15,
+        "A/sqrt(Hz)",
+        "amplifier input current noise i_n",
+        "typical JFET-input op-amp",
+        min=0.0,
+        max=1e-9,
+    ),
+    ParamSpec(
+        "input_capacitance_f",
+        5.0e-12,
+        "F",
+        "total capacitance at the amplifier input (sensor, pads, op-amp input)",
+        "assumption",
+        min=0.0,
+        max=1e-8,
+    ),
+    ParamSpec(
+        "readout_temperature_k",
+        296.0,
+        "K",
+        "temperature of R_s (thermal noise)",
+        "room temperature (0 allowed for noise-free studies)",
+        min=0.0,
+        max=500.0,
+    ),
+    ParamSpec(
+        "readout_noise_scale",
+        1.0,
+        "-",
+        "factor on the RMS electronic noise of the "
+        "readout (1: the physical sources above; other values only for sensitivity "
+        "studies, Fig. 3.16)",
+        "study knob",
+        min=0.0,
+        max=1000.0,
+    ),
+    ParamSpec("adc_bits", 16, "bits", "ADC resolution", "assumption", min=4, max=24),
+    ParamSpec(
+        "adc_full_scale_v",
+        0.02,
+        "V",
+        "ADC full scale (+-)",
+        "assumption: fits signal + feedthrough at 1.3 V drive",
+        min=1e-6,
+        max=100.0,
+    ),
+    ParamSpec(
+        "drive_noise_density",
+        1.0e-6,
+        "V/sqrt(Hz)",
+        "drive amplifier output voltage noise (process noise of the stage)",
+        "assumption",
+        min=0.0,
+        max=1e-2,
+    ),
+    ParamSpec(
+        "safe_tilt_rad",
+        0.005,
+        "rad",
+        "largest tilt amplitude the schedule may ask (gap closes at D_n/(W/2) = 0.0138 rad)",
+        "sec. 3.5.2: +-0.005 rad",
+        min=0.0,
+        max=0.05,
+        min_exclusive=True,
+    ),
+    ParamSpec(
+        "bias_switching",
+        True,
+        "-",
+        "switch the sensing bias on/off on alternate drive "
+        "periods (feedthrough cancellation); false: always on",
+        "sec. 3.5.4",
+    ),
+    ParamSpec("feedthrough_enabled", True, "-", "model the drive feedthrough", "sec. 3.4.2"),
+    ParamSpec(
+        "ldv_noise_std",
+        0.02,
+        "rad/s",
+        "LDV angular-rate noise per sample",
+        "assumption (Polytec OFV-534 + VD-09 20 mm/s/V class)",
+        min=0.0,
+        max=10.0,
+    ),
+    ParamSpec(
+        "ldv_delay_s", 6.9e-6, "s", "LDV output delay", "sec. 3.5.4: ~6.9 us", min=0.0, max=1e-3
+    ),
+    ParamSpec(
+        "ldv_bias",
+        0.05,
+        "rad/s",
+        "LDV constant bias",
+        "sec. 3.5.4 (constant bias)",
+        min=-10.0,
+        max=10.0,
+    ),
+)
+
+
+def validate_params(p: Mapping[str, Any]) -> None:
+    """Cross-parameter checks: drive frequency content below Nyquist, stators fit, W_R >= W_SA."""
+    if p["natural_freq_hz"] >= p["sample_rate_hz"] / 2:
+        raise ParameterError(
+            f"parameter 'natural_freq_hz' = {p['natural_freq_hz']!r} is out of "
+            f"range: must be below sample_rate_hz/2 = {p['sample_rate_hz'] / 2!r}"
+        )
+    if 2 * (p["w_sa_m"] + p["d_w_m"] + p["w_sb_m"]) > p["w_m"]:
+        raise ParameterError(
+            f"parameter 'w_m' = {p['w_m']!r} is out of range: must hold two "
+            "stator pairs, >= 2 (W_SA + D_W + W_SB)"
+        )
+    if p["w_r_m"] < p["w_sa_m"]:
+        raise ParameterError(
+            f"parameter 'w_r_m' = {p['w_r_m']!r} is out of range: the rotor "
+            f"must cover the stator, >= w_sa_m = {p['w_sa_m']!r}"
+        )
+
+
+def gap_at(p: Mapping[str, Any], temperature_c: float | None = None) -> float:
+    """D_n(T) = D_n0 (1 + gap_tempco (T - T_ref)), m."""
+    t = p["temperature_c"] if temperature_c is None else temperature_c
+    return p["neutral_gap_m"] * (1.0 + p["gap_tempco_per_k"] * (t - p["ref_temperature_c"]))
+
+
+def stage_matrices(wn: float, zeta: float, b_c: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact ZOH discretisation (A_d, B_d) of eqs. (31)-(33) over dt (eq. 34), closed form.
+
+    Args: wn rad/s, zeta -, b_c rad/s^2/V, dt s. Returns A_d (2x2), B_d (2,) [rad/V, rad/s/V].
+    Valid for 0 < zeta < 1.
+    """
+    wd = wn * math.sqrt(1.0 - zeta * zeta)
+    e = math.exp(-zeta * wn * dt)
+    c, s = math.cos(wd * dt), math.sin(wd * dt)
+    A = np.array(
+        [
+            [e * (c + zeta * wn / wd * s), e * s / wd],
+            [-e * wn * wn / wd * s, e * (c - zeta * wn / wd * s)],
+        ]
+    )
+    # B = A_c^-1 (A_d - I) B_c with A_c^-1 = [[-2 zeta/wn, -1/wn^2], [1, 0]]
+    B = np.array([(1.0 - A[0, 0]) / (wn * wn) * b_c, A[1, 0] * (-1.0 / (wn * wn)) * b_c])
+    return A, B
+
+
+@numba.njit(cache=True)
+def _readout(
+    thx,
+    thy,
+    omx,
+    omy,
+    vb,
+    fd,
+    phs,
+    seg,
+    sega,
+    dn,
+    lim,
+    eps,
+    glx,
+    glw,
+    gain_rs,
+    ft_rs,
+    feedthrough,
+    noise,
+    noise_std,
+    inv_lsb,
+    code_max,
+    y,
+    codes,
+):
+    """Fused per-sample readout of eq. (30) for all channels (module doc):
+    y_c = -V_b R_s g_c (dC_c/dtheta_X omega_X + dC_c/dtheta_Y omega_Y) - R_s C_ft,c du/dt
+    + sigma n_c, codes = rint(y / lsb) clipped. gain_rs[c] = R_s g_c, ft_rs[c] = R_s C_ft,c;
+    noise (n, nch) standard normal. Returns the number of clipped samples. No allocation.
+    Serial on purpose: a prange version is 2x faster on an idle 2-core machine but 2-4x
+    slower when the cores are shared (thread barriers under oversubscription)."""
+    n = thx.shape[0]
+    nch = lim.shape[0]
+    nseg = sega.shape[0]
+    sat = 0
+    two_pi = 2.0 * math.pi
+    wxmax = max(np.abs(lim[:, 0]).max(), np.abs(lim[:, 1]).max())
+    wymax = max(np.abs(lim[:, 2]).max(), np.abs(lim[:, 3]).max())
+    for i in range(n):
+        tx = math.tan(thx[i])
+        ty = math.tan(thy[i])
+        sx = 1.0 + tx * tx
+        sy = 1.0 + ty * ty
+        small = _small_offaxis(tx, ty, dn, wxmax, wymax)
+        dudt = 0.0
+        if feedthrough:
+            s = seg[i]
+            a = sega[s] if s < nseg else 0.0
+            dudt = two_pi * fd[i] * a * math.cos(two_pi * phs[i])
+        for c in range(nch):
+            if small:
+                iy, ix = _grad_channel_small(
+                    tx, ty, dn, lim[c, 0], lim[c, 1], lim[c, 2], lim[c, 3], glx, glw
+                )
+            else:
+                iy, ix = _grad_channel(
+                    tx, ty, dn, lim[c, 0], lim[c, 1], lim[c, 2], lim[c, 3], glx, glw
+                )
+            dcdt = (-eps * ix * sx) * omx[i] + (eps * iy * sy) * omy[i]
+            v = -(vb[i] * gain_rs[c]) * dcdt - ft_rs[c] * dudt + noise[i, c] * noise_std
+            y[i, c] = v
+            q = np.rint(v * inv_lsb)
+            if q > code_max or q < -code_max:
+                sat += 1
+                q = min(max(q, -code_max - 1.0), code_max)
+            codes[i, c] = np.int32(q)
+    return sat
+
+
+def readout_noise_std(p: Mapping[str, Any]) -> float:
+    """RMS output noise of one transimpedance channel per sample [V] (module doc formula)."""
+    B = p["sample_rate_hz"] / 2.0
+    rs = p["r_s_ohm"]
+    thermal = 4.0 * K_BOLTZMANN * p["readout_temperature_k"] * rs * B
+    current = (p["amp_current_noise"] * rs) ** 2 * B
+    k = 2.0 * math.pi * rs * p["input_capacitance_f"]
+    voltage = p["amp_voltage_noise"] ** 2 * (B + k * k * B**3 / 3.0)
+    return p.get("readout_noise_scale", 1.0) * math.sqrt(thermal + current + voltage)
+
+
+def off_axis_rejection(
+    theta_main: np.ndarray,
+    omega_main: np.ndarray,
+    ratio: float,
+    gap_m: float,
+    limits: np.ndarray,
+    eta: float = 1.0,
+) -> float:
+    """R_off of eqs. (56)-(57) for off-axis motion = ratio x main-axis motion (in phase).
+
+    E_y = RMS(y_single - y_dual) normalised by RMS(y_single) (see module doc, eq. 56 units).
+    y_single from eq. (46)-(47), y_dual from eqs. (41)-(45); all channels pooled.
+    """
+    tx, wx = ratio * theta_main, ratio * omega_main
+    g = dual_axis_gradient(tx, theta_main, gap_m, limits)
+    y_dual = eta * (g[:, :, 0] * wx[:, None] + g[:, :, 1] * omega_main[:, None])
+    eps = EPS0
+    y_single = np.empty_like(y_dual)
+    for c in range(limits.shape[0]):
+        w1, w2, w3, w4 = limits[c]
+        hs = np.array([dcdtheta_single(t, gap_m, w1, w2, w4 - w3, eps) for t in theta_main])
+        y_single[:, c] = eta * hs * omega_main
+    e_y = np.sqrt(np.mean((y_single - y_dual) ** 2)) / np.sqrt(np.mean(y_single**2))
+    return 1.0 - e_y / ratio
+
+
+def steady_amplitude(p: Mapping[str, Any], freq_hz: float, amp_v: float) -> float:
+    """Steady tilt amplitude |b_c U / (wn^2 - w^2 + 2j zeta wn w)| [rad] of eqs. (31)-(33)."""
+    wn = 2 * math.pi * p["natural_freq_hz"]
+    w = 2 * math.pi * freq_hz
+    return p["b_c"] * amp_v / abs(wn * wn - w * w + 2j * p["damping_ratio"] * wn * w)
+
+
+class DriveSchedule:
+    """Piecewise drive: list of segments (frequency Hz, amplitude V, number of drive periods).
+
+    A segment lasts a whole, even number of periods so that every segment starts with a
+    bias-off period (module doc). Zero amplitude is allowed (zero-input data for R).
+    """
+
+    def __init__(self, segments: Sequence[tuple[float, float, int]]) -> None:
+        segs = []
+        for i, (f, a, n) in enumerate(segments):
+            if not (math.isfinite(f) and f > 0):
+                raise ParameterError(f"drive segment {i}: frequency {f!r} Hz must be > 0")
+            if not (math.isfinite(a) and a >= 0):
+                raise ParameterError(f"drive segment {i}: amplitude {a!r} V must be >= 0")
+            n = int(n)
+            if n < 2 or n % 2:
+                raise ParameterError(f"drive segment {i}: {n!r} periods must be even and >= 2")
+            segs.append((float(f), float(a), n))
+        if not segs:
+            raise ParameterError("drive schedule is empty")
+        self.segments = segs
+
+    @classmethod
+    def frequency_sweep(cls, f_lo=1711.0, f_hi=1719.0, step=1.0, amp=0.8, periods=400):
+        """Stepped-sine sweep for identification (Table 3.2 row 1: 1711-1719 Hz, 0.8 V)."""
+        n = int(round((f_hi - f_lo) / step)) + 1
+        return cls([(f_lo + i * step, amp, periods) for i in range(n)])
+
+    @classmethod
+    def amplitude_sweep(cls, a_lo=1.0, a_hi=1.3, n_trials=7, freq=1700.0, periods=200):
+        """Amplitude sweep for calibration (Table 3.2 row 3: 1700 Hz, 1.0-1.3 V)."""
+        amps = np.linspace(a_lo, a_hi, n_trials)
+        return cls([(freq, float(a), periods) for a in amps])
+
+    def check_safe(self, p: Mapping[str, Any]) -> None:
+        """Refuse a schedule whose steady tilt amplitude exceeds ``safe_tilt_rad``."""
+        for i, (f, a, _) in enumerate(self.segments):
+            th = steady_amplitude(p, f, a)
+            # steady-state amplitude; the start-up transient of this lightly damped mode
+            # stays below about twice it, and the gap closes only at 0.0138 rad
+            if th > p["safe_tilt_rad"]:
+                raise ParameterError(
+                    f"drive segment {i} ({f} Hz, {a} V): steady tilt amplitude {th:.3g} rad "
+                    f"exceeds safe_tilt_rad = {p['safe_tilt_rad']!r} rad"
+                )
+
+    def duration_s(self) -> float:
+        """Total duration [s]."""
+        return sum(n / f for f, _, n in self.segments)
+
+
+class StageFrame(NamedTuple):
+    """One frame. y: (n, 4) analog readout [V]; codes: (n, 4) int ADC codes; u: (n,) drive V;
+    v_bias: (n,) bias V; f_drive: (n,) Hz; theta/omega: (n, 2) truth [rad, rad/s], columns
+    (main, off); ldv: (n,) LDV omega of the main axis [rad/s]; segment: (n,) int segment index;
+    phase: (n,) drive phase within the period [cycles]; saturated: number of clipped samples."""
+
+    y: np.ndarray
+    codes: np.ndarray
+    u: np.ndarray
+    v_bias: np.ndarray
+    f_drive: np.ndarray
+    theta: np.ndarray
+    omega: np.ndarray
+    ldv: np.ndarray
+    segment: np.ndarray
+    phase: np.ndarray
+    saturated: int
+
+
+@numba.njit(cache=True)
+def _simulate(
+    n, fs, segf, sega, segn, st, A, B, coup, wnoise, u, vb, fd, th, om, seg, phs, switching
+):
+    """Drive generator + stage dynamics over n samples; st = [theta, omega, thx, omx, phase,
+    seg_idx, period_in_seg]. Phase in cycles since the start of the current segment."""
+    nseg = segf.shape[0]
+    for i in range(n):
+        s = int(st[5])
+        if s < nseg:
+            f = segf[s]
+            a = sega[s]
+        else:
+            f = segf[nseg - 1]
+            a = 0.0
+        ph = st[4]
+        uu = a * math.sin(2.0 * math.pi * ph)
+        per = int(math.floor(ph))
+        on = 1.0
+        if switching:
+            on = 1.0 if (per % 2) == 1 else 0.0
+        u[i] = uu
+        phs[i] = ph
+        vb[i] = on
+        fd[i] = f
+        seg[i] = s
+        th[i, 0] = st[0]
+        om[i, 0] = st[1]
+        th[i, 1] = st[2]
+        om[i, 1] = st[3]
+        ue = uu + wnoise[i]
+        t0 = A[0, 0] * st[0] + A[0, 1] * st[1] + B[0] * ue
+        t1 = A[1, 0] * st[0] + A[1, 1] * st[1] + B[1] * ue
+        st[0] = t0
+        st[1] = t1
+        ue2 = coup * ue
+        t0 = A[0, 0] * st[2] + A[0, 1] * st[3] + B[0] * ue2
+        t1 = A[1, 0] * st[2] + A[1, 1] * st[3] + B[1] * ue2
+        st[2] = t0
+        st[3] = t1
+        ph += f / fs
+        if s < nseg and ph >= segn[s]:
+            ph -= segn[s]
+            st[5] = s + 1
+        st[4] = ph
+
+
+class MicroStage:
+    """Stage + drive generator + 4-channel capacitive readout + ADC + LDV, carried state.
+
+    Args:
+        params: overrides of :data:`STAGE_SPECS` (validated).
+        schedule: :class:`DriveSchedule` (checked against ``safe_tilt_rad``).
+        seed: run seed (np.random.SeedSequence -> noise streams).
+    """
+
+    def __init__(
+        self,
+        params: Mapping[str, Any] | None = None,
+        schedule: DriveSchedule | None = None,
+        seed: int = 0,
+    ) -> None:
+        p = resolve(STAGE_SPECS, params)
+        validate_params(p)
+        self.params = p
+        self.fs = p["sample_rate_hz"]
+        self.schedule = schedule or DriveSchedule.amplitude_sweep()
+        self.schedule.check_safe(p)
+        ss = np.random.SeedSequence(int(seed))
+        gn, gw, gl = [np.random.Generator(np.random.PCG64(s)) for s in ss.spawn(3)]
+        gmis = np.random.Generator(np.random.PCG64(p["device_seed"]))
+        self._gen_noise, self._gen_w, self._gen_ldv = gn, gw, gl
+        self.limits = channel_limits(p)
+        self.gain = 1.0 + p["channel_gain_mismatch"] * gmis.standard_normal(4)
+        self.eta_true = -p["v_bias"] * p["r_s_ohm"] * self.gain
+        self.c_ft = p["feedthrough_cap_f"] * np.array([0.8, 1.1, 0.9, 1.2])
+        self._gain_rs = p["r_s_ohm"] * self.gain
+        self._ft_rs = p["r_s_ohm"] * self.c_ft
+        self.temperature_c = p["temperature_c"]
+        self._update_dynamics()
+        wn = self.wn
+        self.noise_std = readout_noise_std(p)
+        self.lsb = p["adc_full_scale_v"] / 2 ** (p["adc_bits"] - 1)
+        self.code_max = 2 ** (p["adc_bits"] - 1) - 1
+        self.w_std = p["drive_noise_density"] * math.sqrt(self.fs / 2)
+        segs = np.array(self.schedule.segments, float)
+        self._segf, self._sega = segs[:, 0].copy(), segs[:, 1].copy()
+        self._segn = segs[:, 2].copy()
+        self._st = np.zeros(7)
+        self._next = 0
+        d = p["ldv_delay_s"] * self.fs
+        self._ldv_m = int(math.ceil(d))
+        self._ldv_hist = np.zeros((3, self._ldv_m))
+        self._ldv_AB = stage_matrices(wn, p["damping_ratio"], self.b_c, (self._ldv_m - d) / self.fs)
+
+    def _update_dynamics(self) -> None:
+        """wn(T), b_c(T) (linear tempcos) and the ZOH matrices (eq. 34) at fs."""
+        p = self.params
+        dt_k = self.temperature_c - p["ref_temperature_c"]
+        self.wn = 2 * math.pi * p["natural_freq_hz"] * (1.0 + p["freq_tempco_per_k"] * dt_k)
+        self.b_c = p["b_c"] * (1.0 + p["b_c_tempco_per_k"] * dt_k)
+        self.A, self.B = stage_matrices(self.wn, p["damping_ratio"], self.b_c, 1.0 / self.fs)
+        if hasattr(self, "_ldv_m"):
+            d = p["ldv_delay_s"] * self.fs
+            self._ldv_AB = stage_matrices(
+                self.wn, p["damping_ratio"], self.b_c, (self._ldv_m - d) / self.fs
+            )
+
+    @property
+    def next_index(self) -> int:
+        """Index of the next sample."""
+        return self._next
+
+    @property
+    def finished(self) -> bool:
+        """True once the whole schedule has been produced."""
+        return self._st[5] >= len(self._segf)
+
+    def total_samples(self) -> int:
+        """Samples of the whole schedule (phase accumulation exact to the sample)."""
+        return int(math.ceil(self.schedule.duration_s() * self.fs))
+
+    def set_temperature(self, temperature_c: float) -> None:
+        """Temperature input (moves D_n; wn, b_c only with non-zero tempcos; module doc)."""
+        spec = {s.name: s for s in STAGE_SPECS}["temperature_c"]
+        self.temperature_c = spec.validate(float(temperature_c))
+        self._update_dynamics()
+
+    @property
+    def gap(self) -> float:
+        """Current true D_n [m]."""
+        return gap_at(self.params, self.temperature_c)
+
+    def step(self, n: int) -> StageFrame:
+        """Produce the next n samples (module doc)."""
+        n = int(n)
+        if n < 0:
+            raise ValueError(f"n = {n} must be >= 0")
+        p = self.params
+        u = np.empty(n)
+        vb = np.empty(n)
+        fd = np.empty(n)
+        th = np.empty((n, 2))
+        om = np.empty((n, 2))
+        seg = np.empty(n, np.int64)
+        phs = np.empty(n)
+        w = self._gen_w.standard_normal(n) * self.w_std if self.w_std > 0 else np.zeros(n)
+        _simulate(
+            n,
+            self.fs,
+            self._segf,
+            self._sega,
+            self._segn,
+            self._st,
+            self.A,
+            self.B,
+            p["off_axis_coupling"],
+            w,
+            u,
+            vb,
+            fd,
+            th,
+            om,
+            seg,
+            phs,
+            p["bias_switching"],
+        )
+        vb *= p["v_bias"]
+        # dual-axis sensor (main axis = Y, off axis = X), transimpedance readout, feedthrough
+        # (du/dt of the generator's continuous sinusoid a sin(2 pi phase)), noise and ADC in
+        # one pass (:func:`_readout`)
+        noise = self._gen_noise.standard_normal((n, 4))
+        y = np.empty((n, 4))
+        codes = np.empty((n, 4), np.int32)
+        sat = _readout(
+            th[:, 1],
+            th[:, 0],
+            om[:, 1],
+            om[:, 0],
+            vb,
+            fd,
+            phs,
+            seg,
+            self._sega,
+            self.gap,
+            self.limits,
+            EPS0 * p["eps_r"],
+            _GL_X,
+            _GL_W,
+            self._gain_rs,
+            self._ft_rs,
+            bool(p["feedthrough_enabled"]),
+            noise,
+            self.noise_std,
+            1.0 / self.lsb,
+            float(self.code_max),
+            y,
+            codes,
+        )
+        applied = u + w
+        self.last_applied = applied  # drive incl. amplifier noise, held over each sample
+        ldv = self._ldv(th[:, 0], om[:, 0], applied)
+        self._next += n
+        return StageFrame(y, codes, u, vb, fd, th, om, ldv, seg, phs % 1.0, sat)
+
+    def _ldv(self, theta: np.ndarray, omega: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """LDV reference (sec. 3.5.2/3.5.4): main-axis omega(t - tau) + bias + white noise.
+
+        The delayed rate is exact: the state at sample k - m (m = ceil(tau fs)) is propagated
+        with its held input over the fractional time m/fs - tau (ZOH, eq. 34).
+        """
+        p = self.params
+        th = np.concatenate([self._ldv_hist[0], theta])
+        om = np.concatenate([self._ldv_hist[1], omega])
+        uu = np.concatenate([self._ldv_hist[2], u])
+        k = omega.size
+        Af, Bf = self._ldv_AB
+        out = Af[1, 0] * th[:k] + Af[1, 1] * om[:k] + Bf[1] * uu[:k]
+        self._ldv_hist = np.stack([th[k:], om[k:], uu[k:]]) if k else self._ldv_hist
+        out = out + p["ldv_bias"]
+        if p["ldv_noise_std"] > 0:
+            out = out + self._gen_ldv.standard_normal(k) * p["ldv_noise_std"]
+        return out
+
+
+class LdvReference:
+    """Namespace doc: the LDV reference lives in :meth:`MicroStage._ldv` (truth + noise +
+    6.9 us delay + constant bias, sec. 3.5.4); it is used for identification only."""
+
+
+def record(stage: MicroStage, gyro=None, frame: int = 65536, n: int | None = None) -> dict:
+    """Run ``stage`` (and an optional :class:`mems_sim.devices.stage_gyro.MemsGyro` on it) to the end
+    of its schedule (or n samples) and return concatenated arrays (offline use: tests,
+    identification, benchmarks). Keys: y [V, ADC-decoded], u, u_applied, v_bias, f_drive,
+    phase, segment, cycle (period counter), theta, omega (n, 2), ldv; gyro_t, gyro_value,
+    gyro_true, gyro_phase, gyro_cycle, gyro_segment when a gyro is given."""
+    total = stage.total_samples() if n is None else int(n)
+    parts: dict[str, list] = {}
+    g_parts: dict[str, list] = {}
+    done = 0
+    while done < total:
+        m = min(frame, total - done)
+        k0 = stage.next_index
+        f = stage.step(m)
+        for key, val in (
+            ("y", f.codes * stage.lsb),
+            ("u", f.u),
+            ("u_applied", stage.last_applied),
+            ("v_bias", f.v_bias),
+            ("f_drive", f.f_drive),
+            ("phase", f.phase),
+            ("segment", f.segment),
+            ("theta", f.theta),
+            ("omega", f.omega),
+            ("ldv", f.ldv),
+        ):
+            parts.setdefault(key, []).append(val)
+        if gyro is not None:
+            gyro.temperature_c = stage.temperature_c
+            g = gyro.step(
+                k0,
+                stage.fs,
+                f.theta[:, 0],
+                f.omega[:, 0],
+                stage.last_applied,
+                stage.wn,
+                stage.params["damping_ratio"],
+                stage.b_c,
+            )
+            g_parts.setdefault("gyro_t", []).append(g.t)
+            g_parts.setdefault("gyro_value", []).append(g.value)
+            g_parts.setdefault("gyro_true", []).append(g.omega_true)
+        done += m
+    out = {k: np.concatenate(v) for k, v in parts.items()}
+    ph = out["phase"]
+    out["cycle"] = np.concatenate([[0], np.cumsum(np.diff(ph) < 0)])
+    out["fs"] = stage.fs
+    out["temperature_c"] = stage.temperature_c
+    if gyro is not None:
+        out.update({k: np.concatenate(v) for k, v in g_parts.items()})
+        kk = np.clip(np.floor(out["gyro_t"] * stage.fs).astype(np.int64), 0, ph.size - 1)
+        frac = out["gyro_t"] * stage.fs - kk
+        out["gyro_phase"] = (ph[kk] + frac * out["f_drive"][kk] / stage.fs) % 1.0
+        out["gyro_cycle"] = out["cycle"][kk]
+        out["gyro_segment"] = out["segment"][kk]
+        out["gyro_k_true"] = gyro.scale_factor()
+    return out

@@ -1,0 +1,126 @@
+"""ROS 2 node of the pulse-actuated resonator read through a one-bit sigma-delta ADC
+(thin wrapper of mems_sim.devices.resonator; Colinet et al.).
+
+Topics (relative to the namespace, default ``/resonator``):
+    ``adc``           mems_msgs/AdcFrame     the one-bit stream: codes -1/+1, bits = 1, lsb 1 V
+    ``drive``         mems_msgs/SignalFrame  the pulses applied to the actuator: height of the
+                      pulse fired in each sample interval [V], its firing offset after the
+                      sample instant [s] and its width [s] (0 where no pulse)
+    ``truth``         mems_msgs/SignalFrame  position [V], velocity [V/s], f0 [Hz], position
+                      at the firing instant of the interval's pulse [V] and at the centre of
+                      a pulse centred in the interval [V] (0 where none)
+    ``loop_estimate`` mems_msgs/StateEstimate the in-loop Kalman observer's position (observer mode)
+    ``/diagnostics``
+Parameters: ``mems_sim.devices.resonator.RESONATOR_SPECS`` and ``EMULATOR_SPECS``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mems_sim.devices import resonator as sd_resonator
+from mems_sim.params import ParamSpec
+from mems_sim.ros.frames import make_adc_frame, make_signal_frame, make_state_estimate
+from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node
+
+NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=1000, frame_id="resonator")
+
+TRUTH_CHANNELS = (
+    "position",
+    "velocity",
+    "f0",
+    "position_at_pulse_start",
+    "position_at_pulse_center",
+)
+TRUTH_UNITS = ("V", "V/s", "Hz", "V", "V")
+DRIVE_CHANNELS = ("pulse", "pulse_start", "pulse_width")
+DRIVE_UNITS = ("V", "s", "s")
+
+
+class SdResonatorNode(EmulatorNode):
+    """Emulated resonator + sigma-delta + pulse loop publishing the bit stream and truth.
+
+    Keyword arguments: those of :class:`~mems_sim.ros.node_base.EmulatorNode`.
+    """
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(
+            "sd_resonator",
+            "resonator",
+            sd_resonator.RESONATOR_SPECS + NODE_SPECS,
+            "sigma-delta resonator",
+            **kwargs,
+        )
+
+    def make_device(self) -> float:
+        device = {s.name: self.p[s.name] for s in sd_resonator.RESONATOR_SPECS}
+        sd_resonator.validate_params(device)
+        self.device = sd_resonator.SdResonatorDevice(device, seed=self.p["seed"])
+        self.observer_mode = self.p["mode"] == "observer"
+        self.pub_adc, self.pub_drive, self.pub_truth = self.create_frame_publishers(
+            "adc", "drive", "truth"
+        )
+        self.pub_estimate = (
+            self.create_frame_publishers("loop_estimate")[0] if self.observer_mode else None
+        )
+        return self.p["sample_rate_hz"]
+
+    def publish_frame(self, first: int, n: int) -> None:
+        f = self.device.step(n)
+        common = self.frame_kwargs
+        self.pub_adc.publish(
+            make_adc_frame(
+                f.bits.reshape(n, 1),
+                first,
+                self.fs,
+                bits=1,
+                channel_names=("sd_bit",),
+                channel_units=("V",),
+                lsb=(1.0,),
+                full_scale=(1.0,),
+                **common,
+            )
+        )
+        self.pub_drive.publish(
+            make_signal_frame(
+                np.column_stack([f.pulses, f.pulse_start, f.pulse_width]),
+                first,
+                self.fs,
+                channel_names=DRIVE_CHANNELS,
+                channel_units=DRIVE_UNITS,
+                **common,
+            )
+        )
+        self.pub_truth.publish(
+            make_signal_frame(
+                np.column_stack([f.position, f.velocity, f.f0, f.x_pulse_start, f.x_pulse_center]),
+                first,
+                self.fs,
+                channel_names=TRUTH_CHANNELS,
+                channel_units=TRUTH_UNITS,
+                **common,
+            )
+        )
+        if self.pub_estimate is not None:
+            self.pub_estimate.publish(
+                make_state_estimate(
+                    f.estimate.reshape(n, 1),
+                    f.estimate_var.reshape(n, 1),
+                    first,
+                    self.fs,
+                    estimator="kalman_observer_in_loop",
+                    state_names=("position",),
+                    state_units=("V",),
+                    **common,
+                )
+            )
+        self.diag.count("pulses", int(np.count_nonzero(f.pulses)))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point ``resonator_node``."""
+    return run_node(SdResonatorNode, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,213 @@
+"""ROS 2 node of the electrostatic comb-drive micro-scanner (thin wrapper of
+:mod:`mems_sim.devices.scanner`; Chen 2018 ch. 4, and ch. 5 through :mod:`mems_sim.devices.scanner_amdm`).
+
+Front end (parameter ``front_end``):
+
+* ``dc_transimpedance`` (chapter 4): y_cap = -R_s V_bias dC_s/dt + noise, eq. (64), at fs.
+* ``shared_amdm`` (chapter 5): drive + carrier on the same electrodes through the AMDM chain;
+  implemented by :class:`mems_sim.devices.scanner_amdm.AmdmScannerDevice` (other module, Table 5.2
+  defaults, ``seed`` shared) -- this node only publishes its frames.  The dedicated
+  chapter-5 node with all AMDM parameters is ``mems_sim.nodes.scanner_amdm_node``.
+
+Topics (relative to the namespace, default ``/scanner``):
+    ``adc``    mems_msgs/AdcFrame     y_cap codes (16 bit, +-10 V: the NI PCIe-6251 of Sec. 4.4.1)
+    ``drive``  mems_msgs/SignalFrame  v_drive [V] (held over the sample), f_drive [Hz]
+    ``truth``  mems_msgs/SignalFrame  theta [rad], omega [rad/s]
+    ``psd``    mems_msgs/SignalFrame  theta_psd [rad]: PSD-like reference delayed by
+                                      ``psd_delay_s`` (dc_transimpedance only)
+    ``/diagnostics``                   frames, saturated samples, psd delay
+Parameters: ``SCANNER_SPECS`` + ``front_end`` + ``drive_frequency_hz`` + ``EMULATOR_SPECS``
+(default ``frame_size`` 10000 samples = 20 ms: with the estimator and the recorder in one
+process the graph keeps up with 500 kHz only with frames of ~10^4 samples, bench_scanner.py).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mems_sim.devices import scanner as micro_scanner
+from mems_sim.params import ParamSpec
+from mems_sim.ros.frames import make_adc_frame, make_signal_frame
+from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node
+
+NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=10000, frame_id="scanner") + (
+    ParamSpec(
+        "front_end",
+        "dc_transimpedance",
+        "-",
+        "sensing front end",
+        "issue 5: dc_transimpedance (ch. 4) or shared_amdm (ch. 5, mems_sim.devices.scanner_amdm)",
+        choices=micro_scanner.FRONT_ENDS,
+    ),
+    ParamSpec(
+        "drive_frequency_hz",
+        0.0,
+        "Hz",
+        "constant drive frequency instead of the sweep/hold/cut-off programme (0: programme)",
+        "test knob (far from resonance)",
+        min=0.0,
+        max=1.0e6,
+    ),
+    ParamSpec("adc_bits", 16, "bit", "ADC resolution", "NI PCIe-6251 (Sec. 4.4.1)", min=2, max=31),
+    ParamSpec(
+        "adc_full_scale",
+        10.0,
+        "V",
+        "ADC full scale +-",
+        "NI PCIe-6251 +-10 V",
+        min=0.0,
+        max=1.0e3,
+        min_exclusive=True,
+    ),
+)
+
+ADC_CHANNEL = "y_cap"
+DRIVE_CHANNELS = ("v_drive", "f_drive")
+DRIVE_UNITS = ("V", "Hz")
+TRUTH_CHANNELS = ("theta", "omega")
+TRUTH_UNITS = ("rad", "rad/s")
+
+
+def quantize(y: np.ndarray, bits: int, full_scale: float) -> tuple[np.ndarray, float, int]:
+    """(codes int32, lsb V, clipped count): round(y / lsb) clipped to the signed range."""
+    lsb = 2.0 * full_scale / 2**bits
+    hi = 2 ** (bits - 1) - 1
+    lo = -(2 ** (bits - 1))
+    c = np.rint(y / lsb)
+    sat = int(np.count_nonzero((c > hi) | (c < lo)))
+    return np.clip(c, lo, hi).astype(np.int32), lsb, sat
+
+
+class MicroScannerNode(EmulatorNode):
+    """Emulated micro-scanner publishing ADC, drive, truth (and PSD reference) frames.
+
+    Keyword arguments: those of :class:`~mems_sim.ros.node_base.EmulatorNode`.
+    """
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(
+            "micro_scanner",
+            "scanner",
+            micro_scanner.SCANNER_SPECS + NODE_SPECS,
+            lambda p: f"micro-scanner ({p['front_end']})",
+            **kwargs,
+        )
+
+    def make_device(self) -> float:
+        p = self.p
+        self.front_end = p["front_end"]
+        fdrive = p["drive_frequency_hz"] or None
+        if self.front_end == "dc_transimpedance":
+            dev = {s.name: p[s.name] for s in micro_scanner.SCANNER_SPECS}
+            self.device = micro_scanner.MicroScannerDevice(
+                dev, seed=p["seed"], drive_frequency_hz=fdrive
+            )
+        else:
+            # ---- shared_amdm: chapter-5 front end, implemented in mems_sim.devices.scanner_amdm ----
+            from mems_sim.devices import scanner_amdm
+
+            self.device = scanner_amdm.AmdmScannerDevice(seed=p["seed"])
+        self.pub_adc, self.pub_drive, self.pub_truth = self.create_frame_publishers(
+            "adc", "drive", "truth"
+        )
+        self.pub_psd = None
+        if self.front_end == "dc_transimpedance":
+            (self.pub_psd,) = self.create_frame_publishers("psd")
+            self.diag.counters["psd_delay_s"] = self.device.psd_delay
+        return self.device.fs
+
+    def _frame(self, first: int, n: int):
+        """(codes, lsb, saturated, drive, f_drive, theta, omega, psd or None) of n samples."""
+        if self.front_end == "dc_transimpedance":
+            f = self.device.step(n)
+            codes, lsb, sat = quantize(f.y, self.p["adc_bits"], self.p["adc_full_scale"])
+            if self.device.const_freq is not None:
+                fd = np.full(n, self.device.const_freq)
+            else:
+                fd = np.zeros(n)
+                hi = min(first + n, self.device.total_samples)
+                if hi > first:
+                    fd[: hi - first] = self.device.plan.frequency[first:hi]
+            return codes, lsb, sat, f.drive, fd, f.theta, f.omega, f.psd
+        f = self.device.step(n)
+        return (
+            f.codes,
+            self.device.lsb,
+            f.saturated,
+            f.drive,
+            f.drive_freq,
+            f.theta,
+            f.omega,
+            None,
+        )
+
+    def publish_frame(self, first: int, n: int) -> None:
+        codes, lsb, sat, v, fd, th, om, psd = self._frame(first, n)
+        common = self.frame_kwargs
+        fsc = (
+            self.p["adc_full_scale"]
+            if self.front_end == "dc_transimpedance"
+            else self.device.p["adc_full_scale"]
+        )
+        bits = (
+            self.p["adc_bits"]
+            if self.front_end == "dc_transimpedance"
+            else self.device.p["adc_bits"]
+        )
+        self.pub_adc.publish(
+            make_adc_frame(
+                np.asarray(codes).reshape(n, 1),
+                first,
+                self.fs,
+                bits=bits,
+                channel_names=(ADC_CHANNEL,),
+                channel_units=("V",),
+                lsb=(lsb,),
+                full_scale=(fsc,),
+                saturated_count=sat,
+                **common,
+            )
+        )
+        self.pub_drive.publish(
+            make_signal_frame(
+                np.column_stack([v, fd]),
+                first,
+                self.fs,
+                channel_names=DRIVE_CHANNELS,
+                channel_units=DRIVE_UNITS,
+                **common,
+            )
+        )
+        self.pub_truth.publish(
+            make_signal_frame(
+                np.column_stack([th, om]),
+                first,
+                self.fs,
+                channel_names=TRUTH_CHANNELS,
+                channel_units=TRUTH_UNITS,
+                **common,
+            )
+        )
+        if psd is not None:
+            self.pub_psd.publish(
+                make_signal_frame(
+                    psd.reshape(n, 1),
+                    first,
+                    self.fs,
+                    channel_names=("theta_psd",),
+                    channel_units=("rad",),
+                    **common,
+                )
+            )
+        if sat:
+            self.diag.count("saturated_samples", sat)
+            self.diag.warn(f"ADC saturated on {sat} samples in frame {first}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point ``scanner_node``."""
+    return run_node(MicroScannerNode, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
