@@ -23,6 +23,7 @@ DEMO_DOMAIN ?= 61
 BENCH_DOMAIN ?= 62
 TEST_DOMAIN ?= 63
 ACCEPTANCE_DOMAIN ?= 64
+BAGS_DOMAIN ?= 65
 
 PIP_VERSION := 26.3
 DEPS_STAMP := $(VENV)/.stamp-deps
@@ -62,6 +63,9 @@ test: lint
 
 acceptance: setup
 	ROS_DOMAIN_ID=$(ACCEPTANCE_DOMAIN) $(PY) -m pytest test -m slow -rA
+
+bags: setup
+	ROS_DOMAIN_ID=$(BAGS_DOMAIN) $(PY) tools/make_bags.py
 
 bench: setup
 	ROS_DOMAIN_ID=$(BENCH_DOMAIN) $(PY) bench/run_all.py

@@ -30,6 +30,7 @@ RUNTIME = (
     "mcap-ros2-support",
     "rosbags",
     "zstandard",
+    "lz4",
 )
 TEST = ("pytest", "ruff", "xmlschema", "AllanTools", "filterpy")
 

@@ -21,7 +21,9 @@ import numpy as np
 
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")))
 
-from mems_estimation.filters import scanner_amdm_filters as su
+from mems_estimation.filters import scanner_amdm_ekf as sae
+from mems_estimation.filters import scanner_amdm_tracking as su
+from mems_estimation.filters import scanner_amdm_ukf as sau
 from mems_sim.devices import scanner_amdm as sa
 
 RUN = dict(
@@ -125,7 +127,7 @@ def kernel(kind, y, v2, x0, P0, f, frame=10_000):
         m = y[sl].size
         ox, op, on = np.empty((m, 2)), np.empty((m, 3)), np.empty(m)
         if kind == "ekf":
-            su.ekf_run(
+            sae.ekf_run(
                 y[sl],
                 v2[sl],
                 x,
@@ -143,7 +145,7 @@ def kernel(kind, y, v2, x0, P0, f, frame=10_000):
                 on,
             )
         else:
-            su.ukf_run(
+            sau.ukf_run(
                 y[sl],
                 v2[sl],
                 x,

@@ -23,7 +23,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from rclpy.parameter import Parameter
 
 from mems_estimation.identification.signal_metrics import coherent_snr_db, consistency
 from mems_estimation.nodes.accelerometer_ekf_node import HybridEkfNode
@@ -33,8 +32,9 @@ from mems_scenarios.base import (
     ScenarioError,
     ScenarioOptions,
     default_domain_id,
-    drive_fast,
     format_table,
+    parameters,
+    publish_all,
     run_recorded,
     topic_frames,
 )
@@ -93,10 +93,6 @@ PAPER_IV = {
 OPEN_OVER = "open_15g"
 
 
-def _params(d: dict) -> list[Parameter]:
-    return [Parameter(k, value=v) for k, v in d.items()]
-
-
 def device_cases() -> dict[str, dict]:
     """Device parameters of every instance (namespace -> ACCEL_SPECS overrides)."""
     cases = {
@@ -126,20 +122,14 @@ def build_graph(options: ScenarioOptions, out: Path, duration: float):
     devices = {}
     for k, (ns, params) in enumerate(device_cases().items()):
         p = dict(params, seed=_seed(options, ns, k), duration_s=float(duration), frame_size=10000)
-        devices[ns] = graph.add(
-            FrAccelerometerNode(
-                context=graph.context,
-                namespace=ns,
-                drive_externally=not options.realtime,
-                autostart=False,
-                parameter_overrides=_params(p),
-            )
+        devices[ns] = graph.add_device(
+            FrAccelerometerNode, p, realtime=options.realtime, namespace=ns
         )
     ekf = graph.add(
         HybridEkfNode(
             context=graph.context,
             namespace="acc_pi_1g",
-            parameter_overrides=_params(
+            parameter_overrides=parameters(
                 dict(
                     device_cases()["acc_pi_1g"],
                     device_namespace="/acc_pi_1g",
@@ -180,20 +170,14 @@ def run_graph(options: ScenarioOptions, out: Path, duration: float, progress: Pr
             30.0,
             "the recorder and the hybrid EKF node to subscribe",
         )
-        if options.realtime:
-            for d in devices.values():
-                d.start()
-            graph.spin_until(
-                lambda: all(d.finished for d in devices.values()),
-                duration * 200 + 60,
-                "the devices to finish",
-            )
-        else:
-            drive_fast(graph, list(devices.values()), delivered, progress, window=20)
-        graph.spin_until(
-            lambda: all(delivered(d) >= d.frames_published for d in devices.values()),
-            60.0,
-            "the last frames",
+        publish_all(
+            graph,
+            list(devices.values()),
+            delivered,
+            progress,
+            realtime=options.realtime,
+            realtime_timeout_s=duration * 200 + 60,
+            window=20,
         )
         graph.spin_until(
             lambda: rec.received(ekf_topic) >= ekf.frames_done, 60.0, "the last estimates"

@@ -19,6 +19,7 @@ from pathlib import Path
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 
 from mems_sim.ros.env import apply_defaults
@@ -62,6 +63,11 @@ def default_domain_id() -> int:
     return 1 + os.getpid() % 100
 
 
+def parameters(values: dict) -> list[Parameter]:
+    """rclpy parameters (a node's ``parameter_overrides``) from a name -> value mapping."""
+    return [Parameter(k, value=v) for k, v in values.items()]
+
+
 class Graph:
     """A private rclpy context with a single-threaded executor and its nodes."""
 
@@ -89,6 +95,20 @@ class Graph:
         self.nodes.append(node)
         self.executor.add_node(node)
         return node
+
+    def add_device(self, node_class, params: dict, *, realtime: bool, namespace: str | None = None):
+        """Add an emulator node of ``node_class`` with parameters ``params``: driven by the
+        runner in fast runs, paced by its own timer in real-time runs (started by
+        :func:`publish_all` once every consumer is matched, so no frame is lost to discovery)."""
+        kwargs = {} if namespace is None else {"namespace": namespace}
+        node = node_class(
+            context=self.context,
+            drive_externally=not realtime,
+            autostart=False,
+            parameter_overrides=parameters(params),
+            **kwargs,
+        )
+        return self.add(node)
 
     def publish_clock(self, ns: int) -> None:
         """Publish simulated time on /clock."""
@@ -180,6 +200,40 @@ def drive_fast(
         graph.executor.spin_once(timeout_sec=0)
         if progress is not None:
             progress.update_to(min(d.next_index / d.fs for d in devices))
+
+
+def publish_all(
+    graph: Graph,
+    devices: list,
+    delivered: Callable[[object], int],
+    progress: Progress | None,
+    *,
+    realtime: bool,
+    realtime_timeout_s: float,
+    window: int = 50,
+    drain_timeout_s: float = 60.0,
+) -> None:
+    """Publish every device's data and wait until its consumers took the last frame.
+
+    Real time (``--realtime``): the devices' own wall-clock timers pace them, and the graph
+    spins until every device finished (``realtime_timeout_s`` at most). Fast: the runner
+    steps the devices as fast as their slowest consumer takes the frames
+    (:func:`drive_fast`, lossless and deterministic). Either way the call returns once
+    ``delivered(device)`` reached every frame the device published.
+    """
+    if realtime:
+        for d in devices:
+            d.start()
+        graph.spin_until(
+            lambda: all(d.finished for d in devices), realtime_timeout_s, "the devices to finish"
+        )
+    else:
+        drive_fast(graph, devices, delivered, progress, window)
+    graph.spin_until(
+        lambda: all(delivered(d) >= d.frames_published for d in devices),
+        drain_timeout_s,
+        "the last frames",
+    )
 
 
 def topic_frames(path, topic: str) -> dict:

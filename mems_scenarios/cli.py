@@ -81,6 +81,12 @@ def validate(args) -> str | None:
         return f"--domain-id = {args.domain_id} is invalid: allowed [0, 232]"
     if args.out is not None and args.out.suffix != ".mcap":
         return f"--out = {str(args.out)!r} is invalid: the file name must end in .mcap"
+    if args.out is not None and args.out.parent.is_dir():
+        from mems_sim.bag.writer import output_problem
+
+        problem = output_problem(str(args.out), overwrite=True)
+        if problem is not None:
+            return f"--out: {problem}"
     return None
 
 
@@ -116,6 +122,8 @@ def main(argv: list[str] | None = None) -> int:
         result = module.run(options)
     except (ScenarioError, ParameterError) as exc:
         return _fail(str(exc))
+    except OSError as exc:  # e.g. the output directory cannot be created, the disk is full
+        return _fail(" ".join(str(exc).split()))
     except KeyboardInterrupt:
         return _fail("interrupted; the MCAP file was finalised")
     wall = time.monotonic() - start

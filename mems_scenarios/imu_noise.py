@@ -13,8 +13,6 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from rclpy.parameter import Parameter
-
 from mems_estimation.identification.imu_noise_plots import plot_allan
 from mems_estimation.nodes.imu_noise_identifier_node import NoiseIdentifierNode
 from mems_scenarios.base import (
@@ -25,6 +23,7 @@ from mems_scenarios.base import (
     default_domain_id,
     drive_fast,
     format_table,
+    parameters,
 )
 from mems_sim.bag.recorder import RecorderNode
 from mems_sim.nodes.imu_node import ImuNoiseNode
@@ -57,10 +56,6 @@ FIELD = {
 }
 
 
-def _overrides(values: dict) -> list[Parameter]:
-    return [Parameter(k, value=v) for k, v in values.items()]
-
-
 def build_graph(options: ScenarioOptions, out: Path, duration_s: float):
     """Create the context, nodes and recorder of the scenario."""
     graph = Graph(options.domain_id if options.domain_id is not None else default_domain_id())
@@ -71,19 +66,12 @@ def build_graph(options: ScenarioOptions, out: Path, duration_s: float):
         "publish_imu": bool(options.realtime),
     }
     emu_params.update(options.extra.get("emulator", {}))
-    emu = graph.add(
-        ImuNoiseNode(
-            context=graph.context,
-            drive_externally=not options.realtime,
-            autostart=False,
-            parameter_overrides=_overrides(emu_params),
-        )
-    )
+    emu = graph.add_device(ImuNoiseNode, emu_params, realtime=options.realtime)
     ident = graph.add(
         NoiseIdentifierNode(
             context=graph.context,
             namespace="imu",
-            parameter_overrides=_overrides(
+            parameter_overrides=parameters(
                 {"publish_period_s": 0.0 if duration_s < 7200 else 3600.0}
             ),
         )

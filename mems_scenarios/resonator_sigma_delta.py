@@ -22,7 +22,6 @@ import math
 from pathlib import Path
 
 import numpy as np
-from rclpy.parameter import Parameter
 
 from mems_estimation.nodes.resonator_observer_node import SdObserverNode
 from mems_scenarios.base import (
@@ -31,14 +30,16 @@ from mems_scenarios.base import (
     ScenarioError,
     ScenarioOptions,
     default_domain_id,
-    drive_fast,
     format_table,
+    parameters,
+    publish_all,
     run_recorded,
     topic_frames,
 )
 from mems_sim.bag.recorder import RecorderNode
 from mems_sim.devices.resonator import default_pulse_amplitude
 from mems_sim.nodes.resonator_node import SdResonatorNode
+from mems_sim.table import yes_no
 
 NAME = "sd_resonator"
 DESCRIPTION = (
@@ -51,10 +52,6 @@ NOISE_LOOP = 0.5  # output noise std of the comparator/observer comparison [V]
 AMP_NOISY, NOISE_NOISY, STATE_NOISE = 0.25, 0.25, 5e-4
 NOISE_STEP = 0.05
 SKIP_S = 0.05  # start-up excluded from steady-state figures [s]
-
-
-def _params(d: dict) -> list[Parameter]:
-    return [Parameter(k, value=v) for k, v in d.items()]
 
 
 def device_cases(duration: float) -> dict[str, dict]:
@@ -103,21 +100,13 @@ def build_graph(options: ScenarioOptions, out: Path, duration: float):
         p = dict(
             params, seed=int(options.seed) * 10 + k, duration_s=float(duration), frame_size=1000
         )
-        devices[ns] = graph.add(
-            SdResonatorNode(
-                context=graph.context,
-                namespace=ns,
-                drive_externally=not options.realtime,
-                autostart=False,
-                parameter_overrides=_params(p),
-            )
-        )
+        devices[ns] = graph.add_device(SdResonatorNode, p, realtime=options.realtime, namespace=ns)
     observers = {}
     for name, (ns, params) in observer_cases().items():
         p = dict(params, device_namespace=f"/{ns}", output_topic=f"/{ns}/{name}/estimate")
         observers[name] = graph.add(
             SdObserverNode(
-                context=graph.context, namespace=f"{ns}/{name}", parameter_overrides=_params(p)
+                context=graph.context, namespace=f"{ns}/{name}", parameter_overrides=parameters(p)
             )
         )
     rec = graph.add(RecorderNode(str(out), regex=r"^/sd_", context=graph.context))
@@ -158,20 +147,13 @@ def run_graph(options: ScenarioOptions, out: Path, duration: float, progress: Pr
             30.0,
             "the recorder to subscribe to the observers' estimates",
         )
-        if options.realtime:
-            for d in devices.values():
-                d.start()
-            graph.spin_until(
-                lambda: all(d.finished for d in devices.values()),
-                duration * 50 + 60,
-                "the devices to finish",
-            )
-        else:
-            drive_fast(graph, list(devices.values()), delivered, progress)
-        graph.spin_until(
-            lambda: all(delivered(d) >= d.frames_published for d in devices.values()),
-            60.0,
-            "the last frames",
+        publish_all(
+            graph,
+            list(devices.values()),
+            delivered,
+            progress,
+            realtime=options.realtime,
+            realtime_timeout_s=duration * 50 + 60,
         )
         graph.spin_until(
             lambda: all(
@@ -272,9 +254,6 @@ def figures(path: Path, duration: float) -> dict:
 def table(f: dict) -> str:
     """The scenario's results next to the paper's figures and the targets."""
 
-    def ok(cond: bool) -> str:
-        return "yes" if cond else "NO"
-
     settle = "never" if f["settle_periods"] is None else f"{f['settle_periods']:.0f} periods"
     settle += f" (last 50 ms: mean {f['tracking_tail_ppm']:+.0f} ppm)"
     rows = [
@@ -283,21 +262,21 @@ def table(f: dict) -> str:
             "~1e-10",
             "<= 1e-9",
             f"{f['exact_err_rel']:.1e}",
-            ok(f["exact_err_rel"] <= 1e-9),
+            yes_no(f["exact_err_rel"] <= 1e-9),
         ],
         [
             "noise = amplitude: comparator amplitude / observer amplitude",
             "never starts",
             "< 10 %",
             f"{100 * f['amp_ratio']:.1f} % ({f['amp_comparator']:.3f} / {f['amp_observer']:.3f} V)",
-            ok(f["amp_ratio"] < 0.1),
+            yes_no(f["amp_ratio"] < 0.1),
         ],
         [
             "observer loop: |x| at the firing instant / amplitude (mean, max)",
             "0 (at crossings)",
             "<= 2 %",
             f"{100 * f['pulse_x_rel_mean']:.2f} %, {100 * f['pulse_x_rel_max']:.2f} %",
-            ok(f["pulse_x_rel_max"] <= 0.02),
+            yes_no(f["pulse_x_rel_max"] <= 0.02),
         ],
         [
             "observer loop: |x| at the pulse centre / amplitude (max)",
@@ -314,14 +293,14 @@ def table(f: dict) -> str:
             "-",
             "1 +- 0.2",
             f"{f['consistency']:.3f}",
-            ok(0.8 <= f["consistency"] <= 1.2),
+            yes_no(0.8 <= f["consistency"] <= 1.2),
         ],
         [
             "state noise: error lag-1 autocorrelation (white: ~0)",
             "white",
             "white",
             f"{f['error_acf1']:.3f} (narrow-band at f0)",
-            ok(abs(f["error_acf1"]) < 0.1),
+            yes_no(abs(f["error_acf1"]) < 0.1),
         ],
         [
             "corr(error, true position): exact model / 5 % f0 error",
@@ -335,21 +314,21 @@ def table(f: dict) -> str:
             "substantial",
             ">= 10x",
             f"{f['f0_error_ratio']:.1f}x",
-            ok(f["f0_error_ratio"] >= 10),
+            yes_no(f["f0_error_ratio"] >= 10),
         ],
         [
             "adaptive observer from 5 % error: error / exact-model error",
             "(future work)",
             "<= 2x",
             f"{f['adaptive_ratio']:.2f}x (f0 {f['adaptive_f0_ppm']:+.0f} ppm)",
-            ok(f["adaptive_ratio"] <= 2),
+            yes_no(f["adaptive_ratio"] <= 2),
         ],
         [
             "+2 % f0 step: adaptive f0 within 100 ppm after",
             "-",
             "settles",
             settle,
-            ok(f["settle_periods"] is not None),
+            yes_no(f["settle_periods"] is not None),
         ],
     ]
     return format_table(["figure", "paper", "target", "measured", "met"], rows)

@@ -22,10 +22,9 @@ import math
 from pathlib import Path
 
 import numpy as np
-from rclpy.parameter import Parameter
 from scipy.interpolate import CubicSpline
 
-from mems_estimation.filters import scanner_amdm_filters as su
+from mems_estimation.filters import scanner_amdm_tracking as su
 from mems_estimation.nodes.scanner_amdm_estimator_node import ScannerAmdmEstimatorNode
 from mems_scenarios.base import (
     Graph,
@@ -33,14 +32,16 @@ from mems_scenarios.base import (
     ScenarioError,
     ScenarioOptions,
     default_domain_id,
-    drive_fast,
     format_table,
+    parameters,
+    publish_all,
     run_recorded,
     topic_frames,
 )
 from mems_sim.bag.recorder import RecorderNode
 from mems_sim.devices import scanner_amdm as sa
 from mems_sim.nodes.scanner_amdm_node import ScannerAmdmNode
+from mems_sim.table import yes_no
 
 NAME = "scanner_shared_electrodes"
 DESCRIPTION = (
@@ -63,10 +64,6 @@ PAPER = {"ekf": (5.04, 1.82), "ukf": (0.63, 0.39)}  # Table 5.3: amplitude, phas
 TARGET_PHASE_DEG = 0.18  # eq. (79)
 
 
-def _params(d: dict) -> list[Parameter]:
-    return [Parameter(k, value=v) for k, v in d.items()]
-
-
 def cases() -> dict[str, dict]:
     """Device namespace -> device parameter overrides."""
     return {"scanner_amdm": DEVICE, "scanner_amdm_off": OFF}
@@ -78,21 +75,15 @@ def build_graph(options: ScenarioOptions, out: Path, duration: float):
     devices, estimators = {}, {}
     for k, (ns, dev) in enumerate(cases().items()):
         p = dict(dev, seed=int(options.seed) * 10 + k, duration_s=float(duration), frame_size=1000)
-        devices[ns] = graph.add(
-            ScannerAmdmNode(
-                context=graph.context,
-                namespace=ns,
-                drive_externally=not options.realtime,
-                autostart=False,
-                parameter_overrides=_params(p),
-            )
-        )
+        devices[ns] = graph.add_device(ScannerAmdmNode, p, realtime=options.realtime, namespace=ns)
         delay = devices[ns].device.delay
         estimators[ns] = graph.add(
             ScannerAmdmEstimatorNode(
                 context=graph.context,
                 namespace=f"{ns}/estimator",
-                parameter_overrides=_params(dict(device_namespace=f"/{ns}", chain_delay_s=delay)),
+                parameter_overrides=parameters(
+                    dict(device_namespace=f"/{ns}", chain_delay_s=delay)
+                ),
             )
         )
     rec = graph.add(RecorderNode(str(out), regex=r"^/scanner_amdm", context=graph.context))
@@ -123,20 +114,13 @@ def run_graph(options: ScenarioOptions, out: Path, duration: float, progress: Pr
             )
 
         graph.spin_until(matched, 30.0, "the recorder and estimators to subscribe")
-        if options.realtime:
-            for d in devices.values():
-                d.start()
-            graph.spin_until(
-                lambda: all(d.finished for d in devices.values()),
-                duration * 200 + 60,
-                "the devices to finish",
-            )
-        else:
-            drive_fast(graph, list(devices.values()), delivered, progress)
-        graph.spin_until(
-            lambda: all(delivered(d) >= d.frames_published for d in devices.values()),
-            60.0,
-            "the last frames",
+        publish_all(
+            graph,
+            list(devices.values()),
+            delivered,
+            progress,
+            realtime=options.realtime,
+            realtime_timeout_s=duration * 200 + 60,
         )
         graph.spin_until(
             lambda: all(
@@ -273,9 +257,6 @@ def figures(path: Path, state: dict) -> dict:
 def table(f: dict) -> str:
     """Table 5.3 form next to the paper, plus consistency and the off-resonance check."""
 
-    def ok(c: bool) -> str:
-        return "yes" if c else "NO"
-
     rows = []
     for k in ("ekf", "ukf"):
         rows.append(
@@ -294,8 +275,8 @@ def table(f: dict) -> str:
                 "UKF <= 0.39 (0.18 target)" if k == "ukf" else "UKF < EKF",
                 f"{f[f'{k}_phase_deg']:.3f} (bias {f[f'{k}_phase_bias_deg']:+.3f}, "
                 f"{f[f'{k}_pairs']} extrema)",
-                ok(f["ukf_phase_deg"] <= 0.39)
-                + (", target " + ok(f["ukf_phase_deg"] <= TARGET_PHASE_DEG))
+                yes_no(f["ukf_phase_deg"] <= 0.39)
+                + (", target " + yes_no(f["ukf_phase_deg"] <= TARGET_PHASE_DEG))
                 if k == "ukf"
                 else "-",
             ]
@@ -307,7 +288,7 @@ def table(f: dict) -> str:
             "yes",
             f"ukf/ekf = {f['ukf_amp_deg'] / f['ekf_amp_deg']:.4f}, "
             f"{f['ukf_phase_deg'] / f['ekf_phase_deg']:.4f}",
-            ok(f["ukf_beats_ekf"]),
+            yes_no(f["ukf_beats_ekf"]),
         ]
     )
     for k in ("ekf", "ukf"):
@@ -326,7 +307,7 @@ def table(f: dict) -> str:
                 "-",
                 "0",
                 f"{f[f'{k}_pd_failures']}, {f[f'{k}_min_var']:.1e}",
-                ok(f[f"{k}_pd_failures"] == 0 and f[f"{k}_min_var"] > 0),
+                yes_no(f[f"{k}_pd_failures"] == 0 and f[f"{k}_min_var"] > 0),
             ]
         )
     rows.append(
@@ -335,7 +316,7 @@ def table(f: dict) -> str:
             "-",
             "no motion",
             f"{f['off_final_amplitude']:.1e} / {f['off_final_theta_est']:.1e}",
-            ok(f["off_final_amplitude"] < 1e-3),
+            yes_no(f["off_final_amplitude"] < 1e-3),
         ]
     )
     rows.append(
@@ -345,7 +326,7 @@ def table(f: dict) -> str:
             "yes",
             f"warned={f['off_low_signal_warned']}, tracking={f['off_tracking']}, "
             f"extrema={f['off_events']}, finite={f['off_finite']}",
-            ok(f["off_low_signal_warned"] and not f["off_tracking"] and f["off_finite"]),
+            yes_no(f["off_low_signal_warned"] and not f["off_tracking"] and f["off_finite"]),
         ]
     )
     return format_table(["figure", "paper", "target", "measured", "met"], rows)

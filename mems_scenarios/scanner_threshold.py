@@ -28,7 +28,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-from rclpy.parameter import Parameter
 from scipy import stats
 
 from mems_estimation.filters.scanner_threshold_detector import (
@@ -54,8 +53,9 @@ from mems_scenarios.base import (
     ScenarioError,
     ScenarioOptions,
     default_domain_id,
-    drive_fast,
     format_table,
+    parameters,
+    publish_all,
     run_recorded,
     topic_frames,
 )
@@ -78,10 +78,6 @@ PAPER = dict(
 )
 NS = "scanner"
 FRAME = 5000  # samples per frame (10 ms at 500 kHz)
-
-
-def _params(d: dict) -> list[Parameter]:
-    return [Parameter(k, value=v) for k, v in d.items()]
 
 
 def device_overrides(duration: float) -> dict:
@@ -110,20 +106,12 @@ def run_graph(
         duration_s=float(duration),
         frame_size=int(frame),
     )
-    dev = graph.add(
-        MicroScannerNode(
-            context=graph.context,
-            namespace=NS,
-            drive_externally=not options.realtime,
-            autostart=False,
-            parameter_overrides=_params(p),
-        )
-    )
+    dev = graph.add_device(MicroScannerNode, p, realtime=options.realtime, namespace=NS)
     est = graph.add(
         ScannerThresholdNode(
             context=graph.context,
             namespace=f"{NS}/threshold",
-            parameter_overrides=_params(dict(device_namespace=f"/{NS}", dog_sigma=DOG_SIGMA)),
+            parameter_overrides=parameters(dict(device_namespace=f"/{NS}", dog_sigma=DOG_SIGMA)),
         )
     )
     rec = (
@@ -163,12 +151,14 @@ def run_graph(
             "the recorder and the estimator to subscribe",
         )
         t_start = time.perf_counter()
-        if options.realtime:
-            dev.start()
-            graph.spin_until(lambda: dev.finished, duration * 50 + 60, "the device to finish")
-        else:
-            drive_fast(graph, [dev], delivered, progress)
-        graph.spin_until(lambda: delivered(dev) >= dev.frames_published, 60.0, "the last frames")
+        publish_all(
+            graph,
+            [dev],
+            delivered,
+            progress,
+            realtime=options.realtime,
+            realtime_timeout_s=duration * 50 + 60,
+        )
         t_run = time.perf_counter() - t_start
         est.flush()
         n_est = est.frames_done + 1

@@ -178,16 +178,12 @@ def run_graph(options, plan: Plan, models: dict, out: Path, instances: dict | No
     ``instances``: namespace -> temperature (default :data:`INSTANCES`, both temperatures
     at once; the benchmark runs one)."""
     INSTANCES = instances or globals()["INSTANCES"]
-    from rclpy.parameter import Parameter
 
     from mems_estimation.nodes.stage_ekf_node import StageEkfNode
     from mems_estimation.nodes.stage_gyro_calibration_node import GyroCalibrationNode
-    from mems_scenarios.base import Graph, Progress, default_domain_id, drive_fast
+    from mems_scenarios.base import Graph, Progress, default_domain_id, parameters, publish_all
     from mems_sim.bag.recorder import RecorderNode
     from mems_sim.nodes.stage_node import MicroStageNode
-
-    def prm(d):
-        return [Parameter(k, value=v) for k, v in d.items()]
 
     graph = Graph(options.domain_id if options.domain_id is not None else default_domain_id())
     devs, ekfs, cals = {}, {}, {}
@@ -202,7 +198,7 @@ def run_graph(options, plan: Plan, models: dict, out: Path, instances: dict | No
                     namespace=ns,
                     drive_externally=not options.realtime,
                     autostart=False,
-                    parameter_overrides=prm(
+                    parameter_overrides=parameters(
                         dict(
                             seed=int(options.seed) * 100 + 50 + k,
                             temperature_c=T,
@@ -219,8 +215,8 @@ def run_graph(options, plan: Plan, models: dict, out: Path, instances: dict | No
                 StageEkfNode(
                     context=graph.context,
                     namespace=ns,
-                    parameter_overrides=prm(
-                        dict(stage_namespace=f"/{ns}", params_yaml=str(yaml_path))
+                    parameter_overrides=parameters(
+                        dict(device_namespace=f"/{ns}", params_yaml=str(yaml_path))
                     ),
                 )
             )
@@ -228,8 +224,8 @@ def run_graph(options, plan: Plan, models: dict, out: Path, instances: dict | No
                 GyroCalibrationNode(
                     context=graph.context,
                     namespace=ns,
-                    parameter_overrides=prm(
-                        dict(stage_namespace=f"/{ns}", n_trials=plan.cal_trials)
+                    parameter_overrides=parameters(
+                        dict(device_namespace=f"/{ns}", n_trials=plan.cal_trials)
                     ),
                 )
             )
@@ -259,20 +255,15 @@ def run_graph(options, plan: Plan, models: dict, out: Path, instances: dict | No
         import time as _time
 
         wall0 = _time.monotonic()
-        if options.realtime:
-            for d in devs.values():
-                d.start()
-            graph.spin_until(
-                lambda: all(d.finished for d in devs.values()),
-                total * 50 + 120,
-                "the stages to finish",
-            )
-        else:
-            drive_fast(graph, list(devs.values()), delivered, progress, window=20)
-        graph.spin_until(
-            lambda: all(delivered(d) >= d.frames_published for d in devs.values()),
-            120.0,
-            "the last frames",
+        publish_all(
+            graph,
+            list(devs.values()),
+            delivered,
+            progress,
+            realtime=options.realtime,
+            realtime_timeout_s=total * 50 + 120,
+            window=20,
+            drain_timeout_s=120.0,
         )
         wall = _time.monotonic() - wall0
         progress.close()

@@ -10,3 +10,8 @@ def format_table(header: list[str], rows: list[list[str]]) -> str:
     sep = "  ".join("-" * w for w in widths)
     body = ["  ".join(str(c).rjust(w) for c, w in zip(r, widths)) for r in rows]
     return "\n".join([line, sep] + body)
+
+
+def yes_no(met: bool) -> str:
+    """A table cell for a criterion: ``yes`` when met, ``NO`` (loud) when missed."""
+    return "yes" if met else "NO"

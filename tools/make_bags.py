@@ -1,25 +1,29 @@
 """``make bags``: regenerate the reference recordings of ``bags/`` from fixed seeds.
 
 One short, seeded excerpt per device family, each a rosbag2-compatible MCAP file (zstd,
-at most 5 MB) holding what its estimator subscribes to (the device's ``adc`` and, where
-the estimator takes it, ``drive`` or the IMU frames), the device's ``truth`` and the
-estimator's outputs as they were published live:
+at most 5 MB, 25 MB in all) holding the device topics its estimator subscribes to
+(``adc``, and ``drive`` except for the IMU), the device's ``truth`` and the estimator's
+outputs as they were published live:
 
 =============  ==================================  =======================================
 bag            device -> estimator                 estimator parameters (besides defaults)
 =============  ==================================  =======================================
-imu            imu_node -> imu_noise_identifier    publish_period_s = 60 (a model per
-                                                   minute of data, then the final one)
-accelerometer  accelerometer_node (PI loop, 1 g)   -
-               -> accelerometer_ekf_node
-stage          stage_node -> stage_ekf_node        params_yaml = bags/stage_params.yaml
-                                                   (identified here, seeded short plan)
-scanner        scanner_node (ring-down from        -
-               0.15 rad) -> scanner_threshold_ekf
-scanner_amdm   scanner_amdm_node (sweep through    -
-               2 f_n) -> scanner_amdm_estimator
-resonator      resonator_node (observer loop,      output_noise_std = 0.5
-               noise 0.5 V) -> resonator_observer
+imu            imu_node, 600 s at rest             publish_period_s = 120 (a model per
+               -> imu_noise_identifier_node        2 min of data, then the final one)
+accelerometer  accelerometer_node, PI loop, 1 g,   -
+               40 ms -> accelerometer_ekf_node
+stage          stage_node, 1.0 V at 1700 Hz,       params_yaml = bags/stage_params.yaml
+               80 ms -> stage_ekf_node             (identified here: seeded short plan)
+scanner        scanner_node, 50 ms sweep into      -
+               parametric resonance, 20 ms hold,
+               30 ms ring-down
+               -> scanner_threshold_ekf_node
+scanner_amdm   scanner_amdm_node, first 30 ms of   -
+               the scenario's sweep
+               -> scanner_amdm_estimator_node
+resonator      resonator_node, observer loop,      output_noise_std = 0.5
+               output noise 0.5 V, 30 ms
+               -> resonator_observer_node
 =============  ==================================  =======================================
 
 Every estimator runs in its device's namespace (``/imu``, ``/stage``, ...). The graph is
@@ -35,19 +39,20 @@ estimator changes its output; ``test/bags`` checks that regeneration reproduces 
 committed bags message for message and that replaying them into the estimators gives the
 stored estimates.
 
-Usage: ``python tools/make_bags.py [--out DIR] [--only NAME ...]``
+Usage: ``python tools/make_bags.py [--out DIR] [--only NAME ...] [--replay]``
+(``--replay`` prints, for each bag, a shell line that replays it into its estimator
+executable and records what that publishes.)
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-
-from rclpy.parameter import Parameter
 
 from mems_estimation.nodes.accelerometer_ekf_node import HybridEkfNode
 from mems_estimation.nodes.imu_noise_identifier_node import NoiseIdentifierNode
@@ -55,7 +60,7 @@ from mems_estimation.nodes.resonator_observer_node import SdObserverNode
 from mems_estimation.nodes.scanner_amdm_estimator_node import ScannerAmdmEstimatorNode
 from mems_estimation.nodes.scanner_threshold_ekf_node import ScannerThresholdNode
 from mems_estimation.nodes.stage_ekf_node import StageEkfNode
-from mems_scenarios.base import Graph, default_domain_id, drive_fast
+from mems_scenarios.base import Graph, default_domain_id, drive_fast, parameters
 from mems_sim.bag.recorder import RecorderNode
 from mems_sim.nodes.accelerometer_node import FrAccelerometerNode
 from mems_sim.nodes.imu_node import ImuNoiseNode
@@ -78,8 +83,13 @@ def _frames_done(est) -> int:
     return est.frames_done
 
 
-def _nothing(est) -> None:
-    """No end-of-stream action."""
+def finish(est) -> None:
+    """End of the stream: what ``run_node`` does at shutdown, ``close()`` where the node has
+    one (the IMU identifier publishes its final model, the scanner node its last ``lag``
+    estimates)."""
+    close = getattr(est, "close", None)
+    if close is not None:
+        close()
 
 
 @dataclass(frozen=True)
@@ -98,7 +108,6 @@ class Family:
         executable: console script of the estimator (for the replay line).
         consumed: input frames the estimator has taken so far.
         published: messages the estimator has published so far, per output topic.
-        finish: end-of-stream action of the estimator (flush, final result).
         prepare: ``(out_dir) -> extra estimator parameters``, run before the graph
             (the stage writes its identified parameter YAML there).
         extra_recorded: device topics recorded besides the inputs (the truth).
@@ -116,9 +125,8 @@ class Family:
     executable: str
     consumed: Callable[[object], int] = _frames_done
     published: Callable[[object], dict[str, int]] | None = None
-    finish: Callable[[object], None] = _nothing
     prepare: Callable[[Path], dict] | None = None
-    extra_recorded: tuple[str, ...] = field(default=("truth",))
+    extra_recorded: tuple[str, ...] = ("truth",)
     window: int = 20
 
     def topic(self, relative: str) -> str:
@@ -128,6 +136,13 @@ class Family:
     def recorded(self) -> list[str]:
         """Every recorded topic: estimator inputs, truth, estimator outputs."""
         return [self.topic(t) for t in self.inputs + self.extra_recorded + self.outputs]
+
+    def replay_params(self, bag_dir: Path) -> dict:
+        """Estimator parameters that replay the bag in ``bag_dir`` (with its stage YAML)."""
+        params = dict(self.estimator_params)
+        if self.prepare is not None:
+            params["params_yaml"] = str(bag_dir / STAGE_YAML)
+        return params
 
     def expected(self, est) -> dict[str, int]:
         """Messages published by the estimator per absolute output topic."""
@@ -139,16 +154,6 @@ class Family:
 
 
 # ------------------------------------------------------------------ family specifics
-
-
-def _imu_close(est) -> None:
-    """Publish the final noise model (what the node does at shutdown)."""
-    est.close()
-
-
-def _scanner_flush(est) -> None:
-    """Publish the last ``lag`` estimates (what the node does at shutdown)."""
-    est.flush()
 
 
 def _scanner_published(est) -> dict[str, int]:
@@ -182,22 +187,21 @@ FAMILIES: dict[str, Family] = {
             name="imu",
             namespace="imu",
             device=ImuNoiseNode,
-            device_params=dict(seed=11, duration_s=300.0, frame_size=100, publish_imu=False),
+            device_params=dict(seed=11, duration_s=600.0, frame_size=100, publish_imu=False),
             estimator=NoiseIdentifierNode,
-            estimator_params=dict(publish_period_s=60.0),
+            estimator_params=dict(publish_period_s=120.0),
             inputs=("adc",),
             outputs=("noise_model",),
             executable="imu_noise_identifier_node",
             consumed=lambda est: est.frames_received,
             published=lambda est: {"noise_model": len(est.results)},
-            finish=_imu_close,
             window=50,
         ),
         Family(
             name="accelerometer",
             namespace="accelerometer",
             device=FrAccelerometerNode,
-            device_params=dict(seed=12, mode="pi_rebalance", duration_s=0.03, frame_size=5000),
+            device_params=dict(seed=12, mode="pi_rebalance", duration_s=0.04, frame_size=5000),
             estimator=HybridEkfNode,
             estimator_params={},
             inputs=("adc", "drive"),
@@ -208,9 +212,7 @@ FAMILIES: dict[str, Family] = {
             name="stage",
             namespace="stage",
             device=MicroStageNode,
-            device_params=dict(
-                seed=13, duration_s=0.2, frame_size=12500, gyro_enabled=False, frame_id="stage"
-            ),
+            device_params=dict(seed=13, duration_s=0.08, frame_size=10000, gyro_enabled=False),
             estimator=StageEkfNode,
             estimator_params={},
             inputs=("adc", "drive"),
@@ -224,11 +226,10 @@ FAMILIES: dict[str, Family] = {
             device=MicroScannerNode,
             device_params=dict(
                 seed=14,
-                initial_angle=0.15,
-                sweep_time_s=0.0,
-                hold_time_s=0.0,
-                ringdown_time_s=0.05,
-                duration_s=0.05,
+                sweep_time_s=0.05,
+                hold_time_s=0.02,
+                ringdown_time_s=0.03,
+                duration_s=0.1,
                 frame_size=5000,
             ),
             estimator=ScannerThresholdNode,
@@ -237,7 +238,6 @@ FAMILIES: dict[str, Family] = {
             outputs=("estimate", "estimate_plain", "threshold_detections"),
             executable="scanner_threshold_ekf_node",
             published=_scanner_published,
-            finish=_scanner_flush,
         ),
         Family(
             name="scanner_amdm",
@@ -281,27 +281,16 @@ FAMILIES: dict[str, Family] = {
 # ------------------------------------------------------------------ graph
 
 
-def _overrides(values: dict) -> list[Parameter]:
-    """rclpy parameter overrides from a dict."""
-    return [Parameter(k, value=v) for k, v in values.items()]
-
-
 def build(graph: Graph, family: Family, out: Path, estimator_params: dict):
     """Add the device, the estimator (both in the family's namespace) and the recorder."""
-    dev = graph.add(
-        family.device(
-            context=graph.context,
-            namespace=family.namespace,
-            drive_externally=True,
-            autostart=False,
-            parameter_overrides=_overrides(family.device_params),
-        )
+    dev = graph.add_device(
+        family.device, family.device_params, realtime=False, namespace=family.namespace
     )
     est = graph.add(
         family.estimator(
             context=graph.context,
             namespace=family.namespace,
-            parameter_overrides=_overrides(estimator_params),
+            parameter_overrides=parameters(estimator_params),
         )
     )
     rec = graph.add(RecorderNode(str(out), topics=family.recorded(), context=graph.context))
@@ -337,7 +326,7 @@ def run_family(graph: Graph, family: Family, dev, est, rec: RecorderNode) -> Non
 
     drive_fast(graph, [dev], delivered, window=family.window)
     graph.spin_until(lambda: delivered(dev) >= dev.frames_published, 60.0, "the last frames")
-    family.finish(est)
+    finish(est)
     expected = family.expected(est)
     graph.spin_until(
         lambda: all(rec.received(t) >= n for t, n in expected.items()),
@@ -381,6 +370,28 @@ def report(result: dict) -> str:
     return "\n".join(lines)
 
 
+def replay_line(family: Family, bag_dir: Path = Path("bags")) -> str:
+    """A shell line that replays ``<bag_dir>/<name>.mcap`` into the family's estimator
+    executable (started in the device's namespace with the bag's parameters), records what
+    it publishes to ``/tmp/<name>_replay.mcap`` and summarises that file. The estimator is
+    stopped first (the IMU identifier and the scanner publish their last output then)."""
+    bag_dir = Path(os.path.relpath(bag_dir))
+    params = family.replay_params(bag_dir)
+    bin_ = ".venv/bin"
+    out = f"/tmp/{family.name}_replay.mcap"
+    estimator = f"{bin_}/{family.executable} --ros-args -r __ns:=/{family.namespace}" + "".join(
+        f" -p {k}:={v}" for k, v in params.items()
+    )
+    outputs = " ".join(family.topic(t) for t in family.outputs)
+    inputs = " ".join(family.topic(t) for t in family.inputs)
+    return (
+        f"{estimator} & {bin_}/mcap_record --overwrite -o {out} {outputs} & "
+        f"{bin_}/mcap_play {bag_dir}/{family.name}.mcap --topics {inputs} "
+        "--wait-for-subscribers 1 --wait-timeout 60 --delay 2 --as-fast-as-possible; "
+        f"sleep 2; kill %1; sleep 1; kill %2; wait; {bin_}/mcap_info {out}"
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     """Regenerate the selected bags; exit code 1 if one is over the size limit."""
     parser = argparse.ArgumentParser(prog="make_bags", description=__doc__.splitlines()[0])
@@ -388,8 +399,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--only", nargs="+", choices=sorted(FAMILIES), default=None, help="these bags only"
     )
+    parser.add_argument(
+        "--replay",
+        action="store_true",
+        help="print a shell line per bag that replays it into its estimator, and exit",
+    )
     args = parser.parse_args(argv)
     names = args.only or list(FAMILIES)
+    if args.replay:
+        for name in names:
+            print(replay_line(FAMILIES[name], args.out))
+        return 0
     total, too_big = 0, False
     for name in names:
         result = generate(FAMILIES[name], args.out)

@@ -1,12 +1,10 @@
 """Adaptive (joint state-parameter) Kalman observer of the sigma-delta resonator.
 
-Source: Colinet, Galayko & Juillard, "Pulse-actuated micromechanical resonator using digital Kalman observer",
-Sec. 7-8: "a
-non-linear adaptive Kalman observer: the unknown state variables are the
-system coefficients together with the original state variables" (their
-announced future work).  This module implements it as an extended Kalman
-filter (EKF) over the 6 states of :mod:`mems_sim.kernels.resonator_observer`
-augmented with
+Source: Colinet, Galayko & Juillard, "Pulse-actuated micromechanical resonator using digital
+Kalman observer", Sec. 7-8: "a non-linear adaptive Kalman observer: the unknown state
+variables are the system coefficients together with the original state variables" (their
+announced future work).  This module implements it as an extended Kalman filter (EKF) over
+the 6 states of :mod:`mems_sim.kernels.resonator_observer` augmented with
 
     d = f0/f0_init - 1                  (random walk, std f0_random_walk_ppm*1e-6 per sample)
     r = Q/Q_init - 1   (estimate_q)     (random walk, std q_random_walk_ppm*1e-6 per sample)

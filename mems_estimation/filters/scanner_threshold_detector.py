@@ -1,11 +1,11 @@
 """Threshold-crossing detector: derivative-of-Gaussian (DOG) filter + non-maximum suppression.
 
-Source: Chen 2018, "High-accuracy Motion Estimation for MEMS Devices with Capacitive Sensors" (PhD thesis, U. Michigan),
-chapter 4: Sec. 4.2.2 (DOG filter
-for the instant of maximum rate of change of y_cap at the threshold angle, Fig. 4.2),
-eq. (65) (Canny's timing-error variance), Sec. 4.4.1 (DOG filter + non-maximum
-suppression; the paper ran it offline and proposed a buffer for near real time),
-Table 4.2 (w_DOG = 400 samples, sigma_DOG = 15 samples).
+Source: Y. Chen, "High-accuracy Motion Estimation for MEMS Devices with Capacitive Sensors",
+PhD thesis, U. Michigan 2018, chapter 4: Sec. 4.2.2 (DOG filter for the instant of maximum
+rate of change of y_cap at the threshold angle, Fig. 4.2), eq. (65) (Canny's timing-error
+variance), Sec. 4.4.1 (DOG filter + non-maximum suppression; the paper ran it offline and
+proposed a buffer for near real time), Table 4.2 (w_DOG = 400 samples, sigma_DOG = 15
+samples).
 
 Filter (sample units, m = -W..W, W = w_DOG // 2)::
 

@@ -1,9 +1,10 @@
 """Plain and threshold-aided (hybrid) EKF for the chapter-4 micro-scanner.
 
-Source: Chen 2018, "High-accuracy Motion Estimation for MEMS Devices with Capacitive Sensors" (PhD thesis, U. Michigan), chapter 4: process model
-eqs. (68)-(70), measurement eq. (71) y_cap = h_cap(theta) omega, Table 4.1 (EKF with the
-hybrid sensing scheme: at a threshold detection the measurement theta = theta_th with
-variance R_theta,th is stacked on the y_cap update).
+Source: Y. Chen, "High-accuracy Motion Estimation for MEMS Devices with Capacitive Sensors",
+PhD thesis, U. Michigan 2018, chapter 4: process model eqs. (68)-(70), measurement eq. (71)
+y_cap = h_cap(theta) omega, Table 4.1 (EKF with the hybrid sensing scheme: at a threshold
+detection the measurement theta = theta_th with variance R_theta,th is stacked on the y_cap
+update).
 
 State x = [theta (rad), omega (rad/s)].  Per sample k (Ts = 1/fs)::
 

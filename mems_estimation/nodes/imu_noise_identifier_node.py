@@ -1,10 +1,10 @@
 """ROS 2 node: Allan-variance noise identification on a stream of AdcFrames.
 
-Subscribes to ``input_topic`` (mems_msgs/AdcFrame, default ``/imu/adc``),
-accumulates the physical values of every channel, and publishes the
-identified noise model (mems_msgs/NoiseModel: N, B, K, T, Q per axis with
-confidence intervals, the discrete model and the Allan deviation) on
-``output_topic`` every ``publish_period_s`` of *data* (so replaying a bag
+Subscribes to ``input_topic`` (mems_msgs/AdcFrame, default ``adc`` in the node's
+namespace, default ``/imu``), accumulates the physical values of every channel, and
+publishes the identified noise model (mems_msgs/NoiseModel: N, B, K, T, Q per axis with
+confidence intervals, the discrete model and the Allan deviation) on ``output_topic``
+(default ``noise_model``, beside the input) every ``publish_period_s`` of *data* (so replaying a bag
 gives exactly the live output) and once more, ``final = true``, at shutdown.
 Malformed frames are rejected and counted on /diagnostics; gaps in
 ``first_sample_index`` are counted and reported, not bridged silently.
@@ -13,13 +13,12 @@ Malformed frames are rejected and counted on /diagnostics; gaps in
 from __future__ import annotations
 
 import numpy as np
-from rclpy.node import Node
 
 from mems_estimation.identification.imu_noise_fit import identify_axes
+from mems_estimation.nodes.frame_input import EstimatorNode
 from mems_estimation.nodes.imu_noise_messages import noise_model_msg
 from mems_msgs.msg import AdcFrame, NoiseModel
 from mems_sim.params import ParamSpec
-from mems_sim.ros.diagnostics import DiagnosticsReporter
 from mems_sim.ros.frames import (
     FrameError,
     IndexTracker,
@@ -29,12 +28,23 @@ from mems_sim.ros.frames import (
     time_to_ns,
 )
 from mems_sim.ros.node_base import run_node
-from mems_sim.ros.params import declare_specs
 from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
 
 IDENTIFIER_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec("input_topic", "/imu/adc", "-", "AdcFrame topic of the sensor at rest", ""),
-    ParamSpec("output_topic", "/imu/noise_model", "-", "NoiseModel topic", ""),
+    ParamSpec(
+        "input_topic",
+        "adc",
+        "-",
+        "AdcFrame topic of the sensor at rest (relative: in the node's namespace)",
+        "",
+    ),
+    ParamSpec(
+        "output_topic",
+        "noise_model",
+        "-",
+        "NoiseModel topic (relative: in the node's namespace)",
+        "",
+    ),
     ParamSpec(
         "tau_grid",
         "octave",
@@ -126,18 +136,21 @@ def identify_message(
     )
 
 
-class NoiseIdentifierNode(Node):
+class NoiseIdentifierNode(EstimatorNode):
     """Accumulates AdcFrames and publishes identified noise models."""
 
+    NODE_NAME = "imu_noise_identifier"
+    DEFAULT_NAMESPACE = "imu"
+    SPECS = IDENTIFIER_SPECS
+    DIAGNOSTICS_TITLE = "noise identification"
+
     def __init__(self, **node_kwargs) -> None:
-        super().__init__("noise_identifier", **node_kwargs)
-        self.p = declare_specs(self, IDENTIFIER_SPECS)
+        super().__init__(**node_kwargs)
         self.acc = NoiseAccumulator()
         self.results: list[NoiseModel] = []
         self.frames_received = 0
         self._next_publish_s = self.p["publish_period_s"]
         self._finalised = False
-        self.diag = DiagnosticsReporter(self, f"{self.get_name()}: noise identification")
         self.pub = self.create_publisher(NoiseModel, self.p["output_topic"], RESULT_QOS)
         self.sub = self.create_subscription(
             AdcFrame, self.p["input_topic"], self.on_frame, FRAME_QOS
@@ -146,16 +159,11 @@ class NoiseIdentifierNode(Node):
     def on_frame(self, msg: AdcFrame) -> None:
         """Validate and accumulate a frame; publish a periodic result when due."""
         self.frames_received += 1
-        try:
-            missing = self.acc.add(msg)
-        except FrameError as exc:
-            self.diag.count("rejected_frames")
-            self.diag.warn(f"rejected frame: {exc}")
+        missing = self.accept_frame(msg, self.acc.add, check_rate=False)
+        if missing is None:
             return
         self.diag.count("frames")
-        if missing:
-            self.diag.count("gaps")
-            self.diag.warn(f"gap of {missing} samples before index {msg.first_sample_index}")
+        self.note_gap(msg.first_sample_index, missing)
         period = self.p["publish_period_s"]
         if period > 0 and self.acc.duration_s() >= self._next_publish_s:
             self._next_publish_s += period

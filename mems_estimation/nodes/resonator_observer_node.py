@@ -3,7 +3,8 @@
 Subscribes ``<device>/adc`` (one-bit AdcFrame, codes -1/+1) and ``<device>/drive``
 (the known pulses, SignalFrame: channel ``pulse`` [V] and, for sub-sample pulses,
 ``pulse_start`` [s] and ``pulse_width`` [s]; without them the pulses are one-sample ZOH
-values), pairs the frames by ``first_sample_index``,
+values) -- ``<device>/`` is ``device_namespace``, or nothing: relative names in the node's
+namespace, default ``/resonator`` --, pairs the frames by ``first_sample_index``,
 runs :class:`mems_sim.kernels.resonator_observer.KalmanObserver` (6 states: resonator,
 STF, NTF; Colinet et al. eqs. 1-13) or, with ``adaptive: true``,
 :class:`mems_estimation.filters.resonator_adaptive_observer.AdaptiveObserver` (state augmented
@@ -16,29 +17,18 @@ another length than its drive frame is rejected and counted on /diagnostics.
 from __future__ import annotations
 
 import numpy as np
-from rclpy.node import Node
 
 from mems_estimation.filters.resonator_adaptive_observer import AdaptiveObserver
-from mems_estimation.nodes.frame_input import FrameInputMixin, FramePairer
+from mems_estimation.nodes.frame_input import DEVICE_NAMESPACE, EstimatorNode
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.kernels.resonator_observer import KalmanObserver
 from mems_sim.params import ParameterError, ParamSpec
-from mems_sim.ros.diagnostics import DiagnosticsReporter
-from mems_sim.ros.frames import (
-    FrameError,
-    IndexTracker,
-    make_state_estimate,
-    signal_data,
-    time_to_ns,
-)
+from mems_sim.ros.frames import FrameError, make_state_estimate, signal_data
 from mems_sim.ros.node_base import run_node
-from mems_sim.ros.params import declare_specs
 from mems_sim.ros.qos import FRAME_QOS
 
 OBSERVER_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec(
-        "device_namespace", "/resonator", "-", "namespace of the device's adc/drive topics", ""
-    ),
+    DEVICE_NAMESPACE,
     ParamSpec(
         "adaptive",
         False,
@@ -107,8 +97,7 @@ OBSERVER_SPECS: tuple[ParamSpec, ...] = (
         "output_topic",
         "",
         "-",
-        "StateEstimate topic; empty: <device_namespace>/estimate "
-        "or <device_namespace>/adaptive_estimate",
+        "StateEstimate topic; empty: the device's 'estimate' or 'adaptive_estimate'",
         "",
     ),
     ParamSpec("steady_state", False, "-", "use the steady-state Kalman gain (fast)", ""),
@@ -166,12 +155,21 @@ def bits_of(msg: AdcFrame) -> np.ndarray:
     return codes.astype(np.float64)
 
 
-class SdObserverNode(FrameInputMixin, Node):
+class SdObserverNode(EstimatorNode):
     """Kalman / adaptive observer on the bit stream and pulses of a sigma-delta resonator."""
 
+    GAP_NOTE = "the estimate continues without those samples"
+
+    NODE_NAME = "resonator_observer"
+    DEFAULT_NAMESPACE = "resonator"
+    SPECS = OBSERVER_SPECS
+    DIAGNOSTICS_TITLE = staticmethod(
+        lambda p: "adaptive_observer" if p["adaptive"] else "kalman_observer"
+    )
+
     def __init__(self, **node_kwargs) -> None:
-        super().__init__("sd_observer", **node_kwargs)
-        self.p = p = declare_specs(self, OBSERVER_SPECS)
+        super().__init__(**node_kwargs)
+        p = self.p
         self.fs = p["sample_rate_hz"]
         if p["f0_hz"] >= p["sample_rate_hz"] / 2:
             raise ParameterError(
@@ -202,79 +200,37 @@ class SdObserverNode(FrameInputMixin, Node):
                 steady_state=p["steady_state"],
             )
             self.names, self.units, self.estimator = ("position",), ("V",), "kalman_observer"
-        ns = p["device_namespace"].rstrip("/")
-        topic = p["output_topic"] or (
-            f"{ns}/adaptive_estimate" if p["adaptive"] else f"{ns}/estimate"
+        topic = p["output_topic"] or self.device_topic(
+            "adaptive_estimate" if p["adaptive"] else "estimate"
         )
         self.pub = self.create_publisher(StateEstimate, topic, FRAME_QOS)
-        self.pairer = FramePairer(("bits", "pulses"))
-        self.tracker = IndexTracker()
-        self.stamps: dict[int, int] = {}
-        self.frames_done = 0
-        self.diag = DiagnosticsReporter(self, f"{self.get_name()}: {self.estimator}")
-        self.create_subscription(AdcFrame, f"{ns}/adc", self.on_bits, FRAME_QOS)
-        self.create_subscription(SignalFrame, f"{ns}/drive", self.on_pulses, FRAME_QOS)
+        self.subscribe_pair(("adc", AdcFrame, bits_of), ("drive", SignalFrame, pulses_of))
 
-    def on_bits(self, msg: AdcFrame) -> None:
-        """Validate a bit frame and process the pairs it completes."""
+    def process_pair(self, first: int, stamp_ns: int, bits: np.ndarray, drive) -> None:
+        """Observer on one frame of bits with its pulses; publish the estimate."""
+        pulses, starts, widths = drive
         try:
-            self._check_rate(msg)
-            values = bits_of(msg)
-        except FrameError as exc:
-            self._reject(str(exc))
-            return
-        self.stamps[msg.first_sample_index] = time_to_ns(msg.header.stamp)
-        self._process(self.pairer.add("bits", msg.first_sample_index, values))
-
-    def on_pulses(self, msg: SignalFrame) -> None:
-        """Validate a pulse frame and process the pairs it completes."""
-        try:
-            self._check_rate(msg)
-            values = pulses_of(msg)
-        except FrameError as exc:
-            self._reject(str(exc))
-            return
-        self._process(self.pairer.add("pulses", msg.first_sample_index, values))
-
-    def _process(self, pairs) -> None:
-        for first, bits, (pulses, starts, widths) in pairs:
-            if bits.shape != pulses.shape:
-                self._reject(f"frames at {first}: {bits.size} bits for {pulses.size} pulses")
-                continue
-            missing = self.tracker.update(first, bits.size)
-            if missing:
-                self.diag.count("gaps")
-                self.diag.warn(
-                    f"gap of {missing} samples before index {first}: the estimate "
-                    "continues without those samples"
-                )
-            try:
-                out = self.observer.step(bits, pulses, starts, widths)
-            except ValueError as exc:  # pulse timing outside [0, T) / (0, T]
-                self.stamps.pop(first, None)
-                self._reject(f"frames at {first}: {exc}")
-                continue
-            if self.p["adaptive"]:
-                pos, pos_var, f0, f0_var = out
-                states, var = np.column_stack([pos, f0]), np.column_stack([pos_var, f0_var])
-            else:
-                pos, pos_var = out
-                states, var = pos.reshape(-1, 1), pos_var.reshape(-1, 1)
-            t0 = self.stamps.pop(first)  # stamp of the frame's first sample
-            msg = make_state_estimate(
-                states,
-                var,
-                first,
-                self.p["sample_rate_hz"],
-                estimator=self.estimator,
-                state_names=self.names,
-                state_units=self.units,
-                frame_id="resonator",
-            )
-            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t0, 10**9)
-            self.pub.publish(msg)
-            self.frames_done += 1
-            self.diag.count("frames")
+            out = self.observer.step(bits, pulses, starts, widths)
+        except ValueError as exc:  # pulse timing outside [0, T) / (0, T]
+            raise FrameError(str(exc)) from None
+        if self.p["adaptive"]:
+            pos, pos_var, f0, f0_var = out
+            states, var = np.column_stack([pos, f0]), np.column_stack([pos_var, f0_var])
+        else:
+            pos, pos_var = out
+            states, var = pos.reshape(-1, 1), pos_var.reshape(-1, 1)
+        msg = make_state_estimate(
+            states,
+            var,
+            first,
+            self.p["sample_rate_hz"],
+            estimator=self.estimator,
+            state_names=self.names,
+            state_units=self.units,
+            frame_id="resonator",
+        )
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 10**9)
+        self.pub.publish(msg)
 
 
 def main(argv: list[str] | None = None) -> int:

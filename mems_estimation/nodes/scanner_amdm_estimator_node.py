@@ -1,10 +1,11 @@
 """ROS 2 node: EKF and UKF of the shared-electrode micro-scanner on its AMDM output (Chen 2018 ch. 5).
 
-Thin wrapper of :mod:`mems_estimation.filters.scanner_amdm_filters`.  Subscribes ``<device>/adc`` (AdcFrame,
-channel ``y_cap`` [V]) and ``<device>/drive`` (SignalFrame, channel ``v_drive`` [V]), pairs
-the frames by ``first_sample_index`` and runs both filters on every pair.
+Thin wrapper of :mod:`mems_estimation.filters.scanner_amdm_tracking`.  Subscribes ``<device>/adc``
+(AdcFrame, channel ``y_cap`` [V]) and ``<device>/drive`` (SignalFrame, channel ``v_drive`` [V]),
+pairs the frames by ``first_sample_index`` and runs both filters on every pair.
 
-Publishes (``<device>`` = ``device_namespace``):
+Publishes (``<device>/`` = ``device_namespace``, or nothing: relative names in the node's
+namespace, default ``/scanner_amdm``):
     ``<device>/ekf/estimate``, ``<device>/ukf/estimate``  mems_msgs/StateEstimate
         theta [rad], omega [rad/s] with variances, one per AMDM sample; sample k describes
         t_k - chain_delay_s (the header stamp is shifted accordingly; first_sample_index is
@@ -25,29 +26,18 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from rclpy.node import Node
 
-from mems_estimation.filters import scanner_amdm_filters as su
-from mems_estimation.nodes.frame_input import FrameInputMixin
+from mems_estimation.filters import scanner_amdm_model as sam
+from mems_estimation.filters import scanner_amdm_tracking as su
+from mems_estimation.nodes.frame_input import DEVICE_NAMESPACE, EstimatorNode
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.params import ParamSpec
-from mems_sim.ros.diagnostics import DiagnosticsReporter
-from mems_sim.ros.frames import (
-    FrameError,
-    IndexTracker,
-    adc_physical,
-    make_state_estimate,
-    signal_data,
-    time_to_ns,
-)
+from mems_sim.ros.frames import FrameError, adc_physical, make_state_estimate, signal_data
 from mems_sim.ros.node_base import run_node
-from mems_sim.ros.params import declare_specs
 from mems_sim.ros.qos import FRAME_QOS
 
 NODE_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec(
-        "device_namespace", "/scanner_amdm", "-", "namespace of the device's adc/drive topics", ""
-    ),
+    DEVICE_NAMESPACE,
     ParamSpec("frame_id", "scanner", "-", "frame_id of the published estimates", ""),
 )
 
@@ -56,35 +46,52 @@ EVENT_NAMES, EVENT_UNITS = ("t_peak", "phase", "amplitude"), ("s", "rad", "rad")
 KINDS = ("ekf", "ukf")
 
 
-class ScannerAmdmEstimatorNode(FrameInputMixin, Node):
+def _channel(msg, data: np.ndarray, name: str) -> np.ndarray:
+    """Column ``name`` of a frame's data; FrameError when absent or non-finite."""
+    names = list(msg.channel_names)
+    if name not in names:
+        raise FrameError(f"frame at {msg.first_sample_index}: no channel '{name}' (has {names})")
+    col = data[:, names.index(name)]
+    if not np.all(np.isfinite(col)):
+        raise FrameError(f"frame at {msg.first_sample_index}: non-finite '{name}'")
+    return col
+
+
+class ScannerAmdmEstimatorNode(EstimatorNode):
     """EKF + UKF on the AMDM output of the shared-electrode scanner (module doc)."""
 
+    GAP_NOTE = "filters reset (re-acquire)"
+
+    NODE_NAME = "scanner_amdm_estimator"
+    DEFAULT_NAMESPACE = "scanner_amdm"
+    SPECS = sam.ESTIMATOR_SPECS + NODE_SPECS
+    DIAGNOSTICS_TITLE = "EKF/UKF (shared electrodes)"
+
     def __init__(self, **node_kwargs) -> None:
-        super().__init__("scanner_amdm_estimator", **node_kwargs)
-        self.p = p = declare_specs(self, su.ESTIMATOR_SPECS + NODE_SPECS)
-        est = {s.name: p[s.name] for s in su.ESTIMATOR_SPECS}
+        super().__init__(**node_kwargs)
+        p = self.p
+        est = {s.name: p[s.name] for s in sam.ESTIMATOR_SPECS}
         self.est_params = est
         self.fs = p["sample_rate_hz"]
         self._make_filters()
-        ns = p["device_namespace"].rstrip("/")
         self.pub_est = {
-            k: self.create_publisher(StateEstimate, f"{ns}/{k}/estimate", FRAME_QOS) for k in KINDS
+            k: self.create_publisher(StateEstimate, self.device_topic(f"{k}/estimate"), FRAME_QOS)
+            for k in KINDS
         }
         self.pub_evt = {
-            k: self.create_publisher(StateEstimate, f"{ns}/{k}/phase_amplitude", FRAME_QOS)
+            k: self.create_publisher(
+                StateEstimate, self.device_topic(f"{k}/phase_amplitude"), FRAME_QOS
+            )
             for k in KINDS
         }
         self.event_rate = 2.0 * math.sqrt(p["spring_constant"] / p["inertia"]) / (2 * math.pi)
         self.events_published = {k: 0 for k in KINDS}
         self.event_msgs = {k: 0 for k in KINDS}
         self._low_warned = False
-        self._adc: dict[int, tuple[np.ndarray, int]] = {}
-        self._drv: dict[int, np.ndarray] = {}
-        self.tracker = IndexTracker()
-        self.frames_done = 0
-        self.diag = DiagnosticsReporter(self, f"{self.get_name()}: EKF/UKF (shared electrodes)")
-        self.create_subscription(AdcFrame, f"{ns}/adc", self.on_adc, FRAME_QOS)
-        self.create_subscription(SignalFrame, f"{ns}/drive", self.on_drive, FRAME_QOS)
+        self.subscribe_pair(
+            ("adc", AdcFrame, self._decode_adc),
+            ("drive", SignalFrame, lambda msg: _channel(msg, signal_data(msg), "v_drive")),
+        )
 
     def _make_filters(self) -> None:
         est, fs = self.est_params, self.fs
@@ -95,61 +102,18 @@ class ScannerAmdmEstimatorNode(FrameInputMixin, Node):
             k: su.PhaseAmplitudeTracker(est["min_amplitude"], fs, delay) for k in KINDS
         }
 
-    # ------------------------------------------------------------------ input
-
-    @staticmethod
-    def _channel(msg, data: np.ndarray, name: str) -> np.ndarray:
-        names = list(msg.channel_names)
-        if name not in names:
-            raise FrameError(
-                f"frame at {msg.first_sample_index}: no channel '{name}' (has {names})"
-            )
-        col = data[:, names.index(name)]
-        if not np.all(np.isfinite(col)):
-            raise FrameError(f"frame at {msg.first_sample_index}: non-finite '{name}'")
-        return col
-
-    def on_adc(self, msg: AdcFrame) -> None:
-        """Validate an AMDM frame and process the pairs it completes."""
-        try:
-            self._check_rate(msg)
-            y = self._channel(msg, adc_physical(msg), "y_cap")
-        except FrameError as exc:
-            self._reject(str(exc))
-            return
+    def _decode_adc(self, msg: AdcFrame) -> np.ndarray:
+        """y_cap [V] of an AMDM frame (its saturated samples counted)."""
+        y = _channel(msg, adc_physical(msg), "y_cap")
         if msg.saturated_count:
             self.diag.count("saturated_samples", int(msg.saturated_count))
-        self._adc[msg.first_sample_index] = (y, time_to_ns(msg.header.stamp))
-        self._process()
+        return y
 
-    def on_drive(self, msg: SignalFrame) -> None:
-        """Validate a drive frame and process the pairs it completes."""
-        try:
-            self._check_rate(msg)
-            v = self._channel(msg, signal_data(msg), "v_drive")
-        except FrameError as exc:
-            self._reject(str(exc))
-            return
-        self._drv[msg.first_sample_index] = v
-        self._process()
+    def on_gap(self, gap: int) -> None:
+        """Both filters start again (re-acquire)."""
+        self._make_filters()
 
-    # ------------------------------------------------------------------ processing
-    def _process(self) -> None:
-        for first in sorted(set(self._adc) & set(self._drv)):
-            (y, stamp), v = self._adc.pop(first), self._drv.pop(first)
-            if y.size != v.size:
-                self._reject(f"frames at {first}: {y.size} AMDM samples for {v.size} drive samples")
-                continue
-            missing = self.tracker.update(first, y.size)
-            if missing:
-                self.diag.count("gaps")
-                self.diag.warn(
-                    f"gap of {missing} samples before index {first}: filters reset (re-acquire)"
-                )
-                self._make_filters()
-            self.process_frame(first, stamp, y, v)
-
-    def process_frame(self, first: int, stamp_ns: int, y: np.ndarray, v: np.ndarray) -> None:
+    def process_pair(self, first: int, stamp_ns: int, y: np.ndarray, v: np.ndarray) -> None:
         """Run both filters on one paired frame and publish estimates and extrema."""
         v2 = self.aligner.push(first, v)
         delay_ns = int(round(self.est_params["chain_delay_s"] * 1e9))
@@ -213,8 +177,6 @@ class ScannerAmdmEstimatorNode(FrameInputMixin, Node):
             if f.pd_failures and not self.diag.counters.get(f"{k}_pd_warned"):
                 self.diag.counters[f"{k}_pd_warned"] = 1
                 self.diag.warn(f"{k}: covariance lost positive definiteness (repaired)")
-        self.frames_done += 1
-        self.diag.count("frames")
 
 
 def main(argv: list[str] | None = None) -> int:

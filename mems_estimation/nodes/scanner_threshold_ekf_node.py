@@ -1,8 +1,9 @@
 """ROS 2 node: causal threshold detector + hybrid EKF (Table 4.1) on the micro-scanner's y_cap.
 
 Subscribes ``<device>/adc`` (AdcFrame, one channel ``y_cap`` [V], the ``dc_transimpedance``
-front end) and ``<device>/drive`` (SignalFrame with channel ``v_drive`` [V]), pairs them by
-``first_sample_index`` and runs per frame:
+front end) and ``<device>/drive`` (SignalFrame with channel ``v_drive`` [V]) -- ``<device>/``
+is ``device_namespace``, or nothing: relative names in the node's namespace, default
+``/scanner`` --, pairs them by ``first_sample_index`` and runs per frame:
 
 * :class:`mems_estimation.filters.scanner_threshold_detector.OnlineThresholdDetector` (DOG + NMS, latency
   W + M samples),
@@ -24,33 +25,27 @@ Publishes (estimates are *final*: they lag the input by the filter's ``lag`` sam
 from __future__ import annotations
 
 import numpy as np
-from rclpy.node import Node
 
 from mems_estimation.filters.scanner_threshold_detector import (
     DETECTOR_SPECS,
     OnlineThresholdDetector,
 )
 from mems_estimation.filters.scanner_threshold_ekf import EKF_SPECS, StreamingScannerEkf, signal_snr
-from mems_estimation.nodes.frame_input import FrameInputMixin, FramePairer
+from mems_estimation.nodes.frame_input import DEVICE_NAMESPACE, EstimatorNode
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.params import ParameterError, ParamSpec
-from mems_sim.ros.diagnostics import DiagnosticsReporter
 from mems_sim.ros.frames import (
     FrameError,
-    IndexTracker,
     adc_physical,
     make_signal_frame,
     make_state_estimate,
     signal_data,
 )
 from mems_sim.ros.node_base import run_node
-from mems_sim.ros.params import declare_specs
 from mems_sim.ros.qos import FRAME_QOS
 
 NODE_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec(
-        "device_namespace", "/scanner", "-", "namespace of the device's adc/drive topics", ""
-    ),
+    DEVICE_NAMESPACE,
     ParamSpec("run_plain", True, "-", "also run and publish the plain EKF (no detections)", ""),
     ParamSpec(
         "low_snr",
@@ -105,12 +100,38 @@ def detections_from_rows(rows: np.ndarray, first: int):
     )
 
 
-class ScannerThresholdNode(FrameInputMixin, Node):
+def _y_cap(msg: AdcFrame) -> np.ndarray:
+    """y_cap [V] of a one-channel AdcFrame; FrameError for other channels."""
+    if list(msg.channel_names) != ["y_cap"]:
+        raise FrameError(
+            f"adc frame at {msg.first_sample_index}: expected one channel "
+            f"'y_cap', got {list(msg.channel_names)}"
+        )
+    return np.ascontiguousarray(adc_physical(msg)[:, 0])
+
+
+def _v_drive(msg: SignalFrame) -> np.ndarray:
+    """v_drive [V] of a drive frame; FrameError when absent or non-finite."""
+    data = signal_data(msg)
+    names = list(msg.channel_names)
+    if "v_drive" not in names:
+        raise FrameError(f"drive frame at {msg.first_sample_index}: no 'v_drive' channel")
+    return np.ascontiguousarray(data[:, names.index("v_drive")])
+
+
+class ScannerThresholdNode(EstimatorNode):
     """Threshold detector + hybrid (and plain) EKF of the chapter-4 micro-scanner."""
 
+    GAP_NOTE = "the filters continue as if the samples were consecutive"
+
+    NODE_NAME = "scanner_threshold_ekf"
+    DEFAULT_NAMESPACE = "scanner"
+    SPECS = NODE_SPECS + EKF_SPECS + _DET_SPECS
+    DIAGNOSTICS_TITLE = "threshold hybrid EKF"
+
     def __init__(self, **node_kwargs) -> None:
-        super().__init__("scanner_threshold", **node_kwargs)
-        self.p = p = declare_specs(self, NODE_SPECS + EKF_SPECS + _DET_SPECS)
+        super().__init__(**node_kwargs)
+        p = self.p
         ekf = {s.name: p[s.name] for s in EKF_SPECS}
         det = {s.name: p[s.name] for s in _DET_SPECS}
         det["noise_std"] = float(np.sqrt(p["r_cap"]))
@@ -123,54 +144,23 @@ class ScannerThresholdNode(FrameInputMixin, Node):
         self.hybrid = StreamingScannerEkf(ekf)
         self.plain = StreamingScannerEkf(ekf) if p["run_plain"] else None
         self.fs = p["sample_rate_hz"]
-        ns = p["device_namespace"].rstrip("/")
-        self.pub_hyb = self.create_publisher(StateEstimate, f"{ns}/estimate", FRAME_QOS)
+        self.pub_hyb = self.create_publisher(
+            StateEstimate, self.device_topic("estimate"), FRAME_QOS
+        )
         self.pub_plain = (
-            self.create_publisher(StateEstimate, f"{ns}/estimate_plain", FRAME_QOS)
+            self.create_publisher(StateEstimate, self.device_topic("estimate_plain"), FRAME_QOS)
             if self.plain is not None
             else None
         )
-        self.pub_det = self.create_publisher(SignalFrame, f"{ns}/threshold_detections", FRAME_QOS)
-        self.pairer = FramePairer()
-        self.tracker = IndexTracker()
-        self.frames_done = 0
+        self.pub_det = self.create_publisher(
+            SignalFrame, self.device_topic("threshold_detections"), FRAME_QOS
+        )
         self.low_signal = False
         self.snr = float("nan")
         self._ybuf = np.zeros(0)
-        self.diag = DiagnosticsReporter(self, f"{self.get_name()}: threshold hybrid EKF")
         self.diag.counters["detector_latency_samples"] = self.detector.latency
         self.diag.counters["estimate_lag_samples"] = self.hybrid.lag
-        self.create_subscription(AdcFrame, f"{ns}/adc", self.on_adc, FRAME_QOS)
-        self.create_subscription(SignalFrame, f"{ns}/drive", self.on_drive, FRAME_QOS)
-
-    def on_adc(self, msg: AdcFrame) -> None:
-        """Validate a y_cap frame and process the pairs it completes."""
-        try:
-            self._check_rate(msg)
-            if list(msg.channel_names) != ["y_cap"]:
-                raise FrameError(
-                    f"adc frame at {msg.first_sample_index}: expected one channel "
-                    f"'y_cap', got {list(msg.channel_names)}"
-                )
-            y = adc_physical(msg)[:, 0]
-        except FrameError as exc:
-            self._reject(str(exc))
-            return
-        self._process(self.pairer.add("adc", msg.first_sample_index, np.ascontiguousarray(y)))
-
-    def on_drive(self, msg: SignalFrame) -> None:
-        """Validate a drive frame and process the pairs it completes."""
-        try:
-            self._check_rate(msg)
-            data = signal_data(msg)
-            names = list(msg.channel_names)
-            if "v_drive" not in names:
-                raise FrameError(f"drive frame at {msg.first_sample_index}: no 'v_drive' channel")
-            v = np.ascontiguousarray(data[:, names.index("v_drive")])
-        except FrameError as exc:
-            self._reject(str(exc))
-            return
-        self._process(self.pairer.add("drive", msg.first_sample_index, v))
+        self.subscribe_pair(("adc", AdcFrame, _y_cap), ("drive", SignalFrame, _v_drive))
 
     def _update_snr(self, y: np.ndarray) -> None:
         w = max(1, int(self.p["snr_window_s"] * self.fs))
@@ -206,44 +196,32 @@ class ScannerThresholdNode(FrameInputMixin, Node):
             )
         )
 
-    def _process(self, pairs) -> None:
-        for first, y, v in pairs:
-            if y.shape != v.shape:
-                self._reject(f"frames at {first}: {y.size} y samples for {v.size} drive samples")
-                continue
-            missing = self.tracker.update(first, y.size)
-            if missing:
-                self.diag.count("gaps")
-                self.diag.warn(
-                    f"gap of {missing} samples before index {first}: the filters "
-                    "continue as if the samples were consecutive"
-                )
-            self._update_snr(y)
-            det = self.detector.process(y)
-            f, x, P, _ = self.hybrid.process(y, v, det)
-            self._publish(self.pub_hyb, "hybrid_ekf", f, x, P)
-            if self.plain is not None:
-                f2, x2, P2, _ = self.plain.process(y, v)
-                self._publish(self.pub_plain, "ekf", f2, x2, P2)
-            self.pub_det.publish(
-                make_signal_frame(
-                    detection_rows(det, first, y.size),
-                    first,
-                    self.fs,
-                    channel_names=DET_CHANNELS,
-                    channel_units=DET_UNITS,
-                    frame_id="scanner",
-                )
+    def process_pair(self, first: int, stamp_ns: int, y: np.ndarray, v: np.ndarray) -> None:
+        """Detector, hybrid (and plain) EKF on one frame; publish the final estimates."""
+        self._update_snr(y)
+        det = self.detector.process(y)
+        f, x, P, _ = self.hybrid.process(y, v, det)
+        self._publish(self.pub_hyb, "hybrid_ekf", f, x, P)
+        if self.plain is not None:
+            f2, x2, P2, _ = self.plain.process(y, v)
+            self._publish(self.pub_plain, "ekf", f2, x2, P2)
+        self.pub_det.publish(
+            make_signal_frame(
+                detection_rows(det, first, y.size),
+                first,
+                self.fs,
+                channel_names=DET_CHANNELS,
+                channel_units=DET_UNITS,
+                frame_id="scanner",
             )
-            if det.index.size:
-                self.diag.count("detections", int(det.index.size))
-            c = self.hybrid.counts
-            for key in ("applied", "gated", "too_late"):
-                self.diag.counters[f"detections_{key}"] = c[key]
-            if not (c["min_det"] > 0):
-                self.diag.warn("covariance lost positive definiteness")
-            self.frames_done += 1
-            self.diag.count("frames")
+        )
+        if det.index.size:
+            self.diag.count("detections", int(det.index.size))
+        c = self.hybrid.counts
+        for key in ("applied", "gated", "too_late"):
+            self.diag.counters[f"detections_{key}"] = c[key]
+        if not (c["min_det"] > 0):
+            self.diag.warn("covariance lost positive definiteness")
 
     def flush(self) -> None:
         """Publish the last ``lag`` final estimates (end of the input stream)."""

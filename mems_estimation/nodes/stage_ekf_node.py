@@ -1,10 +1,11 @@
 """ROS 2 node: EKF motion estimator of the micro-stage (Chen 2018 eqs. 48-53).
 
-Subscribes ``<stage>/adc`` (capacitive channels, AdcFrame) and ``<stage>/drive``
-(SignalFrame with u, v_bias, f_drive), pairs them by ``first_sample_index``, cancels the
+Subscribes the stage's ``adc`` (capacitive channels, AdcFrame) and ``drive`` (SignalFrame
+with u, v_bias, f_drive) -- the node's namespace, default ``/stage``, or
+``device_namespace`` --, pairs them by ``first_sample_index``, cancels the
 feedthrough with the bias on/off periods (sec. 3.5.4), runs the EKF on the identified
 parameters read from ``params_yaml`` (never the emulator's truth) and publishes
-``<stage>/estimate`` (StateEstimate: theta [rad], omega [rad/s] with variances, one per
+the stage's ``estimate`` (StateEstimate: theta [rad], omega [rad/s] with variances, one per
 sample). Malformed or non-finite frames are rejected and counted on /diagnostics; the
 estimator keeps running (time update only over a gap, cancellation history reset).
 """
@@ -12,27 +13,17 @@ estimator keeps running (time update only over a gap, cancellation history reset
 from __future__ import annotations
 
 import numpy as np
-from rclpy.node import Node
 
 from mems_estimation.filters.stage_ekf import FeedthroughCanceller, StageEkf, load_model
-from mems_estimation.nodes.frame_input import FramePairer
+from mems_estimation.nodes.frame_input import DEVICE_NAMESPACE, EstimatorNode
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.params import ParameterError, ParamSpec
-from mems_sim.ros.diagnostics import DiagnosticsReporter
-from mems_sim.ros.frames import (
-    FrameError,
-    IndexTracker,
-    adc_physical,
-    make_state_estimate,
-    signal_data,
-    time_to_ns,
-)
+from mems_sim.ros.frames import FrameError, adc_physical, make_state_estimate, signal_data
 from mems_sim.ros.node_base import run_node
-from mems_sim.ros.params import declare_specs
 from mems_sim.ros.qos import FRAME_QOS
 
 EKF_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec("stage_namespace", "/stage", "-", "namespace of the stage's adc/drive topics", ""),
+    DEVICE_NAMESPACE,
     ParamSpec(
         "params_yaml", "", "-", "identified parameter YAML (stage_identification)", "sec. 3.5.4"
     ),
@@ -60,12 +51,19 @@ def drive_columns(msg: SignalFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return tuple(np.ascontiguousarray(data[:, names.index(c)]) for c in ("u", "v_bias", "f_drive"))
 
 
-class StageEkfNode(Node):
+class StageEkfNode(EstimatorNode):
     """EKF on the feedthrough-cancelled capacitive channels (see module doc)."""
 
+    GAP_NOTE = "time updates only over the gap, cancellation history reset"
+
+    NODE_NAME = "stage_ekf"
+    DEFAULT_NAMESPACE = "stage"
+    SPECS = EKF_SPECS
+    DIAGNOSTICS_TITLE = "stage EKF"
+
     def __init__(self, **node_kwargs) -> None:
-        super().__init__("stage_ekf", **node_kwargs)
-        self.p = p = declare_specs(self, EKF_SPECS)
+        super().__init__(**node_kwargs)
+        p = self.p
         try:
             model = load_model(p["params_yaml"])
         except (FileNotFoundError, ValueError) as exc:
@@ -84,6 +82,7 @@ class StageEkfNode(Node):
             )
         self.channels = chans
         self.model = model.select(chans)
+        self.fs = self.model.fs
         self.ekf = StageEkf(self.model)
         self.canceller = FeedthroughCanceller(
             len(chans), self.model.fs, enabled=p["cancel_feedthrough"]
@@ -93,90 +92,49 @@ class StageEkfNode(Node):
         nch = len(chans)
         StageEkf(self.model).step(np.zeros((1, nch)), np.zeros(1))
         FeedthroughCanceller(nch, self.model.fs).step(np.zeros((1, nch)), np.ones(1), np.ones(1))
-        ns = p["stage_namespace"].rstrip("/")
-        self.pub = self.create_publisher(StateEstimate, f"{ns}/estimate", FRAME_QOS)
-        self.pairer = FramePairer()
-        self.tracker = IndexTracker()
-        self.stamps: dict[int, int] = {}
-        self.frames_done = 0
-        self.diag = DiagnosticsReporter(self, f"{self.get_name()}: stage EKF")
-        self.create_subscription(AdcFrame, f"{ns}/adc", self.on_adc, FRAME_QOS)
-        self.create_subscription(SignalFrame, f"{ns}/drive", self.on_drive, FRAME_QOS)
+        self.pub = self.create_publisher(StateEstimate, self.device_topic("estimate"), FRAME_QOS)
+        self.subscribe_pair(
+            ("adc", AdcFrame, self._decode_adc), ("drive", SignalFrame, drive_columns)
+        )
 
-    def _reject(self, text: str) -> None:
-        self.diag.count("rejected_frames")
-        self.diag.warn(f"rejected frame: {text}")
+    def _decode_adc(self, msg: AdcFrame) -> np.ndarray:
+        """The selected channels of an ADC frame [V]; FrameError when absent or non-finite."""
+        y = adc_physical(msg)
+        names = list(msg.channel_names)
+        missing = [c for c in self.channels if c not in names]
+        if missing:
+            raise FrameError(f"adc frame at {msg.first_sample_index}: channels {missing} absent")
+        y = np.ascontiguousarray(y[:, [names.index(c) for c in self.channels]])
+        if not np.all(np.isfinite(y)):
+            raise FrameError(f"adc frame at {msg.first_sample_index}: non-finite values")
+        return y
 
-    def _check_rate(self, msg) -> None:
-        if msg.sample_rate_hz != self.model.fs:
-            raise FrameError(
-                f"frame at {msg.first_sample_index}: sample_rate_hz "
-                f"{msg.sample_rate_hz} differs from the model's {self.model.fs} Hz"
-            )
+    def on_gap(self, gap: int) -> None:
+        """The EKF continues with time updates only over the missing span; the feedthrough
+        cancellation starts again."""
+        nch = len(self.channels)
+        self.ekf.step(np.full((gap, nch), np.nan), np.zeros(gap))
+        self.canceller = FeedthroughCanceller(
+            nch, self.model.fs, enabled=self.p["cancel_feedthrough"]
+        )
 
-    def on_adc(self, msg: AdcFrame) -> None:
-        """Validate an ADC frame (channels present, finite) and process completed pairs."""
-        try:
-            self._check_rate(msg)
-            y = adc_physical(msg)
-            names = list(msg.channel_names)
-            missing = [c for c in self.channels if c not in names]
-            if missing:
-                raise FrameError(
-                    f"adc frame at {msg.first_sample_index}: channels {missing} absent"
-                )
-            y = np.ascontiguousarray(y[:, [names.index(c) for c in self.channels]])
-            if not np.all(np.isfinite(y)):
-                raise FrameError(f"adc frame at {msg.first_sample_index}: non-finite values")
-        except FrameError as exc:
-            self._reject(str(exc))
-            return
-        self.stamps[msg.first_sample_index] = time_to_ns(msg.header.stamp)
-        self._process(self.pairer.add("adc", msg.first_sample_index, y))
-
-    def on_drive(self, msg: SignalFrame) -> None:
-        """Validate a drive frame and process completed pairs."""
-        try:
-            self._check_rate(msg)
-            cols = drive_columns(msg)
-        except FrameError as exc:
-            self._reject(str(exc))
-            return
-        self._process(self.pairer.add("drive", msg.first_sample_index, cols))
-
-    def _process(self, pairs) -> None:
-        for first, y, (u, vb, fd) in pairs:
-            if y.shape[0] != u.size:
-                self.stamps.pop(first, None)
-                self._reject(f"frames at {first}: {y.shape[0]} samples vs {u.size} drive")
-                continue
-            gap = self.tracker.update(first, u.size)
-            if gap:
-                self.diag.count("gaps")
-                self.diag.warn(f"gap of {gap} samples before index {first}")
-                # the EKF continues with time updates only over the missing span
-                nan = np.full((gap, y.shape[1]), np.nan)
-                self.ekf.step(nan, np.zeros(gap))
-                self.canceller = FeedthroughCanceller(
-                    y.shape[1], self.model.fs, enabled=self.p["cancel_feedthrough"]
-                )
-            yc = self.canceller.step(y, vb, fd)
-            x, v = self.ekf.step(yc, u, corrected=self.p["output_correction"])
-            t0 = self.stamps.pop(first)
-            msg = make_state_estimate(
-                x,
-                v,
-                first,
-                self.model.fs,
-                estimator="ekf",
-                state_names=("theta", "omega"),
-                state_units=("rad", "rad/s"),
-                frame_id="stage",
-            )
-            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t0, 10**9)
-            self.pub.publish(msg)
-            self.frames_done += 1
-            self.diag.count("frames")
+    def process_pair(self, first: int, stamp_ns: int, y: np.ndarray, drive) -> None:
+        """Cancel the feedthrough, run the EKF on one frame and publish theta, omega."""
+        u, vb, fd = drive
+        yc = self.canceller.step(y, vb, fd)
+        x, v = self.ekf.step(yc, u, corrected=self.p["output_correction"])
+        msg = make_state_estimate(
+            x,
+            v,
+            first,
+            self.model.fs,
+            estimator="ekf",
+            state_names=("theta", "omega"),
+            state_units=("rad", "rad/s"),
+            frame_id="stage",
+        )
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 10**9)
+        self.pub.publish(msg)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,10 +1,11 @@
 """ROS 2 node: in-situ gyro scale-factor calibration from the stage estimate (Chen 2018
 sec. 3.3.1 and 3.6.3, eq. 27).
 
-Subscribes ``<stage>/estimate`` (StateEstimate theta, omega), ``<stage>/drive``
-(phase, f_drive, trial) and ``<stage>/gyro/adc`` (the gyro's own-clock AdcFrame); pairs
+Subscribes the stage's ``estimate`` (StateEstimate theta, omega), ``drive`` (phase,
+f_drive, trial) and ``gyro/adc`` (the gyro's own-clock AdcFrame) -- the node's namespace,
+default ``/stage``, or ``device_namespace`` --; pairs
 the peak-to-peak rates per trial (:class:`mems_estimation.identification.stage_gyro_calibration.StreamingCalibrator`)
-and publishes ``<stage>/gyro_scale_factor`` (mems_msgs/CalibrationResult: scale_factor,
+and publishes the stage's ``gyro_scale_factor`` (mems_msgs/CalibrationResult: scale_factor,
 bias with standard errors) once ``n_trials`` trials are paired (and again at shutdown if
 more arrived). Malformed / non-finite frames are rejected and counted on /diagnostics.
 """
@@ -13,20 +14,18 @@ from __future__ import annotations
 
 import numpy as np
 from rclpy.duration import Duration
-from rclpy.node import Node
 
 from mems_estimation.identification.stage_gyro_calibration import StreamingCalibrator
 from mems_estimation.identification.stage_identification import harmonic_fit
+from mems_estimation.nodes.frame_input import DEVICE_NAMESPACE, EstimatorNode
 from mems_msgs.msg import AdcFrame, CalibrationResult, SignalFrame, StateEstimate
 from mems_sim.params import ParamSpec
-from mems_sim.ros.diagnostics import DiagnosticsReporter
 from mems_sim.ros.frames import FrameError, adc_physical, ns_to_time, signal_data, time_to_ns
 from mems_sim.ros.node_base import run_node
-from mems_sim.ros.params import declare_specs
 from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
 
 CAL_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec("stage_namespace", "/stage", "-", "namespace of the stage topics", ""),
+    DEVICE_NAMESPACE,
     ParamSpec(
         "sample_rate_hz",
         625.0e3,
@@ -74,65 +73,68 @@ def _estimate_omega(msg: StateEstimate) -> np.ndarray:
     return s.reshape(msg.num_samples, len(names))[:, names.index("omega")]
 
 
-class GyroCalibrationNode(Node):
+def _drive_trials(msg: SignalFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(phase, f_drive, trial) of a drive frame; FrameError when absent or non-finite."""
+    data = signal_data(msg)
+    names = list(msg.channel_names)
+    try:
+        cols = [names.index(c) for c in ("phase", "f_drive", "trial")]
+    except ValueError as exc:
+        raise FrameError(f"drive frame at {msg.first_sample_index}: {exc}") from None
+    return tuple(np.ascontiguousarray(data[:, c]) for c in cols)
+
+
+def _gyro_rate(msg: AdcFrame) -> np.ndarray:
+    """Angular rate [rad/s] of a gyro frame; FrameError when non-finite."""
+    v = adc_physical(msg)[:, 0]
+    if not np.all(np.isfinite(v)):
+        raise FrameError("non-finite gyro values")
+    return v
+
+
+class GyroCalibrationNode(EstimatorNode):
     """Peak-to-peak pairing + least squares eq. (27) (see module doc)."""
 
+    NODE_NAME = "stage_gyro_calibration"
+    DEFAULT_NAMESPACE = "stage"
+    SPECS = CAL_SPECS
+    DIAGNOSTICS_TITLE = "gyro scale factor"
+
     def __init__(self, **node_kwargs) -> None:
-        super().__init__("gyro_calibration", **node_kwargs)
-        self.p = p = declare_specs(self, CAL_SPECS)
+        super().__init__(**node_kwargs)
+        p = self.p
         self.cal = StreamingCalibrator(p["sample_rate_hz"], p["settle_fraction"], p["half_window"])
         # load the compiled (numba) harmonic fit now, not at the first trial (~1 s)
         harmonic_fit(np.zeros(64), np.arange(64) / 64.0)
-        ns = p["stage_namespace"].rstrip("/")
-        self.pub = self.create_publisher(CalibrationResult, f"{ns}/gyro_scale_factor", RESULT_QOS)
-        self.est: dict[int, np.ndarray] = {}
-        self.drv: dict[int, tuple] = {}
+        self.pub = self.create_publisher(
+            CalibrationResult, self.device_topic("gyro_scale_factor"), RESULT_QOS
+        )
         self.t0_ns = None
         self.results: list[dict] = []
         self.last_stamp = 0
         self.estimates_received = 0
-        self.diag = DiagnosticsReporter(self, f"{self.get_name()}: gyro scale factor")
-        self.create_subscription(StateEstimate, f"{ns}/estimate", self.on_estimate, FRAME_QOS)
-        self.create_subscription(SignalFrame, f"{ns}/drive", self.on_drive, FRAME_QOS)
-        self.create_subscription(AdcFrame, f"{ns}/gyro/adc", self.on_gyro, FRAME_QOS)
+        self.subscribe_pair(
+            ("estimate", StateEstimate, self._decode_estimate),
+            ("drive", SignalFrame, _drive_trials),
+            check_rate=False,
+        )
+        self.create_subscription(AdcFrame, self.device_topic("gyro/adc"), self.on_gyro, FRAME_QOS)
 
-    def _reject(self, text: str) -> None:
-        self.diag.count("rejected_frames")
-        self.diag.warn(f"rejected frame: {text}")
-
-    def on_estimate(self, msg: StateEstimate) -> None:
-        try:
-            om = _estimate_omega(msg)
-        except FrameError as exc:
-            self._reject(str(exc))
-            return
+    def _decode_estimate(self, msg: StateEstimate) -> np.ndarray:
+        """omega of an estimate frame; the first one sets the time origin of the stage."""
+        om = _estimate_omega(msg)
         if self.t0_ns is None:
             self.t0_ns = time_to_ns(msg.header.stamp) - round(
                 msg.first_sample_index * 1e9 / self.p["sample_rate_hz"]
             )
         self.last_stamp = time_to_ns(msg.header.stamp)
         self.estimates_received += 1
-        self.est[msg.first_sample_index] = om
-        self._pair()
-
-    def on_drive(self, msg: SignalFrame) -> None:
-        try:
-            data = signal_data(msg)
-            names = list(msg.channel_names)
-            cols = [names.index(c) for c in ("phase", "f_drive", "trial")]
-        except (FrameError, ValueError) as exc:
-            self._reject(f"drive frame at {msg.first_sample_index}: {exc}")
-            return
-        self.drv[msg.first_sample_index] = tuple(np.ascontiguousarray(data[:, c]) for c in cols)
-        self._pair()
+        return om
 
     def on_gyro(self, msg: AdcFrame) -> None:
-        try:
-            v = adc_physical(msg)[:, 0]
-            if not np.all(np.isfinite(v)):
-                raise FrameError("non-finite gyro values")
-        except FrameError as exc:
-            self._reject(str(exc))
+        """Gyro samples, placed on the stage's sample index through their stamps."""
+        v = self.accept_frame(msg, _gyro_rate, check_rate=False)
+        if v is None:
             return
         t0 = self.t0_ns if self.t0_ns is not None else 0
         t_first = (time_to_ns(msg.header.stamp) - t0) / 1e9
@@ -140,14 +142,10 @@ class GyroCalibrationNode(Node):
         self.cal.add_gyro(k, v)
         self._check_done()
 
-    def _pair(self) -> None:
-        for first in sorted(set(self.est) & set(self.drv)):
-            om = self.est.pop(first)
-            ph, fd, tr = self.drv.pop(first)
-            if om.size != ph.size:
-                self._reject(f"frames at {first}: estimate/drive lengths differ")
-                continue
-            self.cal.add_stage(first, om, ph, fd, tr.astype(np.int64))
+    def process_pair(self, first: int, stamp_ns: int, om: np.ndarray, drive) -> None:
+        """One trial's worth of rate estimate with its drive phase, frequency, trial."""
+        ph, fd, tr = drive
+        self.cal.add_stage(first, om, ph, fd, tr.astype(np.int64))
         self._check_done()
 
     def _check_done(self) -> None:

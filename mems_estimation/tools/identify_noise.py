@@ -16,9 +16,7 @@ import json
 import sys
 from pathlib import Path
 
-from mems_estimation.nodes.imu_noise_identifier_node import NoiseAccumulator, identify_message
 from mems_sim.ros.env import apply_defaults
-from mems_sim.ros.frames import FrameError
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -42,14 +40,37 @@ def identify_bag(path: Path, topic: str, grid: str):
     Returns:
         (NoiseModel message, frames used, frames rejected, accumulator).
     Raises:
-        BagReadError: missing/unreadable/non-MCAP file. ValueError: no usable frames.
+        BagReadError: missing, unreadable, non-MCAP, corrupt or hostile file (one line).
+        ValueError: the topic is absent, not of AdcFrame type, or has no usable frames.
+
+    The topic's type is checked against the file's channels before anything is
+    deserialised, so a type the file names is never imported unless it is AdcFrame.
+    A truncated file is read up to its last complete chunk (a warning line).
     """
-    from mems_sim.bag.player import read_messages
+    from mems_sim.bag.player import read_messages, recorded_topics
+
+    topics = recorded_topics(str(path))
+    if topic not in topics:
+        raise ValueError(f"{path}: no topic {topic!r} in the file")
+    stored_type = topics[topic][0]
+    if stored_type not in ("mems_msgs/msg/AdcFrame", "mems_msgs/AdcFrame"):
+        from mems_sim.bag.schema import interface_problem
+
+        problem = interface_problem(stored_type)
+        raise ValueError(
+            f"{path}: topic {topic} carries {stored_type[:80]!r}, not mems_msgs/msg/AdcFrame"
+            + (f" ({problem}; not imported)" if problem else "")
+        )
+    # the identification stack (scipy) is imported only for a file that passed the checks
+    from mems_estimation.nodes.imu_noise_identifier_node import NoiseAccumulator, identify_message
+    from mems_sim.ros.frames import FrameError
 
     acc, rejected, frames = NoiseAccumulator(), 0, 0
     for _, type_name, _, msg in read_messages(str(path), [topic]):
-        if type_name != "mems_msgs/msg/AdcFrame":
-            raise ValueError(f"topic {topic} carries {type_name}, not mems_msgs/msg/AdcFrame")
+        if type_name != stored_type:
+            raise ValueError(
+                f"{path}: topic {topic} carries {type_name[:80]!r}, not mems_msgs/msg/AdcFrame"
+            )
         try:
             acc.add(msg)
             frames += 1
@@ -121,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         model, frames, rejected, acc = identify_bag(args.bag, args.topic, args.grid)
     except (BagReadError, ValueError) as exc:
-        print(f"identify_noise: error: {exc}", file=sys.stderr)
+        print(f"identify_noise: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
     print(
         f"{args.bag}: {args.topic}, {frames} frames, {model.num_samples} samples at "

@@ -1,9 +1,15 @@
 """MCAP player: ``mcap_play FILE [--rate R | --as-fast-as-possible] [--loop] [--clock [HZ]] ...``.
 
 Publishes the serialised bytes stored in the file (no deserialisation) with
-publishers created from the file's schemas (``pkg/msg/Type`` imported via
-importlib) and the recorded ``offered_qos_profiles`` (fallback FRAME_QOS),
+publishers created from the file's schemas (``pkg/msg/Type``, imported only
+when it is an interface of the ament index: other types are reported and their
+topics skipped) and the recorded ``offered_qos_profiles`` (fallback FRAME_QOS),
 paced by ``log_time`` scaled by ``--rate``; optionally publishes ``/clock``.
+
+Files are read through :mod:`mems_sim.bag.reader` (bounded chunk
+decompression, CRC, topic-name and QoS checks): a corrupt or hostile file gives
+one line on stderr and exit status 2; a truncated one is played up to its last
+complete chunk after a warning line.
 
 ROS-free readers for other code:
 
@@ -17,22 +23,43 @@ ROS-free readers for other code:
 from __future__ import annotations
 
 import argparse
+import heapq
 import signal
 import sys
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from typing import NamedTuple
 
-from mcap.exceptions import McapError
-from mcap.reader import make_reader
 from mcap.records import Channel, Message, Schema
-from mcap.stream_reader import StreamReader
 
+from mems_sim.bag.reader import (
+    BagReadError,
+    BagSummary,
+    check_channel,
+    one_line,
+    open_bag,
+    read_chunk_at,
+    read_summary,
+    shown,
+    warn_once,
+    warn_truncated,
+)
+from mems_sim.bag.reader import iter_stream_records as _iter_stream_records
 from mems_sim.ros.env import apply_defaults, install_stop_request
 
-
-class BagReadError(Exception):
-    """The file is missing, unreadable or not an MCAP file (message is one line)."""
+__all__ = [
+    "BagMessage",
+    "BagReadError",
+    "Player",
+    "bag_start_time_ns",
+    "iter_messages",
+    "iter_raw",
+    "iter_stream_records",
+    "open_bag",
+    "playable_topics",
+    "read_messages",
+    "recorded_topics",
+]
 
 
 class BagMessage(NamedTuple):
@@ -45,47 +72,67 @@ class BagMessage(NamedTuple):
     data: bytes
 
 
-def open_bag(path: str):
-    """Open ``path`` for binary reading; raise :class:`BagReadError` (one line) if impossible or not MCAP."""
-    try:
-        handle = open(path, "rb")
-    except FileNotFoundError:
-        raise BagReadError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise BagReadError(f"{path}: is a directory, not an MCAP file") from None
-    except OSError as exc:
-        raise BagReadError(f"{path}: cannot open ({exc.strerror})") from None
-    magic = handle.read(8)
-    handle.seek(0)
-    if magic != b"\x89MCAP0\r\n":
-        handle.close()
-        raise BagReadError(f"{path}: not an MCAP file (bad magic)")
-    return handle
-
-
-def _summary_or_none(reader):
-    """The file's Summary, or None when it is missing or damaged (e.g. recorder killed)."""
-    try:
-        return reader.get_summary()
-    except Exception:
-        return None
-
-
-def iter_stream_records(handle) -> Iterator[tuple[object, bool]]:
+def iter_stream_records(handle, path: str = "") -> Iterator[tuple[object, bool]]:
     """Yield ``(record, False)`` for every readable record of an MCAP stream, in file order.
 
-    Stops quietly at a truncated or damaged record (a file whose writer was
-    killed) and then yields ``(None, True)`` once. Chunks are decompressed;
-    a chunk that cannot be read completely contributes nothing.
+    Stops at a truncated file (a writer that was killed) and then yields
+    ``(None, True)`` once; raises :class:`BagReadError` for a corrupt record.
+    Chunks are decompressed with a bounded size (:mod:`mems_sim.bag.reader`).
     """
-    reader = StreamReader(handle, skip_magic=False, emit_chunks=False)
-    try:
-        for record in reader.records:
-            yield record, False
-    except (McapError, EOFError, ValueError, OSError, IndexError, KeyError):  # truncated
-        yield None, True
-    except Exception:
-        yield None, True
+    yield from _iter_stream_records(handle, path or getattr(handle, "name", ""))
+
+
+def _summary(handle, path: str) -> BagSummary | None:
+    """The file's Summary with its channels checked, or None when it has none (or a damaged one)."""
+    summary = read_summary(handle, path)
+    if summary is not None:
+        for channel in summary.channels.values():
+            check_channel(path, channel)
+    return summary
+
+
+def _iter_indexed(handle, path, summary: BagSummary, topics, start_time_ns, end_time_ns):
+    """Messages of an indexed file in log-time order: chunks by start time, merged by a heap."""
+    schemas = dict(summary.schemas)
+    channels = dict(summary.channels)
+    wanted = None
+    if topics is not None:
+        wanted = {cid for cid, channel in channels.items() if channel.topic in topics}
+    unique = {index.chunk_start_offset: index for index in summary.chunk_indexes}  # each once
+    indexes = sorted(unique.values(), key=lambda c: (c.message_start_time, c.chunk_start_offset))
+    heap: list = []
+    seq = 0
+    for index in indexes:
+        if end_time_ns is not None and index.message_start_time >= end_time_ns:
+            continue
+        if start_time_ns is not None and index.message_end_time < start_time_ns:
+            continue
+        if wanted is not None and index.message_index_offsets:
+            if not wanted & index.message_index_offsets.keys():
+                continue
+        while heap and heap[0][0] < index.message_start_time:
+            yield heapq.heappop(heap)[2]
+        for record in read_chunk_at(handle, index, path):
+            if isinstance(record, Schema):
+                schemas.setdefault(record.id, record)
+            elif isinstance(record, Channel):
+                if record.id not in channels:
+                    check_channel(path, record)
+                    channels[record.id] = record
+            elif isinstance(record, Message):
+                channel = channels.get(record.channel_id)
+                if channel is None or (topics is not None and channel.topic not in topics):
+                    continue
+                if start_time_ns is not None and record.log_time < start_time_ns:
+                    continue
+                if end_time_ns is not None and record.log_time >= end_time_ns:
+                    continue
+                heapq.heappush(
+                    heap, (record.log_time, seq, (schemas.get(channel.schema_id), channel, record))
+                )
+                seq += 1
+    while heap:
+        yield heapq.heappop(heap)[2]
 
 
 def iter_raw(
@@ -93,25 +140,32 @@ def iter_raw(
     topics: Iterable[str] | None = None,
     start_time_ns: int | None = None,
     end_time_ns: int | None = None,
+    on_truncated: Callable[[str], None] | None = warn_truncated,
 ) -> Iterator[tuple[Schema | None, Channel, Message]]:
-    """``(schema, channel, message)`` of the file in log-time order (file order without a Summary)."""
+    """``(schema, channel, message)`` of the file in log-time order (file order without a Summary).
+
+    Raises :class:`BagReadError` (one line) for a missing, non-MCAP or corrupt file, an
+    invalid topic name or absurd QoS metadata; a truncated file is read up to its last
+    complete chunk and reported through ``on_truncated(path)`` (default: a warning line).
+    """
     topics = None if topics is None else set(topics)
     handle = open_bag(path)
     with handle:
-        reader = make_reader(handle)
-        summary = _summary_or_none(reader)
+        summary = _summary(handle, path)
         if summary is not None and summary.chunk_indexes:
-            yield from reader.iter_messages(
-                topics=topics, start_time=start_time_ns, end_time=end_time_ns, log_time_order=True
-            )
+            yield from _iter_indexed(handle, path, summary, topics, start_time_ns, end_time_ns)
             return
-        handle.seek(0)
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
-        for record, _truncated in iter_stream_records(handle):
+        for record, truncated in _iter_stream_records(handle, path):
+            if truncated:
+                if on_truncated is not None:
+                    on_truncated(path)
+                break
             if isinstance(record, Schema):
                 schemas[record.id] = record
             elif isinstance(record, Channel):
+                check_channel(path, record)
                 channels[record.id] = record
             elif isinstance(record, Message):
                 channel = channels.get(record.channel_id)
@@ -128,7 +182,7 @@ def bag_start_time_ns(path: str) -> int | None:
     """log_time of the first message [ns] (from Statistics, else by scanning), None if empty."""
     handle = open_bag(path)
     with handle:
-        summary = _summary_or_none(make_reader(handle))
+        summary = _summary(handle, path)
     if summary is not None and summary.statistics is not None and summary.statistics.message_count:
         return summary.statistics.message_start_time
     for _, _, message in iter_raw(path):
@@ -143,7 +197,7 @@ def iter_messages(
 
     :param topics: only these topics (None: all).
     :param start_offset_s: skip messages logged earlier than start + offset [s].
-    Raises :class:`BagReadError` for a missing or non-MCAP file.
+    Raises :class:`BagReadError` for a missing, non-MCAP or corrupt file.
     """
     start = None
     if start_offset_s:
@@ -157,31 +211,64 @@ def iter_messages(
 
 
 def read_messages(
-    path: str, topics: Iterable[str] | None = None
+    path: str,
+    topics: Iterable[str] | None = None,
+    on_unknown: Callable[[str, str, str], None] | None = None,
 ) -> Iterator[tuple[str, str, int, object]]:
     """Iterate ``(topic, type_name, log_time_ns, msg)`` with ``msg`` deserialised into its real class.
 
-    Uses ``rclpy.serialization.deserialize_message`` (no rclpy.init needed);
-    the message package must be importable.
+    Uses ``rclpy.serialization.deserialize_message`` (no rclpy.init needed). Messages
+    of a type that is not an installed interface (``schema.message_class`` refuses to
+    import it) are skipped and reported once per topic through
+    ``on_unknown(path, topic, reason)`` (default: a warning line on stderr). A message
+    that does not deserialise raises :class:`BagReadError`.
     """
     from rclpy.serialization import deserialize_message
 
-    from mems_sim.bag.schema import message_class
+    from mems_sim.bag.schema import SchemaError, message_class
 
-    classes: dict[str, type] = {}
+    classes: dict[str, type | None] = {}
+    reasons: dict[str, str] = {}
+    reported: set[str] = set()
     for item in iter_messages(path, topics):
-        cls = classes.get(item.type_name)
+        if item.type_name not in classes:
+            try:
+                classes[item.type_name] = message_class(item.type_name)
+            except SchemaError as exc:
+                classes[item.type_name] = None
+                reasons[item.type_name] = str(exc)
+        cls = classes[item.type_name]
         if cls is None:
-            cls = classes[item.type_name] = message_class(item.type_name)
-        yield item.topic, item.type_name, item.log_time_ns, deserialize_message(item.data, cls)
+            if item.topic not in reported:
+                reported.add(item.topic)
+                reason = reasons[item.type_name]
+                if on_unknown is not None:
+                    on_unknown(path, item.topic, reason)
+                else:
+                    warn_once(path, f"{shown(item.topic)}: {reason}; skipped")
+            continue
+        try:
+            msg = deserialize_message(item.data, cls)
+        except Exception as exc:  # whatever the typesupport raises for bad CDR
+            raise BagReadError(
+                f"{path}: a message on {shown(item.topic)} (log time {item.log_time_ns}) "
+                f"does not deserialise as {item.type_name} ({type(exc).__name__})"
+            ) from None
+        yield item.topic, item.type_name, item.log_time_ns, msg
 
 
-def recorded_topics(path: str) -> dict[str, tuple[str, str]]:
-    """``{topic: (type_name, offered_qos_profiles_yaml)}`` of the file's channels."""
+def recorded_topics(
+    path: str, on_truncated: Callable[[str], None] | None = warn_truncated
+) -> dict[str, tuple[str, str]]:
+    """``{topic: (type_name, offered_qos_profiles_yaml)}`` of the file's channels.
+
+    Every channel is checked (topic name, QoS metadata); a file without a Summary is
+    scanned completely, so a corrupt chunk raises :class:`BagReadError` here.
+    """
     handle = open_bag(path)
     out: dict[str, tuple[str, str]] = {}
     with handle:
-        summary = _summary_or_none(make_reader(handle))
+        summary = _summary(handle, path)
         if summary is not None and summary.channels:
             for channel in summary.channels.values():
                 schema = summary.schemas.get(channel.schema_id)
@@ -190,18 +277,43 @@ def recorded_topics(path: str) -> dict[str, tuple[str, str]]:
                     channel.metadata.get("offered_qos_profiles", ""),
                 )
             return out
-        handle.seek(0)
         schemas: dict[int, Schema] = {}
-        for record, _ in iter_stream_records(handle):
+        for record, truncated in _iter_stream_records(handle, path):
+            if truncated:
+                if on_truncated is not None:
+                    on_truncated(path)
+                break
             if isinstance(record, Schema):
                 schemas[record.id] = record
-            elif isinstance(record, Channel) and record.topic not in out:
-                schema = schemas.get(record.schema_id)
-                out[record.topic] = (
-                    schema.name if schema else "",
-                    record.metadata.get("offered_qos_profiles", ""),
-                )
+            elif isinstance(record, Channel):
+                check_channel(path, record)
+                if record.topic not in out:
+                    schema = schemas.get(record.schema_id)
+                    out[record.topic] = (
+                        schema.name if schema else "",
+                        record.metadata.get("offered_qos_profiles", ""),
+                    )
     return out
+
+
+def playable_topics(
+    path: str, topics: Iterable[str] | None = None
+) -> tuple[dict[str, tuple[type, str]], dict[str, str]]:
+    """Split the file's topics into playable ``{topic: (message class, qos_yaml)}`` and
+    skipped ``{topic: reason}`` (unknown types are never imported)."""
+    from mems_sim.bag.schema import SchemaError, message_class
+
+    wanted = None if topics is None else set(topics)
+    playable: dict[str, tuple[type, str]] = {}
+    skipped: dict[str, str] = {}
+    for topic, (type_name, qos_yaml) in recorded_topics(path).items():
+        if wanted is not None and topic not in wanted:
+            continue
+        try:
+            playable[topic] = (message_class(type_name), qos_yaml)
+        except SchemaError as exc:
+            skipped[topic] = str(exc)
+    return playable, skipped
 
 
 # -------------------------------------------------------------------- playback
@@ -251,6 +363,8 @@ class Player:
     :param path: MCAP file.
     :param topics: topics to play (None: all).
     :param remap: ``{recorded_topic: published_topic}``.
+    :param resolved: the result of :func:`playable_topics` when the caller already
+        has it (then skipped topics are not reported again on the node's logger).
     """
 
     def __init__(
@@ -259,22 +373,20 @@ class Player:
         path: str,
         topics: Iterable[str] | None = None,
         remap: dict[str, str] | None = None,
+        resolved: tuple[dict[str, tuple[type, str]], dict[str, str]] | None = None,
     ):
-        from mems_sim.bag.schema import message_class
-
         self.node = node
         self.path = path
         self.topics = None if topics is None else list(topics)
         self.remap = dict(remap or {})
         self.publishers: dict[str, object] = {}
         self.published = 0
-        for topic, (type_name, qos_yaml) in recorded_topics(path).items():
+        if resolved is None:
+            resolved = playable_topics(path, self.topics)
+            for topic, reason in resolved[1].items():
+                node.get_logger().warning(f"{topic}: not played, {reason}")
+        for topic, (cls, qos_yaml) in resolved[0].items():
             if self.topics is not None and topic not in self.topics:
-                continue
-            try:
-                cls = message_class(type_name)
-            except Exception as exc:
-                node.get_logger().warning(f"{topic}: not played, {exc}")
                 continue
             self.publishers[topic] = node.create_publisher(
                 cls, self.remap.get(topic, topic), playback_qos(qos_yaml)
@@ -418,11 +530,26 @@ def main(argv: list[str] | None = None) -> int:
     args = _parse_args(remove_ros_args(["mcap_play"] + argv)[1:])
     try:
         remap = parse_remaps(args.remap)
-        if recorded_topics(args.file) is None:
-            raise BagReadError(f"{args.file}: no channels")
+        resolved = playable_topics(args.file, args.topics)
     except (BagReadError, ValueError) as exc:
-        print(f"mcap_play: error: {exc}", file=sys.stderr)
+        print(f"mcap_play: error: {one_line(exc)}", file=sys.stderr)
         return 2
+    playable, skipped = resolved
+    if not playable:
+        why = "; ".join(f"{shown(t)}: {r}" for t, r in skipped.items())
+        print(
+            one_line(
+                f"mcap_play: error: {args.file}: no playable topics" + (f" ({why})" if why else ""),
+                1000,
+            ),
+            file=sys.stderr,
+        )
+        return 2
+    for topic, reason in skipped.items():
+        print(
+            one_line(f"mcap_play: warning: {args.file}: {shown(topic)}: {reason}; not played"),
+            file=sys.stderr,
+        )
 
     import rclpy
     from rclpy.node import Node
@@ -434,10 +561,7 @@ def main(argv: list[str] | None = None) -> int:
     node = None
     try:
         node = Node("mcap_player")
-        player = Player(node, args.file, args.topics, remap)
-        if not player.publishers:
-            print(f"mcap_play: error: {args.file}: no playable topics", file=sys.stderr)
-            return 2
+        player = Player(node, args.file, args.topics, remap, resolved=resolved)
         clock_pub = node.create_publisher(Clock, "/clock", 10) if args.clock else None
         if args.wait_for_subscribers > 0 and not player.wait_for_subscribers(
             args.wait_for_subscribers, args.wait_timeout, lambda: stop["flag"]
@@ -460,7 +584,7 @@ def main(argv: list[str] | None = None) -> int:
         player.wait_acked(timeout_s=max(1.0, args.wait_timeout))  # deliver the tail before exit
         print(f"mcap_play: published {player.published} messages", flush=True)
     except BagReadError as exc:
-        print(f"mcap_play: error: {exc}", file=sys.stderr)
+        print(f"mcap_play: error: {one_line(exc)}", file=sys.stderr)
         return 2
     finally:
         for sig, handler in previous.items():

@@ -13,6 +13,18 @@ gaps of frame topics are counted (and logged as warnings when they appear).
 
 In-process users (the scenario runner) create a RecorderNode with their own
 context and executor and use :meth:`RecorderNode.received` to throttle.
+
+Stopping (``mcap_record``): a stop request (SIGINT or SIGTERM, as ``ros2 launch``
+and ``docker stop`` send before a SIGKILL) ends recording in bounded time, live
+publishers or not. Messages that arrive within :data:`STOP_GRACE_S` of the
+request are still taken and written; then the subscriptions are destroyed, the
+writer thread drains its queue until :data:`STOP_FINALISE_S` after the request
+(what is still queued then is dropped and counted in the summary), and the
+Summary, Statistics and footer are written; exit status 0. A second signal
+skips the rest of the grace window and of the drain. Output problems (an
+existing file without ``--overwrite``, a symbolic link, a directory, a missing
+directory, a full disk) give one line on stderr naming the path and exit status
+1 (2 for a path refused before recording).
 """
 
 from __future__ import annotations
@@ -38,12 +50,19 @@ from mems_sim.bag.schema import (
     schema_text,
     type_hash,
 )
-from mems_sim.bag.writer import McapBagWriter, gap_summary
-from mems_sim.ros.env import apply_defaults, install_stop_request
+from mems_sim.bag.writer import BagWriteError, McapBagWriter, gap_summary, output_problem
+from mems_sim.ros.env import apply_defaults
 from mems_sim.ros.qos import FRAME_DEPTH
 
 #: Topics skipped unless listed explicitly.
 DEFAULT_EXCLUDED = ("/rosout", "/parameter_events")
+
+#: After a stop request, messages arriving within this time are still recorded [s].
+STOP_GRACE_S = 0.4
+
+#: After a stop request the file is finalised by this time at the latest [s]
+#: (queued messages not written by then are dropped and counted).
+STOP_FINALISE_S = 1.0
 
 
 def adapt_qos(offered: list[QoSProfile], keep_all: bool = True) -> QoSProfile:
@@ -82,6 +101,8 @@ class RecorderNode(Node):
     :param compression: chunk compression ``'zstd'``, ``'lz4'`` or ``'none'``.
     :param chunk_size: uncompressed chunk size [bytes].
     :param node_name: ROS node name.
+    :param overwrite: replace an existing output file (the ``mcap_record`` CLI passes
+        ``--overwrite``; a symbolic link is refused either way).
     :param kwargs: passed to ``rclpy.node.Node`` (e.g. ``context=ctx``).
 
     The constructor arguments can be overridden by ROS parameters of the same
@@ -99,6 +120,7 @@ class RecorderNode(Node):
         compression: str = "zstd",
         chunk_size: int = 1 << 20,
         node_name: str = "mcap_recorder",
+        overwrite: bool = True,
         **kwargs,
     ):
         super().__init__(node_name, **kwargs)
@@ -114,7 +136,11 @@ class RecorderNode(Node):
         self._regex = re.compile(regex) if regex else None
         self._exclude = re.compile(exclude) if exclude else None
         self._bag = McapBagWriter(
-            output, chunk_size=chunk_size, compression=compression, on_gap=self._log_gap
+            output,
+            chunk_size=chunk_size,
+            compression=compression,
+            on_gap=self._log_gap,
+            overwrite=overwrite,
         )
         self._topic_subs: dict[str, object] = {}
         self._unusable: dict[str, str] = {}
@@ -220,6 +246,15 @@ class RecorderNode(Node):
         """Type name per recorded topic."""
         return self._bag.topic_types()
 
+    def dropped(self) -> dict[str, int]:
+        """Messages per topic received but not written (still queued at a bounded close)."""
+        return self._bag.dropped()
+
+    @property
+    def write_error(self) -> BaseException | None:
+        """The writer's error (e.g. disk full), None while writing works."""
+        return self._bag.error
+
     @property
     def output(self) -> str:
         """Path of the MCAP file."""
@@ -227,13 +262,27 @@ class RecorderNode(Node):
 
     # ---------------------------------------------------------------- end
 
-    def close(self) -> None:
-        """Stop recording and finalise the file (Summary, Statistics). Idempotent."""
-        if self._rec_closed:
+    def stop_taking(self) -> None:
+        """Stop discovery and destroy the subscriptions: nothing more is received."""
+        self._rec_closed = True
+        self._discovery_timer.cancel()
+        for sub in self._topic_subs.values():
+            self.destroy_subscription(sub)
+        self._topic_subs.clear()
+
+    def close(self, timeout_s: float | None = None, abort=None) -> None:
+        """Stop recording and finalise the file (Summary, Statistics). Idempotent.
+
+        :param timeout_s: drain the writer queue for at most this long [s] (None: all);
+            what is still queued then is dropped and counted (:meth:`dropped`).
+        :param abort: callable; True ends the drain at once (e.g. a second signal).
+        Raises :class:`~mems_sim.bag.writer.BagWriteError` after a write error.
+        """
+        if self._bag.closed:
             return
         self._rec_closed = True
         self._discovery_timer.cancel()
-        self._bag.close()
+        self._bag.close(timeout_s=timeout_s, abort=abort)
 
     def summary(self) -> str:
         """Multi-line human-readable summary: topics, counts, gaps, file size."""
@@ -251,12 +300,22 @@ class RecorderNode(Node):
             lines.append(line)
         total_gaps, missing = gap_summary(details)
         lines.append(f"  frame-index gaps: {total_gaps} ({missing} samples missing)")
+        dropped = self.dropped()
+        if dropped:
+            lines.append(
+                f"  received but not written (stop deadline or write error): "
+                f"{sum(dropped.values())} messages ("
+                + ", ".join(f"{t} {n}" for t, n in sorted(dropped.items()))
+                + ")"
+            )
         return "\n".join(lines)
 
     def destroy_node(self) -> None:
         """Close the file, then destroy the node."""
-        self.close()
-        super().destroy_node()
+        try:
+            self.close()
+        finally:
+            super().destroy_node()
 
 
 # -------------------------------------------------------------------- CLI
@@ -266,6 +325,9 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="mcap_record", description=__doc__.splitlines()[0])
     parser.add_argument("topics", nargs="*", help="topics to record")
     parser.add_argument("-o", "--output", required=True, help="output file (.mcap)")
+    parser.add_argument(
+        "--overwrite", action="store_true", help="replace the output file if it exists"
+    )
     parser.add_argument("-a", "--all", action="store_true", help="record all topics")
     parser.add_argument("--regex", "-e", default=None, help="record topics matching this regex")
     parser.add_argument("--exclude", "-x", default=None, help="exclude topics matching this regex")
@@ -280,17 +342,24 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
     return args
 
 
-def drain(executor, recorder: RecorderNode, idle_s: float = 0.3, limit_s: float = 10.0) -> None:
+def drain(
+    executor,
+    recorder: RecorderNode,
+    idle_s: float = 0.3,
+    limit_s: float = 10.0,
+    stop=lambda: False,
+) -> None:
     """Write what the middleware already delivered before stopping.
 
     Messages acknowledged by the subscription but not yet taken by the
     executor would be lost on an immediate stop; spin until nothing has
-    arrived for ``idle_s`` seconds (at most ``limit_s``).
+    arrived for ``idle_s`` seconds, at most ``limit_s`` seconds, or until
+    ``stop()`` (a second signal) or a write error.
     """
     deadline = time.monotonic() + limit_s
     last_total, last_change = -1, time.monotonic()
-    while time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.05)
+    while time.monotonic() < deadline and not stop() and recorder.write_error is None:
+        executor.spin_once(timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
         total = sum(recorder._rx_counts.values())
         if total != last_total:
             last_total, last_change = total, time.monotonic()
@@ -298,8 +367,51 @@ def drain(executor, recorder: RecorderNode, idle_s: float = 0.3, limit_s: float 
             return
 
 
+class _StopRequest:
+    """SIGINT/SIGTERM as a counter the main loop polls (the handler only records)."""
+
+    def __init__(self):
+        self.count = 0
+        self.first_at: float | None = None
+        self.first_name = ""
+        self.previous = {}
+
+    def _handle(self, signum, _frame) -> None:
+        self.count += 1
+        if self.first_at is None:
+            self.first_at = time.monotonic()
+            self.first_name = signal.Signals(signum).name
+
+    def install(self) -> None:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self.previous[sig] = signal.signal(sig, self._handle)
+
+    def restore(self) -> None:
+        for sig, handler in self.previous.items():
+            signal.signal(sig, handler)
+        self.previous = {}
+
+
+def _error(text: str, code: int) -> int:
+    print(f"mcap_record: error: {' '.join(str(text).split())}", file=sys.stderr, flush=True)
+    return code
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``mcap_record``; returns the process exit code."""
+    """Entry point of ``mcap_record``; returns the process exit code.
+
+    0 after a stop request or ``--duration``; 2 for an output path refused before
+    recording; 1 when writing fails (disk full), with one line naming the path.
+    """
+    stop = _StopRequest()
+    stop.install()  # before rclpy starts: a signal from now on finalises the file
+    try:
+        return _run(argv, stop)
+    finally:
+        stop.restore()
+
+
+def _run(argv: list[str] | None, stop: _StopRequest) -> int:
     apply_defaults()
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -308,39 +420,75 @@ def main(argv: list[str] | None = None) -> int:
 
     argv = sys.argv[1:] if argv is None else list(argv)
     args = _parse_args(remove_ros_args(["mcap_record"] + argv)[1:])
-    out_dir = os.path.dirname(os.path.abspath(args.output))
-    if not os.path.isdir(out_dir):
-        print(f"mcap_record: error: output directory {out_dir} does not exist", file=sys.stderr)
-        return 2
+    problem = output_problem(args.output, overwrite=args.overwrite)
+    if problem is not None:
+        return _error(problem, 2)
 
     rclpy.init(args=["mcap_record"] + argv, signal_handler_options=SignalHandlerOptions.NO)
-    stop, previous = install_stop_request()
     recorder = None
+    code = 0
     try:
-        recorder = RecorderNode(
-            args.output,
-            topics=args.topics,
-            all_topics=args.all,
-            regex=args.regex,
-            exclude=args.exclude,
-            compression=args.compression,
-            chunk_size=args.chunk_size,
-        )
+        try:
+            recorder = RecorderNode(
+                args.output,
+                topics=args.topics,
+                all_topics=args.all,
+                regex=args.regex,
+                exclude=args.exclude,
+                compression=args.compression,
+                chunk_size=args.chunk_size,
+                overwrite=args.overwrite,
+            )
+        except BagWriteError as exc:
+            return _error(exc, 1)
         executor = SingleThreadedExecutor()
         executor.add_node(recorder)
         deadline = None if args.duration is None else time.monotonic() + args.duration
-        while not stop["flag"] and (deadline is None or time.monotonic() < deadline):
-            executor.spin_once(timeout_sec=0.1)
-        drain(executor, recorder)
+        try:
+            while not stop.count and recorder.write_error is None:
+                if deadline is not None and time.monotonic() >= deadline:
+                    break
+                executor.spin_once(timeout_sec=0.1)
+            if recorder.write_error is None:
+                if stop.count:  # bounded: grace window, then a drain deadline
+                    t0 = stop.first_at
+                    drain(
+                        executor,
+                        recorder,
+                        idle_s=0.1,
+                        limit_s=max(0.0, t0 + STOP_GRACE_S - time.monotonic()),
+                        stop=lambda: stop.count > 1,
+                    )
+                else:
+                    drain(executor, recorder, idle_s=0.3, limit_s=2.0)
+        except BagWriteError:
+            pass  # a write raised inside a callback: reported below
+        recorder.stop_taking()
+        timeout = None
+        if stop.count:
+            timeout = max(0.0, stop.first_at + STOP_FINALISE_S - time.monotonic())
+        try:
+            recorder.close(timeout_s=timeout, abort=lambda: stop.count > 1)
+        except BagWriteError as exc:
+            code = _error(
+                f"{exc} (the file keeps the chunks completed before the error)",
+                1,
+            )
+        if code == 0 and stop.first_at is not None:
+            print(
+                f"mcap_record: {stop.first_name}: file finalised "
+                f"{time.monotonic() - stop.first_at:.3f} s after the stop request",
+                flush=True,
+            )
+        print(recorder.summary(), flush=True)
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
         if recorder is not None:
-            recorder.close()
-            print(recorder.summary(), flush=True)
-            recorder.destroy_node()
+            try:
+                recorder.destroy_node()
+            except BagWriteError:
+                pass  # already reported
         rclpy.try_shutdown()
-    return 0
+    return code
 
 
 if __name__ == "__main__":

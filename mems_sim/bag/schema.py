@@ -28,6 +28,7 @@ import json
 import os
 import re
 import struct
+import sys
 from collections.abc import Iterable
 
 #: Line that separates definitions in a ``ros2msg`` schema (exactly 80 '=').
@@ -101,8 +102,76 @@ def split_type_name(type_name: str) -> tuple[str, str, str]:
     return pkg, ns, name
 
 
+#: ROS interface type names: a package name (lowercase letters, digits, ``_``, starting
+#: with a letter), the interface kind, and a CamelCase type name (``_`` only in the
+#: generated service/action parts such as ``AddTwoInts_Request``).
+_INTERFACE_TYPE_RE = re.compile(
+    r"[a-z][a-z0-9_]*/(msg|srv|action)/[A-Z][A-Za-z0-9]*(_[A-Za-z0-9]+)*"
+)
+
+
+def _ament_interfaces(package: str) -> frozenset[str]:
+    """Interface files (``msg/Imu.msg``, ``srv/X.idl``, ...) that ``package`` registers
+    in the ament index (resource type ``rosidl_interfaces``); empty if none.
+
+    The prefixes are those of ``AMENT_PREFIX_PATH``, or the interpreter prefix when it
+    is unset (where the PyPI ROS 2 wheels install their index, as
+    :func:`mems_sim.ros.env.apply_defaults` assumes). ``package`` must already match
+    the package-name grammar (no path separators).
+    """
+    prefixes = os.environ.get("AMENT_PREFIX_PATH", "") or sys.prefix
+    return _ament_interfaces_cached(package, prefixes)
+
+
+@functools.cache
+def _ament_interfaces_cached(package: str, prefixes: str) -> frozenset[str]:
+    for prefix in prefixes.split(os.pathsep):
+        if not prefix:
+            continue
+        path = os.path.join(
+            prefix, "share", "ament_index", "resource_index", "rosidl_interfaces", package
+        )
+        if os.path.isfile(path):
+            try:
+                with open(path, encoding="utf-8") as handle:
+                    content = handle.read(1 << 20)
+            except (OSError, ValueError):
+                return frozenset()
+            return frozenset(line.strip() for line in content.splitlines() if line.strip())
+    return frozenset()
+
+
+def interface_problem(type_name: str) -> str | None:
+    """Why ``type_name`` may not be imported, or None when it is an installed interface type.
+
+    Only names of the ROS type grammar (``pkg/msg/Type``, also ``pkg/Type``) whose
+    package registers that interface in the ament index qualify; for service and
+    action types (``pkg/srv/X_Request``) the interface file ``X`` must be registered.
+    """
+    try:
+        pkg, ns, name = split_type_name(type_name)
+    except SchemaError:
+        return f"unknown type {type_name[:80]!r}: not a ROS type name (pkg/msg/Type)"
+    full = f"{pkg}/{ns}/{name}"
+    if _INTERFACE_TYPE_RE.fullmatch(full) is None:
+        return f"unknown type {full[:80]!r}: not a ROS type name (pkg/msg/Type)"
+    base = name.split("_", 1)[0]
+    wanted = {f"{ns}/{base}.idl", f"{ns}/{base}.{ns}"}
+    if not wanted & _ament_interfaces(pkg):
+        return f"unknown type {full!r}: not an interface of the ament index"
+    return None
+
+
 def message_class(type_name: str):
-    """Import and return the Python class of a message type (``pkg/msg/Type``)."""
+    """Import and return the Python class of a message type (``pkg/msg/Type``).
+
+    Nothing is imported unless :func:`interface_problem` accepts the name, so a type
+    name read from a file can never make this import an arbitrary module. Raises
+    :class:`SchemaError` for an unknown or non-importable type.
+    """
+    problem = interface_problem(type_name)
+    if problem is not None:
+        raise SchemaError(problem)
     pkg, ns, name = split_type_name(type_name)
     try:
         module = importlib.import_module(f"{pkg}.{ns}")

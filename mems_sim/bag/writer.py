@@ -23,6 +23,19 @@ node graph compression runs on another core instead of stalling the executor
 messages): a writer that falls behind blocks the producer rather than growing
 without limit. :meth:`McapBagWriter.close` drains the queue before the Summary.
 
+Output path: the file is created with ``O_NOFOLLOW`` (and ``O_EXCL`` unless
+``overwrite``), so a symbolic link is never followed and its target never
+truncated; :func:`output_problem` gives the one-line reason for refusing a
+path before anything is opened. Character devices (``/dev/null``,
+``/dev/full``) are written without truncation; other special files are refused.
+
+Bounded close: ``close(timeout_s=...)`` lets the writer thread drain the queue
+until the deadline; messages still queued then are dropped and counted
+(:meth:`McapBagWriter.dropped`), and the Summary is written with what is in
+the file, so a stop request finishes in bounded time however busy the
+producers were. After a write error (disk full) nothing more is written: the
+file keeps the complete chunks written before, and ``close`` raises.
+
 The writer also counts messages per topic and, for frame types
 (:data:`~mems_sim.bag.schema.GAP_CHECKED_TYPES`), gaps of the frame index
 (``first_sample_index`` of a frame differs from ``first + num_samples`` of the
@@ -31,9 +44,12 @@ previous frame on the same topic), peeked from the CDR bytes.
 
 from __future__ import annotations
 
+import errno
 import os
 import queue
+import stat
 import threading
+import time
 
 from mcap.writer import CompressionType, Writer
 
@@ -48,15 +64,107 @@ _COMPRESSION = {
 }
 
 
+class BagWriteError(OSError):
+    """The output cannot be written (message is one line and names the path)."""
+
+
+def _describe(path: str, exc: OSError) -> str:
+    """One line for an OSError of opening or writing ``path``."""
+    reason = {
+        errno.EEXIST: "exists (give --overwrite to replace it)",
+        errno.ELOOP: "is a symbolic link; refusing to write through it",
+        errno.EISDIR: "is a directory",
+        errno.ENOENT: "cannot create it (no such file or directory)",
+        errno.ENOTDIR: "a part of the path is not a directory",
+        errno.ENOSPC: "no space left on device",
+        errno.EDQUOT: "disk quota exceeded",
+        errno.EROFS: "read-only file system",
+    }.get(exc.errno)
+    if reason is None:
+        reason = exc.strerror or str(exc)
+    return f"{path}: {reason}"
+
+
+def output_problem(path: str, overwrite: bool = False, probe: bool = True) -> str | None:
+    """Why ``path`` cannot be used as a bag output, or None (one line naming the path).
+
+    Refused: a symbolic link (never followed), a directory, an existing regular file
+    unless ``overwrite``, special files other than character devices, a path whose
+    directory is missing or not writable. With ``probe``, a file that does not exist
+    yet is created and removed again (the only reliable test for root, to whom
+    ``access()`` grants everything, e.g. in ``/proc``); nothing else is modified.
+    """
+    path = str(path)
+    try:
+        info = os.lstat(path)
+    except FileNotFoundError:
+        info = None
+    except OSError as exc:
+        return _describe(path, exc)
+    if info is not None:
+        if stat.S_ISLNK(info.st_mode):
+            return f"{path}: is a symbolic link; refusing to write through it"
+        if stat.S_ISDIR(info.st_mode):
+            return f"{path}: is a directory"
+        if stat.S_ISCHR(info.st_mode):
+            return None
+        if not stat.S_ISREG(info.st_mode):
+            return f"{path}: not a regular file"
+        if not overwrite:
+            return f"{path}: exists (give --overwrite to replace it)"
+        if not os.access(path, os.W_OK):
+            return f"{path}: not writable"
+        return None
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        return f"{path}: directory {parent} does not exist"
+    if not os.access(parent, os.W_OK | os.X_OK):
+        return f"{path}: directory {parent} is not writable"
+    if probe:
+        try:
+            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644)
+        except FileExistsError:
+            return None  # appeared meanwhile: the real open decides
+        except OSError as exc:
+            return _describe(path, exc)
+        os.close(fd)
+        try:
+            os.unlink(path)
+        except OSError:
+            pass
+    return None
+
+
 class _WriteThroughFile:
     """Minimal binary output stream that hands every write straight to the OS.
 
     Deliberately not an ``io.RawIOBase`` (mcap's Writer would wrap that in a
-    ``BufferedWriter``, which is exactly what must not happen here).
+    ``BufferedWriter``, which is exactly what must not happen here). Opened with
+    ``O_NOFOLLOW`` (a symbolic link is refused, its target untouched), ``O_EXCL``
+    unless ``overwrite``; character devices are opened without truncation.
+    Raises :class:`BagWriteError` (one line naming the path).
     """
 
-    def __init__(self, path: str):
-        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    def __init__(self, path: str, overwrite: bool = True):
+        flags = os.O_WRONLY | os.O_CREAT | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)
+        try:
+            info = os.lstat(path)
+        except OSError:
+            info = None
+        if info is not None and stat.S_ISCHR(info.st_mode):
+            flags &= ~os.O_CREAT
+        elif info is not None and stat.S_ISLNK(info.st_mode):
+            raise BagWriteError(f"{path}: is a symbolic link; refusing to write through it")
+        elif info is not None and stat.S_ISDIR(info.st_mode):
+            raise BagWriteError(f"{path}: is a directory")
+        elif info is not None and not stat.S_ISREG(info.st_mode):
+            raise BagWriteError(f"{path}: not a regular file")
+        else:
+            flags |= os.O_TRUNC if overwrite else os.O_EXCL
+        try:
+            self._fd = os.open(path, flags, 0o644)
+        except OSError as exc:
+            raise BagWriteError(_describe(path, exc)) from None
         self._pos = 0
 
     def write(self, data) -> int:
@@ -74,7 +182,11 @@ class _WriteThroughFile:
         """Nothing is buffered in user space."""
 
     def fsync(self) -> None:
-        os.fsync(self._fd)
+        try:
+            os.fsync(self._fd)
+        except OSError as exc:
+            if exc.errno not in (errno.EINVAL, errno.EROFS):  # devices and pipes
+                raise
 
     def close(self) -> None:
         if self._fd >= 0:
@@ -125,6 +237,10 @@ class McapBagWriter:
     :param on_gap: optional callback ``(topic, expected_index, first_index)``
         called when a frame-index gap appears.
     :param queue_size: messages the writer thread may lag behind (module doc).
+    :param overwrite: replace an existing regular file (else :class:`BagWriteError`).
+
+    Raises :class:`BagWriteError` (one line naming the path) when the output cannot be
+    created or its first bytes cannot be written.
     """
 
     def __init__(
@@ -134,16 +250,21 @@ class McapBagWriter:
         compression: str = "zstd",
         on_gap=None,
         queue_size: int = 256,
+        overwrite: bool = True,
     ):
         if compression not in _COMPRESSION:
             raise ValueError(f"unknown compression {compression!r} (zstd, lz4 or none)")
         self.path = str(path)
         self.compression = compression or "none"
-        self._stream = _WriteThroughFile(self.path)
-        self._writer = Writer(
-            self._stream, chunk_size=chunk_size, compression=_COMPRESSION[compression]
-        )
-        self._writer.start(profile="ros2", library="mems_sim.bag/mcap-python")
+        self._stream = _WriteThroughFile(self.path, overwrite=overwrite)
+        try:
+            self._writer = Writer(
+                self._stream, chunk_size=chunk_size, compression=_COMPRESSION[compression]
+            )
+            self._writer.start(profile="ros2", library="mems_sim.bag/mcap-python")
+        except OSError as exc:
+            self._stream.close()
+            raise BagWriteError(_describe(self.path, exc)) from None
         self._lock = threading.Lock()
         self._schema_ids: dict[str, int] = {}
         self._channels: dict[str, int] = {}
@@ -155,6 +276,10 @@ class McapBagWriter:
         self._wlock = threading.Lock()  # serialises every call into mcap's Writer
         self._queue: queue.Queue = queue.Queue(maxsize=max(1, int(queue_size)))
         self._error: BaseException | None = None
+        self._deadline: float | None = None  # monotonic time after which queued messages drop
+        self._abandon = False
+        self._dropped: dict[int, int] = {}
+        self._topic_of: dict[int, str] = {}
         self._thread = threading.Thread(target=self._drain, name="mcap-writer", daemon=True)
         self._thread.start()
 
@@ -164,8 +289,14 @@ class McapBagWriter:
             item = self._queue.get()
             if item is None:
                 return
-            if self._error is not None:
-                continue  # keep draining so producers never block
+            if (
+                self._error is not None
+                or self._abandon
+                or (self._deadline is not None and time.monotonic() > self._deadline)
+            ):
+                # keep draining so producers never block; count what is not written
+                self._dropped[item[0]] = self._dropped.get(item[0], 0) + 1
+                continue
             try:
                 with self._wlock:
                     self._writer.add_message(
@@ -218,6 +349,7 @@ class McapBagWriter:
                     topic=topic, message_encoding="cdr", schema_id=schema_id, metadata=metadata
                 )
             self._channels[topic] = channel_id
+            self._topic_of[channel_id] = topic
             self._types[topic] = type_name
             self._counts[topic] = 0
             if type_name in GAP_CHECKED_TYPES:
@@ -262,9 +394,24 @@ class McapBagWriter:
     # ---------------------------------------------------------------- stats
 
     def counts(self) -> dict[str, int]:
-        """Messages written per topic."""
+        """Messages written per topic (accepted by :meth:`write`, less those dropped at close)."""
         with self._lock:
-            return dict(self._counts)
+            out = dict(self._counts)
+        for channel_id, n in dict(self._dropped).items():
+            topic = self._topic_of.get(channel_id)
+            if topic in out:
+                out[topic] -= n
+        return out
+
+    def dropped(self) -> dict[str, int]:
+        """Messages per topic accepted by :meth:`write` but not written: still queued at the
+        close deadline, or after a write error."""
+        return {self._topic_of.get(cid, str(cid)): n for cid, n in dict(self._dropped).items() if n}
+
+    @property
+    def error(self) -> BaseException | None:
+        """The writer thread's error (e.g. disk full), None while writing works."""
+        return self._error
 
     def gaps(self) -> dict[str, int]:
         """Frame-index gaps per frame topic (topics of other types are absent)."""
@@ -296,30 +443,67 @@ class McapBagWriter:
 
     # ---------------------------------------------------------------- end
 
-    def close(self) -> None:
+    def close(self, timeout_s: float | None = None, abort=None) -> None:
         """Drain the writer thread, write the last chunk and the Summary (with Statistics),
-        fsync and close. Idempotent. Raises the writer thread's error, if any, after
-        closing the file."""
+        fsync and close. Idempotent.
+
+        :param timeout_s: drain the queue for at most this long [s] (None: all of it);
+            messages still queued then are dropped and counted (:meth:`dropped`).
+        :param abort: optional callable; when it returns True the drain stops at once
+            (e.g. a second stop signal), as if the deadline had passed.
+
+        After a write error nothing more is written (the file keeps its complete chunks)
+        and :class:`BagWriteError` naming the path is raised after closing the file.
+        """
         with self._lock:
             if self._closed:
                 return
             self._closed = True
-            self._queue.put(None)
-            self._thread.join()
+            if timeout_s is not None:
+                self._deadline = time.monotonic() + max(0.0, timeout_s)
+
+            def expired() -> bool:
+                return (self._deadline is not None and time.monotonic() > self._deadline) or (
+                    abort is not None and bool(abort())
+                )
+
+            while True:  # the queue may be full: wait for room, but never past the deadline
+                try:
+                    self._queue.put(None, timeout=0.05)
+                    break
+                except queue.Full:
+                    if expired():
+                        self._abandon = True
+            while self._thread.is_alive():
+                self._thread.join(timeout=0.05)
+                if expired():
+                    self._abandon = True
             try:
-                with self._wlock:
-                    self._writer.finish()
-                self._stream.fsync()
+                if self._error is None:
+                    try:
+                        with self._wlock:
+                            self._writer.finish()
+                        self._stream.fsync()
+                    except OSError as exc:
+                        self._error = exc
             finally:
                 self._stream.close()
         if self._error is not None:
-            raise OSError(f"bag {self.path}: writing failed: {self._error}") from self._error
+            raise self._failure() from self._error
+
+    def _failure(self) -> BagWriteError:
+        exc = self._error
+        if isinstance(exc, BagWriteError):
+            return exc
+        if isinstance(exc, OSError):
+            return BagWriteError(_describe(self.path, exc))
+        return BagWriteError(f"{self.path}: writing failed: {exc}")
 
     def _check_open(self) -> None:
         if self._closed:
             raise ValueError(f"bag {self.path} is closed")
         if self._error is not None:
-            raise OSError(f"bag {self.path}: writing failed: {self._error}") from self._error
+            raise self._failure() from self._error
 
     def __enter__(self) -> McapBagWriter:
         return self

@@ -1,12 +1,12 @@
 """Electrostatic comb-drive micro-scanner: mechanics, comb capacitance, DC transimpedance readout.
 
-Source: Chen 2018, "High-accuracy Motion Estimation for MEMS Devices with Capacitive Sensors" (PhD thesis, U. Michigan),
-chapter 4: dynamics eqs. (66)-(68), sensing eq. (64)/(71), experiment Sec. 4.4.1 (0-60 V
-unipolar drive swept 1600 -> ~1250 Hz into parametric resonance, drive cut off, free
-ring-down recorded at 500 kHz, PSD delay 0.114 ms), Table 4.2 (fs, amplitude 0.15 rad,
-sigma_n = 0.0435 V, R_s = 10 MOhm, V_bias = 10 V), identified wn = 2 pi 624.6 Hz,
-zeta = 0.0066, theta_th = 0.0037 rad; capacitance profile: the Gaussian model of
-chapter 5, eq. (105), C(theta) = C0 exp(-((theta - theta_th)/theta0)^2) + C_b, with the
+Source: Y. Chen, "High-accuracy Motion Estimation for MEMS Devices with Capacitive Sensors",
+PhD thesis, U. Michigan 2018, chapter 4: dynamics eqs. (66)-(68), sensing eq. (64)/(71),
+experiment Sec. 4.4.1 (0-60 V unipolar drive swept 1600 -> ~1250 Hz into parametric
+resonance, drive cut off, free ring-down recorded at 500 kHz, PSD delay 0.114 ms), Table 4.2
+(fs, amplitude 0.15 rad, sigma_n = 0.0435 V, R_s = 10 MOhm, V_bias = 10 V), identified wn =
+2 pi 624.6 Hz, zeta = 0.0066, theta_th = 0.0037 rad; capacitance profile: the Gaussian model
+of chapter 5, eq. (105), C(theta) = C0 exp(-((theta - theta_th)/theta0)^2) + C_b, with the
 maximum moved to the threshold angle theta_th (chapter 4: the maximum overlap is at
 theta_th, not at 0).
 

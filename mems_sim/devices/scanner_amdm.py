@@ -1,12 +1,13 @@
 """Micro-scanner with SHARED drive/sense electrodes and the AMDM read-out chain (chapter 5).
 
-Source: Chen 2018, "High-accuracy Motion Estimation for MEMS Devices with Capacitive Sensors" (PhD thesis, U. Michigan),
-chapter 5: dynamics eqs. (80)-(81), drive/carrier eqs. (94)-(96), AMDM chain eqs. (92)-(104),
-capacitance eq. (105), Table 5.1 (settings), Table 5.2 (identified device parameters).
-The mechanics and the Gaussian comb capacitance are those of :mod:`mems_sim.devices.scanner`
-(chapter-4 module, public API: :meth:`ScannerParams.from_physical`, :func:`simulate_mechanics`,
-:func:`capacitance`, :func:`dcap_dtheta`), here with the Table 5.2 device (theta_th = 0,
-drive comb = sense comb: the electrodes are shared).
+Source: Y. Chen, "High-accuracy Motion Estimation for MEMS Devices with Capacitive Sensors",
+PhD thesis, U. Michigan 2018, chapter 5: dynamics eqs. (80)-(81), drive/carrier eqs.
+(94)-(96), AMDM chain eqs. (92)-(104), capacitance eq. (105), Table 5.1 (settings), Table
+5.2 (identified device parameters). The mechanics and the Gaussian comb capacitance are
+those of :mod:`mems_sim.devices.scanner` (chapter-4 module, public API:
+:meth:`ScannerParams.from_physical`, :func:`simulate_mechanics`, :func:`capacitance`,
+:func:`dcap_dtheta`), here with the Table 5.2 device (theta_th = 0, drive comb = sense comb:
+the electrodes are shared).
 
 Signal chain, simulated at ``internal_rate_hz`` (default 10 MHz, 20 samples per carrier period),
 published decimated to ``internal_rate_hz / output_decimation`` (default 1 MHz)::

@@ -1,8 +1,7 @@
 """Sixth-order Kalman observer of a resonator read through a one-bit sigma-delta ADC.
 
-Source: Colinet, Galayko & Juillard, "Pulse-actuated micromechanical resonator using digital Kalman observer",
-Sec. 2 eqs. (2)-(6),
-Sec. 5 eq. (13).  The observed system is eq. (13),
+Source: Colinet, Galayko & Juillard, "Pulse-actuated micromechanical resonator using digital
+Kalman observer", Sec. 2 eqs. (2)-(6), Sec. 5 eq. (13).  The observed system is eq. (13),
 
     v = STF (H u + b) + NTF w,
 

@@ -35,14 +35,10 @@ class FrAccelerometerNode(EmulatorNode):
     Keyword arguments: those of :class:`~mems_sim.ros.node_base.EmulatorNode`.
     """
 
-    def __init__(self, **kwargs) -> None:
-        super().__init__(
-            "fr_accelerometer",
-            "accelerometer",
-            fra.ACCEL_SPECS + NODE_SPECS,
-            "force-rebalance accelerometer",
-            **kwargs,
-        )
+    NODE_NAME = "accelerometer"
+    DEFAULT_NAMESPACE = "accelerometer"
+    SPECS = fra.ACCEL_SPECS + NODE_SPECS
+    DIAGNOSTICS_TITLE = "force-rebalance accelerometer"
 
     def make_device(self) -> float:
         device = {s.name: self.p[s.name] for s in fra.ACCEL_SPECS}

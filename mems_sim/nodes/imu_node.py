@@ -37,7 +37,7 @@ MOTION_SPECS: tuple[ParamSpec, ...] = (
         True,
         "-",
         "also publish sensor_msgs/Imu, one message per sample",
-        "design.md principle 6",
+        "interoperable: sensor_msgs/Imu so existing tools (imu_tools, robot_localization) can subscribe",
     ),
 )
 
@@ -52,14 +52,10 @@ class ImuNoiseNode(EmulatorNode):
     (``drive_externally``, ``autostart``, rclpy Node arguments).
     """
 
-    def __init__(self, **kwargs) -> None:
-        super().__init__(
-            "imu_noise",
-            "imu",
-            imu_noise.IMU_SPECS + EMULATOR_SPECS + MOTION_SPECS,
-            "IMU emulator",
-            **kwargs,
-        )
+    NODE_NAME = "imu"
+    DEFAULT_NAMESPACE = "imu"
+    SPECS = imu_noise.IMU_SPECS + EMULATOR_SPECS + MOTION_SPECS
+    DIAGNOSTICS_TITLE = "IMU emulator"
 
     def make_device(self) -> float:
         fs = self.p["sample_rate_hz"]

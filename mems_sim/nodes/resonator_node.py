@@ -43,14 +43,10 @@ class SdResonatorNode(EmulatorNode):
     Keyword arguments: those of :class:`~mems_sim.ros.node_base.EmulatorNode`.
     """
 
-    def __init__(self, **kwargs) -> None:
-        super().__init__(
-            "sd_resonator",
-            "resonator",
-            sd_resonator.RESONATOR_SPECS + NODE_SPECS,
-            "sigma-delta resonator",
-            **kwargs,
-        )
+    NODE_NAME = "resonator"
+    DEFAULT_NAMESPACE = "resonator"
+    SPECS = sd_resonator.RESONATOR_SPECS + NODE_SPECS
+    DIAGNOSTICS_TITLE = "sigma-delta resonator"
 
     def make_device(self) -> float:
         device = {s.name: self.p[s.name] for s in sd_resonator.RESONATOR_SPECS}

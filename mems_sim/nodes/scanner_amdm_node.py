@@ -35,14 +35,10 @@ class ScannerAmdmNode(EmulatorNode):
     Keyword arguments: those of :class:`~mems_sim.ros.node_base.EmulatorNode`.
     """
 
-    def __init__(self, **kwargs) -> None:
-        super().__init__(
-            "scanner_amdm",
-            "scanner_amdm",
-            scanner_amdm.AMDM_SPECS + NODE_SPECS,
-            "shared-electrode scanner (AMDM)",
-            **kwargs,
-        )
+    NODE_NAME = "scanner_amdm"
+    DEFAULT_NAMESPACE = "scanner_amdm"
+    SPECS = scanner_amdm.AMDM_SPECS + NODE_SPECS
+    DIAGNOSTICS_TITLE = "shared-electrode scanner (AMDM)"
 
     def make_device(self) -> float:
         device = {s.name: self.p[s.name] for s in scanner_amdm.AMDM_SPECS}

@@ -18,7 +18,7 @@ Topics (relative to the namespace, default ``/scanner``):
     ``/diagnostics``                   frames, saturated samples, psd delay
 Parameters: ``SCANNER_SPECS`` + ``front_end`` + ``drive_frequency_hz`` + ``EMULATOR_SPECS``
 (default ``frame_size`` 10000 samples = 20 ms: with the estimator and the recorder in one
-process the graph keeps up with 500 kHz only with frames of ~10^4 samples, bench_scanner.py).
+process the graph keeps up with 500 kHz only with frames of ~10^4 samples, as measured by make bench).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=10000, frame_id="s
         "dc_transimpedance",
         "-",
         "sensing front end",
-        "issue 5: dc_transimpedance (ch. 4) or shared_amdm (ch. 5, mems_sim.devices.scanner_amdm)",
+        "Chen 2018: dc_transimpedance (ch. 4, eq. 64) or shared_amdm (ch. 5, AMDM chain)",
         choices=micro_scanner.FRONT_ENDS,
     ),
     ParamSpec(
@@ -84,14 +84,10 @@ class MicroScannerNode(EmulatorNode):
     Keyword arguments: those of :class:`~mems_sim.ros.node_base.EmulatorNode`.
     """
 
-    def __init__(self, **kwargs) -> None:
-        super().__init__(
-            "micro_scanner",
-            "scanner",
-            micro_scanner.SCANNER_SPECS + NODE_SPECS,
-            lambda p: f"micro-scanner ({p['front_end']})",
-            **kwargs,
-        )
+    NODE_NAME = "scanner"
+    DEFAULT_NAMESPACE = "scanner"
+    SPECS = micro_scanner.SCANNER_SPECS + NODE_SPECS
+    DIAGNOSTICS_TITLE = staticmethod(lambda p: f"micro-scanner ({p['front_end']})")
 
     def make_device(self) -> float:
         p = self.p

@@ -105,7 +105,7 @@ SCHEDULE_SPECS: tuple[ParamSpec, ...] = (
         "-",
         "also publish every gyro sample as sensor_msgs/Imu "
         "(one message per sample, ~8 kHz; skipped while nobody subscribes)",
-        "design.md principle 6",
+        "interoperable: sensor_msgs/Imu so existing tools (imu_tools, robot_localization) can subscribe",
     ),
 )
 
@@ -144,14 +144,10 @@ class MicroStageNode(EmulatorNode):
     Keyword arguments: those of :class:`~mems_sim.ros.node_base.EmulatorNode`.
     """
 
-    def __init__(self, **kwargs) -> None:
-        super().__init__(
-            "micro_stage",
-            "stage",
-            micro_stage.STAGE_SPECS + GYRO_SPECS + SCHEDULE_SPECS + NODE_SPECS,
-            "piezo tilt micro-stage",
-            **kwargs,
-        )
+    NODE_NAME = "stage"
+    DEFAULT_NAMESPACE = "stage"
+    SPECS = micro_stage.STAGE_SPECS + GYRO_SPECS + SCHEDULE_SPECS + NODE_SPECS
+    DIAGNOSTICS_TITLE = "piezo tilt micro-stage"
 
     def make_device(self) -> float:
         dev = {s.name: self.p[s.name] for s in micro_stage.STAGE_SPECS}

@@ -1,6 +1,6 @@
 """Process environment defaults for every executable of this package.
 
-Principle 7 of the design: the graph stays on this machine unless the user
+The graph stays on this machine unless the user
 says otherwise. If ``ROS_AUTOMATIC_DISCOVERY_RANGE`` is not set, it is set to
 ``LOCALHOST`` before rclpy initialises; a user who wants a networked graph
 sets it explicitly (e.g. ``SUBNET``). ``AMENT_PREFIX_PATH`` falls back to the

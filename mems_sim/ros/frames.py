@@ -1,6 +1,6 @@
 """Conversion between numpy sample blocks and the frame messages of mems_msgs.
 
-Frames carry consecutive samples (design principle 2): ``header.stamp`` is the
+Frames carry consecutive samples: ``header.stamp`` is the
 time of the first sample, derived from its index and the sample rate, never
 from the wall clock, so that recordings are bit-identical across runs.
 """

@@ -1,10 +1,19 @@
-"""Parameters and the main() wrapper shared by the emulator and estimator nodes."""
+"""Bases of the nodes, parameters and the main() wrapper shared by the emulator and
+estimator nodes.
+
+* :class:`MemsNode`: every node (default namespace, ParamSpec parameters, diagnostics);
+* :class:`PacedEmulator`: wall-clock pacing and duration of an emulator;
+* :class:`EmulatorNode`: every emulator node (device, frame publishers, ``step``);
+* :func:`run_node`: the ``main()`` of every node executable (exit code 2 on a bad parameter).
+
+The estimator nodes' base, ``EstimatorNode``, is in ``mems_estimation.nodes.frame_input``.
+"""
 
 from __future__ import annotations
 
 import dataclasses
 import sys
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 
 from rclpy.node import Node
 from rclpy.publisher import Publisher
@@ -23,7 +32,7 @@ EMULATOR_SPECS: tuple[ParamSpec, ...] = (
         0,
         "-",
         "run seed of every random source of the device",
-        "design.md principle 4 (deterministic)",
+        "deterministic: every random source is seeded from the run seed",
         min=0,
         max=2**62,
     ),
@@ -32,7 +41,7 @@ EMULATOR_SPECS: tuple[ParamSpec, ...] = (
         10,
         "samples",
         "samples per published frame",
-        "design.md principle 2",
+        "frames of consecutive samples; a jump in the first sample index is a drop",
         min=1,
         max=1_000_000,
     ),
@@ -61,7 +70,7 @@ EMULATOR_SPECS: tuple[ParamSpec, ...] = (
         "-",
         "time of sample 0: 'zero' (simulated time from 0, bit-identical runs) or "
         "'wall' (wall-clock time at start)",
-        "design.md principle 5",
+        "sensor time: sample k is stamped epoch + k / fs",
         choices=("zero", "wall"),
     ),
     ParamSpec("frame_id", "imu_link", "-", "frame_id of published headers", "REP-103/105"),
@@ -161,27 +170,69 @@ class PacedEmulator:
             self.step()
 
 
+class MemsNode(Node):
+    """Base of every emulator and estimator node: default namespace, parameters declared
+    from ParamSpec tables (:func:`~mems_sim.ros.params.declare_specs`: ranges, validation,
+    runtime guard), ``self.p`` with their values and ``self.diag`` on /diagnostics.
+
+    A node class states what it is in four class attributes and needs no constructor of its
+    own unless it builds more: :attr:`NODE_NAME`, :attr:`DEFAULT_NAMESPACE`, :attr:`SPECS`
+    and :attr:`DIAGNOSTICS_TITLE`.
+
+    Args:
+        **node_kwargs: passed to rclpy's Node (context, namespace, parameter_overrides);
+            without ``namespace`` the node starts in :attr:`DEFAULT_NAMESPACE`.
+    """
+
+    #: ROS node name (the device's name stem).
+    NODE_NAME: str = ""
+    #: Namespace unless one is given (the usual namespace of the device the node emulates
+    #: or reads); ``__ns:=`` on the command line overrides it.
+    DEFAULT_NAMESPACE: str = ""
+    #: The node's parameter table(s).
+    SPECS: tuple[ParamSpec, ...] = ()
+    #: What the node does, on /diagnostics after the node name: a string or a function of
+    #: the parameter values.
+    DIAGNOSTICS_TITLE: str | Callable[[dict], str] = ""
+    #: Parameters that may be changed while the node runs (the others are set at start).
+    RUNTIME_PARAMETERS: tuple[str, ...] = ()
+    #: The node's fully qualified name as hardware_id of its diagnostics status.
+    DIAGNOSTICS_HARDWARE_ID = False
+
+    def __init__(self, **node_kwargs) -> None:
+        node_kwargs.setdefault("namespace", self.DEFAULT_NAMESPACE)
+        super().__init__(self.NODE_NAME, **node_kwargs)
+        self.p = declare_specs(
+            self, self.SPECS, runtime=self.RUNTIME_PARAMETERS, on_change=self.parameter_changed
+        )
+        title = self.DIAGNOSTICS_TITLE
+        title = title if isinstance(title, str) else title(self.p)
+        hardware_id = self.get_fully_qualified_name() if self.DIAGNOSTICS_HARDWARE_ID else ""
+        self.diag = DiagnosticsReporter(
+            self, f"{self.get_name()}: {title}", hardware_id=hardware_id
+        )
+
+    def parameter_changed(self, name: str, value) -> None:
+        """Called after a change of one of :attr:`RUNTIME_PARAMETERS` was accepted
+        (``self.p`` already holds the new value)."""
+
+
 #: Message type of a frame topic by its last name component (others: SignalFrame).
 FRAME_TYPES = {"adc": AdcFrame, "estimate": StateEstimate, "loop_estimate": StateEstimate}
 
 
-class EmulatorNode(PacedEmulator, Node):
+class EmulatorNode(PacedEmulator, MemsNode):
     """Base of the emulator nodes: parameters, device, frame publishers, diagnostics, pacing.
 
-    The constructor declares ``specs`` (the device table(s) and the
+    The constructor does :class:`MemsNode`'s (:attr:`SPECS`: the device table(s) and the
     :data:`EMULATOR_SPECS`; ``realtime_factor`` can be changed while the node runs, every
-    other parameter is set at start), creates the DiagnosticsReporter, calls
-    :meth:`make_device` (the subclass builds its device and publishers from ``self.p`` and
-    returns the sample rate), sets up the pacing (:meth:`schedule_samples` bounds it) and
-    starts the wall-clock timer unless ``drive_externally`` or not ``autostart``.
-    :meth:`step` publishes one frame through the subclass's :meth:`publish_frame`.
+    other parameter is set at start), then calls :meth:`make_device` (the subclass builds
+    its device and publishers from ``self.p`` and returns the sample rate), sets up the
+    pacing (:meth:`schedule_samples` bounds it) and starts the wall-clock timer unless
+    ``drive_externally`` or not ``autostart``. :meth:`step` publishes one frame through
+    the subclass's :meth:`publish_frame`.
 
     Args:
-        node_name: ROS node name.
-        default_namespace: namespace unless ``namespace`` is given in ``node_kwargs``.
-        specs: the parameter table(s) of the node.
-        diagnostics_title: what the node emulates, on /diagnostics after the node name;
-            a string or a function of the parameter values.
         drive_externally: if True no timer is created; the owner calls :meth:`step`
             (the scenario runner does this to run faster than real time without loss).
         autostart: start the wall-clock timer at once; if False the owner calls
@@ -189,28 +240,13 @@ class EmulatorNode(PacedEmulator, Node):
         **node_kwargs: passed to rclpy's Node (context, namespace, parameter_overrides).
     """
 
+    RUNTIME_PARAMETERS = ("realtime_factor",)
+    DIAGNOSTICS_HARDWARE_ID = True
+
     def __init__(
-        self,
-        node_name: str,
-        default_namespace: str,
-        specs: Iterable[ParamSpec],
-        diagnostics_title: str | Callable[[dict], str],
-        *,
-        drive_externally: bool = False,
-        autostart: bool = True,
-        **node_kwargs,
+        self, *, drive_externally: bool = False, autostart: bool = True, **node_kwargs
     ) -> None:
-        node_kwargs.setdefault("namespace", default_namespace)
-        super().__init__(node_name, **node_kwargs)
-        self.p = declare_specs(
-            self, specs, runtime=("realtime_factor",), on_change=self._parameter_changed
-        )
-        title = (
-            diagnostics_title if isinstance(diagnostics_title, str) else diagnostics_title(self.p)
-        )
-        self.diag = DiagnosticsReporter(
-            self, f"{self.get_name()}: {title}", hardware_id=self.get_fully_qualified_name()
-        )
+        super().__init__(**node_kwargs)
         fs = self.make_device()
         self.init_emulator(fs, self.schedule_samples())
         if not drive_externally and autostart:
@@ -247,7 +283,8 @@ class EmulatorNode(PacedEmulator, Node):
         self.frame_published(n)
         return n
 
-    def _parameter_changed(self, name: str, value) -> None:
+    def parameter_changed(self, name: str, value) -> None:
+        """``realtime_factor``: the pacing continues from the current index at the new rate."""
         if name == "realtime_factor":
             self.repace()
 
@@ -274,7 +311,10 @@ def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> in
     rclpy.init(
         args=argv if argv is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO
     )
-    signal.signal(signal.SIGTERM, _raise_interrupt)
+    # SIGINT explicitly too: a process started in the background of a script inherits it
+    # ignored, and would not stop on the SIGINT that launch tools send
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _raise_interrupt)
     node = None
     try:
         node = factory()

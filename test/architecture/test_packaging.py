@@ -28,6 +28,9 @@ IMPORT_KEYS = {
     "tqdm": "python3-tqdm",
     "mcap": "mcap-ros2-support",
     "mcap_ros2": "mcap-ros2-support",
+    # the compressors of MCAP chunks: no rosdep keys; mcap (from mcap-ros2-support) needs both
+    "zstandard": "mcap-ros2-support",
+    "lz4": "mcap-ros2-support",
     "rosbags": "python3-rosbags-pip",
     "rclpy": "rclpy",
     "rcl_interfaces": "rcl_interfaces",

@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from mems_estimation.filters import scanner_amdm_filters as su
+from mems_estimation.filters import scanner_amdm_tracking as su
+from mems_estimation.filters import scanner_amdm_ukf as sau
 from mems_sim.devices import scanner_amdm as sa
 from mems_sim.params import ParameterError
 
@@ -41,11 +42,11 @@ def truth_events(fr):
 
 
 def test_unscented_weights_reproduce_mean_and_covariance():
-    wm, wc, g = su.ukf_weights(2, 1.0, 2.0, 1.0)
+    wm, wc, g = sau.ukf_weights(2, 1.0, 2.0, 1.0)
     assert wm.sum() == pytest.approx(1.0)
     x = np.array([0.1, -3e3])
     P = np.array([[4e-4, 0.3], [0.3, 1e4]])
-    from mems_estimation.filters.scanner_amdm_filters import _sigma
+    from mems_estimation.filters.scanner_amdm_ukf import _sigma
 
     S = np.empty((5, 2))
     assert _sigma(x, P, g, S)

@@ -152,7 +152,7 @@ def test_ekf_node_rejects_non_finite_drive_and_keeps_running(graph):
     assert spin_until(
         ex,
         lambda: any(
-            s.name.startswith("hybrid_ekf")
+            s.name.startswith("accelerometer_ekf")
             and {kv.key: kv.value for kv in s.values}.get("rejected_frames") == "1"
             for m in diags
             for s in m.status
@@ -178,7 +178,7 @@ def test_over_range_input_warns_on_diagnostics(graph):
     assert spin_until(
         ex,
         lambda: any(
-            s.level == DiagnosticStatus.WARN and s.name.startswith("fr_accelerometer")
+            s.level == DiagnosticStatus.WARN and s.name.startswith("accelerometer:")
             for m in diags
             for s in m.status
         ),

@@ -160,14 +160,14 @@ def test_identifier_rejects_malformed_frames_and_counts_gaps(graph):
     assert spin_until(
         ex,
         lambda: any(
-            s.name.startswith("noise_identifier")
+            s.name.startswith("imu_noise_identifier")
             and s.level == b"\x01"
-            or s.name.startswith("noise_identifier")
+            or s.name.startswith("imu_noise_identifier")
             and s.level == 1
             for d in diags
             for s in d.status
         ),
     )
-    status = [s for d in diags for s in d.status if s.name.startswith("noise_identifier")][-1]
+    status = [s for d in diags for s in d.status if s.name.startswith("imu_noise_identifier")][-1]
     values = {kv.key: kv.value for kv in status.values}
     assert values["rejected_frames"] == "2" and values["gaps"] == "1"

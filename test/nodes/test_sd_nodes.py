@@ -129,7 +129,7 @@ def test_observer_node_rejects_bad_bit_streams_on_diagnostics(graph):
     assert spin_until(
         ex,
         lambda: any(
-            s.name.startswith("sd_observer")
+            s.name.startswith("resonator_observer")
             and {kv.key: kv.value for kv in s.values}.get("rejected_frames") == "2"
             for d in diags
             for s in d.status

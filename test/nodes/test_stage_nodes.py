@@ -1,4 +1,4 @@
-"""Micro-stage, stage EKF and gyro calibration nodes through real topics (issue 3)."""
+"""Micro-stage, stage EKF and gyro calibration nodes through real topics (Chen 2018 ch. 3)."""
 
 import array
 
