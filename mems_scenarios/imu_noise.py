@@ -98,7 +98,9 @@ def run_fast(graph: Graph, emu: ImuNoiseNode, ident, rec, progress: Progress) ->
     drive_fast(
         graph,
         [emu],
-        lambda _: min(rec.received("/imu/adc"), ident.frames_received),
+        # every topic the emulator publishes counts: a reader that falls more than the
+        # publisher's history behind loses frames (reliable KEEP_LAST overwrites them)
+        lambda _: min(rec.received("/imu/adc"), rec.received("/imu/truth"), ident.frames_received),
         progress,
         WINDOW,
     )
