@@ -65,6 +65,14 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml", "LICENSE", "CHANGELOG.rst"]),
+        (
+            f"share/{PACKAGE}/launch",
+            sorted(str(p.relative_to(HERE)) for p in (HERE / "launch").glob("*.launch.yaml")),
+        ),
+        (
+            f"share/{PACKAGE}/config",
+            sorted(str(p.relative_to(HERE)) for p in (HERE / "config").glob("*")),
+        ),
     ],
     install_requires=locked(RUNTIME),
     extras_require={"test": locked(TEST)},
@@ -78,6 +86,7 @@ setup(
     entry_points={
         "console_scripts": [
             "run_scenario = mems_scenarios.cli:main",
+            "run_graph = mems_scenarios.launch_graph:main",
             "imu_node = mems_sim.nodes.imu_node:main",
             "imu_noise_identifier_node = mems_estimation.nodes.imu_noise_identifier_node:main",
             "resonator_node = mems_sim.nodes.resonator_node:main",

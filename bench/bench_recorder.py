@@ -116,9 +116,12 @@ def main() -> None:
         f"recorder throughput: {TOPIC} SignalFrame of {SAMPLES} float64 samples, "
         "mcap_record in a separate process, 3 s per stage"
     )
+    lossless = None
     with tempfile.TemporaryDirectory() as tmp:
         for rate in (1000, 2000, 4000, 8000, 16000):
             r = stage(rate, 3.0, Path(tmp) / f"rec-{rate}.mcap", domain)
+            if r["lost"] == 0:
+                lossless = r
             print(
                 f"  offered {r['offered']:5.0f} msg/s: recorded {r['msg_s']:7.0f} msg/s, "
                 f"{r['mb_s']:6.1f} MB/s, sent {r['sent']}, recorded {r['recorded']}, "
@@ -129,6 +132,14 @@ def main() -> None:
                     else ""
                 )
             )
+
+    if lossless is None:
+        print("  zero-loss limit: below the lowest offered rate (1000 msg/s)")
+    else:
+        print(
+            f"  zero-loss limit: at least {lossless['msg_s']:.0f} msg/s, "
+            f"{lossless['mb_s']:.1f} MB/s (the highest stage that lost nothing)"
+        )
 
 
 if __name__ == "__main__":

@@ -8,7 +8,12 @@ HERE = Path(__file__).parent
 
 # options per benchmark: the stage graph as separate processes (~90 s: the one-process
 # figures, zstd as recorded by default and the cheapest configuration)
-ARGS = {"bench_stage_ekf.py": ["--graph-processes=zstd,none,none:10000"]}
+ARGS = {
+    "bench_stage_ekf.py": ["--graph-processes=zstd,none,none:10000"],
+    # 120 s of data: pacing at rates 1 and 10 and the lossless replay in ~3 min
+    # (bench_replay.py alone defaults to the 600 s of the data-path figures)
+    "bench_replay.py": ["--duration", "120"],
+}
 
 for name in (
     "bench_allan.py",
@@ -18,6 +23,8 @@ for name in (
     "bench_scanner.py",
     "bench_scanner_ukf.py",
     "bench_stage_ekf.py",
+    "bench_imu_fast.py",
+    "bench_replay.py",
 ):
     print(f"== {name}")
     sys.argv = [str(HERE / name)] + ARGS.get(name, [])

@@ -12,6 +12,8 @@ from __future__ import annotations
 import os
 import sys
 import time
+import warnings
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,13 +24,31 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 
+from mems_scenarios.domain import (  # noqa: F401  (DEFAULT_DOMAINS, DomainLease, holder: the lease API, public here)
+    DEFAULT_DOMAINS,
+    DomainBusy,
+    DomainLease,
+    holder,
+    lease_default_domain,
+    lease_domain,
+)
+from mems_sim.bag.recorder import RecorderNode
 from mems_sim.ros.env import apply_defaults
 from mems_sim.ros.frames import index_to_ns
+from mems_sim.ros.node_base import PacedEmulator
 from mems_sim.table import format_table  # noqa: F401  (scenarios print with it)
+
+#: Topics a scenario's recorder leaves out: the estimators' flow-control reports
+#: (``~/progress``, for lossless replay into another process) are control, not data.
+NOT_RECORDED = r"/progress$"
 
 
 class ScenarioError(RuntimeError):
     """A scenario could not run (bad option, lost frames, missing result)."""
+
+
+#: Topics every node has, not data of a scenario (the graph check leaves them out).
+IGNORED_TOPICS = frozenset({"/rosout", "/parameter_events"})
 
 
 @dataclass
@@ -56,11 +76,17 @@ class ScenarioOptions:
 
 
 def default_domain_id() -> int:
-    """ROS_DOMAIN_ID from the environment, or one derived from the process id (1..100)."""
+    """ROS_DOMAIN_ID from the environment, else a free domain leased for this process
+    (:func:`~mems_scenarios.domain.lease_default_domain`: the first of 1..101 without
+    61-65, then 0, that no other graph of this package holds). The :class:`Graph` made on
+    it keeps the lease; an explicit domain is leased by the Graph (or refused)."""
     env = os.environ.get("ROS_DOMAIN_ID")
     if env:
         return int(env)
-    return 1 + os.getpid() % 100
+    try:
+        return lease_default_domain()
+    except DomainBusy as exc:
+        raise ScenarioError(str(exc)) from None
 
 
 def parameters(values: dict) -> list[Parameter]:
@@ -69,16 +95,42 @@ def parameters(values: dict) -> list[Parameter]:
 
 
 class Graph:
-    """A private rclpy context with a single-threaded executor and its nodes."""
+    """A private rclpy context with a single-threaded executor and its nodes.
 
-    def __init__(self, domain_id: int) -> None:
+    Isolation: the graph leases its ROS domain for its lifetime
+    (:mod:`mems_scenarios.domain`; another graph of this package on the same domain is
+    refused with one line), and :meth:`check_alone` refuses a domain where a publisher
+    outside the graph serves one of its topics, so two runs never mix silently.
+
+    Args:
+        domain_id: ROS domain (None: :func:`default_domain_id`).
+        cut: fault injection for tests of the loss reporting: topic -> messages; an
+            emulator added later that publishes the topic hands only that many of its
+            messages to the middleware (:meth:`EmulatorNode.cut_topic`).
+    """
+
+    def __init__(self, domain_id: int | None = None, *, cut: dict | None = None) -> None:
         apply_defaults()
+        if domain_id is None:
+            domain_id = default_domain_id()
+        try:
+            self.lease = lease_domain(domain_id)
+        except DomainBusy as exc:
+            raise ScenarioError(str(exc)) from None
+        self.domain_id = domain_id
+        self.recorders: list = []
+        self._cut = dict(cut or {})
+        self._alone_checked = False
         self.context = Context()
-        rclpy.init(
-            context=self.context,
-            domain_id=domain_id,
-            signal_handler_options=rclpy.signals.SignalHandlerOptions.NO,
-        )
+        try:
+            rclpy.init(
+                context=self.context,
+                domain_id=domain_id,
+                signal_handler_options=rclpy.signals.SignalHandlerOptions.NO,
+            )
+        except BaseException:
+            self.lease.release()
+            raise
         self.executor = SingleThreadedExecutor(context=self.context)
         # the recorder subscribes (and announces each topic) already in its constructor
         rclpy.logging.set_logger_level("mcap_recorder", rclpy.logging.LoggingSeverity.WARN)
@@ -90,8 +142,19 @@ class Graph:
     def add(self, node):
         """Add ``node`` to the executor and return it. Its logger is set to WARN: a
         scenario's product is its table, and per-topic INFO lines (the recorder announces
-        every topic) would bury it; warnings and errors still print."""
+        every topic) would bury it; warnings and errors still print.
+
+        Time: the graph's clock is the emulators' sensor time, epoch 0 (they are its
+        source; :meth:`publish_clock` puts it on /clock); every other node gets
+        use_sim_time, so that its stamps (diagnostics) are on the same timeline."""
         node.get_logger().set_level(rclpy.logging.LoggingSeverity.WARN)
+        if not isinstance(node, PacedEmulator):
+            node.set_parameters([Parameter("use_sim_time", value=True)])
+        if isinstance(node, RecorderNode):
+            self.recorders.append(node)
+        for topic, keep in self._cut.items():
+            if topic in getattr(node, "streams", {}):
+                node.cut_topic(topic, keep)
         self.nodes.append(node)
         self.executor.add_node(node)
         return node
@@ -111,7 +174,10 @@ class Graph:
         return self.add(node)
 
     def publish_clock(self, ns: int) -> None:
-        """Publish simulated time on /clock."""
+        """Publish simulated time on /clock (not again while it has not moved)."""
+        if ns == getattr(self, "_clock_ns", None):
+            return
+        self._clock_ns = ns
         msg = Clock()
         msg.clock.sec, msg.clock.nanosec = int(ns // 10**9), int(ns % 10**9)
         self._clock_pub.publish(msg)
@@ -124,17 +190,61 @@ class Graph:
                 raise ScenarioError(f"timed out after {timeout_s:.0f} s waiting for {what}")
             self.executor.spin_once(timeout_sec=0.01)
 
+    def own_publishers(self) -> Counter:
+        """Publishers of this graph's nodes per topic."""
+        return Counter(p.topic_name for n in self.nodes for p in n.publishers)
+
+    def foreign_publishers(self, topics=None) -> dict[str, int]:
+        """Publishers outside this graph per topic, on ``topics`` (default: every topic the
+        graph's nodes publish or subscribe to), as the graph has discovered them so far."""
+        own = self.own_publishers()
+        if topics is None:
+            topics = set(own) | {s.topic_name for n in self.nodes for s in n.subscriptions}
+        out = {}
+        for topic in sorted(set(topics) - IGNORED_TOPICS):
+            foreign = len(self._clock_node.get_publishers_info_by_topic(topic)) - own[topic]
+            if foreign > 0:
+                out[topic] = foreign
+        return out
+
+    def check_alone(self) -> None:
+        """Refuse (:class:`ScenarioError`, one line) when a publisher outside this graph
+        serves one of the graph's topics on its domain: the recording would mix the two.
+        Checked once, before the first frame. Discovery of another process takes a moment
+        (about 2 s on localhost), so a graph found only later is reported by
+        :func:`check_delivery` at the end of the run."""
+        if self._alone_checked:
+            return
+        foreign = self.foreign_publishers()
+        if foreign:
+            topic, n = next(iter(foreign.items()))
+            raise ScenarioError(
+                f"ROS domain {self.domain_id} is in use: {topic} has {n} publisher(s) "
+                f"outside this run (on {len(foreign)} of its topics), whose messages would "
+                "mix with its own; pass another --domain-id, or stop the other graph"
+            )
+        self._alone_checked = True
+
     def close(self) -> None:
-        """Destroy nodes and shut the context down."""
-        for node in self.nodes:
-            try:
-                self.executor.remove_node(node)
-                node.destroy_node()
-            except Exception:
-                pass
-        self.executor.shutdown()
-        if self.context.ok():
-            rclpy.shutdown(context=self.context)
+        """Destroy nodes, shut the context down and end the domain lease."""
+        try:
+            for node in self.nodes:
+                try:
+                    self.executor.remove_node(node)
+                    node.destroy_node()
+                except Exception:
+                    pass
+            self.executor.shutdown()
+            if self.context.ok():
+                rclpy.shutdown(context=self.context)
+        finally:
+            self.lease.release()
+
+
+def graph_for(options: ScenarioOptions) -> Graph:
+    """The Graph of a scenario run: its domain (None: a free one, leased) and the fault
+    injection of ``options.extra['cut']`` (topic -> messages, tests only)."""
+    return Graph(options.domain_id, cut=options.extra.get("cut"))
 
 
 class Progress:
@@ -170,33 +280,184 @@ class Progress:
             self._bar.close()
 
 
+def recorded_streams(graph: Graph, devices: list, window: int = 1) -> list[tuple]:
+    """``(recorder, account, window)`` for every data topic of ``devices`` that a recorder
+    of the graph records; ``window`` is at most half the publisher's history depth (a
+    reliable KEEP_LAST publisher overwrites what a reader has not taken beyond it)."""
+    out = []
+    for d in devices:
+        for topic, account in getattr(d, "streams", {}).items():
+            for rec in graph.recorders:
+                if rec.wants(topic):
+                    w = window if account.depth is None else min(window, account.depth // 2)
+                    out.append((rec, account, max(1, w)))
+    return out
+
+
+def _end_of_stream_topics(graph: Graph, devices: list) -> list[tuple]:
+    """``(recorder, device, topic)`` for every end-of-stream topic a recorder records."""
+    out = []
+    for d in devices:
+        pub = getattr(d, "pub_end_of_stream", None)
+        for rec in graph.recorders if pub is not None else ():
+            if rec.wants(pub.topic_name):
+                out.append((rec, d, pub.topic_name))
+    return out
+
+
+def prepare_delivery(graph: Graph, devices: list, timeout_s: float = 30.0) -> None:
+    """Before the first frame: wait until every recorder of the graph subscribes to (and
+    has matched) each topic of ``devices`` it selects, end-of-stream records included, so
+    that no message is lost to discovery; then :meth:`Graph.check_alone`."""
+    topics = [(rec, acc.topic) for rec, acc, _ in recorded_streams(graph, devices)]
+    topics += [(rec, t) for rec, _, t in _end_of_stream_topics(graph, devices)]
+    deadline = time.monotonic() + timeout_s
+    while not all(rec.matched(t) for rec, t in topics):
+        if time.monotonic() > deadline:
+            missing = sorted({t for rec, t in topics if not rec.matched(t)})
+            raise ScenarioError(
+                f"timed out after {timeout_s:.0f} s waiting for the recorder to subscribe to "
+                + ", ".join(missing)
+            )
+        graph.executor.spin_once(timeout_sec=0.01)
+    graph.check_alone()
+
+
+def _lagging(devices: list, delivered, streams: list) -> str:
+    """What has not been delivered yet: per topic the recorder's count, per device the
+    frames its other consumers took."""
+    parts = [
+        f"{acc.topic}: the recorder has {rec.received(acc.topic)} of {acc.sent} messages"
+        for rec, acc, _ in streams
+        if rec.received(acc.topic) < acc.sent
+    ]
+    for d in devices:
+        n = delivered(d) if delivered is not None else None
+        if n is not None and n < d.frames_published:
+            parts.append(
+                f"{d.get_fully_qualified_name()}: its consumers took {n} of "
+                f"{d.frames_published} frames"
+            )
+    return "; ".join(parts) or "nothing outstanding"
+
+
+def _wait_delivered(graph, predicate, devices, delivered, streams, timeout_s, what) -> None:
+    """Spin until ``predicate()``; after ``timeout_s`` raise ScenarioError naming what is
+    outstanding."""
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise ScenarioError(
+                f"timed out after {timeout_s:.0f} s waiting for {what}: "
+                + _lagging(devices, delivered, streams)
+            )
+        graph.executor.spin_once(timeout_sec=0.01)
+
+
+def check_delivery(graph: Graph, devices: list) -> None:
+    """Raise :class:`ScenarioError` (one line) when the recording lost or mixed data:
+    per data topic of ``devices`` the messages (and samples) the device produced but the
+    recorder does not hold, with the missing tail; every loss a recorder saw (frame-index
+    and sequence gaps, tails against end-of-stream records, on any topic); messages
+    from publishers outside the graph."""
+    problems, named = [], set()
+    for rec, acc, _ in recorded_streams(graph, devices):
+        missing = acc.messages - rec.received(acc.topic)
+        if missing <= 0:
+            continue
+        text = f"{acc.topic}: {missing} of {acc.messages} messages missing"
+        if acc.frames:
+            recorded = rec.gap_details().get(acc.topic, {}).get("samples", 0)
+            tail = rec.tails().get(acc.topic)
+            where = f"; the tail from sample {tail['from_index']}" if tail else ""
+            text += f" ({acc.samples - recorded} samples{where})"
+        problems.append(text)
+        named.add(acc.topic)
+    own, recorded = graph.own_publishers(), set()
+    for rec in graph.recorders:
+        problems += [t for t in rec.losses() if t.split(":", 1)[0] not in named]
+        recorded |= set(rec.recorded_topics())
+        for topic, seq in sorted(rec.sequence_details().items()):
+            foreign = seq["publishers"] - own.get(topic, 0)
+            if foreign > 0:
+                problems.append(
+                    f"{topic}: messages of {foreign} publisher(s) outside this run recorded "
+                    f"(another graph on ROS domain {graph.domain_id})"
+                )
+    # topics the graph takes in without recording them (e.g. /clock): any other publisher
+    subscribed = {s.topic_name for n in graph.nodes for s in n.subscriptions} - recorded
+    for topic, n in graph.foreign_publishers(subscribed).items():
+        problems.append(
+            f"{topic}: {n} publisher(s) outside this run (another graph on ROS domain "
+            f"{graph.domain_id})"
+        )
+    if problems:
+        raise ScenarioError("the recording lost or mixed data: " + "; ".join(problems))
+
+
+def finish_delivery(graph: Graph, devices: list, delivered=None, timeout_s: float = 60.0) -> None:
+    """After the last frame: wait until the consumers (``delivered``) and every recorder
+    hold all that ``devices`` published, end-of-stream records included, then
+    :func:`check_delivery`."""
+    streams = recorded_streams(graph, devices)
+    ends = _end_of_stream_topics(graph, devices)
+
+    def done() -> bool:
+        if delivered is not None:
+            for d in devices:
+                n = delivered(d)
+                if n is not None and n < d.frames_published:
+                    return False
+        return all(rec.received(acc.topic) >= acc.sent for rec, acc, _ in streams) and all(
+            rec.received(t) >= 1 for rec, d, t in ends if d.end_of_stream_sent
+        )
+
+    _wait_delivered(graph, done, devices, delivered, streams, timeout_s, "the last frames")
+    check_delivery(graph, devices)
+
+
 def drive_fast(
     graph: Graph,
     devices: list,
-    delivered: Callable[[object], int],
+    delivered: Callable[[object], int | None] | None = None,
     progress: Progress | None = None,
     window: int = 50,
 ) -> None:
     """Step every device as fast as its consumers take the frames (lossless, deterministic).
 
+    Every consumer counts: the recorders of the graph for every topic of every device
+    they record (:func:`recorded_streams`, by the recorder's own counts), and the
+    consumers ``delivered`` reports. Before the first step the recorders are matched and
+    the domain checked (:func:`prepare_delivery`).
+
     Args:
         devices: emulator nodes with ``step()``, ``finished``, ``frames_published``,
-            ``next_index`` and ``fs``.
-        delivered: frames of ``device`` taken by its slowest consumer so far.
-        window: frames a device may run ahead of that consumer.
+            ``next_index``, ``fs`` and ``streams``.
+        delivered: frames of ``device`` taken by its slowest consumer besides the
+            recorders so far (None, or returning None: no such consumer).
+        window: frames (messages per topic) a device may run ahead of its consumers.
     """
+    prepare_delivery(graph, devices)
+    streams = recorded_streams(graph, devices, window)
+
+    def caught_up() -> bool:
+        if delivered is not None:
+            for d in devices:
+                n = delivered(d)
+                if n is not None and d.frames_published - n >= window:
+                    return False
+        return all(acc.sent - rec.received(acc.topic) < w for rec, acc, w in streams)
+
     while not all(d.finished for d in devices):
         for d in devices:
             if not d.finished:
                 d.step()
         lead = max(devices, key=lambda d: d.next_index)
         graph.publish_clock(index_to_ns(lead.next_index, lead.fs))
-
-        def caught_up() -> bool:
-            return all(d.frames_published - delivered(d) < window for d in devices)
-
         if not caught_up():
-            graph.spin_until(caught_up, 60.0, "consumers to take the emulators' frames")
+            _wait_delivered(
+                graph, caught_up, devices, delivered, streams, 60.0, "consumers to take frames"
+            )
         graph.executor.spin_once(timeout_sec=0)
         if progress is not None:
             progress.update_to(min(d.next_index / d.fs for d in devices))
@@ -205,7 +466,7 @@ def drive_fast(
 def publish_all(
     graph: Graph,
     devices: list,
-    delivered: Callable[[object], int],
+    delivered: Callable[[object], int | None] | None,
     progress: Progress | None,
     *,
     realtime: bool,
@@ -219,21 +480,23 @@ def publish_all(
     spins until every device finished (``realtime_timeout_s`` at most). Fast: the runner
     steps the devices as fast as their slowest consumer takes the frames
     (:func:`drive_fast`, lossless and deterministic). Either way the call returns once
-    ``delivered(device)`` reached every frame the device published.
+    ``delivered(device)`` and the recorders reached every message the device published
+    (:func:`finish_delivery`); a loss raises :class:`ScenarioError` naming the topics.
     """
+    prepare_delivery(graph, devices)
     if realtime:
         for d in devices:
             d.start()
-        graph.spin_until(
-            lambda: all(d.finished for d in devices), realtime_timeout_s, "the devices to finish"
-        )
+
+        def finished() -> bool:  # and the graph's clock follows the devices
+            lead = max(devices, key=lambda d: d.next_index)
+            graph.publish_clock(index_to_ns(lead.next_index, lead.fs))
+            return all(d.finished for d in devices)
+
+        graph.spin_until(finished, realtime_timeout_s, "the devices to finish")
     else:
         drive_fast(graph, devices, delivered, progress, window)
-    graph.spin_until(
-        lambda: all(delivered(d) >= d.frames_published for d in devices),
-        drain_timeout_s,
-        "the last frames",
-    )
+    finish_delivery(graph, devices, delivered, drain_timeout_s)
 
 
 def topic_frames(path, topic: str) -> dict:
@@ -311,7 +574,11 @@ def run_recorded(
     pngs = None
     if options.plots:
         pngs = tuple(out.with_name(out.stem + s + ".png") for s in png_suffixes)
-        plot(f, *pngs)
+        with warnings.catch_warnings():
+            # matplotlib warns when placing a "best" legend over many points takes over a
+            # second, which depends on the host's load, not on the figure
+            warnings.filterwarnings("ignore", message="Creating legend with loc")
+            plot(f, *pngs)
     return dict(
         table=table(f),
         figures={k: v for k, v in f.items() if k != "series"},

@@ -20,10 +20,12 @@ from mems_scenarios.base import (
     Progress,
     ScenarioError,
     ScenarioOptions,
-    default_domain_id,
     drive_fast,
+    finish_delivery,
     format_table,
+    graph_for,
     parameters,
+    prepare_delivery,
 )
 from mems_sim.bag.recorder import RecorderNode
 from mems_sim.nodes.imu_node import ImuNoiseNode
@@ -40,7 +42,7 @@ FAST_FRAME = 100
 REALTIME_FRAME = 10
 #: Frames the emulator may run ahead of the slowest consumer in fast runs.
 WINDOW = 50
-TOPICS = ["/imu/adc", "/imu/truth", "/imu/noise_model", "/diagnostics"]
+TOPICS = ["/imu/adc", "/imu/truth", "/imu/noise_model", "/imu/end_of_stream", "/diagnostics"]
 
 PARAM_NAMES = (
     ("N", "noise_density"),
@@ -58,7 +60,7 @@ FIELD = {
 
 def build_graph(options: ScenarioOptions, out: Path, duration_s: float):
     """Create the context, nodes and recorder of the scenario."""
-    graph = Graph(options.domain_id if options.domain_id is not None else default_domain_id())
+    graph = graph_for(options)
     emu_params = {
         "seed": int(options.seed),
         "duration_s": float(duration_s),
@@ -95,19 +97,15 @@ def _wait_matched(graph: Graph, emu: ImuNoiseNode, ident, rec) -> None:
 
 def run_fast(graph: Graph, emu: ImuNoiseNode, ident, rec, progress: Progress) -> None:
     """Step the emulator as fast as the consumers take its frames (no loss, deterministic)."""
-    drive_fast(
-        graph,
-        [emu],
-        # every topic the emulator publishes counts: a reader that falls more than the
-        # publisher's history behind loses frames (reliable KEEP_LAST overwrites them)
-        lambda _: min(rec.received("/imu/adc"), rec.received("/imu/truth"), ident.frames_received),
-        progress,
-        WINDOW,
-    )
+    # the recorder counts for every topic the emulator publishes (the skeleton's flow
+    # control): a reader that falls more than the publisher's history behind would lose
+    # frames (reliable KEEP_LAST overwrites them)
+    drive_fast(graph, [emu], lambda _: ident.frames_received, progress, WINDOW)
 
 
 def run_realtime(graph: Graph, emu: ImuNoiseNode, progress: Progress) -> None:
     """Spin with the emulator's own wall-clock timer until its duration is published."""
+    prepare_delivery(graph, [emu])
     emu.start()
     while not emu.finished:
         graph.executor.spin_once(timeout_sec=0.05)
@@ -116,18 +114,9 @@ def run_realtime(graph: Graph, emu: ImuNoiseNode, progress: Progress) -> None:
 
 
 def drain(graph: Graph, emu: ImuNoiseNode, ident, rec) -> None:
-    """Wait until every frame reached the identifier and the recorder; publish the final model."""
-    published = emu.frames_published
-    graph.spin_until(
-        lambda: (
-            rec.received("/imu/adc") >= published
-            and rec.received("/imu/truth") >= published
-            and ident.frames_received >= published
-            and (emu.pub_imu is None or rec.received("/imu/data") >= emu.next_index)
-        ),
-        60.0,
-        "the last frames to be delivered",
-    )
+    """Wait until every message reached the identifier and the recorder (a loss raises
+    ScenarioError naming the topic); publish the final model."""
+    finish_delivery(graph, [emu], lambda _: ident.frames_received)
     before = rec.received("/imu/noise_model")
     final = ident.publish_result(final=True)
     ident._finalised = True
@@ -210,7 +199,9 @@ def run(options: ScenarioOptions) -> dict:
     finally:
         progress.close()
         rec.close()
-        summary = dict(counts=rec.counts(), gaps=rec.gaps(), text=rec.summary())
+        summary = dict(
+            counts=rec.counts(), gaps=rec.gaps(), losses=rec.losses(), text=rec.summary()
+        )
         graph.close()
     table, records = results_table(model, configured)
     figure = None

@@ -48,12 +48,12 @@ from mems_estimation.nodes.scanner_threshold_ekf_node import (
     detections_from_rows,
 )
 from mems_scenarios.base import (
-    Graph,
+    NOT_RECORDED,
     Progress,
     ScenarioError,
     ScenarioOptions,
-    default_domain_id,
     format_table,
+    graph_for,
     parameters,
     publish_all,
     run_recorded,
@@ -99,7 +99,7 @@ def run_graph(
 
     ``frame``: samples per frame; ``record``: False leaves the recorder out (benchmark).
     """
-    graph = Graph(options.domain_id if options.domain_id is not None else default_domain_id())
+    graph = graph_for(options)
     p = dict(
         device_overrides(duration),
         seed=int(options.seed),
@@ -115,21 +115,19 @@ def run_graph(
         )
     )
     rec = (
-        graph.add(RecorderNode(str(out), regex=rf"^/{NS}/", context=graph.context))
+        graph.add(
+            RecorderNode(str(out), regex=rf"^/{NS}/", exclude=NOT_RECORDED, context=graph.context)
+        )
         if record
         else None
     )
 
     def delivered(_d) -> int:
+        """Frames the estimator took; the recorder counts for the device's topics in the
+        skeleton, and here for the detections the estimator publishes per frame."""
         if rec is None:
             return est.frames_done
-        return min(
-            [
-                rec.received(f"/{NS}/{t}")
-                for t in ("adc", "drive", "truth", "psd", "threshold_detections")
-            ]
-            + [est.frames_done]
-        )
+        return min(rec.received(f"/{NS}/threshold_detections"), est.frames_done)
 
     try:
         nsub = 2 if rec is not None else 1
@@ -181,7 +179,7 @@ def run_graph(
         summary = None
         if rec is not None:
             rec.close()
-            summary = dict(counts=rec.counts(), gaps=rec.gaps())
+            summary = dict(counts=rec.counts(), gaps=rec.gaps(), losses=rec.losses())
         graph.close()
     return dict(published=published, recorder=summary, detector_counts=counts, wall_s=t_run)
 

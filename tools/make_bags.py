@@ -30,9 +30,10 @@ Every estimator runs in its device's namespace (``/imu``, ``/stage``, ...). The 
 one process, run as the scenarios run (:class:`mems_scenarios.base.Graph`,
 :func:`mems_scenarios.base.drive_fast`): the script steps the emulators and waits for the
 recorder and the estimator to take every frame, so the recordings are lossless and their
-messages identical from run to run (``log_time`` is the wall-clock receive time and is the
-only thing that differs). ``/diagnostics`` is left out: it is published on a wall-clock
-timer with wall-clock stamps, so it would differ on every regeneration.
+messages and their log times (sensor time: the stamps, from epoch 0) identical from run to
+run (``publish_time``, the wall-clock time of publication, is the only thing that
+differs). ``/diagnostics`` is left out: it is published on a wall-clock timer, so what it
+holds would differ on every regeneration.
 
 Rerun ``make bags`` whenever the recording format (messages, recorder) or a device or
 estimator changes its output; ``test/bags`` checks that regeneration reproduces the
@@ -372,7 +373,8 @@ def report(result: dict) -> str:
 
 def replay_line(family: Family, bag_dir: Path = Path("bags")) -> str:
     """A shell line that replays ``<bag_dir>/<name>.mcap`` into the family's estimator
-    executable (started in the device's namespace with the bag's parameters), records what
+    executable (started in the device's namespace with the bag's parameters) as fast as it
+    takes the frames (``--wait-for-consumer``: flow control on its progress), records what
     it publishes to ``/tmp/<name>_replay.mcap`` and summarises that file. The estimator is
     stopped first (the IMU identifier and the scanner publish their last output then)."""
     bag_dir = Path(os.path.relpath(bag_dir))
@@ -386,8 +388,9 @@ def replay_line(family: Family, bag_dir: Path = Path("bags")) -> str:
     inputs = " ".join(family.topic(t) for t in family.inputs)
     return (
         f"{estimator} & {bin_}/mcap_record --overwrite -o {out} {outputs} & "
-        f"{bin_}/mcap_play {bag_dir}/{family.name}.mcap --topics {inputs} "
-        "--wait-for-subscribers 1 --wait-timeout 60 --delay 2 --as-fast-as-possible; "
+        f"{bin_}/mcap_play {bag_dir}/{family.name}.mcap --topics {inputs} --wait-timeout 60 "
+        f"--wait-for-consumer /{family.namespace}/{family.estimator.NODE_NAME} "
+        "--as-fast-as-possible; "
         f"sleep 2; kill %1; sleep 1; kill %2; wait; {bin_}/mcap_info {out}"
     )
 

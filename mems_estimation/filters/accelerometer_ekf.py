@@ -18,6 +18,7 @@ from mems_sim.kernels.accelerometer_ekf import (
     ekf_update,
     is_positive_definite,
 )
+from mems_sim.kernels.divergence import covariance_ok, state_ok
 
 __all__ = ["HybridEkf", "HybridEkfConfig"]
 
@@ -45,9 +46,24 @@ class HybridEkf:
 
     def __init__(self, config: HybridEkfConfig, p0_diag=None) -> None:
         self.config = config
-        self.s, self.pm = ekf_init(config.p0_diag if p0_diag is None else p0_diag)
+        self.p0_diag = config.p0_diag if p0_diag is None else p0_diag
+        self.s, self.pm = ekf_init(self.p0_diag)
         self.samples = 0
         self.not_positive_definite = 0
+        self.resets = 0
+
+    def reset(self) -> None:
+        """Re-initialise the state and covariance from the prior (x0 = 0, P0)."""
+        self.s, self.pm = ekf_init(self.p0_diag)
+        self.resets += 1
+
+    def diverged(self) -> bool:
+        """True if the state is not finite, the covariance is not positive definite
+        (:func:`~mems_sim.kernels.divergence.covariance_ok`) or the displacement is not
+        inside the gap (|x| < d0: the readout model h(x) has its poles at +-d0)."""
+        return not (
+            state_ok(self.s) and covariance_ok(self.pm) and abs(self.s[0]) < self.config.model[5]
+        )
 
     def run(self, y: np.ndarray, v_f: np.ndarray) -> dict:
         """Filter readout samples y [V] with the feedback voltages v_f [V] applied after them.

@@ -51,10 +51,12 @@ import numba
 import numpy as np
 
 from mems_sim.devices.resonator_models import interval_input, next_spill, resonator_zoh
+from mems_sim.kernels.divergence import covariance_ok, state_ok
 from mems_sim.kernels.resonator_observer import (
     BUSSGANG_GAIN,
     BUSSGANG_VAR,
     DEFAULT_QUANTIZATION_VAR,
+    KalmanObserver,
     _sd_blocks,
     check_bits,
     check_pulse_timing,
@@ -376,12 +378,39 @@ class AdaptiveObserver:
         self.rw2 = (f0_random_walk_ppm * 1e-6) ** 2
         self.rq2 = (q_random_walk_ppm * 1e-6) ** 2
         self.warm = int(round(warmup_periods * self.fs / self.f0_init))
+        self._warm_end = self.warm  # sample index until which the parameters are held
         self.alpha = 1.0 / max(1.0, reset_window_periods * self.fs / self.f0_init)
         self.thresh = float(reset_threshold)
         self.reset_var = np.full(2, float(reset_std) ** 2)
         self._aux = np.array([1.0, 0.0, 0.0])
         self._spill = np.zeros(2)  # tail of a pulse outlasting its sample interval
         self.next_index = 0
+        self.x0 = self.x.copy()
+        self.P0 = self.P.copy()
+        self.divergence_resets = 0
+
+    def reset(self) -> None:
+        """Re-initialise from the prior: state (f0 = f0_init) and covariance of the
+        constructor, innovation monitor and pulse tail cleared; the parameters are held
+        again for the warm-up (the sample count goes on)."""
+        self._warm_end = self.next_index + self.warm
+        self.x = self.x0.copy()
+        self.P = self.P0.copy()
+        self._aux = np.array([1.0, 0.0, self._aux[2]])
+        self._spill = np.zeros(2)
+        self.divergence_resets += 1
+
+    def diverged(self) -> bool:
+        """True if the state is not finite, a voltage state is beyond
+        :attr:`KalmanObserver.STATE_LIMIT`, the covariance is not positive definite
+        (:func:`~mems_sim.kernels.divergence.covariance_ok`) or f0 is not inside (0, fs/2)."""
+        f0 = self.f0_init * (1.0 + self.x[6])
+        return not (
+            state_ok(self.x, self._spill, self._aux)
+            and float(np.max(np.abs(self.x[:6]))) <= KalmanObserver.STATE_LIMIT
+            and covariance_ok(self.P)
+            and 0.0 < f0 < self.fs / 2
+        )
 
     @property
     def resets(self) -> int:
@@ -438,7 +467,7 @@ class AdaptiveObserver:
             self.rq2,
             self.estimate_q,
             self.next_index,
-            self.warm,
+            self._warm_end,
             self._aux,
             self.alpha,
             self.thresh,

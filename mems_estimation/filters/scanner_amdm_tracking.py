@@ -22,6 +22,7 @@ from mems_estimation.filters.scanner_amdm_model import (
     scanner_model,
 )
 from mems_estimation.filters.scanner_amdm_ukf import ukf_run, ukf_weights
+from mems_sim.kernels.divergence import covariance_ok, state_ok
 from mems_sim.params import ParameterError
 
 
@@ -123,8 +124,23 @@ class ScannerFilter:
         self.pd_failures = 0
         self.samples = 0
         self.last_snr = math.nan
+        self.resets = 0
         self._by = np.zeros(0)
         self._bv = np.zeros(0)
+
+    def reset(self) -> None:
+        """Re-initialise from the prior: x = 0, P = P0, acquiring (no buffered samples)."""
+        self.x = np.zeros(2)
+        self.P = self.P0.copy()
+        self.tracking = False
+        self._by = np.zeros(0)
+        self._bv = np.zeros(0)
+        self.resets += 1
+
+    def diverged(self) -> bool:
+        """True if the state is not finite or the covariance not positive definite
+        (:func:`~mems_sim.kernels.divergence.covariance_ok`)."""
+        return not (state_ok(self.x, self._by, self._bv) and covariance_ok(self.P))
 
     def theta_abs(self, y: np.ndarray) -> np.ndarray:
         """|theta| from the positive root of h(theta) = y [rad] (clipped to [0, 2 theta_0])."""

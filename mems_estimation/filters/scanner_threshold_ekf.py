@@ -65,6 +65,7 @@ from scipy.linalg import expm
 
 from mems_estimation.filters.scanner_threshold_detector import Detections
 from mems_sim.devices.scanner import SCANNER_SPECS
+from mems_sim.kernels.divergence import covariance_ok, state_ok
 from mems_sim.params import ParameterError, ParamSpec, resolve
 
 __all__ = [
@@ -671,8 +672,12 @@ class StreamingScannerEkf:
         self.m = scanner_model(self.p)
         L = int(self.p["lag"])
         self.lag = L
-        self.x = np.array(x0, dtype=float)
-        self.P = np.array([self.p["initial_theta_std"] ** 2, 0.0, self.p["initial_omega_std"] ** 2])
+        self.x0 = np.array(x0, dtype=float)
+        self.P0 = np.array(
+            [self.p["initial_theta_std"] ** 2, 0.0, self.p["initial_omega_std"] ** 2]
+        )
+        self.x = self.x0.copy()
+        self.P = self.P0.copy()
         self._bx = np.zeros((L, 2))
         self._bP = np.zeros((L, 3))
         self._by = np.zeros(L)
@@ -681,6 +686,35 @@ class StreamingScannerEkf:
         self._tP = np.full((L, 3), np.nan)
         self.stats = np.array([0.0, 0.0, 0.0, np.inf, 0.0])
         self.next_index = 0
+        #: first sample index after the last :meth:`reset` (detections of earlier samples
+        #: are too late: their priors are gone)
+        self.valid_from = 0
+        self.resets = 0
+
+    def reset(self) -> None:
+        """Re-initialise from the prior (x0, P0) at the current sample index: the pending
+        final rows become the prior, the fixed-lag buffer is emptied, and detections of
+        samples before now are counted too late."""
+        L = self.lag
+        self.x = self.x0.copy()
+        self.P = self.P0.copy()
+        self._bx = np.zeros((L, 2))
+        self._bP = np.zeros((L, 3))
+        self._by = np.zeros(L)
+        self._bv = np.zeros(L)
+        self._tx = np.tile(self.x0, (L, 1))
+        self._tP = np.tile(self.P0, (L, 1))
+        self.valid_from = self.next_index
+        self.resets += 1
+
+    def diverged(self) -> bool:
+        """True if the state or the pending final rows are not finite, or the covariance is
+        not positive definite (:func:`~mems_sim.kernels.divergence.covariance_ok`)."""
+        P = self.P
+        return not (
+            state_ok(self.x, self._bx[: min(self.next_index, self.lag)])
+            and covariance_ok(np.array([[P[0], P[1]], [P[1], P[2]]]))
+        )
 
     def process(self, y: np.ndarray, v: np.ndarray, det: Detections | None = None):
         """Filter one frame. y [V], v [V] (drive held over each sample), detections issued
@@ -697,6 +731,11 @@ class StreamingScannerEkf:
         if v.shape != y.shape:
             raise ValueError("y and v must have the same length")
         det = Detections.empty() if det is None else det
+        if self.valid_from > 0 and det.index.size:
+            late = det.index < self.valid_from
+            if np.any(late):
+                self.stats[2] += int(np.count_nonzero(late))
+                det = Detections(*(q[~late] for q in det))
         L = self.lag
         k0 = self.next_index
         ox = np.empty((L + n, 2))

@@ -39,6 +39,7 @@ import numpy as np
 
 from mems_sim.devices.stage import stage_matrices
 from mems_sim.devices.stage_capacitance import EPS0, dcdtheta_single_tan
+from mems_sim.kernels.divergence import covariance_ok, state_ok
 
 __all__ = [
     "StageModel",
@@ -196,9 +197,35 @@ class StageEkf:
         self.A, self.B = model.matrices()
         self.Rinv = np.ascontiguousarray(np.linalg.inv(np.atleast_2d(model.R)))
         self.eps = EPS0 * model.eps_r
+        self.p0 = tuple(float(v) for v in p0)
+        self.resets = 0
         self.x = np.zeros(2)
         self.P = np.diag(np.asarray(p0, float))
         self.uprev = np.zeros(1)
+
+    def reset(self) -> None:
+        """Re-initialise from the prior: the stage at rest (x = 0, held input 0), P = P0."""
+        self.x = np.zeros(2)
+        self.P = np.diag(np.asarray(self.p0, float))
+        self.uprev = np.zeros(1)
+        self.resets += 1
+
+    def diverged(self) -> bool:
+        """True if the state is not finite, the covariance is not positive definite
+        (:func:`~mems_sim.kernels.divergence.covariance_ok`) or the tilt is not inside
+        (-pi/2, pi/2) (where the sensor model h(theta), through tan(theta), is defined)."""
+        return not (
+            state_ok(self.x, self.uprev) and covariance_ok(self.P) and abs(self.x[0]) < math.pi / 2
+        )
+
+    def time_update(self, n: int, chunk: int = 65536) -> None:
+        """Time updates only (no measurement) over n samples with the drive 0 after the
+        held one (a gap), in chunks of at most ``chunk`` samples (bounded memory)."""
+        nch = self.model.eta.shape[0]
+        while n > 0:
+            m = min(n, chunk)
+            self.step(np.full((m, nch), np.nan), np.zeros(m))
+            n -= m
 
     def step(
         self, y: np.ndarray, u: np.ndarray, corrected: bool = True
@@ -434,6 +461,12 @@ class FeedthroughCanceller:
         self.enabled = enabled
         self.hy = np.zeros((history, n_channels))
         self.hon = np.ones(history)
+
+    def reset(self) -> None:
+        """Forget the history (as new: no bias-off samples yet, so the next period gives
+        no cancelled value)."""
+        self.hy = np.zeros_like(self.hy)
+        self.hon = np.ones_like(self.hon)
 
     def step(self, y: np.ndarray, v_bias: np.ndarray, f_drive: np.ndarray) -> np.ndarray:
         """Cancelled measurements (n, n_ch) [V]; NaN where no update is possible."""

@@ -10,7 +10,11 @@ sample. The filter's model is built from the same parameter table as the device
 (:data:`mems_sim.devices.accelerometer.ACCEL_SPECS`: the designer's model, Table I/II), so
 one parameter file configures both. Frames with non-finite values, another sample
 rate or mismatched lengths are rejected and counted on /diagnostics; the filter keeps
-running on the next good frames.
+running on the next good frames (input path: :class:`EstimatorNode`). A filter that
+diverges (non-finite state, covariance not positive definite, displacement outside the
+gap) is re-initialised from its prior and counted (``divergences``); that frame's
+estimates are not published. A stream reset re-initialises it too; over a gap the filter
+continues without the missing samples.
 """
 
 from __future__ import annotations
@@ -18,10 +22,17 @@ from __future__ import annotations
 import numpy as np
 
 from mems_estimation.filters.accelerometer_ekf import HybridEkf
-from mems_estimation.nodes.frame_input import DEVICE_NAMESPACE, EstimatorNode
+from mems_estimation.nodes.frame_input import (
+    DEVICE_NAMESPACE,
+    Diverged,
+    EstimatorNode,
+    input_specs,
+    output_frame,
+)
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.devices import accelerometer as fra
 from mems_sim.kernels.accelerometer_ekf import STATE_NAMES, STATE_UNITS
+from mems_sim.kernels.divergence import state_ok
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import adc_physical, make_state_estimate, signal_data
 from mems_sim.ros.node_base import run_node
@@ -40,13 +51,13 @@ class HybridEkfNode(EstimatorNode):
 
     NODE_NAME = "accelerometer_ekf"
     DEFAULT_NAMESPACE = "accelerometer"
-    SPECS = fra.ACCEL_SPECS + NODE_SPECS
+    SPECS = fra.ACCEL_SPECS + NODE_SPECS + input_specs()
     DIAGNOSTICS_TITLE = "hybrid EKF"
 
     def __init__(self, **node_kwargs) -> None:
         super().__init__(**node_kwargs)
         p = self.p
-        model = fra.validate_params({s.name: p[s.name] for s in fra.ACCEL_SPECS})
+        model = fra.validate_params(self.values_of(fra.ACCEL_SPECS))
         v_b = fra.bias_voltage(model) if model["mode"] != "open_loop" else 0.0
         self.filter = HybridEkf(fra.ekf_config(model, v_b))
         self.fs = model["sample_rate_hz"]
@@ -58,6 +69,10 @@ class HybridEkfNode(EstimatorNode):
             ("drive", SignalFrame, lambda msg: signal_data(msg)[:, 0]),
         )
 
+    def reset_estimator(self) -> None:
+        """The hybrid EKF starts again from its prior (x0 = 0, P0)."""
+        self.filter.reset()
+
     def process_pair(self, first: int, stamp_ns: int, y: np.ndarray, v_f: np.ndarray) -> None:
         """Filter one readout frame y [V] with its feedback voltage v_F [V]; publish."""
         out = self.filter.run(y, v_f)
@@ -66,17 +81,21 @@ class HybridEkfNode(EstimatorNode):
                 "covariance_not_pd_samples", int(np.count_nonzero(~out["positive_definite"]))
             )
             self.diag.warn("hybrid EKF covariance lost positive definiteness")
-        msg = make_state_estimate(
+        if self.filter.diverged() or not state_ok(out["estimate"], out["variance"]):
+            self.reset_estimator()
+            raise Diverged("hybrid EKF")
+        msg = output_frame(
+            make_state_estimate,
             out["estimate"],
             out["variance"],
-            first,
-            self.fs,
+            first=first,
+            fs=self.fs,
+            stamp_ns=stamp_ns,
             estimator="hybrid_ekf",
             state_names=STATE_NAMES,
             state_units=STATE_UNITS,
             frame_id="accelerometer",
         )
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 10**9)
         self.pub.publish(msg)
 
 

@@ -1,5 +1,6 @@
-"""Input side shared by the estimator nodes: the device's topics, pairing of its ADC and
-drive frames, rate check, and rejection of bad frames counted on /diagnostics.
+"""Input side shared by the estimator nodes: the device's topics, validation of every frame,
+sequence accounting, pairing of a device's ADC and drive frames, rejection of bad frames
+counted on /diagnostics, and the progress report of lossless replay.
 
 Every estimator node is an :class:`EstimatorNode`. Its device topics (``adc``, ``drive``,
 ``estimate``, ...) are relative names resolved in the node's namespace, unless the
@@ -10,16 +11,21 @@ of its device as default.
 
 from __future__ import annotations
 
+import dataclasses
+from collections import deque
 from collections.abc import Callable
 from functools import partial
 from typing import Any
 
 import numpy as np
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import UInt64
 
+from mems_msgs.msg import AdcFrame
 from mems_sim.params import ParamSpec
-from mems_sim.ros.frames import FrameError, IndexTracker, time_to_ns
+from mems_sim.ros.frames import FrameError, adc_codes, frame_format, index_to_ns, time_to_ns
 from mems_sim.ros.node_base import MemsNode
-from mems_sim.ros.qos import FRAME_QOS
+from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS
 
 #: Parameter of the estimator nodes that read a device's topics.
 DEVICE_NAMESPACE = ParamSpec(
@@ -29,6 +35,63 @@ DEVICE_NAMESPACE = ParamSpec(
     "namespace of the device's topics; empty: the node's own namespace",
     "",
 )
+
+#: Limits of the input path of every estimator node (:func:`input_specs` sets the
+#: defaults of a node).
+INPUT_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec(
+        "max_frame_samples",
+        1_000_000,
+        "samples",
+        "largest input frame taken; a larger one is rejected and counted",
+        "chosen: bounds the memory and time one frame may take",
+        min=1,
+        max=2**31 - 1,
+    ),
+    ParamSpec(
+        "max_unpaired_samples",
+        2_000_000,
+        "samples",
+        "samples of frames kept per input stream while they wait for their partner frame; "
+        "beyond it the oldest are dropped and counted",
+        "chosen: bounds the pairing buffers",
+        min=1,
+        max=2**31 - 1,
+    ),
+    ParamSpec(
+        "max_gap_samples",
+        2**32,
+        "samples",
+        "largest forward jump of first_sample_index handled as a gap; a larger jump (or "
+        "one back by more) is a stream reset: the estimator starts again from its prior",
+        "chosen: 2^32 samples, over an hour at 1 MHz",
+        min=1,
+        max=2**62,
+    ),
+)
+
+#: Progress topic of every estimator node: one past the last sample index of its primary
+#: input that the node has finished with (reliable, transient local, depth 1).
+PROGRESS_QOS = QoSProfile(
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+)
+
+
+def input_specs(paired: bool = True, **defaults) -> tuple[ParamSpec, ...]:
+    """:data:`INPUT_SPECS` with some defaults replaced (e.g. ``max_frame_samples=100_000``);
+    without ``max_unpaired_samples`` for a node that pairs no frames (``paired=False``)."""
+    unknown = set(defaults) - {s.name for s in INPUT_SPECS}
+    if unknown:
+        raise KeyError(f"not input parameters: {sorted(unknown)}")
+    return tuple(
+        dataclasses.replace(s, default=defaults[s.name]) if s.name in defaults else s
+        for s in INPUT_SPECS
+        if paired or s.name != "max_unpaired_samples"
+    )
+
 
 #: One input stream: (topic name relative to the device, message type, decoder). The
 #: decoder returns the frame's values (an array of n samples, or a tuple of such arrays)
@@ -42,42 +105,249 @@ def device_topic(namespace: str, name: str) -> str:
     return f"{namespace.rstrip('/')}/{name}" if namespace else name
 
 
+#: Latest time a builtin_interfaces/Time holds (int32 seconds) [ns].
+MAX_STAMP_NS = (2**31 - 1) * 10**9 + 999_999_999
+
+
+def set_stamp(msg, ns: int) -> None:
+    """``msg.header.stamp`` = ``ns`` [ns], saturated to [0, :data:`MAX_STAMP_NS`] (the range
+    of builtin_interfaces/Time: a stream index far beyond it has no representable time)."""
+    ns = min(max(int(ns), 0), MAX_STAMP_NS)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 10**9)
+
+
+def output_frame(make, *arrays, first: int, fs: float, stamp_ns: int | None = None, **kwargs):
+    """``make(*arrays, first, fs, **kwargs)`` (``make_state_estimate`` or
+    ``make_signal_frame``) whose header stamp is ``stamp_ns`` [ns] (default: the time of
+    sample ``first`` at ``fs``), saturated by :func:`set_stamp`: any uint64 index works."""
+    msg = make(*arrays, 0, fs, **kwargs)
+    msg.first_sample_index = int(first)
+    set_stamp(msg, index_to_ns(first, fs) if stamp_ns is None else stamp_ns)
+    return msg
+
+
 def num_samples(values) -> int:
     """Samples of decoded frame values (an array, or a tuple of arrays of equal length)."""
     return int(np.shape(values[0] if isinstance(values, tuple) else values)[0])
 
 
+class StreamIndex:
+    """Sequence accounting of one frame stream by ``first_sample_index`` (ROS-free).
+
+    :meth:`update` classifies each frame against the index expected next (``first +
+    num_samples`` of the last frame taken):
+
+    * ``"first"``: the first frame; ``"next"``: the expected index;
+    * ``"gap"``: ahead by at most ``max_gap`` samples (a drop; ``missing`` samples);
+    * ``"reset"``: ahead by more than ``max_gap`` samples, behind by more than
+      ``max_gap`` samples, or :attr:`RESTART_FRAMES` consecutive frames behind the expected
+      index that follow one another (a device that started again): a stream reset;
+    * ``"repeat"``: a frame whose first index is one of the last :attr:`HISTORY` taken;
+    * ``"out_of_order"``: any other frame behind the expected index.
+
+    A frame classed first, next, gap or reset is taken (the expected index moves on); a
+    repeated or out-of-order frame is not (its caller drops it). Bounded memory: the last
+    :attr:`HISTORY` first indices.
+    """
+
+    #: Consecutive frames behind the expected index, each following the previous one, that
+    #: make a stream reset (a device or a replay that started again).
+    RESTART_FRAMES = 3
+    #: First indices remembered to recognise repeated frames.
+    HISTORY = 64
+
+    def __init__(self, max_gap: int = 2**32) -> None:
+        self.max_gap = int(max_gap)
+        self.expected: int | None = None
+        self._recent: deque[int] = deque(maxlen=self.HISTORY)
+        self._behind_next: int | None = None
+        self._behind_run = 0
+
+    def is_repeat(self, first: int) -> bool:
+        """True if a frame starting at ``first`` was taken recently."""
+        return first in self._recent
+
+    def update(self, first: int, n: int) -> tuple[str, int]:
+        """Classify (and take, see the class doc) a frame of n samples at ``first``;
+        returns ``(event, missing samples)``."""
+        first, n = int(first), int(n)
+        if self.expected is None:
+            event, missing = "first", 0
+        elif first == self.expected:
+            event, missing = "next", 0
+        elif first > self.expected:
+            missing = first - self.expected
+            event = "gap" if missing <= self.max_gap else "reset"
+        elif first in self._recent:
+            return "repeat", 0
+        elif self.expected - first > self.max_gap:
+            event, missing = "reset", 0
+        else:
+            self._behind_run = self._behind_run + 1 if self._behind_next == first else 1
+            self._behind_next = first + n
+            if self._behind_run < self.RESTART_FRAMES:
+                return "out_of_order", 0
+            event, missing = "reset", 0
+        if event == "reset":
+            self._recent.clear()
+        self.expected = first + n
+        self._recent.append(first)
+        self._behind_next, self._behind_run = None, 0
+        return event, missing
+
+
+class FormatPin:
+    """The format (:func:`~mems_sim.ros.frames.frame_format`) of one input stream: the
+    first good frame's; a frame of another format is foreign (rejected) unless
+    :attr:`ADOPT_FRAMES` consecutive frames share it, then that format is adopted (ROS-free)."""
+
+    #: Consecutive frames of one new format after which it replaces the stream's.
+    ADOPT_FRAMES = 3
+
+    def __init__(self) -> None:
+        self.format: tuple | None = None
+        self._candidate: tuple | None = None
+        self._count = 0
+
+    def check(self, fmt: tuple) -> str:
+        """``"new"`` (no format yet), ``"same"``, ``"adopt"`` (the new format's
+        :attr:`ADOPT_FRAMES`-th consecutive frame) or ``"foreign"``."""
+        if self.format is None:
+            return "new"
+        if fmt == self.format:
+            self._candidate, self._count = None, 0
+            return "same"
+        if fmt == self._candidate:
+            self._count += 1
+        else:
+            self._candidate, self._count = fmt, 1
+        return "adopt" if self._count >= self.ADOPT_FRAMES else "foreign"
+
+    def adopt(self, fmt: tuple) -> None:
+        """Make ``fmt`` the stream's format."""
+        self.format, self._candidate, self._count = fmt, None, 0
+
+
 class FramePairer:
     """Pairs the frames of two streams (e.g. ADC and drive) that share a
-    ``first_sample_index``, in index order (ROS-free)."""
+    ``first_sample_index``, in index order (ROS-free).
 
-    def __init__(self, kinds: tuple[str, str] = ("adc", "drive")) -> None:
+    Frames waiting for their partner are bounded per stream: at most ``max_samples``
+    samples and ``max_frames`` frames; beyond, the oldest (by arrival) are dropped and
+    returned by :meth:`add` (the caller counts them).
+    """
+
+    def __init__(
+        self,
+        kinds: tuple[str, str] = ("adc", "drive"),
+        max_samples: int | None = None,
+        max_frames: int = FRAME_DEPTH,
+    ) -> None:
         self.kinds = kinds
+        self.max_samples = max_samples
+        self.max_frames = max_frames
         self.frames: dict[str, dict[int, object]] = {k: {} for k in kinds}
+        self._sizes: dict[str, dict[int, int]] = {k: {} for k in kinds}
+        self.samples = {k: 0 for k in kinds}
 
-    def add(self, kind: str, first: int, values) -> list[tuple[int, object, object]]:
-        """Store one frame of stream ``kind``; return the pairs now complete, ordered by index
-        as ``(first_sample_index, values of kinds[0], values of kinds[1])``."""
+    def holds(self, kind: str, first: int) -> bool:
+        """True if a frame of ``kind`` at ``first`` waits for its partner."""
+        return first in self.frames[kind]
+
+    def add(self, kind: str, first: int, values, n: int | None = None):
+        """Store one frame of stream ``kind`` (n samples; default from the values); return
+        the pairs now complete, ordered by index as ``(first_sample_index, values of
+        kinds[0], values of kinds[1])``. The frames dropped to respect the bounds are in
+        :attr:`overflow` as ``(kind, first, n)`` until the next call."""
+        n = num_samples(values) if n is None else int(n)
         self.frames[kind][first] = values
+        self._sizes[kind][first] = n
+        self.samples[kind] += n
         a, b = (self.frames[k] for k in self.kinds)
-        return [(k, a.pop(k), b.pop(k)) for k in sorted(set(a) & set(b))]
+        pairs = []
+        for k in sorted(set(a) & set(b)):
+            pairs.append((k, a.pop(k), b.pop(k)))
+            for kk in self.kinds:
+                self.samples[kk] -= self._sizes[kk].pop(k)
+        self.overflow = []
+        store, sizes = self.frames[kind], self._sizes[kind]
+        while len(store) > 1 and (
+            len(store) > self.max_frames
+            or (self.max_samples is not None and self.samples[kind] > self.max_samples)
+        ):
+            old = next(iter(store))
+            del store[old]
+            size = sizes.pop(old)
+            self.samples[kind] -= size
+            self.overflow.append((kind, old, size))
+        return pairs
+
+    def drop_before(self, index: int) -> list[tuple[str, int, int]]:
+        """Drop the waiting frames that start before ``index`` (they can no longer be
+        taken in order); return them as ``(kind, first, n)``."""
+        dropped = []
+        for kind in self.kinds:
+            store = self.frames[kind]
+            for first in [f for f in store if f < index]:
+                del store[first]
+                size = self._sizes[kind].pop(first)
+                self.samples[kind] -= size
+                dropped.append((kind, first, size))
+        return dropped
 
 
 class EstimatorNode(MemsNode):
     """Base of the estimator nodes: parameters, device topics, diagnostics, frame input.
 
-    The input path of a node with two streams (:meth:`subscribe_pair`): each frame is
-    decoded (rate check against ``self.fs`` unless it is None, then the stream's decoder);
-    a bad frame is rejected and counted (``rejected_frames``); good frames are paired by
-    ``first_sample_index``; a pair of unequal lengths is rejected; a gap before the pair is
-    counted (``gaps``, warning with :attr:`GAP_NOTE`, then :meth:`on_gap`); the pair goes to
-    :meth:`process_pair` (which may raise FrameError: rejected), then ``frames_done`` and
-    the ``frames`` counter grow. Single streams use :meth:`accept_frame` and
-    :meth:`note_gap`.
+    Every input frame goes through one path, whose events are counted on /diagnostics
+    (counter names in quotes); nothing in it allocates in proportion to an index jump,
+    and its buffers are bounded:
+
+    1. Validation (:meth:`take_frame`): a frame without samples (``rejected_empty``), with
+       more than ``max_frame_samples`` samples (``rejected_oversized``), with inconsistent
+       fields or sizes (``rejected_malformed``), with codes outside the declared bit range
+       of an AdcFrame (``rejected_out_of_range``), with non-finite values or a code
+       conversion that overflows (``rejected_non_finite``), at another sample rate than
+       the model's ``self.fs`` or of another format than its stream's
+       (``rejected_foreign``) is rejected: ``rejected_frames`` and a warning. A stream's
+       format (sample rate, channel names and units, and an AdcFrame's bits, lsb, offset
+       and full scale) is its first good frame's; a stray frame of another format is
+       rejected, not adopted; only :attr:`FormatPin.ADOPT_FRAMES` consecutive frames of
+       one new format replace it (``format_changes``, :meth:`on_format_change`).
+    2. Sequence (:class:`StreamIndex` on ``first_sample_index``): a repeated frame is
+       dropped (``repeated_frames``), a frame behind the stream is dropped
+       (``out_of_order_frames``), a forward jump up to ``max_gap_samples`` is a gap
+       (``gaps``, ``missing_samples``, warning with :attr:`GAP_NOTE`, then :meth:`on_gap`),
+       a larger jump (either way) or a stream that started again is a stream reset
+       (``stream_resets``, then :meth:`on_stream_reset`: by default the estimator starts
+       again from its prior, :meth:`reset_estimator`).
+    3. Pairing (:meth:`subscribe_pair`): good frames of the two streams are paired by
+       ``first_sample_index``; frames waiting for their partner are bounded to
+       ``max_unpaired_samples`` samples (and :data:`~mems_sim.ros.qos.FRAME_DEPTH`
+       frames) per stream, the oldest dropped beyond (``unpaired_overflow_frames``);
+       waiting frames left behind by the stream are dropped (``unpaired_stale_frames``);
+       a pair of unequal lengths is rejected (``rejected_malformed``).
+    4. Estimation: the pair goes to :meth:`process_pair`, which may raise FrameError
+       (rejected) or :class:`Diverged` (the filter's state became non-finite or its
+       covariance lost positive definiteness; the node has re-initialised it from its
+       prior; ``divergences`` and a warning, the frame's estimates are not published);
+       then ``frames_done`` and the ``frames`` counter grow. Single streams use
+       :meth:`take_frame` and :meth:`sequence`.
+
+    Progress (flow control of lossless replay): after every frame of the primary input
+    (the first stream of :meth:`subscribe_pair`, or the single input) that the node has
+    finished with -- processed, rejected or dropped --, the node publishes on
+    ``~/progress`` (``/<namespace>/<node name>/progress``, std_msgs/msg/UInt64, reliable,
+    transient local, depth 1) one past the last sample index of that input it has
+    finished with: ``first_sample_index + num_samples``, the largest so far (a rejected
+    frame counts at most ``max_frame_samples``; a rejected or dropped frame more than
+    ``max_gap_samples`` away from it does not move it); after a stream reset it follows
+    the new stream. A player keeps a bounded credit of samples ahead of it.
 
     The constructor arguments are :class:`~mems_sim.ros.node_base.MemsNode`'s (every
-    parameter is set at start; ``specs`` with :data:`DEVICE_NAMESPACE` if the node reads a
-    device's topics, ``default_namespace`` the usual namespace of that device).
+    parameter is set at start; ``specs`` with :data:`DEVICE_NAMESPACE` and
+    :func:`input_specs` if the node reads a device's topics, ``default_namespace`` the
+    usual namespace of that device).
     """
 
     #: Said after "gap of N samples before index K" (what the node does about it).
@@ -88,16 +358,47 @@ class EstimatorNode(MemsNode):
     frames_done = 0
     #: The two paired streams (set by :meth:`subscribe_pair`).
     pairer: FramePairer | None = None
+    #: Event of the last frame accounted by :meth:`sequence`.
+    last_event = ""
+
+    def __init__(self, **node_kwargs) -> None:
+        super().__init__(**node_kwargs)
+        self._formats: dict[str, FormatPin] = {}
+        self._indices: dict[str, StreamIndex] = {}
+        self.primary: str | None = None
+        self.progress: int | None = None
+        self.progress_pub = self.create_publisher(UInt64, "~/progress", PROGRESS_QOS)
 
     def device_topic(self, name: str) -> str:
         """Topic ``name`` of the device (``device_namespace``, or relative)."""
         return device_topic(self.p.get("device_namespace", ""), name)
 
+    def _limit(self, name: str) -> int:
+        return int(self.p.get(name, next(s.default for s in INPUT_SPECS if s.name == name)))
+
+    # ------------------------------------------------------------------ progress
+
+    def report_progress(self, end: int, follow: bool = False) -> None:
+        """Publish the progress ``end`` (one past a sample index of the primary input):
+        the largest so far, or ``end`` itself if ``follow`` (a stream reset)."""
+        end = int(end)
+        if self.progress is None or follow:
+            self.progress = end
+        elif abs(end - self.progress) <= self._limit("max_gap_samples"):
+            self.progress = max(self.progress, end)
+        self.progress_pub.publish(UInt64(data=min(max(self.progress, 0), 2**64 - 1)))
+
+    def _finished(self, kind: str, end: int, follow: bool = False) -> None:
+        if kind == self.primary:
+            self.report_progress(end, follow)
+
     # ------------------------------------------------------------------ single frames
 
-    def reject(self, text: str) -> None:
-        """Count a rejected frame and warn on /diagnostics (the node keeps running)."""
+    def reject(self, text: str, reason: str = "malformed") -> None:
+        """Count a rejected frame (``rejected_frames`` and ``rejected_<reason>``) and warn
+        on /diagnostics (the node keeps running)."""
         self.diag.count("rejected_frames")
+        self.diag.count(f"rejected_{reason}")
         self.diag.warn(f"rejected frame: {text}")
 
     def check_rate(self, msg) -> None:
@@ -105,66 +406,197 @@ class EstimatorNode(MemsNode):
         if self.fs is not None and msg.sample_rate_hz != self.fs:
             raise FrameError(
                 f"frame at {msg.first_sample_index}: sample_rate_hz "
-                f"{msg.sample_rate_hz} differs from the model's {self.fs} Hz"
+                f"{msg.sample_rate_hz} differs from the model's {self.fs} Hz",
+                "foreign",
             )
 
-    def accept_frame(self, msg, decode: Callable[[Any], Any], check_rate: bool = True):
-        """``decode(msg)`` after the rate check; None (rejected and counted) on FrameError."""
+    def take_frame(self, kind: str, msg, decode: Callable[[Any], Any], check_rate: bool = True):
+        """Validate a frame of input stream ``kind`` (class doc, step 1) and return
+        ``decode(msg)``; None if it was rejected (counted, and reported as progress if
+        ``kind`` is the primary input)."""
+        pin = self._formats.setdefault(kind, FormatPin())
+        verdict = "same"
         try:
+            n = int(msg.num_samples)
+            if n == 0:
+                raise FrameError(f"frame at {msg.first_sample_index}: no samples", "empty")
+            if n > self._limit("max_frame_samples"):
+                raise FrameError(
+                    f"frame at {msg.first_sample_index}: {n} samples, more than "
+                    f"max_frame_samples = {self._limit('max_frame_samples')}",
+                    "oversized",
+                )
             if check_rate:
                 self.check_rate(msg)
-            return decode(msg)
+            if isinstance(msg, AdcFrame):
+                adc_codes(msg)
+            fmt = frame_format(msg)
+            verdict = pin.check(fmt)
+            if verdict == "foreign":
+                raise FrameError(
+                    f"{kind} frame at {msg.first_sample_index}: another sample rate, channel "
+                    f"set or format than the stream's ({msg.sample_rate_hz} Hz, "
+                    f"{list(getattr(msg, 'channel_names', getattr(msg, 'state_names', [])))})",
+                    "foreign",
+                )
+            values = decode(msg)
         except FrameError as exc:
-            self.reject(str(exc))
+            self.reject(str(exc), exc.reason)
+            n = min(int(msg.num_samples), self._limit("max_frame_samples"))
+            self._finished(kind, int(msg.first_sample_index) + n)
             return None
+        if verdict in ("new", "adopt"):
+            pin.adopt(fmt)
+        if verdict == "adopt":
+            self.diag.count("format_changes")
+            self.diag.warn(
+                f"{kind}: {FormatPin.ADOPT_FRAMES} consecutive frames of a new format "
+                f"({msg.sample_rate_hz} Hz) from index {msg.first_sample_index}: adopted"
+            )
+            self.on_format_change(kind)
+        return values
+
+    def accept_frame(self, msg, decode: Callable[[Any], Any], check_rate: bool = True):
+        """:meth:`take_frame` of the single input stream ``"input"``."""
+        return self.take_frame("input", msg, decode, check_rate)
+
+    def index(self, kind: str) -> StreamIndex:
+        """Sequence accounting of input stream (or pair) ``kind``."""
+        if kind not in self._indices:
+            self._indices[kind] = StreamIndex(self._limit("max_gap_samples"))
+        return self._indices[kind]
+
+    def sequence(self, kind: str, first: int, n: int, streams: int = 1, hooks: bool = True) -> bool:
+        """Account a good frame (or pair of ``streams`` frames) of n samples at ``first``
+        (class doc, step 2); True if it is to be processed, False if it was dropped. The
+        event (:meth:`StreamIndex.update`) is left in :attr:`last_event`; :meth:`on_gap` and
+        :meth:`on_stream_reset` are called only if ``hooks`` (the estimator's main input)."""
+        index = self.index(kind)
+        expected = index.expected
+        event, missing = index.update(first, n)
+        self.last_event = event
+        if event in ("repeat", "out_of_order"):
+            name = "repeated" if event == "repeat" else "out_of_order"
+            self.diag.count(f"{name}_frames", streams)
+            self.diag.warn(
+                f"dropped {name.replace('_', '-')} frame at {first} (stream at {expected})"
+            )
+            return False
+        if event == "reset":
+            self.diag.count("stream_resets")
+            self.diag.warn(
+                f"stream reset of {kind} at index {first} (stream at {expected}; a jump "
+                f"beyond max_gap_samples = {self._limit('max_gap_samples')} or a restart)"
+            )
+            if hooks:
+                self.on_stream_reset()
+        elif event == "gap":
+            self.note_gap(first, missing)
+            if hooks:
+                self.on_gap(missing)
+        return True
 
     def note_gap(self, first: int, gap: int) -> None:
         """Count and report ``gap`` samples missing before index ``first`` (if any)."""
         if gap:
             self.diag.count("gaps")
+            self.diag.count("missing_samples", int(gap))
             note = f": {self.GAP_NOTE}" if self.GAP_NOTE else ""
             self.diag.warn(f"gap of {gap} samples before index {first}{note}")
+
+    def note_divergence(self, what: str, first: int) -> None:
+        """Count (``divergences``) and report a filter re-initialised from its prior after
+        it diverged in the frame at ``first``."""
+        self.diag.count("divergences")
+        self.diag.warn(
+            f"{what} diverged in the frame at {first} (non-finite state or covariance not "
+            "positive definite): re-initialised from its prior"
+        )
 
     # ------------------------------------------------------------------ paired streams
 
     def subscribe_pair(self, first: Input, second: Input, check_rate: bool = True) -> None:
-        """Subscribe the two streams of the device whose pairs go to :meth:`process_pair`."""
-        self.pairer = FramePairer((first[0], second[0]))
-        self.tracker = IndexTracker()
+        """Subscribe the two streams of the device whose pairs go to :meth:`process_pair`;
+        the first is the primary input (progress)."""
+        self.pairer = FramePairer((first[0], second[0]), self._limit("max_unpaired_samples"))
+        self.primary = first[0]
         for name, msg_type, decode in (first, second):
             callback = partial(self._on_frame, name, decode, check_rate)
             self.create_subscription(msg_type, self.device_topic(name), callback, FRAME_QOS)
 
     def _on_frame(self, kind: str, decode, check_rate: bool, msg) -> None:
-        values = self.accept_frame(msg, decode, check_rate)
+        first, n = int(msg.first_sample_index), int(msg.num_samples)
+        values = self.take_frame(kind, msg, decode, check_rate)
         if values is None:
             return
+        if self.index("pair").is_repeat(first) or self.pairer.holds(kind, first):
+            self.diag.count("repeated_frames")
+            self.diag.warn(f"dropped repeated {kind} frame at {first}")
+            self._finished(kind, first + n)
+            return
         stamped = (time_to_ns(msg.header.stamp), values)
-        for first, (stamp, a), (_, b) in self.pairer.add(kind, msg.first_sample_index, stamped):
-            self._on_pair(first, stamp, a, b)
+        pairs = self.pairer.add(kind, first, stamped, n)
+        for k, old, size in self.pairer.overflow:
+            self.diag.count("unpaired_overflow_frames")
+            self.diag.warn(
+                f"{k} frame at {old} dropped unpaired: more than max_unpaired_samples = "
+                f"{self._limit('max_unpaired_samples')} samples wait for their partner"
+            )
+            self._finished(k, old + size)
+        for first_, (stamp, a), (_, b) in pairs:
+            self._on_pair(first_, stamp, a, b)
 
     def _on_pair(self, first: int, stamp_ns: int, a, b) -> None:
         na, nb = num_samples(a), num_samples(b)
         if na != nb:
             ka, kb = self.pairer.kinds
             self.reject(f"frames at {first}: {na} {ka} samples for {nb} {kb} samples")
+            self._finished(self.primary, first + na)
             return
-        gap = self.tracker.update(first, na)
-        if gap:
-            self.note_gap(first, gap)
-            self.on_gap(gap)
+        if not self.sequence("pair", first, na, streams=2):
+            self._finished(self.primary, first + na)
+            return
+        follow = self.last_event == "reset"
         try:
             self.process_pair(first, stamp_ns, a, b)
+        except Diverged as exc:
+            self.note_divergence(str(exc), first)
         except FrameError as exc:
-            self.reject(f"frames at {first}: {exc}")
-            return
-        self.frames_done += 1
-        self.diag.count("frames")
+            self.reject(f"frames at {first}: {exc}", exc.reason)
+        else:
+            self.frames_done += 1
+            self.diag.count("frames")
+        for kind, old, size in self.pairer.drop_before(first + na):
+            self.diag.count("unpaired_stale_frames")
+            self._finished(kind, old + size)
+        self._finished(self.primary, first + na, follow)
+
+    # ------------------------------------------------------------------ hooks
 
     def on_gap(self, gap: int) -> None:
         """Called after ``gap`` samples were found missing, before the next pair."""
 
+    def on_stream_reset(self) -> None:
+        """Called at a stream reset, before the frame that starts the new stream:
+        :meth:`reset_estimator`."""
+        self.reset_estimator()
+
+    def on_format_change(self, kind: str) -> None:
+        """Called after input stream ``kind`` adopted a new format."""
+
+    def reset_estimator(self) -> None:
+        """Re-initialise the estimator from its prior (stream reset, divergence)."""
+
     def process_pair(self, first: int, stamp_ns: int, a, b) -> None:
         """Estimate on one pair of frames starting at sample ``first``, whose first sample
-        was stamped ``stamp_ns`` [ns]; raise FrameError to reject it."""
+        was stamped ``stamp_ns`` [ns]; raise FrameError to reject it, :class:`Diverged`
+        after re-initialising a filter that diverged."""
         raise NotImplementedError
+
+
+class Diverged(FrameError):
+    """A filter diverged in a frame and was re-initialised from its prior (its estimates
+    of that frame are not published); the message names the filter."""
+
+    def __init__(self, what: str) -> None:
+        super().__init__(what, "diverged")

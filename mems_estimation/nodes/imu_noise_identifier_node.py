@@ -7,7 +7,12 @@ confidence intervals, the discrete model and the Allan deviation) on ``output_to
 (default ``noise_model``, beside the input) every ``publish_period_s`` of *data* (so replaying a bag
 gives exactly the live output) and once more, ``final = true``, at shutdown.
 Malformed frames are rejected and counted on /diagnostics; gaps in
-``first_sample_index`` are counted and reported, not bridged silently.
+``first_sample_index`` are counted and reported, not bridged silently (input path:
+:class:`EstimatorNode`: codes outside the bit range, frames of another format, repeated
+and out-of-order frames never reach the data). The samples on either side of a gap or
+stream reset are concatenated; a new stream format (adopted after consecutive frames of
+it) starts the accumulation again. An identification that fails is counted
+(``identification_failures``) and the node keeps running.
 """
 
 from __future__ import annotations
@@ -15,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from mems_estimation.identification.imu_noise_fit import identify_axes
-from mems_estimation.nodes.frame_input import EstimatorNode
+from mems_estimation.nodes.frame_input import EstimatorNode, input_specs
 from mems_estimation.nodes.imu_noise_messages import noise_model_msg
 from mems_msgs.msg import AdcFrame, NoiseModel
 from mems_sim.params import ParamSpec
@@ -89,14 +94,19 @@ class NoiseAccumulator:
 
     def add(self, msg: AdcFrame) -> int:
         """Append a frame; return samples missing before it. Raises FrameError if malformed."""
-        values = adc_physical(msg)
+        return self.append(msg, adc_physical(msg))
+
+    def append(self, msg: AdcFrame, values: np.ndarray) -> int:
+        """Append a frame whose physical values (n, channels) are ``values``; return samples
+        missing before it. Raises FrameError if its rate or channels differ."""
         if self.fs is None:
             self.fs, self.first_index = float(msg.sample_rate_hz), int(msg.first_sample_index)
             self.channels, self.units = tuple(msg.channel_names), tuple(msg.channel_units)
         elif msg.sample_rate_hz != self.fs or tuple(msg.channel_names) != self.channels:
             raise FrameError(
                 f"frame at {msg.first_sample_index}: sample rate or channels changed "
-                f"({msg.sample_rate_hz} Hz, {list(msg.channel_names)})"
+                f"({msg.sample_rate_hz} Hz, {list(msg.channel_names)})",
+                "foreign",
             )
         missing = self.tracker.update(int(msg.first_sample_index), int(msg.num_samples))
         self.chunks.append(values)
@@ -141,7 +151,7 @@ class NoiseIdentifierNode(EstimatorNode):
 
     NODE_NAME = "imu_noise_identifier"
     DEFAULT_NAMESPACE = "imu"
-    SPECS = IDENTIFIER_SPECS
+    SPECS = IDENTIFIER_SPECS + input_specs(paired=False, max_frame_samples=100_000)
     DIAGNOSTICS_TITLE = "noise identification"
 
     def __init__(self, **node_kwargs) -> None:
@@ -152,6 +162,7 @@ class NoiseIdentifierNode(EstimatorNode):
         self._next_publish_s = self.p["publish_period_s"]
         self._finalised = False
         self.pub = self.create_publisher(NoiseModel, self.p["output_topic"], RESULT_QOS)
+        self.primary = "input"
         self.sub = self.create_subscription(
             AdcFrame, self.p["input_topic"], self.on_frame, FRAME_QOS
         )
@@ -159,15 +170,32 @@ class NoiseIdentifierNode(EstimatorNode):
     def on_frame(self, msg: AdcFrame) -> None:
         """Validate and accumulate a frame; publish a periodic result when due."""
         self.frames_received += 1
-        missing = self.accept_frame(msg, self.acc.add, check_rate=False)
-        if missing is None:
+        first, n = int(msg.first_sample_index), int(msg.num_samples)
+        values = self.accept_frame(msg, adc_physical, check_rate=False)
+        if values is None:
+            return
+        if not self.sequence("input", first, n):
+            self.report_progress(first + n)
+            return
+        follow = self.last_event == "reset"
+        try:
+            self.acc.append(msg, values)
+        except FrameError as exc:
+            self.reject(str(exc), exc.reason)
+            self.report_progress(first + n)
             return
         self.diag.count("frames")
-        self.note_gap(msg.first_sample_index, missing)
         period = self.p["publish_period_s"]
         if period > 0 and self.acc.duration_s() >= self._next_publish_s:
             self._next_publish_s += period
             self.publish_result(final=False)
+        self.report_progress(first + n, follow)
+
+    def on_format_change(self, kind: str) -> None:
+        """A new stream format: the accumulation (and the periodic schedule) starts again."""
+        self.acc = NoiseAccumulator()
+        self._next_publish_s = self.p["publish_period_s"]
+        self.diag.warn("input format changed: noise identification starts again")
 
     def publish_result(self, final: bool) -> NoiseModel | None:
         """Identify on all data so far and publish; None if too little data."""
@@ -178,7 +206,12 @@ class NoiseIdentifierNode(EstimatorNode):
                     f"min_duration_s = {self.p['min_duration_s']} s: no model"
                 )
             return None
-        msg = identify_message(self.acc, self.p["tau_grid"], final)
+        try:
+            msg = identify_message(self.acc, self.p["tau_grid"], final)
+        except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:
+            self.diag.count("identification_failures")
+            self.diag.warn(f"noise identification failed: {exc}")
+            return None
         self.results.append(msg)
         self.pub.publish(msg)
         return msg

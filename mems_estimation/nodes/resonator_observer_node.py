@@ -11,7 +11,11 @@ STF, NTF; Colinet et al. eqs. 1-13) or, with ``adaptive: true``,
 with f0), and publishes ``<device>/estimate`` or ``<device>/adaptive_estimate``
 (mems_msgs/StateEstimate: position [V] and, adaptive, f0 [Hz], with variances).
 A bit frame with codes other than -1/+1, a frame at another sample rate or of
-another length than its drive frame is rejected and counted on /diagnostics.
+another length than its drive frame is rejected and counted on /diagnostics (input path:
+:class:`EstimatorNode`). Over a gap the observer continues without the missing samples; a
+stream reset, or a divergence (non-finite state or covariance not positive definite, or,
+adaptive, f0 outside (0, fs/2); counted ``divergences``, that frame's estimates not
+published), starts it again from its prior.
 """
 
 from __future__ import annotations
@@ -19,8 +23,15 @@ from __future__ import annotations
 import numpy as np
 
 from mems_estimation.filters.resonator_adaptive_observer import AdaptiveObserver
-from mems_estimation.nodes.frame_input import DEVICE_NAMESPACE, EstimatorNode
+from mems_estimation.nodes.frame_input import (
+    DEVICE_NAMESPACE,
+    Diverged,
+    EstimatorNode,
+    input_specs,
+    output_frame,
+)
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
+from mems_sim.kernels.divergence import state_ok
 from mems_sim.kernels.resonator_observer import KalmanObserver
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.frames import FrameError, make_state_estimate, signal_data
@@ -115,7 +126,8 @@ def pulses_of(msg: SignalFrame) -> tuple[np.ndarray, np.ndarray | None, np.ndarr
     names = list(msg.channel_names)
     if "pulse" not in names:
         raise FrameError(
-            f"drive frame at {msg.first_sample_index}: no 'pulse' channel (channels {names})"
+            f"drive frame at {msg.first_sample_index}: no 'pulse' channel (channels {names})",
+            "foreign",
         )
     timing = [c in names for c in ("pulse_start", "pulse_width")]
     if any(timing) and not all(timing):
@@ -150,7 +162,8 @@ def bits_of(msg: AdcFrame) -> np.ndarray:
         bad = codes[np.abs(codes) != 1][:3].tolist()
         raise FrameError(
             f"bit frame at {msg.first_sample_index}: codes {bad} are not -1/+1 "
-            "(one-bit convention: -1 and +1)"
+            "(one-bit convention: -1 and +1)",
+            "out_of_range",
         )
     return codes.astype(np.float64)
 
@@ -162,7 +175,7 @@ class SdObserverNode(EstimatorNode):
 
     NODE_NAME = "resonator_observer"
     DEFAULT_NAMESPACE = "resonator"
-    SPECS = OBSERVER_SPECS
+    SPECS = OBSERVER_SPECS + input_specs()
     DIAGNOSTICS_TITLE = staticmethod(
         lambda p: "adaptive_observer" if p["adaptive"] else "kalman_observer"
     )
@@ -206,6 +219,10 @@ class SdObserverNode(EstimatorNode):
         self.pub = self.create_publisher(StateEstimate, topic, FRAME_QOS)
         self.subscribe_pair(("adc", AdcFrame, bits_of), ("drive", SignalFrame, pulses_of))
 
+    def reset_estimator(self) -> None:
+        """The observer starts again from its prior."""
+        self.observer.reset()
+
     def process_pair(self, first: int, stamp_ns: int, bits: np.ndarray, drive) -> None:
         """Observer on one frame of bits with its pulses; publish the estimate."""
         pulses, starts, widths = drive
@@ -213,23 +230,27 @@ class SdObserverNode(EstimatorNode):
             out = self.observer.step(bits, pulses, starts, widths)
         except ValueError as exc:  # pulse timing outside [0, T) / (0, T]
             raise FrameError(str(exc)) from None
+        if self.observer.diverged() or not state_ok(*out):
+            self.reset_estimator()
+            raise Diverged("adaptive observer" if self.p["adaptive"] else "Kalman observer")
         if self.p["adaptive"]:
             pos, pos_var, f0, f0_var = out
             states, var = np.column_stack([pos, f0]), np.column_stack([pos_var, f0_var])
         else:
             pos, pos_var = out
             states, var = pos.reshape(-1, 1), pos_var.reshape(-1, 1)
-        msg = make_state_estimate(
+        msg = output_frame(
+            make_state_estimate,
             states,
             var,
-            first,
-            self.p["sample_rate_hz"],
+            first=first,
+            fs=self.p["sample_rate_hz"],
+            stamp_ns=stamp_ns,
             estimator=self.estimator,
             state_names=self.names,
             state_units=self.units,
             frame_id="resonator",
         )
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 10**9)
         self.pub.publish(msg)
 
 

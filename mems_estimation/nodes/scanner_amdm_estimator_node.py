@@ -18,7 +18,10 @@ namespace, default ``/scanner_amdm``):
     ``/diagnostics``  frames, rejected frames, gaps, AC SNR, tracking state, PD failures;
         WARN "low signal" while no motion is observable (drive far from parametric resonance).
 A frame at another sample rate, without the expected channel, with non-finite values or of
-another length than its partner is rejected and counted; a gap resets both filters.
+another length than its partner is rejected and counted (input path:
+:class:`EstimatorNode`); a gap or a stream reset starts both filters again (re-acquire),
+and so does a divergence of either (non-finite state or covariance not positive definite;
+counted ``divergences``, that frame's estimates not published).
 """
 
 from __future__ import annotations
@@ -29,8 +32,15 @@ import numpy as np
 
 from mems_estimation.filters import scanner_amdm_model as sam
 from mems_estimation.filters import scanner_amdm_tracking as su
-from mems_estimation.nodes.frame_input import DEVICE_NAMESPACE, EstimatorNode
+from mems_estimation.nodes.frame_input import (
+    DEVICE_NAMESPACE,
+    Diverged,
+    EstimatorNode,
+    input_specs,
+    output_frame,
+)
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
+from mems_sim.kernels.divergence import state_ok
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import FrameError, adc_physical, make_state_estimate, signal_data
 from mems_sim.ros.node_base import run_node
@@ -50,10 +60,12 @@ def _channel(msg, data: np.ndarray, name: str) -> np.ndarray:
     """Column ``name`` of a frame's data; FrameError when absent or non-finite."""
     names = list(msg.channel_names)
     if name not in names:
-        raise FrameError(f"frame at {msg.first_sample_index}: no channel '{name}' (has {names})")
+        raise FrameError(
+            f"frame at {msg.first_sample_index}: no channel '{name}' (has {names})", "foreign"
+        )
     col = data[:, names.index(name)]
     if not np.all(np.isfinite(col)):
-        raise FrameError(f"frame at {msg.first_sample_index}: non-finite '{name}'")
+        raise FrameError(f"frame at {msg.first_sample_index}: non-finite '{name}'", "non_finite")
     return col
 
 
@@ -64,13 +76,16 @@ class ScannerAmdmEstimatorNode(EstimatorNode):
 
     NODE_NAME = "scanner_amdm_estimator"
     DEFAULT_NAMESPACE = "scanner_amdm"
-    SPECS = sam.ESTIMATOR_SPECS + NODE_SPECS
+    SPECS = sam.ESTIMATOR_SPECS + NODE_SPECS + input_specs()
     DIAGNOSTICS_TITLE = "EKF/UKF (shared electrodes)"
+    #: A stream that starts (again) at or beyond this sample index is counted from its
+    #: first sample for the drive alignment and the times of the extrema.
+    BASE_INDEX = 2**50
 
     def __init__(self, **node_kwargs) -> None:
         super().__init__(**node_kwargs)
         p = self.p
-        est = {s.name: p[s.name] for s in sam.ESTIMATOR_SPECS}
+        est = self.values_of(sam.ESTIMATOR_SPECS)
         self.est_params = est
         self.fs = p["sample_rate_hz"]
         self._make_filters()
@@ -101,6 +116,10 @@ class ScannerAmdmEstimatorNode(EstimatorNode):
         self.trackers = {
             k: su.PhaseAmplitudeTracker(est["min_amplitude"], fs, delay) for k in KINDS
         }
+        # sample index the drive alignment and the extrema count from: 0, or the first of
+        # the stream after a restart beyond BASE_INDEX (float64 seconds and sample positions
+        # cannot resolve samples that far)
+        self._base: int | None = None
 
     def _decode_adc(self, msg: AdcFrame) -> np.ndarray:
         """y_cap [V] of an AMDM frame (its saturated samples counted)."""
@@ -113,45 +132,60 @@ class ScannerAmdmEstimatorNode(EstimatorNode):
         """Both filters start again (re-acquire)."""
         self._make_filters()
 
+    def reset_estimator(self) -> None:
+        """Both filters start again from their prior (re-acquire)."""
+        self._make_filters()
+
     def process_pair(self, first: int, stamp_ns: int, y: np.ndarray, v: np.ndarray) -> None:
         """Run both filters on one paired frame and publish estimates and extrema."""
-        v2 = self.aligner.push(first, v)
+        if self._base is None:
+            self._base = first if first >= self.BASE_INDEX else 0
+        rel = first - self._base
+        v2 = self.aligner.push(rel, v)
         delay_ns = int(round(self.est_params["chain_delay_s"] * 1e9))
+        outs = {k: self.filters[k].step(y, v2) for k in KINDS}
+        bad = [
+            k
+            for k in KINDS
+            if self.filters[k].diverged() or not state_ok(outs[k]["x"], outs[k]["p"])
+        ]
+        if bad or not state_ok(v2):
+            self.reset_estimator()
+            raise Diverged("/".join(bad or KINDS).upper())
         for k in KINDS:
-            out = self.filters[k].step(y, v2)
+            out = outs[k]
             tr = self.trackers[k]
-            tr.push_drive(first, v)
-            ev = tr.push_theta(first, out["x"][:, 0], out["p"][:, 0], out["p"][:, 1])
+            tr.push_drive(rel, v)
+            ev = tr.push_theta(rel, out["x"][:, 0], out["p"][:, 0], out["p"][:, 1])
             var = np.column_stack([out["p"][:, 0], out["p"][:, 1]])
-            msg = make_state_estimate(
+            msg = output_frame(
+                make_state_estimate,
                 out["x"],
                 var,
-                first,
-                self.fs,
+                first=first,
+                fs=self.fs,
+                stamp_ns=stamp_ns - delay_ns,
                 estimator=f"scanner_{k}",
                 state_names=STATE_NAMES,
                 state_units=STATE_UNITS,
                 frame_id=self.p["frame_id"],
             )
-            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(
-                max(stamp_ns - delay_ns, 0), 10**9
-            )
             self.pub_est[k].publish(msg)
             if ev.t.size:
                 states = np.column_stack([ev.t, ev.phase, ev.amplitude])
                 vars_ = np.column_stack([ev.var_t, ev.var_phase, ev.var_amplitude])
-                em = make_state_estimate(
+                em = output_frame(
+                    make_state_estimate,
                     states,
                     vars_,
-                    self.events_published[k],
-                    self.event_rate,
+                    first=self.events_published[k],
+                    fs=self.event_rate,
+                    stamp_ns=int(round(ev.t[0] * 1e9)),
                     estimator=f"scanner_{k}_phase",
                     state_names=EVENT_NAMES,
                     state_units=EVENT_UNITS,
                     frame_id=self.p["frame_id"],
                 )
-                t_ns = int(round(ev.t[0] * 1e9))
-                em.header.stamp.sec, em.header.stamp.nanosec = divmod(max(t_ns, 0), 10**9)
                 self.pub_evt[k].publish(em)
                 self.events_published[k] += int(ev.t.size)
                 self.event_msgs[k] += 1

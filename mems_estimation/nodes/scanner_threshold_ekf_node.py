@@ -20,9 +20,18 @@ Publishes (estimates are *final*: they lag the input by the filter's ``lag`` sam
         (eq. (65) estimate); zeros where ref_index = -1
     ``/diagnostics``  frames, rejected frames, gaps, detections applied/gated, the running
         SNR of y_cap and a WARN "low signal" when it is below ``low_snr`` (no motion).
+
+Input path: :class:`EstimatorNode`. Over a gap the filters continue as if the samples
+were consecutive; the estimates keep the input's sample indices (a message never spans a
+gap). A stream reset, or a divergence of either EKF (non-finite state or covariance not
+positive definite; counted ``divergences``, that frame's outputs not published), starts
+both EKFs again from their prior (the pending ``lag`` estimates become the prior;
+detections of earlier samples are too late).
 """
 
 from __future__ import annotations
+
+import bisect
 
 import numpy as np
 
@@ -31,8 +40,15 @@ from mems_estimation.filters.scanner_threshold_detector import (
     OnlineThresholdDetector,
 )
 from mems_estimation.filters.scanner_threshold_ekf import EKF_SPECS, StreamingScannerEkf, signal_snr
-from mems_estimation.nodes.frame_input import DEVICE_NAMESPACE, EstimatorNode
+from mems_estimation.nodes.frame_input import (
+    DEVICE_NAMESPACE,
+    Diverged,
+    EstimatorNode,
+    input_specs,
+    output_frame,
+)
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
+from mems_sim.kernels.divergence import state_ok
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.frames import (
     FrameError,
@@ -105,7 +121,8 @@ def _y_cap(msg: AdcFrame) -> np.ndarray:
     if list(msg.channel_names) != ["y_cap"]:
         raise FrameError(
             f"adc frame at {msg.first_sample_index}: expected one channel "
-            f"'y_cap', got {list(msg.channel_names)}"
+            f"'y_cap', got {list(msg.channel_names)}",
+            "foreign",
         )
     return np.ascontiguousarray(adc_physical(msg)[:, 0])
 
@@ -115,7 +132,9 @@ def _v_drive(msg: SignalFrame) -> np.ndarray:
     data = signal_data(msg)
     names = list(msg.channel_names)
     if "v_drive" not in names:
-        raise FrameError(f"drive frame at {msg.first_sample_index}: no 'v_drive' channel")
+        raise FrameError(
+            f"drive frame at {msg.first_sample_index}: no 'v_drive' channel", "foreign"
+        )
     return np.ascontiguousarray(data[:, names.index("v_drive")])
 
 
@@ -126,14 +145,14 @@ class ScannerThresholdNode(EstimatorNode):
 
     NODE_NAME = "scanner_threshold_ekf"
     DEFAULT_NAMESPACE = "scanner"
-    SPECS = NODE_SPECS + EKF_SPECS + _DET_SPECS
+    SPECS = NODE_SPECS + EKF_SPECS + _DET_SPECS + input_specs()
     DIAGNOSTICS_TITLE = "threshold hybrid EKF"
 
     def __init__(self, **node_kwargs) -> None:
         super().__init__(**node_kwargs)
         p = self.p
-        ekf = {s.name: p[s.name] for s in EKF_SPECS}
-        det = {s.name: p[s.name] for s in _DET_SPECS}
+        ekf = self.values_of(EKF_SPECS)
+        det = self.values_of(_DET_SPECS)
         det["noise_std"] = float(np.sqrt(p["r_cap"]))
         self.detector = OnlineThresholdDetector(**det)
         if p["lag"] <= self.detector.latency:
@@ -160,6 +179,11 @@ class ScannerThresholdNode(EstimatorNode):
         self._ybuf = np.zeros(0)
         self.diag.counters["detector_latency_samples"] = self.detector.latency
         self.diag.counters["estimate_lag_samples"] = self.hybrid.lag
+        # (filter sample index, input sample index) where each run of consecutive input
+        # samples starts: the filters count samples without gaps, the estimates carry the
+        # input's indices
+        self._segments: list[tuple[int, int]] = []
+        self._stream_next: int | None = None
         self.subscribe_pair(("adc", AdcFrame, _y_cap), ("drive", SignalFrame, _v_drive))
 
     def _update_snr(self, y: np.ndarray) -> None:
@@ -180,36 +204,101 @@ class ScannerThresholdNode(EstimatorNode):
         self.low_signal = low
 
     def _publish(self, pub, est_name, first, x, P) -> None:
+        """Publish the estimates of filter samples first.. (one message per run of
+        consecutive input indices)."""
         if x.shape[0] == 0:
             return
         var = np.column_stack([P[:, 0], P[:, 2]])
-        pub.publish(
-            make_state_estimate(
-                x,
-                var,
-                first,
-                self.fs,
-                estimator=est_name,
-                state_names=STATE_NAMES,
-                state_units=STATE_UNITS,
-                frame_id="scanner",
+        for a, b, index in self._stream_spans(first, x.shape[0]):
+            pub.publish(
+                output_frame(
+                    make_state_estimate,
+                    x[a:b],
+                    var[a:b],
+                    first=index,
+                    fs=self.fs,
+                    estimator=est_name,
+                    state_names=STATE_NAMES,
+                    state_units=STATE_UNITS,
+                    frame_id="scanner",
+                )
             )
-        )
+
+    def _stream_spans(self, first: int, n: int) -> list[tuple[int, int, int]]:
+        """Rows [a, b) of n estimates of filter samples first.. and the input index of row
+        a, split where the input skipped (gap or stream reset)."""
+        segs = self._segments or [(0, 0)]
+        spans = []
+        for j, (k0, s0) in enumerate(segs):
+            k1 = segs[j + 1][0] if j + 1 < len(segs) else None
+            a = max(first, k0)
+            b = first + n if k1 is None else min(first + n, k1)
+            if b > a:
+                spans.append((a - first, b - first, s0 + a - k0))
+        return spans
+
+    def _stream_index(self, k: np.ndarray) -> np.ndarray:
+        """Input sample indices (as float64, the detection rows' type) of filter sample
+        indices k."""
+        starts = [seg[0] for seg in self._segments]
+        out = np.empty(len(k))
+        for i, kk in enumerate(np.asarray(k, dtype=np.int64).tolist()):
+            k0, s0 = self._segments[max(bisect.bisect_right(starts, kk) - 1, 0)]
+            out[i] = float(s0 + kk - k0)
+        return out
+
+    def _note_input(self, first: int, n: int) -> None:
+        """Record where the input's indices run on from the filters' (before a frame)."""
+        k = self.hybrid.next_index
+        if first != self._stream_next and (self._segments or first != k):
+            if not self._segments and k > 0:
+                self._segments.append((0, 0))
+            self._segments.append((k, first))
+        self._stream_next = first + n
+        # keep the segments the pending (lagged) estimates may still need
+        lo = k - self.hybrid.lag
+        while len(self._segments) > 1 and self._segments[1][0] <= lo:
+            self._segments.pop(0)
+
+    def reset_estimator(self) -> None:
+        """Both EKFs start again from their prior at the current sample."""
+        self.hybrid.reset()
+        if self.plain is not None:
+            self.plain.reset()
 
     def process_pair(self, first: int, stamp_ns: int, y: np.ndarray, v: np.ndarray) -> None:
         """Detector, hybrid (and plain) EKF on one frame; publish the final estimates."""
+        k0 = self.hybrid.next_index  # the filters' (and the detector's) sample index
+        self._note_input(first, y.size)
         self._update_snr(y)
         det = self.detector.process(y)
         f, x, P, _ = self.hybrid.process(y, v, det)
-        self._publish(self.pub_hyb, "hybrid_ekf", f, x, P)
         if self.plain is not None:
             f2, x2, P2, _ = self.plain.process(y, v)
+        bad = [
+            name
+            for name, filt, xx, PP in (
+                ("hybrid EKF", self.hybrid, x, P),
+                ("plain EKF", self.plain, x2 if self.plain else x, P2 if self.plain else P),
+            )
+            if filt is not None and (filt.diverged() or not state_ok(xx, PP))
+        ]
+        if bad:
+            self.reset_estimator()
+            raise Diverged(" and ".join(bad))
+        self._publish(self.pub_hyb, "hybrid_ekf", f, x, P)
+        if self.plain is not None:
             self._publish(self.pub_plain, "ekf", f2, x2, P2)
+        rows = detection_rows(det, k0, y.size)
+        if self._segments and det.index.size:
+            hit = rows[:, 0] >= 0
+            rows[hit, 0] = self._stream_index(rows[hit, 0].astype(np.int64))
         self.pub_det.publish(
-            make_signal_frame(
-                detection_rows(det, first, y.size),
-                first,
-                self.fs,
+            output_frame(
+                make_signal_frame,
+                rows,
+                first=first,
+                fs=self.fs,
                 channel_names=DET_CHANNELS,
                 channel_units=DET_UNITS,
                 frame_id="scanner",

@@ -7,7 +7,12 @@ feedthrough with the bias on/off periods (sec. 3.5.4), runs the EKF on the ident
 parameters read from ``params_yaml`` (never the emulator's truth) and publishes
 the stage's ``estimate`` (StateEstimate: theta [rad], omega [rad/s] with variances, one per
 sample). Malformed or non-finite frames are rejected and counted on /diagnostics; the
-estimator keeps running (time update only over a gap, cancellation history reset).
+estimator keeps running (input path: :class:`EstimatorNode`). Over a gap of at most
+:attr:`StageEkfNode.BRIDGE_TIME_CONSTANTS` time constants 1/(zeta wn) of the model the EKF
+runs time updates only (in bounded chunks); after a longer gap, a stream reset or a
+divergence (non-finite state, covariance not positive definite, |theta| >= pi/2; counted
+``divergences``, that frame's estimates not published) it starts again from its prior;
+the feedthrough cancellation history starts again in every case.
 """
 
 from __future__ import annotations
@@ -15,8 +20,15 @@ from __future__ import annotations
 import numpy as np
 
 from mems_estimation.filters.stage_ekf import FeedthroughCanceller, StageEkf, load_model
-from mems_estimation.nodes.frame_input import DEVICE_NAMESPACE, EstimatorNode
+from mems_estimation.nodes.frame_input import (
+    DEVICE_NAMESPACE,
+    Diverged,
+    EstimatorNode,
+    input_specs,
+    output_frame,
+)
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
+from mems_sim.kernels.divergence import state_ok
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.frames import FrameError, adc_physical, make_state_estimate, signal_data
 from mems_sim.ros.node_base import run_node
@@ -47,7 +59,9 @@ def drive_columns(msg: SignalFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     names = list(msg.channel_names)
     for c in ("u", "v_bias", "f_drive"):
         if c not in names:
-            raise FrameError(f"drive frame at {msg.first_sample_index}: no '{c}' channel")
+            raise FrameError(
+                f"drive frame at {msg.first_sample_index}: no '{c}' channel", "foreign"
+            )
     return tuple(np.ascontiguousarray(data[:, names.index(c)]) for c in ("u", "v_bias", "f_drive"))
 
 
@@ -58,7 +72,10 @@ class StageEkfNode(EstimatorNode):
 
     NODE_NAME = "stage_ekf"
     DEFAULT_NAMESPACE = "stage"
-    SPECS = EKF_SPECS
+    SPECS = EKF_SPECS + input_specs()
+    #: Longest gap bridged by time updates, in time constants 1/(zeta wn) of the model:
+    #: after it the state has forgotten all but e^-10 of what the filter knew.
+    BRIDGE_TIME_CONSTANTS = 10.0
     DIAGNOSTICS_TITLE = "stage EKF"
 
     def __init__(self, **node_kwargs) -> None:
@@ -103,37 +120,54 @@ class StageEkfNode(EstimatorNode):
         names = list(msg.channel_names)
         missing = [c for c in self.channels if c not in names]
         if missing:
-            raise FrameError(f"adc frame at {msg.first_sample_index}: channels {missing} absent")
+            raise FrameError(
+                f"adc frame at {msg.first_sample_index}: channels {missing} absent", "foreign"
+            )
         y = np.ascontiguousarray(y[:, [names.index(c) for c in self.channels]])
         if not np.all(np.isfinite(y)):
-            raise FrameError(f"adc frame at {msg.first_sample_index}: non-finite values")
+            raise FrameError(
+                f"adc frame at {msg.first_sample_index}: non-finite values", "non_finite"
+            )
         return y
 
     def on_gap(self, gap: int) -> None:
-        """The EKF continues with time updates only over the missing span; the feedthrough
-        cancellation starts again."""
-        nch = len(self.channels)
-        self.ekf.step(np.full((gap, nch), np.nan), np.zeros(gap))
-        self.canceller = FeedthroughCanceller(
-            nch, self.model.fs, enabled=self.p["cancel_feedthrough"]
-        )
+        """The EKF continues with time updates only over the missing span (at most
+        :attr:`BRIDGE_TIME_CONSTANTS` time constants, else it starts again from its prior);
+        the feedthrough cancellation starts again."""
+        m = self.model
+        bridge = self.BRIDGE_TIME_CONSTANTS * m.fs / (m.zeta * m.wn)
+        if gap <= bridge:
+            self.ekf.time_update(gap)
+        else:
+            self.ekf.reset()
+        self.canceller.reset()
+
+    def reset_estimator(self) -> None:
+        """The EKF starts again from its prior, the feedthrough cancellation from no
+        history."""
+        self.ekf.reset()
+        self.canceller.reset()
 
     def process_pair(self, first: int, stamp_ns: int, y: np.ndarray, drive) -> None:
         """Cancel the feedthrough, run the EKF on one frame and publish theta, omega."""
         u, vb, fd = drive
         yc = self.canceller.step(y, vb, fd)
         x, v = self.ekf.step(yc, u, corrected=self.p["output_correction"])
-        msg = make_state_estimate(
+        if self.ekf.diverged() or not state_ok(x, v):
+            self.reset_estimator()
+            raise Diverged("stage EKF")
+        msg = output_frame(
+            make_state_estimate,
             x,
             v,
-            first,
-            self.model.fs,
+            first=first,
+            fs=self.model.fs,
+            stamp_ns=stamp_ns,
             estimator="ekf",
             state_names=("theta", "omega"),
             state_units=("rad", "rad/s"),
             frame_id="stage",
         )
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 10**9)
         self.pub.publish(msg)
 
 

@@ -7,7 +7,15 @@ default ``/stage``, or ``device_namespace`` --; pairs
 the peak-to-peak rates per trial (:class:`mems_estimation.identification.stage_gyro_calibration.StreamingCalibrator`)
 and publishes the stage's ``gyro_scale_factor`` (mems_msgs/CalibrationResult: scale_factor,
 bias with standard errors) once ``n_trials`` trials are paired (and again at shutdown if
-more arrived). Malformed / non-finite frames are rejected and counted on /diagnostics.
+more arrived). Malformed / non-finite frames are rejected and counted on /diagnostics
+(input path: :class:`EstimatorNode`; the gyro stream is validated and sequenced alike).
+A gap or stream reset of the stage streams drops the trials in progress and the gyro
+samples waiting for them (``trials_dropped``) and places the gyro samples on the stage
+index again from the next frame's stamp; the gyro samples waiting for stage data are
+bounded to ``max_unpaired_samples`` (``gyro_overflow_samples``). A pair of peak-to-peak
+rates whose ratio gyro/stage is outside [:data:`MIN_RATIO`, :data:`MAX_RATIO`] (no
+gyro's scale factor) or not finite is discarded (``implausible_pairs``): one absurd frame
+does not spoil eq. (27).
 """
 
 from __future__ import annotations
@@ -17,7 +25,7 @@ from rclpy.duration import Duration
 
 from mems_estimation.identification.stage_gyro_calibration import StreamingCalibrator
 from mems_estimation.identification.stage_identification import harmonic_fit
-from mems_estimation.nodes.frame_input import DEVICE_NAMESPACE, EstimatorNode
+from mems_estimation.nodes.frame_input import DEVICE_NAMESPACE, EstimatorNode, input_specs
 from mems_msgs.msg import AdcFrame, CalibrationResult, SignalFrame, StateEstimate
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import FrameError, adc_physical, ns_to_time, signal_data, time_to_ns
@@ -60,16 +68,20 @@ CAL_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("device", "stage/gyro", "-", "device name in the result", ""),
 )
 
+#: Range of the ratio gyro / stage peak-to-peak rate of a pair that is used [-] (a MEMS
+#: gyro's scale factor is within a few percent of 1; outside this the pair is absurd).
+MIN_RATIO, MAX_RATIO = 0.5, 2.0
+
 
 def _estimate_omega(msg: StateEstimate) -> np.ndarray:
     names = list(msg.state_names)
     if "omega" not in names:
-        raise FrameError(f"estimate at {msg.first_sample_index}: no 'omega' state")
+        raise FrameError(f"estimate at {msg.first_sample_index}: no 'omega' state", "foreign")
     s = np.asarray(msg.states, float)
     if s.size != msg.num_samples * len(names):
         raise FrameError(f"estimate at {msg.first_sample_index}: size mismatch")
     if not np.all(np.isfinite(s)):
-        raise FrameError(f"estimate at {msg.first_sample_index}: non-finite values")
+        raise FrameError(f"estimate at {msg.first_sample_index}: non-finite values", "non_finite")
     return s.reshape(msg.num_samples, len(names))[:, names.index("omega")]
 
 
@@ -80,7 +92,7 @@ def _drive_trials(msg: SignalFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     try:
         cols = [names.index(c) for c in ("phase", "f_drive", "trial")]
     except ValueError as exc:
-        raise FrameError(f"drive frame at {msg.first_sample_index}: {exc}") from None
+        raise FrameError(f"drive frame at {msg.first_sample_index}: {exc}", "foreign") from None
     return tuple(np.ascontiguousarray(data[:, c]) for c in cols)
 
 
@@ -88,7 +100,7 @@ def _gyro_rate(msg: AdcFrame) -> np.ndarray:
     """Angular rate [rad/s] of a gyro frame; FrameError when non-finite."""
     v = adc_physical(msg)[:, 0]
     if not np.all(np.isfinite(v)):
-        raise FrameError("non-finite gyro values")
+        raise FrameError("non-finite gyro values", "non_finite")
     return v
 
 
@@ -97,8 +109,11 @@ class GyroCalibrationNode(EstimatorNode):
 
     NODE_NAME = "stage_gyro_calibration"
     DEFAULT_NAMESPACE = "stage"
-    SPECS = CAL_SPECS
+    SPECS = CAL_SPECS + input_specs()
     DIAGNOSTICS_TITLE = "gyro scale factor"
+    #: A stage stream that starts (again) at or beyond this sample index is counted from
+    #: its first sample.
+    BASE_INDEX = 2**50
 
     def __init__(self, **node_kwargs) -> None:
         super().__init__(**node_kwargs)
@@ -110,6 +125,9 @@ class GyroCalibrationNode(EstimatorNode):
             CalibrationResult, self.device_topic("gyro_scale_factor"), RESULT_QOS
         )
         self.t0_ns = None
+        self._rebase = False
+        self._base: int | None = None
+        self._screened = 0
         self.results: list[dict] = []
         self.last_stamp = 0
         self.estimates_received = 0
@@ -133,22 +151,78 @@ class GyroCalibrationNode(EstimatorNode):
 
     def on_gyro(self, msg: AdcFrame) -> None:
         """Gyro samples, placed on the stage's sample index through their stamps."""
-        v = self.accept_frame(msg, _gyro_rate, check_rate=False)
-        if v is None:
+        v = self.take_frame("gyro", msg, _gyro_rate, check_rate=False)
+        if v is None or not self.sequence(
+            "gyro", msg.first_sample_index, msg.num_samples, hooks=False
+        ):
             return
         t0 = self.t0_ns if self.t0_ns is not None else 0
         t_first = (time_to_ns(msg.header.stamp) - t0) / 1e9
         k = (t_first + np.arange(v.size) / msg.sample_rate_hz) * self.p["sample_rate_hz"]
         self.cal.add_gyro(k, v)
+        self._bound_gyro()
         self._check_done()
+
+    def _bound_gyro(self) -> None:
+        """Keep at most ``max_unpaired_samples`` gyro samples waiting for stage data."""
+        cal, limit = self.cal, int(self.p["max_unpaired_samples"])
+        waiting = sum(a.size for a in cal.gyro_k)
+        if waiting > limit:
+            cal.gyro_k = [np.concatenate(cal.gyro_k)[-limit:]]
+            cal.gyro_v = [np.concatenate(cal.gyro_v)[-limit:]]
+            self.diag.count("gyro_overflow_samples", waiting - limit)
+
+    def _drop_pending(self) -> None:
+        """Drop the trials in progress and the gyro samples waiting for them; place the
+        gyro on the stage index again from the next stage frame."""
+        if self.cal.trials:
+            self.diag.count("trials_dropped", len(self.cal.trials))
+        self.cal.trials.clear()
+        self.cal.gyro_k, self.cal.gyro_v, self.cal.gyro_end = [], [], -1.0
+        self._rebase = True
+
+    def on_gap(self, gap: int) -> None:
+        """The trials in progress are incomplete: dropped (:meth:`_drop_pending`)."""
+        self._drop_pending()
+
+    def reset_estimator(self) -> None:
+        """Stream reset: as a gap (:meth:`_drop_pending`); the pairs so far are kept."""
+        self._drop_pending()
 
     def process_pair(self, first: int, stamp_ns: int, om: np.ndarray, drive) -> None:
         """One trial's worth of rate estimate with its drive phase, frequency, trial."""
+        if self._base is None or self._rebase:
+            # the stage index the trials count from: 0, or the first of a stream that
+            # (re)starts beyond BASE_INDEX (float64 cannot place samples that far)
+            self._base = first if first >= self.BASE_INDEX else 0
+            if self._rebase or self._base:
+                fs = self.p["sample_rate_hz"]
+                self.t0_ns = stamp_ns - round((first - self._base) * 1e9 / fs)
+            self._rebase = False
         ph, fd, tr = drive
-        self.cal.add_stage(first, om, ph, fd, tr.astype(np.int64))
+        self.cal.add_stage(first - self._base, om, ph, fd, tr.astype(np.int64))
         self._check_done()
 
+    def _screen_pairs(self) -> None:
+        """Discard new pairs whose gyro/stage peak-to-peak ratio is not plausible."""
+        pairs = self.cal.pairs
+        k = self._screened
+        while k < len(pairs):
+            s, g = pairs[k]["stage_pp"], pairs[k]["gyro_pp"]
+            ok = np.isfinite(s) and np.isfinite(g) and s > 0 and MIN_RATIO <= g / s <= MAX_RATIO
+            if ok:
+                k += 1
+                continue
+            del pairs[k]
+            self.diag.count("implausible_pairs")
+            self.diag.warn(
+                f"trial pair discarded: gyro/stage peak-to-peak {g!r}/{s!r} outside "
+                f"[{MIN_RATIO}, {MAX_RATIO}]"
+            )
+        self._screened = k
+
     def _check_done(self) -> None:
+        self._screen_pairs()
         if len(self.cal.pairs) >= self.p["n_trials"] and len(self.results) == 0:
             self.publish_result()
 
@@ -179,6 +253,7 @@ class GyroCalibrationNode(EstimatorNode):
         """At shutdown: process the remaining trials and publish if new pairs arrived."""
         n = len(self.cal.pairs)
         self.cal.finish()
+        self._screen_pairs()
         if len(self.cal.pairs) > n or not self.results:
             if self.publish_result() is not None:
                 # the process may end right after: let the subscribers (recorder) have it

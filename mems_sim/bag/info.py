@@ -5,7 +5,21 @@ counts come from the Statistics record when the file has one; frame topics
 are always scanned (CDR peek, no deserialisation) for sample rates, total
 samples and frame-index gaps. Files without a Summary (a recorder that was
 killed) are scanned up to the last complete chunk (``truncated`` = True, and
-``mcap_info`` prints a warning line). Records are read by
+``mcap_info`` prints a warning line).
+
+Loss: frame topics are checked for frame-index gaps; other topics for gaps of their
+publisher's sequence numbers (the MCAP ``sequence``, which this package's recorder
+sets to the publication sequence number). When the file holds an emulator's
+end-of-stream record (``.../end_of_stream``), every recorded topic it names is
+compared with it: fewer messages, or a last frame that ends before the announced end
+sample index, is a missing tail. Each loss is on the topic's line and in a warning
+line on stderr (exit status 0: the file itself is readable).
+
+Times are the bag's log times, which the recorder sets to sensor time (header
+stamps, else the graph's clock): start, end and duration are the data's, e.g.
+from 0 for a fast simulated run. The end includes the extent of the last frame
+of each frame topic (its stamp, the time of its first sample, plus num_samples /
+sample_rate_hz), so a recording of 2 s of data lasts 2 s, not 2 s less a frame. Records are read by
 :mod:`mems_sim.bag.reader`: a corrupt or hostile file gives one line on stderr
 and exit status 2. Types that are not installed interfaces are listed (with a
 warning line), never imported.
@@ -14,6 +28,8 @@ warning line), never imported.
 from __future__ import annotations
 
 import argparse
+import datetime
+import math
 import os
 import sys
 
@@ -34,8 +50,15 @@ from mems_sim.bag.schema import (
     GAP_CHECKED_TYPES,
     interface_problem,
     peek_frame_fields,
+    peek_header_stamp_ns,
 )
-from mems_sim.bag.writer import FrameGapCounter
+from mems_sim.bag.writer import FrameGapCounter, SequenceGapCounter
+from mems_sim.ros.end_of_stream import (
+    describe_tail,
+    is_end_of_stream_topic,
+    missing_tail,
+    parse_end_of_stream,
+)
 
 
 def _scan(path: str) -> dict:
@@ -48,6 +71,9 @@ def _scan(path: str) -> dict:
     counts: dict[int, int] = {}
     frames: dict[int, FrameGapCounter] = {}
     rates: dict[int, set] = {}
+    data_ends: dict[int, int] = {}
+    sequences: dict[int, SequenceGapCounter] = {}
+    end_records: list[bytes] = []
     compressions = set()
     header = None
     start = end = None
@@ -72,7 +98,8 @@ def _scan(path: str) -> dict:
                 start = item.log_time if start is None else min(start, item.log_time)
                 end = item.log_time if end is None else max(end, item.log_time)
                 counts[item.channel_id] = counts.get(item.channel_id, 0) + 1
-                _account_frame(item, channels, schemas, frames, rates)
+                _account_frame(item, channels, schemas, frames, rates, data_ends)
+                _account_sequence(item, channels, schemas, sequences, end_records)
     if header is None:
         raise BagReadError(f"{path}: unreadable MCAP header")
     return {
@@ -82,6 +109,9 @@ def _scan(path: str) -> dict:
         "counts": counts,
         "frames": frames,
         "rates": rates,
+        "data_ends": data_ends,
+        "sequences": sequences,
+        "end_records": end_records,
         "compressions": compressions,
         "start": start,
         "end": end,
@@ -89,7 +119,7 @@ def _scan(path: str) -> dict:
     }
 
 
-def _account_frame(message: Message, channels, schemas, frames, rates) -> None:
+def _account_frame(message: Message, channels, schemas, frames, rates, data_ends) -> None:
     channel = channels.get(message.channel_id)
     schema = schemas.get(channel.schema_id) if channel is not None else None
     layout = FRAME_LAYOUTS.get(schema.name) if schema is not None else None
@@ -103,8 +133,91 @@ def _account_frame(message: Message, channels, schemas, frames, rates) -> None:
     counter = frames.setdefault(message.channel_id, FrameGapCounter())
     if schema.name in GAP_CHECKED_TYPES:
         counter.update(first, num)
+        stamp = peek_header_stamp_ns(message.data)  # time of the frame's first sample
+        if stamp is not None and rate > 0 and math.isfinite(rate):
+            end = stamp + int(round(num * 1e9 / rate))
+            data_ends[message.channel_id] = max(data_ends.get(message.channel_id, end), end)
     else:
         counter.frames += 1
+
+
+def _account_sequence(message: Message, channels, schemas, sequences, end_records) -> None:
+    """Count gaps of the message sequence numbers per channel; keep end-of-stream records."""
+    sequences.setdefault(message.channel_id, SequenceGapCounter()).update(message.sequence)
+    channel = channels.get(message.channel_id)
+    schema = schemas.get(channel.schema_id) if channel is not None else None
+    if schema is not None and is_end_of_stream_topic(channel.topic, schema.name):
+        end_records.append(message.data)
+
+
+def _end_of_stream(records: list[bytes]) -> dict[str, dict[str, int]]:
+    """Per topic, the counts announced by the end-of-stream records of the file (records
+    that do not deserialise are skipped: the file is only described, never trusted)."""
+    if not records:
+        return {}
+    try:
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.serialization import deserialize_message
+    except ImportError:
+        return {}
+    out: dict[str, dict[str, int]] = {}
+    for data in records:
+        try:
+            out.update(parse_end_of_stream(deserialize_message(data, DiagnosticArray)))
+        except Exception:  # a corrupt record announces nothing
+            continue
+    return out
+
+
+def _add_losses(topics: dict, scan: dict) -> None:
+    """Add sequence gaps (topics that are not frames) and missing tails to ``topics``.
+
+    Sequence numbers are checked on a topic only while they rise (one publisher that
+    numbers its messages, as the recorder of this package stores them); numbers that fall
+    or repeat (several publishers, or a writer that does not number) leave the topic's
+    ``sequence_gaps`` None. A topic named in an end-of-stream record gets ``tail`` (what
+    is missing after the last recorded message, :func:`missing_tail`) and
+    ``end_of_stream`` (the announced counts).
+    """
+    by_topic = {ch.topic: cid for cid, ch in scan["channels"].items()}
+    for topic, entry in topics.items():
+        counter = scan["sequences"].get(by_topic[topic])
+        checkable = counter is not None and counter.resets == 0
+        if entry.get("type") not in GAP_CHECKED_TYPES:
+            entry["sequence_gaps"] = counter.gaps if checkable else None
+            entry["missing_messages"] = counter.missing_messages if checkable else None
+    for topic, expected in _end_of_stream(scan["end_records"]).items():
+        if topic not in topics:
+            continue  # not selected for recording: nothing to compare
+        entry = topics[topic]
+        cid = by_topic[topic]
+        counter = scan["sequences"].get(cid)
+        if counter is not None and counter.resets == 0 and counter.last is not None:
+            seen = counter.last
+        else:
+            seen = entry.get("count", 0)
+        frames = scan["frames"].get(cid)
+        end = frames.expected if frames is not None else None
+        entry["end_of_stream"] = expected
+        entry["tail"] = missing_tail(expected, seen, end)
+
+
+def losses(info: dict) -> list[str]:
+    """One line per topic of :func:`bag_info`'s dict that lost data: frame-index gaps,
+    sequence gaps, a missing tail."""
+    out = []
+    for topic, t in sorted(info["topics"].items()):
+        parts = []
+        if t.get("gaps"):
+            parts.append(f"{t['gaps']} frame-index gaps ({t['missing_samples']} samples)")
+        if t.get("sequence_gaps"):
+            parts.append(f"{t['sequence_gaps']} sequence gaps ({t['missing_messages']} messages)")
+        tail = t.get("tail")
+        if tail and (tail["messages"] or tail.get("samples")):
+            parts.append(describe_tail(topic, t["end_of_stream"], tail).split(": ", 1)[1])
+        if parts:
+            out.append(f"{topic}: " + ", ".join(parts))
+    return out
 
 
 def bag_info(path: str) -> dict:
@@ -112,11 +225,17 @@ def bag_info(path: str) -> dict:
 
     Returns a dict with ``path``, ``file_size`` [bytes], ``profile``, ``library``,
     ``has_summary``, ``truncated``, ``compression`` (sorted list of chunk
-    compressions), ``message_count``, ``start_ns``, ``end_ns``, ``duration_s`` [s]
-    and ``topics``: ``{topic: {type, message_encoding, count, offered_qos_profiles,
+    compressions), ``message_count``, ``start_ns`` and ``end_ns`` (first and last log time,
+    i.e. sensor time), ``data_end_ns`` (end of the last sample of the frame topics, None
+    without frames), ``duration_s`` [s] (from ``start_ns`` to the later of ``end_ns`` and
+    ``data_end_ns``) and ``topics``: ``{topic: {type, message_encoding, count, offered_qos_profiles,
     topic_type_hash, type_problem (why the type is not an installed interface, None if it
     is; such types are only listed, never imported), and for frame topics sample_rate_hz [Hz] (None if it varies),
-    total_samples, frames, gaps, missing_samples, resets}}``.
+    total_samples, frames, gaps, missing_samples, resets; for other topics sequence_gaps and
+    missing_messages (None when the sequence numbers cannot be checked); for topics named
+    in an end-of-stream record end_of_stream (the announced counts) and tail (what is
+    missing at the end: messages, and for frames samples and from_index)}}``
+    (:func:`losses` lists what a file lost).
     Raises :class:`~mems_sim.bag.reader.BagReadError` (one line) for a missing, non-MCAP
     or corrupt file, an invalid topic name or absurd QoS metadata; a truncated file is
     read up to its last complete chunk (``truncated`` = True).
@@ -157,10 +276,13 @@ def bag_info(path: str) -> dict:
                 resets=counter.resets,
             )
         topics[channel.topic] = entry
+    _add_losses(topics, scan)
     if stats is not None and stats.message_count:
         start, end, total = stats.message_start_time, stats.message_end_time, stats.message_count
     else:
         start, end, total = scan["start"], scan["end"], sum(scan["counts"].values())
+    data_end = max(scan["data_ends"].values(), default=None)
+    last = end if data_end is None or end is None else max(end, data_end)
     return {
         "path": path,
         "file_size": os.path.getsize(path),
@@ -172,7 +294,8 @@ def bag_info(path: str) -> dict:
         "message_count": total,
         "start_ns": start,
         "end_ns": end,
-        "duration_s": (end - start) / 1e9 if start is not None else 0.0,
+        "data_end_ns": data_end,
+        "duration_s": (last - start) / 1e9 if start is not None else 0.0,
         "topics": topics,
     }
 
@@ -180,6 +303,24 @@ def bag_info(path: str) -> dict:
 def _printable(text: str) -> str:
     """A string from the file as is when printable, else quoted and escaped (one line)."""
     return text if text.isprintable() else shown(text)
+
+
+def _end_ns(info: dict) -> int | None:
+    """End of the bag's data [ns]: the later of the last log time and the last sample."""
+    ends = [t for t in (info["end_ns"], info.get("data_end_ns")) if t is not None]
+    return max(ends) if ends else None
+
+
+def _time_text(ns: int | None) -> str:
+    """Sensor time [s] to the nanosecond; with the UTC date when it is a wall-clock time
+    (after 2000), as live graphs stamp."""
+    if ns is None:
+        return "-"
+    text = f"{ns // 10**9}.{ns % 10**9:09d} s"
+    if ns >= 946_684_800 * 10**9:
+        date = datetime.datetime.fromtimestamp(ns / 1e9, tz=datetime.timezone.utc)
+        text += f" ({date:%Y-%m-%d %H:%M:%S.%f} UTC)"
+    return text
 
 
 def format_info(info: dict) -> str:
@@ -191,6 +332,8 @@ def format_info(info: dict) -> str:
         f"Compression: {', '.join(info['compression']) or 'none'}",
         f"Summary:     {'yes' if info['has_summary'] else 'no'}"
         + (" (file truncated: read up to the last complete chunk)" if info["truncated"] else ""),
+        f"Start:       {_time_text(info['start_ns'])}",
+        f"End:         {_time_text(_end_ns(info))}",
         f"Duration:    {info['duration_s']:.3f} s",
         f"Messages:    {info['message_count']}",
         "Topics:",
@@ -205,6 +348,13 @@ def format_info(info: dict) -> str:
                 f", {t['total_samples']} samples @ {rate}, {t['gaps']} gaps"
                 f" ({t['missing_samples']} samples missing)"
             )
+        if t.get("sequence_gaps"):
+            line += (
+                f", {t['sequence_gaps']} sequence gaps ({t['missing_messages']} messages missing)"
+            )
+        tail = t.get("tail")
+        if tail and (tail["messages"] or tail.get("samples")):
+            line += ", " + describe_tail(topic, t["end_of_stream"], tail).split(": ", 1)[1]
         lines.append(line)
     return "\n".join(lines)
 
@@ -235,6 +385,10 @@ def main(argv: list[str] | None = None) -> int:
                 1000,
             ),
             file=sys.stderr,
+        )
+    for text in losses(info):
+        print(
+            one_line(f"mcap_info: warning: {args.file}: lost data: {text}", 1000), file=sys.stderr
         )
     return 0
 

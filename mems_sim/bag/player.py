@@ -5,6 +5,19 @@ publishers created from the file's schemas (``pkg/msg/Type``, imported only
 when it is an interface of the ament index: other types are reported and their
 topics skipped) and the recorded ``offered_qos_profiles`` (fallback FRAME_QOS),
 paced by ``log_time`` scaled by ``--rate``; optionally publishes ``/clock``.
+The recorder's log times are sensor time, so ``--rate 1`` replays a 600 s
+recording in 600 s and ``--clock`` publishes the time the stamps belong to.
+
+Lossless replay into other processes (``--wait-for-consumer NODE_FQN``, repeatable,
+with or without ``--as-fast-as-possible``): flow control at the application level
+(:class:`FlowControl`). The consumer reports its progress on ``NODE_FQN/progress``
+(std_msgs/UInt64, one past the last sample index it processed, after every frame);
+the player keeps at most ``--credit`` samples (``N``) or frames (``Nf``, default 50f)
+published ahead of it on each played frame topic it subscribes to, waits at the end
+until it has caught up, and reports per topic what was published and acknowledged
+and the loss (frames its progress skipped, gaps it reports on /diagnostics, frames
+never acknowledged); exit status 3 when anything was lost or a consumer was not
+ready, stalled (``--consumer-timeout``) or left.
 
 Files are read through :mod:`mems_sim.bag.reader` (bounded chunk
 decompression, CRC, topic-name and QoS checks): a corrupt or hostile file gives
@@ -23,6 +36,7 @@ ROS-free readers for other code:
 from __future__ import annotations
 
 import argparse
+import bisect
 import heapq
 import signal
 import sys
@@ -381,6 +395,13 @@ class Player:
         self.remap = dict(remap or {})
         self.publishers: dict[str, object] = {}
         self.published = 0
+        #: Messages published per (recorded) topic.
+        self.topic_counts: dict[str, int] = {}
+        #: Played topics of frame types (sample-indexed: flow control applies to them).
+        self.frame_topics: set[str] = set()
+        #: Log time [ns] covered by the last :meth:`play` and the wall time [s] it took.
+        self.played_log_s = 0.0
+        self.played_wall_s = 0.0
         if resolved is None:
             resolved = playable_topics(path, self.topics)
             for topic, reason in resolved[1].items():
@@ -391,6 +412,11 @@ class Player:
             self.publishers[topic] = node.create_publisher(
                 cls, self.remap.get(topic, topic), playback_qos(qos_yaml)
             )
+            self.topic_counts[topic] = 0
+            from mems_sim.bag.schema import GAP_CHECKED_TYPES, type_name_of
+
+            if type_name_of(cls) in GAP_CHECKED_TYPES:
+                self.frame_topics.add(topic)
 
     def wait_for_subscribers(self, count: int, timeout_s: float, stop=lambda: False) -> bool:
         """Wait until every publisher has at least ``count`` matched subscriptions; False on timeout."""
@@ -410,11 +436,20 @@ class Player:
         clock_publisher=None,
         clock_hz: float = 0.0,
         stop=lambda: False,
+        flow: FlowControl | None = None,
     ) -> int:
         """Publish the messages once, paced by log_time / rate (or as fast as possible).
 
+        The bag's log times are its sensor time, so at rate 1 the replay takes as long as the
+        recorded data, and /clock carries the time the stamps belong to.
+
         :param duration_s: play only this much bag time after the start offset [s].
-        :param clock_publisher: publisher of rosgraph_msgs/Clock, published at ``clock_hz`` [Hz].
+        :param clock_publisher: publisher of rosgraph_msgs/Clock, published at ``clock_hz``
+            [Hz] of wall-clock time with the log time reached (paced: the log time the
+            wall clock has reached; as fast as possible: the last published message's), and
+            once more with the last message's log time at the end.
+        :param flow: :class:`FlowControl`: a frame for a named consumer waits for its
+            credit; paced playback pauses meanwhile (the time waited does not count).
         Returns the number of messages published.
         """
         from rosgraph_msgs.msg import Clock
@@ -423,6 +458,7 @@ class Player:
         clock_period = 1.0 / clock_hz if clock_publisher is not None and clock_hz > 0 else None
         next_clock = time.monotonic()
         end_ns = None
+        last_ns = None
         count = 0
 
         def publish_clock(bag_ns: int):
@@ -435,6 +471,7 @@ class Player:
                 break
             if wall0 is None:
                 wall0, bag0 = time.monotonic(), item.log_time_ns
+                started = wall0
                 if duration_s is not None:
                     end_ns = bag0 + int(duration_s * 1e9)
             if end_ns is not None and item.log_time_ns > end_ns:
@@ -453,8 +490,25 @@ class Player:
             elif clock_period is not None and time.monotonic() >= next_clock:
                 publish_clock(item.log_time_ns)
                 next_clock = time.monotonic() + clock_period
+            peek = None
+            if flow is not None:
+                waited = flow.waited_s
+                peek = flow.before(item.topic, item.data, stop)
+                if not fast:
+                    wall0 += flow.waited_s - waited  # paused while waiting for credit
+                if stop():
+                    break
             self._publish(item.topic, item.data)
+            if flow is not None:
+                flow.after(item.topic, peek)
+            self.topic_counts[item.topic] = self.topic_counts.get(item.topic, 0) + 1
+            last_ns = item.log_time_ns
             count += 1
+        if clock_period is not None and last_ns is not None and not stop():
+            publish_clock(last_ns)
+        if wall0 is not None and last_ns is not None:
+            self.played_log_s = (last_ns - bag0) / 1e9
+            self.played_wall_s = time.monotonic() - started
         self.published += count
         return count
 
@@ -474,6 +528,379 @@ class Player:
             except Exception:
                 pass
         return ok
+
+
+# -------------------------------------------------------------------- flow control
+
+#: Credit of a consumer unless ``--credit`` says otherwise: frames published ahead of its
+#: progress (well within the 1000-frame history of the frame subscriptions).
+DEFAULT_CREDIT = "50f"
+
+
+def parse_credit(text: str) -> tuple[int, str]:
+    """``'N'`` (samples) or ``'Nf'`` (frames) -> ``(N, 'samples' | 'frames')``, N >= 1."""
+    text = str(text).strip().lower()
+    unit = "frames" if text.endswith("f") else "samples"
+    number = text[:-1] if unit == "frames" else text
+    try:
+        value = int(number)
+    except ValueError:
+        raise ValueError(f"bad credit {text!r} (samples N or frames Nf, N >= 1)") from None
+    if value < 1:
+        raise ValueError(f"bad credit {text!r} (samples N or frames Nf, N >= 1)")
+    return value, unit
+
+
+def parse_consumer(text: str) -> tuple[str, str | None]:
+    """``'/ns/node'`` or ``'/ns/node:/topic'`` -> (node's fully qualified name, topic or None)."""
+    fqn, _, topic = str(text).partition(":")
+    fqn = fqn if fqn.startswith("/") else "/" + fqn
+    if fqn == "/" or fqn.endswith("/"):
+        raise ValueError(f"bad consumer {text!r} (expected a node name such as /imu/node)")
+    return fqn, (topic or None)
+
+
+def _fqn(namespace: str, name: str) -> str:
+    """Fully qualified node name."""
+    return f"{namespace.rstrip('/')}/{name}"
+
+
+class Consumer:
+    """A named consumer of replayed frames: its progress and what was sent to it.
+
+    Progress (``NODE_FQN/progress``, std_msgs/UInt64) is one past the last sample index the
+    consumer processed (or rejected); it publishes one after every frame. The player keeps
+    at most a credit of samples (or frames) published beyond it on each frame topic the
+    consumer subscribes to (its input topics, which share one sample index).
+    """
+
+    def __init__(self, fqn: str, topic: str | None = None):
+        self.fqn = fqn
+        self.namespace, _, self.name = fqn.rpartition("/")
+        self.namespace = self.namespace or "/"
+        self.only_topic = topic
+        self.topics: set[str] = set()  # recorded names of the played topics it consumes
+        self.progress: int | None = None
+        self.progress_msgs = 0
+        self.first_sent: int | None = None
+        self.outstanding: list[int] = []  # ends (first + num) of frames sent, beyond progress
+        self.sent_end: int | None = None
+        self.skipped = 0  # frames the progress jumped over (never reported as processed)
+        #: True when every progress report reaches the player (the progress publisher keeps
+        #: all, or at least :data:`~mems_sim.ros.qos.FRAME_DEPTH`, reports): then a jump over
+        #: a frame means the frame was lost; with a shallow history reports may be coalesced.
+        self.exact_jumps = False
+        self.diag_gaps: int | None = None  # the consumer's own "gaps" count (/diagnostics)
+        self.diag_missing: int | None = None  # and its "missing_samples"
+        self.diag_at = 0.0  # monotonic time of the last diagnostics status
+        self.last_change = time.monotonic()
+        self.gave_up = ""  # why the player stopped waiting for it ("" while it does)
+        self.subscription = None
+
+    def restart(self) -> None:
+        """Forget progress reported before the replay (a latched last value)."""
+        self.progress = None
+        self.outstanding.clear()
+        self.first_sent = self.sent_end = None
+        self.skipped = 0
+        self.last_change = time.monotonic()
+
+    def lost_frames(self) -> int:
+        """Frames lost as far as the player can tell: those its progress jumped over (when
+        :attr:`exact_jumps`) and those never acknowledged."""
+        return (self.skipped if self.exact_jumps else 0) + len(self.outstanding)
+
+    def on_progress(self, value: int) -> None:
+        """A progress report: frames whose end it passes without naming it are skipped."""
+        value = int(value)
+        self.progress_msgs += 1
+        if self.progress is not None and value <= self.progress:
+            return
+        self.progress = value
+        self.last_change = time.monotonic()
+        done = bisect.bisect_right(self.outstanding, value)
+        if done:
+            self.skipped += done - (1 if self.outstanding[done - 1] == value else 0)
+            del self.outstanding[:done]
+
+    def allows(self, first: int, num: int, credit: int, unit: str) -> bool:
+        """True if the frame [first, first + num) may be published now."""
+        if self.gave_up:
+            return True
+        if unit == "frames":
+            # a frame whose partner (same indices, another input topic) is out goes too
+            return len(self.outstanding) < credit or first + num in self.outstanding
+        base = self.progress if self.progress is not None else self.first_sent
+        return base is None or first <= base or first + num <= base + credit
+
+    def sent(self, first: int, num: int) -> None:
+        """Record a frame published to it (frames of its paired topics share an end)."""
+        end = first + num
+        if self.first_sent is None:
+            self.first_sent = first
+        if self.progress is not None and end <= self.progress:
+            return
+        if self.sent_end is None or end > self.sent_end:
+            self.sent_end = end
+        if not self.outstanding or end > self.outstanding[-1]:
+            self.outstanding.append(end)
+        elif end not in self.outstanding:
+            bisect.insort(self.outstanding, end)
+
+    def caught_up(self) -> bool:
+        """True once its progress reached the end of everything sent to it."""
+        return self.sent_end is None or (
+            self.progress is not None and self.progress >= self.sent_end
+        )
+
+
+class FlowControl:
+    """Application-level flow control of a replay into named consumers (``--wait-for-consumer``).
+
+    The player subscribes to each consumer's ``progress`` topic (and to /diagnostics for its
+    own gap count), publishes a frame on one of its input topics only while the consumer
+    has credit (:meth:`Consumer.allows`), and at the end waits until every consumer's
+    progress reached the last frame sent. Loss is counted two ways: frames the progress
+    jumped over (exact when progress arrives reliably, one report per frame) and the gaps
+    the consumer itself reports on /diagnostics. The middleware's acknowledgements and
+    message-lost events are not used: a reliable writer reports acknowledgement late and
+    even after the reader left, and a reader that falls behind its history loses messages
+    without any event.
+
+    :param node: the player's node; :param executor: spun while waiting (progress arrives
+        through it); :param consumers: ``[(fqn, topic or None)]``; :param credit: a value
+        of :func:`parse_credit`; :param stall_s: give up on a consumer whose progress has
+        not moved for this long while frames are outstanding (or that left the graph).
+    """
+
+    def __init__(self, node, executor, consumers, credit=(50, "frames"), stall_s: float = 30.0):
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+        self.node = node
+        self.executor = executor
+        self.consumers = [Consumer(fqn, topic) for fqn, topic in consumers]
+        self.credit, self.unit = credit
+        self.stall_s = float(stall_s)
+        self.by_topic: dict[str, list[Consumer]] = {}
+        self.topic_ends: dict[str, list[int]] = {}
+        self.waited_s = 0.0
+        self._last_presence = 0.0
+        self._diag_sub = node.create_subscription(
+            DiagnosticArray,
+            "/diagnostics",
+            self._on_diagnostics,
+            QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT),
+        )
+
+    # ------------------------------------------------------------------ discovery
+
+    def _present(self, c: Consumer) -> bool:
+        return (c.name, c.namespace) in set(self.node.get_node_names_and_namespaces())
+
+    def _subscribe_progress(self, c: Consumer) -> bool:
+        from rclpy.qos import HistoryPolicy
+        from std_msgs.msg import UInt64
+
+        from mems_sim.bag.recorder import adapt_qos
+        from mems_sim.ros.qos import FRAME_DEPTH
+
+        topic = c.fqn + "/progress"
+        offered = [p.qos_profile for p in self.node.get_publishers_info_by_topic(topic)]
+        if not offered:
+            return False
+        c.exact_jumps = all(
+            q.history == HistoryPolicy.KEEP_ALL or int(q.depth) >= FRAME_DEPTH for q in offered
+        )
+        c.subscription = self.node.create_subscription(
+            UInt64, topic, lambda msg, c=c: c.on_progress(msg.data), adapt_qos(offered)
+        )
+        return True
+
+    def wait_ready(self, player: Player, timeout_s: float, stop=lambda: False) -> str | None:
+        """Wait until every consumer is in the graph, publishes progress, subscribes to at
+        least one played frame topic, and every publisher of those topics is matched with
+        all their subscribers; None when ready, else why not (one line)."""
+        inverse = {player.remap.get(t, t): t for t in player.publishers}
+        deadline = time.monotonic() + timeout_s
+        why = "not ready"
+        while time.monotonic() < deadline and not stop():
+            self.executor.spin_once(timeout_sec=0.05)
+            why = None
+            for c in self.consumers:
+                if c.subscription is None and not self._subscribe_progress(c):
+                    why = f"{c.fqn}: no publisher of {c.fqn}/progress"
+                    break
+                try:
+                    names = self.node.get_subscriber_names_and_types_by_node(c.name, c.namespace)
+                except Exception:
+                    why = f"{c.fqn}: node not found"
+                    break
+                subscribed = {inverse[n] for n, _ in names if n in inverse}
+                if c.only_topic is not None:
+                    wanted = inverse.get(c.only_topic, c.only_topic)
+                    subscribed &= {wanted}
+                c.topics = {t for t in subscribed if t in player.frame_topics}
+                if not c.topics:
+                    why = f"{c.fqn}: subscribes to none of the played frame topics"
+                    break
+                if c.subscription.get_publisher_count() < 1:
+                    why = f"{c.fqn}: progress not matched yet"
+                    break
+            if why is None:
+                # every known subscriber matched; near the deadline, the consumers' own
+                # suffice (another subscriber may have an incompatible QoS)
+                late = time.monotonic() > deadline - min(1.0, timeout_s / 2)
+                for topic in {t for c in self.consumers for t in c.topics}:
+                    name = player.remap.get(topic, topic)
+                    subs = self.node.get_subscriptions_info_by_topic(name)
+                    if late:
+                        fqns = {c.fqn for c in self.consumers if topic in c.topics}
+                        subs = [s for s in subs if _fqn(s.node_namespace, s.node_name) in fqns]
+                    if player.publishers[topic].get_subscription_count() < len(subs):
+                        why = f"{name}: subscribers not matched yet"
+                        break
+            if why is None:
+                self.by_topic = {}
+                for c in self.consumers:
+                    for t in c.topics:
+                        self.by_topic.setdefault(t, []).append(c)
+                settle = time.monotonic() + 0.2  # take a latched last report, then forget it
+                while time.monotonic() < settle:
+                    self.executor.spin_once(timeout_sec=0.02)
+                for c in self.consumers:
+                    c.restart()
+                return None
+        return why or "stopped"
+
+    # ------------------------------------------------------------------ progress
+
+    def _on_diagnostics(self, msg) -> None:
+        for status in msg.status:
+            for c in self.consumers:
+                mine = status.hardware_id == c.fqn or (
+                    not status.hardware_id and status.name.split(":", 1)[0] == c.name
+                )
+                if mine:
+                    values = {kv.key: kv.value for kv in status.values}
+                    try:
+                        c.diag_gaps = int(values.get("gaps", 0))
+                        c.diag_missing = int(values.get("missing_samples", 0))
+                    except ValueError:
+                        pass
+                    c.diag_at = time.monotonic()
+
+    def _check_alive(self, c: Consumer) -> None:
+        """Give up on a consumer that left the graph or whose progress stalls."""
+        if c.gave_up or c.caught_up():
+            return
+        now = time.monotonic()
+        if now - c.last_change > self.stall_s:
+            c.gave_up = f"no progress for {self.stall_s:g} s"
+        elif now - self._last_presence > 0.5:
+            self._last_presence = now
+            if not self._present(c):
+                c.gave_up = "left the graph"
+        if c.gave_up:
+            self.node.get_logger().warning(
+                f"{c.fqn}: {c.gave_up} (progress {c.progress}, sent up to {c.sent_end}); "
+                "no longer waiting for it"
+            )
+
+    def before(self, topic: str, data: bytes, stop=lambda: False) -> tuple[int, int] | None:
+        """Wait until every consumer of ``topic`` has credit for this frame; return its
+        ``(first, num)`` (None: not a gated frame)."""
+        consumers = self.by_topic.get(topic)
+        if not consumers:
+            return None
+        from mems_sim.bag.schema import peek_frame_index
+
+        peek = peek_frame_index(data)
+        if peek is None:
+            return None
+        first, num = peek
+        self.executor.spin_once(timeout_sec=0)
+        t0 = None
+        while not stop():
+            blocked = [c for c in consumers if not c.allows(first, num, self.credit, self.unit)]
+            if not blocked:
+                break
+            if t0 is None:
+                t0 = time.monotonic()
+            for c in blocked:
+                self._check_alive(c)
+            self.executor.spin_once(timeout_sec=0.01)
+        if t0 is not None:
+            self.waited_s += time.monotonic() - t0
+        return peek
+
+    def after(self, topic: str, peek: tuple[int, int] | None) -> None:
+        """Account a published frame (``peek`` from :meth:`before`)."""
+        if peek is None:
+            return
+        first, num = peek
+        self.topic_ends.setdefault(topic, []).append(first + num)
+        for c in self.by_topic.get(topic, ()):
+            c.sent(first, num)
+
+    def finish(self, stop=lambda: False, diagnostics_s: float = 2.5) -> None:
+        """Wait until every consumer caught up (or was given up), then for one more
+        /diagnostics status of each (at most ``diagnostics_s``) for its gap count."""
+        while not stop() and not all(c.caught_up() or c.gave_up for c in self.consumers):
+            for c in self.consumers:
+                self._check_alive(c)
+            self.executor.spin_once(timeout_sec=0.02)
+        t_end = time.monotonic()
+        while not stop() and time.monotonic() - t_end < diagnostics_s:
+            if all(c.diag_at > t_end or c.gave_up for c in self.consumers):
+                break
+            self.executor.spin_once(timeout_sec=0.05)
+
+    # ------------------------------------------------------------------ report
+
+    def acknowledged(self, topic: str) -> int:
+        """Frames of ``topic`` whose end every consumer's progress has reached."""
+        ends = self.topic_ends.get(topic, [])
+        marks = [c.progress for c in self.by_topic.get(topic, ())]
+        if not marks or any(m is None for m in marks):
+            return 0
+        low = min(marks)
+        return sum(1 for e in ends if e <= low)
+
+    def lost(self) -> int:
+        """Loss seen by the player: per consumer, frames lost (:meth:`Consumer.lost_frames`)
+        or, when more, the gaps it reported on /diagnostics itself."""
+        return sum(max(c.lost_frames(), c.diag_gaps or 0) for c in self.consumers)
+
+    def report(self, player: Player) -> list[str]:
+        """Lines of the end-of-replay report (per topic, then per consumer)."""
+        lines = []
+        for topic in sorted(player.topic_counts):
+            n = player.topic_counts[topic]
+            consumers = self.by_topic.get(topic)
+            if not consumers:
+                lines.append(f"  {topic}: published {n}")
+                continue
+            names = ", ".join(c.fqn for c in consumers)
+            lines.append(
+                f"  {topic}: published {n}, acknowledged {self.acknowledged(topic)} by {names}"
+            )
+        for c in self.consumers:
+            state = f"; {c.gave_up}" if c.gave_up else ""
+            gaps = (
+                "none on /diagnostics"
+                if c.diag_gaps is None
+                else f"{c.diag_gaps} ({c.diag_missing} samples missing)"
+            )
+            jumps = "" if c.exact_jumps else " (reports may be coalesced: not counted)"
+            lines.append(
+                f"  consumer {c.fqn}: progress {c.progress} of {c.sent_end}, "
+                f"{c.progress_msgs} reports, frames its progress jumped over {c.skipped}{jumps}, "
+                f"unacknowledged {len(c.outstanding)}, gaps it reported {gaps}{state}"
+            )
+        lost = self.lost()
+        lines.append(f"  loss: {'none' if lost == 0 else f'{lost} frames'}")
+        return lines
 
 
 def _parse_args(argv: list[str]) -> argparse.Namespace:
@@ -515,9 +942,40 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
         help="give up waiting for subscribers after this long [s]",
     )
     parser.add_argument("--delay", type=float, default=0.0, help="sleep before playing [s]")
+    parser.add_argument(
+        "--wait-for-consumer",
+        action="append",
+        default=[],
+        metavar="NODE_FQN[:TOPIC]",
+        help="lossless replay into this node (repeatable): wait for it, keep at most --credit "
+        "published ahead of the progress it reports on NODE_FQN/progress on each played frame "
+        "topic it subscribes to (or TOPIC only), wait for it at the end, report loss",
+    )
+    parser.add_argument(
+        "--credit",
+        default=DEFAULT_CREDIT,
+        metavar="N|Nf",
+        help="samples (N) or frames (Nf) a consumer may be behind (default %(default)s)",
+    )
+    parser.add_argument(
+        "--consumer-timeout",
+        type=float,
+        default=30.0,
+        metavar="S",
+        help="stop waiting for a consumer whose progress has not moved for S seconds [s]",
+    )
     args = parser.parse_args(argv)
     if not args.rate > 0 or args.rate == float("inf"):
         parser.error("--rate must be a finite number > 0 (use --as-fast-as-possible)")
+    try:
+        args.credit = parse_credit(args.credit)
+        args.consumers = [parse_consumer(c) for c in args.wait_for_consumer]
+    except ValueError as exc:
+        parser.error(str(exc))
+    if args.consumers and args.loop:
+        parser.error("--wait-for-consumer and --loop cannot be combined")
+    if not args.consumer_timeout > 0:
+        parser.error("--consumer-timeout must be > 0")
     return args
 
 
@@ -552,6 +1010,7 @@ def main(argv: list[str] | None = None) -> int:
         )
 
     import rclpy
+    from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.signals import SignalHandlerOptions
     from rosgraph_msgs.msg import Clock
@@ -559,10 +1018,22 @@ def main(argv: list[str] | None = None) -> int:
     rclpy.init(args=["mcap_play"] + argv, signal_handler_options=SignalHandlerOptions.NO)
     stop, previous = install_stop_request()
     node = None
+    code = 0
     try:
         node = Node("mcap_player")
         player = Player(node, args.file, args.topics, remap, resolved=resolved)
         clock_pub = node.create_publisher(Clock, "/clock", 10) if args.clock else None
+        flow = None
+        if args.consumers:
+            executor = SingleThreadedExecutor()
+            executor.add_node(node)
+            flow = FlowControl(
+                node, executor, args.consumers, args.credit, stall_s=args.consumer_timeout
+            )
+            why = flow.wait_ready(player, args.wait_timeout, lambda: stop["flag"])
+            if why is not None:
+                print(one_line(f"mcap_play: error: consumer not ready: {why}"), file=sys.stderr)
+                return 3
         if args.wait_for_subscribers > 0 and not player.wait_for_subscribers(
             args.wait_for_subscribers, args.wait_timeout, lambda: stop["flag"]
         ):
@@ -578,11 +1049,22 @@ def main(argv: list[str] | None = None) -> int:
                 clock_publisher=clock_pub,
                 clock_hz=args.clock or 0.0,
                 stop=lambda: stop["flag"],
+                flow=flow,
             )
             if not args.loop:
                 break
-        player.wait_acked(timeout_s=max(1.0, args.wait_timeout))  # deliver the tail before exit
-        print(f"mcap_play: published {player.published} messages", flush=True)
+        lines = [f"mcap_play: published {player.published} messages"]
+        if player.played_log_s > 0:
+            lines[0] += f", {player.played_log_s:.3f} s of log time in {player.played_wall_s:.3f} s"
+        if flow is not None:
+            flow.finish(lambda: stop["flag"])
+            lines += flow.report(player)
+            if flow.lost() or any(c.diag_gaps for c in flow.consumers):
+                code = 3
+        else:
+            # deliver the tail before exit (the middleware's acknowledgement: no loss count)
+            player.wait_acked(timeout_s=max(1.0, args.wait_timeout))
+        print("\n".join(lines), flush=True)
     except BagReadError as exc:
         print(f"mcap_play: error: {one_line(exc)}", file=sys.stderr)
         return 2
@@ -592,7 +1074,7 @@ def main(argv: list[str] | None = None) -> int:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
-    return 0
+    return code
 
 
 if __name__ == "__main__":

@@ -6,10 +6,26 @@ deserialise/serialise round trip) and a QoS adapted to the publishers
 (rosbag2's rule: reliable only if every publisher offers reliable,
 transient-local only if every publisher offers it; depth at least
 :data:`~mems_sim.ros.qos.FRAME_DEPTH`). It records the publishers' offered QoS as
-``offered_qos_profiles``. ``log_time`` is the receive time (wall clock, ns
-since the epoch); ``publish_time`` is the message's ``header.stamp`` when the
-type starts with a ``std_msgs/Header``, else the receive time. Frame-index
-gaps of frame topics are counted (and logged as warnings when they appear).
+``offered_qos_profiles``. Frame-index gaps of frame topics are counted (and
+logged as warnings when they appear).
+
+Loss on every topic: each message is written with its publisher's publication
+sequence number (from the middleware's message info) as the MCAP ``sequence``, and
+gaps of each publisher's numbers are counted, so a lost message shows on topics that
+are not frames too. An emulator's end-of-stream record (``.../end_of_stream``,
+:mod:`mems_sim.ros.end_of_stream`) tells how many messages and samples it published
+per topic; :meth:`RecorderNode.tails` compares that with what was recorded, so a
+missing tail is seen as well as a gap (:meth:`RecorderNode.losses` lists both).
+
+Times: the bag is on the data's timeline. ``log_time`` is the message's sensor
+time: its ``header.stamp`` when the type starts with a ``std_msgs/Header`` (for
+``rosgraph_msgs/Clock`` the clock value), otherwise the graph's clock when it
+arrives (:meth:`RecorderNode.graph_time_ns`: the last /clock received, else the
+node's ROS clock). ``publish_time`` is when the sender published the message,
+as the MCAP specification defines: the middleware's source timestamp (wall
+clock), or the receive time when the middleware gives none. So a fast simulated
+run, whose stamps start at 0, gives a bag that starts at 0 and lasts as long as
+its data, and a live graph stamped from the wall clock gives wall-clock log times.
 
 In-process users (the scenario runner) create a RecorderNode with their own
 context and executor and use :meth:`RecorderNode.received` to throttle.
@@ -36,9 +52,13 @@ import signal
 import sys
 import time
 from collections.abc import Iterable
+from functools import partial
 
+from rclpy.clock import Clock as RclpyClock
+from rclpy.clock import ClockType
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
 
 from mems_sim.bag.schema import (
     SchemaError,
@@ -51,8 +71,16 @@ from mems_sim.bag.schema import (
     type_hash,
 )
 from mems_sim.bag.writer import BagWriteError, McapBagWriter, gap_summary, output_problem
+from mems_sim.ros.end_of_stream import (
+    describe_tail,
+    is_end_of_stream_topic,
+    missing_tail,
+    parse_end_of_stream,
+)
 from mems_sim.ros.env import apply_defaults
 from mems_sim.ros.qos import FRAME_DEPTH
+
+_BEST_EFFORT = ReliabilityPolicy.BEST_EFFORT
 
 #: Topics skipped unless listed explicitly.
 DEFAULT_EXCLUDED = ("/rosout", "/parameter_events")
@@ -87,6 +115,17 @@ def adapt_qos(offered: list[QoSProfile], keep_all: bool = True) -> QoSProfile:
         reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
         durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
     )
+
+
+def _publication(info) -> tuple[int | None, bytes | None]:
+    """(publication sequence number, publisher gid) from rclpy's message info, when the
+    middleware gives them."""
+    if not info:
+        return None, None
+    sequence = info.get("publication_sequence_number")
+    gid = info.get("publisher_gid") or {}
+    data = gid.get("data") if isinstance(gid, dict) else None
+    return sequence, (bytes(data) if data is not None else None)
 
 
 class RecorderNode(Node):
@@ -146,8 +185,18 @@ class RecorderNode(Node):
         self._unusable: dict[str, str] = {}
         self._rx_counts: dict[str, int] = {}
         self._stamped: dict[str, bool] = {}
+        self._eos_topics: set[str] = set()
+        self._end_of_stream: dict[str, dict[str, int]] = {}
         self._rec_closed = False
-        self._discovery_timer = self.create_timer(discovery_period_s, self.discover)
+        self._graph_clock_ns: int | None = None
+        self._clock_sub = self.create_subscription(
+            Clock, "/clock", self._on_clock, QoSProfile(depth=10, reliability=_BEST_EFFORT)
+        )
+        # on the steady clock: neither run at every step of a fast simulated run nor stop
+        # while /clock stands still (under use_sim_time)
+        self._discovery_timer = self.create_timer(
+            discovery_period_s, self.discover, clock=RclpyClock(clock_type=ClockType.STEADY_TIME)
+        )
         self.discover()
 
     # ---------------------------------------------------------------- selection
@@ -194,10 +243,13 @@ class RecorderNode(Node):
             topic, type_name, text, qos_profiles_yaml(offered), type_hash(type_name)
         )
         self._rx_counts[topic] = 0
-        self._stamped[topic] = stamped
+        if is_end_of_stream_topic(topic, type_name):
+            self._eos_topics.add(topic)
+        # a Clock message starts with its time, laid out as a header's stamp
+        self._stamped[topic] = stamped or type_name == "rosgraph_msgs/msg/Clock"
         qos = adapt_qos(offered)
         self._topic_subs[topic] = self.create_subscription(
-            msg_type, topic, lambda data, t=topic: self._on_message(t, data), qos, raw=True
+            msg_type, topic, partial(self._on_message, topic), qos, raw=True
         )
         self.get_logger().info(
             f"recording {topic} [{type_name}] ({qos.reliability.name.lower()}, "
@@ -210,13 +262,43 @@ class RecorderNode(Node):
 
     # ---------------------------------------------------------------- data
 
-    def _on_message(self, topic: str, data: bytes) -> None:
+    def _on_clock(self, msg) -> None:
+        self._graph_clock_ns = int(msg.clock.sec) * 1_000_000_000 + int(msg.clock.nanosec)
+
+    def graph_time_ns(self) -> int:
+        """The graph's clock [ns]: the last /clock received, else the node's ROS clock (the
+        wall clock, or /clock under use_sim_time); the log time of unstamped messages."""
+        if self._graph_clock_ns is not None:
+            return self._graph_clock_ns
+        return self.get_clock().now().nanoseconds
+
+    def _on_message(self, topic: str, data: bytes, info) -> None:
+        # ``info`` has no default: rclpy passes the message info (publication sequence
+        # number, publisher, source timestamp) only to a callback that requires it
         if self._rec_closed:
             return
-        now = time.time_ns()
         stamp = peek_header_stamp_ns(data) if self._stamped[topic] else None
-        self._bag.write(topic, data, now, now if stamp is None else stamp)
+        log_time = self.graph_time_ns() if stamp is None else stamp
+        sent = info.get("source_timestamp") if info else None
+        sequence, publisher = _publication(info)
+        self._bag.write(
+            topic, data, log_time, sent or time.time_ns(), sequence=sequence, publisher=publisher
+        )
         self._rx_counts[topic] += 1
+        if topic in self._eos_topics:
+            self._take_end_of_stream(topic, data)
+
+    def _take_end_of_stream(self, topic: str, data: bytes) -> None:
+        """Keep the per-topic counts of an emulator's end-of-stream record."""
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.serialization import deserialize_message
+
+        try:
+            entries = parse_end_of_stream(deserialize_message(data, DiagnosticArray))
+        except Exception as exc:  # a foreign or corrupt record is only reported
+            self.get_logger().warning(f"{topic}: unreadable end-of-stream record: {exc}")
+            return
+        self._end_of_stream.update(entries)
 
     def _log_gap(self, topic: str, expected: int, first: int) -> None:
         self.get_logger().warning(
@@ -241,6 +323,63 @@ class RecorderNode(Node):
     def gap_details(self) -> dict[str, dict[str, int]]:
         """Per frame topic: gaps, missing_samples, resets, frames, samples."""
         return self._bag.gap_details()
+
+    def sequence_details(self) -> dict[str, dict[str, int]]:
+        """Per topic: ``publishers`` seen, publication-sequence ``gaps``,
+        ``missing_messages``, ``resets`` and ``last`` (highest sequence number)."""
+        return self._bag.sequence_details()
+
+    def publishers_seen(self, topic: str) -> int:
+        """Distinct publishers whose messages were recorded on ``topic``."""
+        return self._bag.sequence_details().get(topic, {}).get("publishers", 0)
+
+    def end_of_stream(self) -> dict[str, dict[str, int]]:
+        """Per data topic, the counts of the end-of-stream records received so far
+        (``messages``; ``end_sample_index`` and ``samples`` for frames)."""
+        return dict(self._end_of_stream)
+
+    def tails(self) -> dict[str, dict[str, int]]:
+        """Per topic announced in an end-of-stream record and recorded short of it: the
+        missing tail (``messages``; ``samples`` and ``from_index`` for frames)."""
+        details, seqs, counts = self.gap_details(), self.sequence_details(), self.counts()
+        out = {}
+        for topic, expected in self._end_of_stream.items():
+            if topic not in counts:
+                continue  # not selected for recording
+            seq = seqs.get(topic, {})
+            seen = seq["last"] if seq.get("publishers") == 1 else counts.get(topic, 0)
+            end = None
+            if topic in details and details[topic]["frames"]:
+                end = self._bag.frame_end(topic)
+            tail = missing_tail(expected, seen, end)
+            if tail["messages"] or tail.get("samples"):
+                out[topic] = tail
+        return out
+
+    def losses(self) -> list[str]:
+        """One phrase per recorded topic that lost data: frame-index gaps, gaps of a
+        publisher's sequence numbers (topics that are not frames), a missing tail."""
+        out = []
+        details, seqs, tails = self.gap_details(), self.sequence_details(), self.tails()
+        for topic in sorted(set(details) | set(seqs) | set(tails)):
+            parts = []
+            d = details.get(topic)
+            if d and d["gaps"]:
+                parts.append(f"{d['gaps']} frame-index gaps ({d['missing_samples']} samples)")
+            s = seqs.get(topic)
+            if s and s["gaps"] and topic not in details:
+                parts.append(f"{s['gaps']} sequence gaps ({s['missing_messages']} messages)")
+            if topic in tails:
+                text = describe_tail(topic, self._end_of_stream[topic], tails[topic])
+                parts.append(text.split(": ", 1)[1])
+            if parts:
+                out.append(f"{topic}: " + ", ".join(parts))
+        return out
+
+    def matched(self, topic: str) -> bool:
+        """True when the recorder subscribes to ``topic`` and has matched a publisher."""
+        sub = self._topic_subs.get(topic)
+        return sub is not None and sub.get_publisher_count() > 0
 
     def recorded_topics(self) -> dict[str, str]:
         """Type name per recorded topic."""
@@ -300,6 +439,7 @@ class RecorderNode(Node):
             lines.append(line)
         total_gaps, missing = gap_summary(details)
         lines.append(f"  frame-index gaps: {total_gaps} ({missing} samples missing)")
+        lines += [f"  lost: {text}" for text in self.losses()]
         dropped = self.dropped()
         if dropped:
             lines.append(

@@ -39,7 +39,10 @@ file keeps the complete chunks written before, and ``close`` raises.
 The writer also counts messages per topic and, for frame types
 (:data:`~mems_sim.bag.schema.GAP_CHECKED_TYPES`), gaps of the frame index
 (``first_sample_index`` of a frame differs from ``first + num_samples`` of the
-previous frame on the same topic), peeked from the CDR bytes.
+previous frame on the same topic), peeked from the CDR bytes. Messages written with
+their publisher's sequence number (the recorder passes the middleware's publication
+sequence number) keep it as the MCAP ``sequence``, and gaps of each publisher's
+numbers are counted, so a lost message is visible on every topic, frames or not.
 """
 
 from __future__ import annotations
@@ -227,6 +230,40 @@ class FrameGapCounter:
         return missing
 
 
+class SequenceGapCounter:
+    """Counts gaps of one publisher's message sequence numbers.
+
+    Every publisher numbers its messages 1, 2, 3, ...; a number larger than the one
+    expected (the previous plus one) is a gap: messages were lost in between. A number
+    that is not larger than the previous one (the publisher restarted, or the numbers
+    of several publishers are interleaved) is counted as a ``reset``. ``first`` is the
+    first number seen (larger than 1 when recording started after the publisher).
+    """
+
+    def __init__(self):
+        self.first: int | None = None
+        self.last: int | None = None
+        self.gaps = 0
+        self.missing_messages = 0
+        self.resets = 0
+        self.messages = 0
+
+    def update(self, sequence: int) -> int:
+        """Account one message; return the number of messages missing before it."""
+        missing = 0
+        if self.last is None:
+            self.first = sequence
+        elif sequence > self.last + 1:
+            missing = sequence - self.last - 1
+            self.gaps += 1
+            self.missing_messages += missing
+        elif sequence <= self.last:
+            self.resets += 1
+        self.last = sequence
+        self.messages += 1
+        return missing
+
+
 class McapBagWriter:
     """Write serialised ROS 2 messages into an MCAP file that rosbag2, rosbags,
     Foxglove and PlotJuggler read.
@@ -271,6 +308,7 @@ class McapBagWriter:
         self._types: dict[str, str] = {}
         self._counts: dict[str, int] = {}
         self._gap_counters: dict[str, FrameGapCounter] = {}
+        self._seq_counters: dict[tuple[str, bytes | None], SequenceGapCounter] = {}
         self._on_gap = on_gap
         self._closed = False
         self._wlock = threading.Lock()  # serialises every call into mcap's Writer
@@ -358,11 +396,28 @@ class McapBagWriter:
 
     # ---------------------------------------------------------------- data
 
-    def write(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int) -> None:
+    def write(
+        self,
+        topic: str,
+        data: bytes,
+        log_time_ns: int,
+        publish_time_ns: int,
+        sequence: int | None = None,
+        publisher: bytes | None = None,
+    ) -> None:
         """Append one serialised (CDR) message of a registered topic.
 
-        :param log_time_ns: receive time [ns since the epoch].
-        :param publish_time_ns: send time [ns], e.g. the message's header stamp.
+        :param log_time_ns: the message's time on the data's timeline [ns] (the recorder
+            gives its sensor time: header stamp, else the graph's clock); MCAP readers order
+            and pace by it.
+        :param publish_time_ns: when the sender published it [ns], as the MCAP
+            specification defines (the recorder gives the middleware's source timestamp).
+        :param sequence: the publisher's sequence number of the message (1, 2, ...),
+            stored as the MCAP message's ``sequence`` (the counter the MCAP format assigns
+            to the publisher); None: the writer numbers the topic's messages from 0.
+        :param publisher: identity of the publishing endpoint (opaque bytes); with
+            ``sequence``, gaps of each publisher's numbers are counted
+            (:meth:`sequence_details`).
         """
         with self._lock:
             self._check_open()
@@ -377,7 +432,14 @@ class McapBagWriter:
                     expected = counter.expected
                     if counter.update(*peek):
                         gap = (expected, peek[0])
-            sequence = self._counts[topic]
+            if sequence is None:
+                sequence = self._counts[topic]
+            else:
+                key = (topic, publisher)
+                seq_counter = self._seq_counters.get(key)
+                if seq_counter is None:
+                    seq_counter = self._seq_counters[key] = SequenceGapCounter()
+                seq_counter.update(int(sequence))
             self._queue.put(
                 (
                     channel_id,
@@ -387,7 +449,7 @@ class McapBagWriter:
                     sequence & 0xFFFFFFFF,
                 )
             )
-            self._counts[topic] = sequence + 1
+            self._counts[topic] += 1
         if gap is not None and self._on_gap is not None:
             self._on_gap(topic, gap[0], gap[1])
 
@@ -431,6 +493,29 @@ class McapBagWriter:
                 }
                 for t, c in self._gap_counters.items()
             }
+
+    def frame_end(self, topic: str) -> int | None:
+        """First sample index after the last frame written on ``topic`` (None: none yet)."""
+        with self._lock:
+            counter = self._gap_counters.get(topic)
+            return None if counter is None else counter.expected
+
+    def sequence_details(self) -> dict[str, dict[str, int]]:
+        """Per topic written with publisher sequence numbers: ``publishers`` (endpoints
+        seen), ``gaps``, ``missing_messages`` and ``resets`` summed over its publishers,
+        and ``last`` (the highest number seen; of one publisher, the count it published)."""
+        out: dict[str, dict[str, int]] = {}
+        with self._lock:
+            for (topic, _), c in self._seq_counters.items():
+                d = out.setdefault(
+                    topic, {"publishers": 0, "gaps": 0, "missing_messages": 0, "resets": 0}
+                )
+                d["publishers"] += 1
+                d["gaps"] += c.gaps
+                d["missing_messages"] += c.missing_messages
+                d["resets"] += c.resets
+                d["last"] = max(d.get("last", 0), c.last or 0)
+        return out
 
     def topic_types(self) -> dict[str, str]:
         """Type name (``pkg/msg/Type``) per registered topic."""

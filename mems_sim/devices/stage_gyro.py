@@ -9,7 +9,11 @@ factor and bias::
     code_j       = round(omega_I / lsb), 16 bit, +-2000 dps full scale (Table 3.1)
 
 Own clock: t_j = t_start + j / f_g, f_g = f_nominal (1 + clock_error), asynchronous to the
-stage's 625 kHz. The rate at t_j is exact: the stage state at the preceding stage sample k
+stage's 625 kHz. Mapping to the graph's time: t_j is on the stage's time base (t = 0 at
+stage sample 0, t_start = ``gyro_start_offset_s``), so the node stamps gyro sample j at
+``epoch + t_start + j / f_g`` with the stage's epoch, and its frames carry f_g as their
+``sample_rate_hz`` and j as the sample index: the gyro's own sample clock, seen through a
+perfectly synchronised time base. The rate at t_j is exact: the stage state at the preceding stage sample k
 is propagated over t_j - t_k with its held drive (ZOH, eq. 34) using the emulator's true
 dynamics (this is the physical input of the gyro, not an estimate).
 

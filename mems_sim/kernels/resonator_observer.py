@@ -60,6 +60,7 @@ import numpy as np
 import scipy.linalg
 
 from mems_sim.devices.resonator_models import interval_input, next_spill, resonator_zoh_np
+from mems_sim.kernels.divergence import covariance_ok, state_ok
 
 __all__ = [
     "ss_step6",
@@ -590,20 +591,44 @@ class KalmanObserver:
             quantizer_gain=quantizer_gain,
         )
         self.steady_state = bool(steady_state)
-        self.x = np.zeros(6) if initial_state is None else np.array(initial_state, float)
-        self.P = np.eye(6) if initial_cov is None else np.array(initial_cov, float)
+        self.x0 = np.zeros(6) if initial_state is None else np.array(initial_state, float)
+        self.P0 = np.eye(6) if initial_cov is None else np.array(initial_cov, float)
         if self.steady_state:
             ss = steady_state_gains(self.model)
             self.ss = ss
             self.L = np.ascontiguousarray(ss["L"])
             self.cpk = float(self.model.C_pos @ ss["K"])
-            self.P = ss["P"].copy()
+            self.P0 = ss["P"].copy()
+        self.x = self.x0.copy()
+        self.P = self.P0.copy()
         self._res = np.array([self.model.f0, self.model.Q, self.model.fs, self.model.w0])
         self._spill = np.zeros(2)  # tail of a pulse outlasting its sample interval
         self.next_index = 0
+        self.resets = 0
         #: normalised innovations nu/sqrt(S) of the last step() call (white, unit variance
         #: if the model is right).
         self.last_innovations = np.empty(0)
+
+    def reset(self) -> None:
+        """Re-initialise from the prior: X(0|-1) and P(0|-1) of the constructor (the
+        steady-state P on the steady-state path), no pulse tail; the sample count goes on."""
+        self.x = self.x0.copy()
+        self.P = self.P0.copy()
+        self._spill = np.zeros(2)
+        self.resets += 1
+
+    #: Largest magnitude of a state [V] the observer may hold: its states are voltages of
+    #: the order of the modulator's +-1 V levels, so a state beyond this is a divergence.
+    STATE_LIMIT = 1.0e6
+
+    def diverged(self) -> bool:
+        """True if the state is not finite or beyond :attr:`STATE_LIMIT`, or the covariance
+        not positive definite (:func:`~mems_sim.kernels.divergence.covariance_ok`)."""
+        return not (
+            state_ok(self.x, self._spill)
+            and float(np.max(np.abs(self.x))) <= self.STATE_LIMIT
+            and covariance_ok(self.P)
+        )
 
     @property
     def position_var_steady(self) -> float | None:

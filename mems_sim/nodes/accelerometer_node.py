@@ -20,7 +20,7 @@ import numpy as np
 from mems_sim.devices import accelerometer as fra
 from mems_sim.kernels.accelerometer_ekf import STATE_NAMES, STATE_UNITS
 from mems_sim.params import ParamSpec
-from mems_sim.ros.frames import make_adc_frame, make_signal_frame, make_state_estimate
+from mems_sim.ros.frames import make_adc_frame, make_state_estimate
 from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node
 
 NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=10000, frame_id="accelerometer")
@@ -41,7 +41,7 @@ class FrAccelerometerNode(EmulatorNode):
     DIAGNOSTICS_TITLE = "force-rebalance accelerometer"
 
     def make_device(self) -> float:
-        device = {s.name: self.p[s.name] for s in fra.ACCEL_SPECS}
+        device = self.values_of(fra.ACCEL_SPECS)
         self.device = fra.ForceRebalanceAccelerometer(device, seed=self.p["seed"])
         self.ekf_mode = self.p["mode"] == "ekf_rebalance"
         self.pub_adc, self.pub_drive, self.pub_truth = self.create_frame_publishers(
@@ -110,25 +110,19 @@ class FrAccelerometerNode(EmulatorNode):
                 **common,
             )
         )
-        self.pub_drive.publish(
-            make_signal_frame(
-                np.column_stack([f.v_f, np.full(n, d.v_b)]),
-                first,
-                self.fs,
-                channel_names=("feedback_voltage", "bias_voltage"),
-                channel_units=("V", "V"),
-                **common,
-            )
+        self.publish_signals(
+            self.pub_drive,
+            first,
+            np.column_stack([f.v_f, np.full(n, d.v_b)]),
+            ("feedback_voltage", "bias_voltage"),
+            ("V", "V"),
         )
-        self.pub_truth.publish(
-            make_signal_frame(
-                np.column_stack([f.accel, f.x, f.v, f.contact, f.saturated]),
-                first,
-                self.fs,
-                channel_names=TRUTH_CHANNELS,
-                channel_units=TRUTH_UNITS,
-                **common,
-            )
+        self.publish_signals(
+            self.pub_truth,
+            first,
+            np.column_stack([f.accel, f.x, f.v, f.contact, f.saturated]),
+            TRUTH_CHANNELS,
+            TRUTH_UNITS,
         )
         if self.pub_estimate is not None:
             self.pub_estimate.publish(

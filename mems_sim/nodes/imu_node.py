@@ -16,7 +16,7 @@ from sensor_msgs.msg import Imu
 
 from mems_sim.devices import imu as imu_noise
 from mems_sim.params import ParameterError, ParamSpec
-from mems_sim.ros.frames import index_to_ns, make_adc_frame, make_signal_frame, ns_to_time
+from mems_sim.ros.frames import index_to_ns, make_adc_frame, ns_to_time
 from mems_sim.ros.node_base import EMULATOR_SPECS, EmulatorNode, run_node
 from mems_sim.ros.qos import FRAME_QOS
 
@@ -64,7 +64,7 @@ class ImuNoiseNode(EmulatorNode):
                 f"parameter 'motion_frequency' = {self.p['motion_frequency']!r} is out of range: "
                 f"allowed [0.0, {fs / 2!r}) Hz (below Nyquist of sample_rate_hz)"
             )
-        device = {k: self.p[k] for k in (s.name for s in imu_noise.IMU_SPECS)}
+        device = self.values_of(imu_noise.IMU_SPECS)
         self.model = imu_noise.ImuNoiseModel(device, seed=self.p["seed"])
         gyro_var, accel_var = imu_noise.imu_covariances(device)
         self._gyro_cov = imu_noise.covariance9(gyro_var)
@@ -114,15 +114,8 @@ class ImuNoiseNode(EmulatorNode):
                 **self.frame_kwargs,
             )
         )
-        self.pub_truth.publish(
-            make_signal_frame(
-                np.hstack([truth_gyro, truth_accel]),
-                first,
-                self.fs,
-                channel_names=CHANNELS,
-                channel_units=UNITS,
-                **self.frame_kwargs,
-            )
+        self.publish_signals(
+            self.pub_truth, first, np.hstack([truth_gyro, truth_accel]), CHANNELS, UNITS
         )
         if self.pub_imu is not None:
             self._publish_imu(first, frame.gyro_si, frame.accel_si)

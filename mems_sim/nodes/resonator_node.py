@@ -20,7 +20,7 @@ import numpy as np
 
 from mems_sim.devices import resonator as sd_resonator
 from mems_sim.params import ParamSpec
-from mems_sim.ros.frames import make_adc_frame, make_signal_frame, make_state_estimate
+from mems_sim.ros.frames import make_adc_frame, make_state_estimate
 from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node
 
 NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=1000, frame_id="resonator")
@@ -49,7 +49,7 @@ class SdResonatorNode(EmulatorNode):
     DIAGNOSTICS_TITLE = "sigma-delta resonator"
 
     def make_device(self) -> float:
-        device = {s.name: self.p[s.name] for s in sd_resonator.RESONATOR_SPECS}
+        device = self.values_of(sd_resonator.RESONATOR_SPECS)
         sd_resonator.validate_params(device)
         self.device = sd_resonator.SdResonatorDevice(device, seed=self.p["seed"])
         self.observer_mode = self.p["mode"] == "observer"
@@ -77,25 +77,19 @@ class SdResonatorNode(EmulatorNode):
                 **common,
             )
         )
-        self.pub_drive.publish(
-            make_signal_frame(
-                np.column_stack([f.pulses, f.pulse_start, f.pulse_width]),
-                first,
-                self.fs,
-                channel_names=DRIVE_CHANNELS,
-                channel_units=DRIVE_UNITS,
-                **common,
-            )
+        self.publish_signals(
+            self.pub_drive,
+            first,
+            np.column_stack([f.pulses, f.pulse_start, f.pulse_width]),
+            DRIVE_CHANNELS,
+            DRIVE_UNITS,
         )
-        self.pub_truth.publish(
-            make_signal_frame(
-                np.column_stack([f.position, f.velocity, f.f0, f.x_pulse_start, f.x_pulse_center]),
-                first,
-                self.fs,
-                channel_names=TRUTH_CHANNELS,
-                channel_units=TRUTH_UNITS,
-                **common,
-            )
+        self.publish_signals(
+            self.pub_truth,
+            first,
+            np.column_stack([f.position, f.velocity, f.f0, f.x_pulse_start, f.x_pulse_center]),
+            TRUTH_CHANNELS,
+            TRUTH_UNITS,
         )
         if self.pub_estimate is not None:
             self.pub_estimate.publish(

@@ -17,7 +17,7 @@ import numpy as np
 
 from mems_sim.devices import scanner_amdm
 from mems_sim.params import ParamSpec
-from mems_sim.ros.frames import make_adc_frame, make_signal_frame
+from mems_sim.ros.frames import make_adc_frame
 from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node
 
 NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=1000, frame_id="scanner")
@@ -41,7 +41,7 @@ class ScannerAmdmNode(EmulatorNode):
     DIAGNOSTICS_TITLE = "shared-electrode scanner (AMDM)"
 
     def make_device(self) -> float:
-        device = {s.name: self.p[s.name] for s in scanner_amdm.AMDM_SPECS}
+        device = self.values_of(scanner_amdm.AMDM_SPECS)
         self.device = scanner_amdm.AmdmScannerDevice(device, seed=self.p["seed"])
         self.pub_adc, self.pub_drive, self.pub_truth = self.create_frame_publishers(
             "adc", "drive", "truth"
@@ -71,25 +71,15 @@ class ScannerAmdmNode(EmulatorNode):
                 **common,
             )
         )
-        self.pub_drive.publish(
-            make_signal_frame(
-                np.column_stack([f.drive, f.drive_freq]),
-                first,
-                self.fs,
-                channel_names=DRIVE_CHANNELS,
-                channel_units=DRIVE_UNITS,
-                **common,
-            )
+        self.publish_signals(
+            self.pub_drive,
+            first,
+            np.column_stack([f.drive, f.drive_freq]),
+            DRIVE_CHANNELS,
+            DRIVE_UNITS,
         )
-        self.pub_truth.publish(
-            make_signal_frame(
-                np.column_stack([f.theta, f.omega]),
-                first,
-                self.fs,
-                channel_names=TRUTH_CHANNELS,
-                channel_units=TRUTH_UNITS,
-                **common,
-            )
+        self.publish_signals(
+            self.pub_truth, first, np.column_stack([f.theta, f.omega]), TRUTH_CHANNELS, TRUTH_UNITS
         )
         if f.saturated:
             self.diag.count("saturated_samples", f.saturated)

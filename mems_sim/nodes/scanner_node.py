@@ -27,7 +27,7 @@ import numpy as np
 
 from mems_sim.devices import scanner as micro_scanner
 from mems_sim.params import ParamSpec
-from mems_sim.ros.frames import make_adc_frame, make_signal_frame
+from mems_sim.ros.frames import make_adc_frame
 from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node
 
 NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=10000, frame_id="scanner") + (
@@ -94,7 +94,7 @@ class MicroScannerNode(EmulatorNode):
         self.front_end = p["front_end"]
         fdrive = p["drive_frequency_hz"] or None
         if self.front_end == "dc_transimpedance":
-            dev = {s.name: p[s.name] for s in micro_scanner.SCANNER_SPECS}
+            dev = self.values_of(micro_scanner.SCANNER_SPECS)
             self.device = micro_scanner.MicroScannerDevice(
                 dev, seed=p["seed"], drive_frequency_hz=fdrive
             )
@@ -164,37 +164,14 @@ class MicroScannerNode(EmulatorNode):
                 **common,
             )
         )
-        self.pub_drive.publish(
-            make_signal_frame(
-                np.column_stack([v, fd]),
-                first,
-                self.fs,
-                channel_names=DRIVE_CHANNELS,
-                channel_units=DRIVE_UNITS,
-                **common,
-            )
+        self.publish_signals(
+            self.pub_drive, first, np.column_stack([v, fd]), DRIVE_CHANNELS, DRIVE_UNITS
         )
-        self.pub_truth.publish(
-            make_signal_frame(
-                np.column_stack([th, om]),
-                first,
-                self.fs,
-                channel_names=TRUTH_CHANNELS,
-                channel_units=TRUTH_UNITS,
-                **common,
-            )
+        self.publish_signals(
+            self.pub_truth, first, np.column_stack([th, om]), TRUTH_CHANNELS, TRUTH_UNITS
         )
         if psd is not None:
-            self.pub_psd.publish(
-                make_signal_frame(
-                    psd.reshape(n, 1),
-                    first,
-                    self.fs,
-                    channel_names=("theta_psd",),
-                    channel_units=("rad",),
-                    **common,
-                )
-            )
+            self.publish_signals(self.pub_psd, first, psd.reshape(n, 1), ("theta_psd",), ("rad",))
         if sat:
             self.diag.count("saturated_samples", sat)
             self.diag.warn(f"ADC saturated on {sat} samples in frame {first}")

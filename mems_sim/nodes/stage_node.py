@@ -9,7 +9,9 @@ Topics (relative to the namespace, default ``/stage``):
     ``ldv``          mems_msgs/SignalFrame  LDV reference omega [rad/s] (identification only)
     ``temperature``  sensor_msgs/Temperature  stage temperature [degC]
     ``gyro/adc``     mems_msgs/AdcFrame     gyro codes (own ~8 kHz clock: sample_rate_hz is
-                                            the gyro's, stamps in the stage time base)
+                                            the gyro's f_g, sample j is stamped epoch +
+                                            gyro_start_offset_s + j / f_g, the stage's
+                                            epoch: its time base)
     ``gyro/imu``     sensor_msgs/Imu        the same samples (angular_velocity.y = main axis),
                                            with publish_imu and while subscribed
     ``/diagnostics``
@@ -24,7 +26,7 @@ from sensor_msgs.msg import Imu, Temperature
 from mems_sim.devices import stage as micro_stage
 from mems_sim.devices.stage_gyro import GYRO_SPECS, MemsGyro
 from mems_sim.params import ParameterError, ParamSpec
-from mems_sim.ros.frames import index_to_ns, make_adc_frame, make_signal_frame, ns_to_time
+from mems_sim.ros.frames import index_to_ns, make_adc_frame, ns_to_time
 from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node
 from mems_sim.ros.qos import FRAME_QOS
 
@@ -150,7 +152,7 @@ class MicroStageNode(EmulatorNode):
     DIAGNOSTICS_TITLE = "piezo tilt micro-stage"
 
     def make_device(self) -> float:
-        dev = {s.name: self.p[s.name] for s in micro_stage.STAGE_SPECS}
+        dev = self.values_of(micro_stage.STAGE_SPECS)
         micro_stage.validate_params(dev)
         schedule = make_schedule(self.p)
         self.device = micro_stage.MicroStage(dev, schedule, seed=self.p["seed"])
@@ -159,7 +161,7 @@ class MicroStageNode(EmulatorNode):
         micro_stage.MicroStage(dev, schedule, seed=0).step(2)
         self.gyro = (
             MemsGyro(
-                {s.name: self.p[s.name] for s in GYRO_SPECS},
+                self.values_of(GYRO_SPECS),
                 seed=self.p["seed"],
                 temperature_c=self.p["temperature_c"],
             )
@@ -230,36 +232,21 @@ class MicroStageNode(EmulatorNode):
                 **common,
             )
         )
-        self.pub_drive.publish(
-            make_signal_frame(
-                np.column_stack([f.u, f.v_bias, f.f_drive, f.phase, f.segment.astype(float)]),
-                first,
-                self.fs,
-                channel_names=DRIVE_CHANNELS,
-                channel_units=DRIVE_UNITS,
-                **common,
-            )
+        self.publish_signals(
+            self.pub_drive,
+            first,
+            np.column_stack([f.u, f.v_bias, f.f_drive, f.phase, f.segment.astype(float)]),
+            DRIVE_CHANNELS,
+            DRIVE_UNITS,
         )
-        self.pub_truth.publish(
-            make_signal_frame(
-                np.column_stack([f.theta[:, 0], f.omega[:, 0], f.theta[:, 1], f.omega[:, 1]]),
-                first,
-                self.fs,
-                channel_names=TRUTH_CHANNELS,
-                channel_units=TRUTH_UNITS,
-                **common,
-            )
+        self.publish_signals(
+            self.pub_truth,
+            first,
+            np.column_stack([f.theta[:, 0], f.omega[:, 0], f.theta[:, 1], f.omega[:, 1]]),
+            TRUTH_CHANNELS,
+            TRUTH_UNITS,
         )
-        self.pub_ldv.publish(
-            make_signal_frame(
-                f.ldv.reshape(-1, 1),
-                first,
-                self.fs,
-                channel_names=("omega_ldv",),
-                channel_units=("rad/s",),
-                **common,
-            )
-        )
+        self.publish_signals(self.pub_ldv, first, f.ldv.reshape(-1, 1), ("omega_ldv",), ("rad/s",))
         tmsg = Temperature()
         tmsg.header.stamp = ns_to_time(index_to_ns(first, self.fs, self.t0_ns))
         tmsg.header.frame_id = self.p["frame_id"]

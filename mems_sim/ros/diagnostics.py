@@ -7,16 +7,33 @@ with a level: OK, WARN when something was rejected, clipped or lost.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 
 class DiagnosticsReporter:
-    """Counters and messages of one node, published on /diagnostics."""
+    """Counters and messages of one node, published on /diagnostics.
 
-    def __init__(self, node: Node, name: str, hardware_id: str = "", period_s: float = 1.0):
+    Published every ``period_s`` of wall-clock time (a timer on the steady clock, so it
+    neither floods a fast simulated run nor stops while /clock stands still), stamped with
+    ``now_ns()`` (default: the node's ROS clock, i.e. the wall clock or /clock under
+    use_sim_time) so that the stamps are on the graph's timeline.
+    """
+
+    def __init__(
+        self,
+        node: Node,
+        name: str,
+        hardware_id: str = "",
+        period_s: float = 1.0,
+        now_ns: Callable[[], int] | None = None,
+    ):
         self._node = node
+        self._now_ns = now_ns or (lambda: node.get_clock().now().nanoseconds)
         self._name = name
         self._hardware_id = hardware_id
         self.counters: dict[str, int | float | str] = {}
@@ -26,7 +43,11 @@ class DiagnosticsReporter:
             "/diagnostics",
             QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE),
         )
-        self._timer = node.create_timer(period_s, self.publish) if period_s > 0 else None
+        self._timer = (
+            node.create_timer(period_s, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
+            if period_s > 0
+            else None
+        )
 
     def count(self, key: str, increment: int = 1) -> None:
         """Add ``increment`` to counter ``key``."""
@@ -56,6 +77,6 @@ class DiagnosticsReporter:
     def publish(self) -> None:
         """Publish the current status on /diagnostics."""
         msg = DiagnosticArray()
-        msg.header.stamp = self._node.get_clock().now().to_msg()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(self._now_ns()), 10**9)
         msg.status = [self.status()]
         self._pub.publish(msg)

@@ -1,23 +1,109 @@
 """Process environment defaults for every executable of this package.
 
-The graph stays on this machine unless the user
-says otherwise. If ``ROS_AUTOMATIC_DISCOVERY_RANGE`` is not set, it is set to
-``LOCALHOST`` before rclpy initialises; a user who wants a networked graph
-sets it explicitly (e.g. ``SUBNET``). ``AMENT_PREFIX_PATH`` falls back to the
-interpreter prefix, where the PyPI ROS 2 wheels install their ament index, so
-that message definitions are found without sourcing a setup script.
+The graph stays on this machine unless the user says otherwise:
+
+* ``ROS_AUTOMATIC_DISCOVERY_RANGE`` unset or empty counts as ``LOCALHOST`` (rcl alone
+  would treat an empty value as ``SUBNET``); a user who wants a networked graph sets it
+  explicitly (e.g. ``SUBNET``).
+* In ``LOCALHOST`` mode with Fast DDS (the default middleware), the process gets the
+  package's localhost Fast DDS profile (:data:`PROFILE_NAME`, found by
+  :func:`localhost_profile_path`) through ``FASTDDS_DEFAULT_PROFILES_FILE``: UDP on the
+  loopback interface only plus shared memory, discovery by unicast to 127.0.0.1 and no
+  multicast, so that no socket of the graph is bound to 0.0.0.0 or to a network
+  address. rmw_fastrtps, in its own ``LOCALHOST`` mode, adds an unrestricted UDP
+  transport to whatever the profile configures (its send sockets are bound to 0.0.0.0
+  and to each network address), so the range is handed to rmw_fastrtps as
+  ``SYSTEM_DEFAULT`` ("use the middleware's configuration"), which is this profile.
+  ``MEMS_EMULATOR_FASTDDS_PROFILE`` records the substitution, so that a child process
+  started with this environment, or one whose range was set back to ``LOCALHOST`` or to
+  another value, is treated the same way.
+* The profile is not applied, and ``LOCALHOST`` is left to rmw_fastrtps, when the user
+  configures Fast DDS themselves (``FASTDDS_DEFAULT_PROFILES_FILE`` set, or a
+  ``DEFAULT_FASTDDS_PROFILES.xml`` in the working directory that Fast DDS would load),
+  lists ``ROS_STATIC_PEERS`` or ``ROS_DISCOVERY_SERVER`` (which need network
+  interfaces), or selects another middleware with ``RMW_IMPLEMENTATION``.
+
+``AMENT_PREFIX_PATH`` falls back to the interpreter prefix, where the PyPI ROS 2 wheels
+install their ament index, so that message definitions are found without sourcing a
+setup script.
 """
 
 import os
 import signal
 import sys
+from pathlib import Path
+
+#: The discovery range variable of rcl.
+RANGE_VARIABLE = "ROS_AUTOMATIC_DISCOVERY_RANGE"
+#: Fast DDS's variable naming an XML profile file loaded by every participant.
+PROFILE_VARIABLE = "FASTDDS_DEFAULT_PROFILES_FILE"
+#: Set to the profile's path when :func:`apply_defaults` applied it (see the module doc).
+MARKER_VARIABLE = "MEMS_EMULATOR_FASTDDS_PROFILE"
+#: File name of the localhost profile, in ``config/`` of the source tree and in
+#: ``share/mems_emulator/config/`` of an install prefix.
+PROFILE_NAME = "fastdds_localhost.xml"
+#: Middleware implementations the profile is for ("" is the default, rmw_fastrtps_cpp).
+FASTDDS_RMWS = ("", "rmw_fastrtps_cpp", "rmw_fastrtps_dynamic_cpp")
+
+
+def localhost_profile_path() -> Path | None:
+    """The localhost Fast DDS profile: the source tree's ``config/`` or, in an install,
+    ``share/mems_emulator/config/`` under an ``AMENT_PREFIX_PATH`` prefix or the
+    interpreter prefix; None if there is none."""
+    candidates = [Path(__file__).resolve().parents[2] / "config" / PROFILE_NAME]
+    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    for prefix in [*prefixes, sys.prefix]:
+        candidates.append(Path(prefix) / "share" / "mems_emulator" / "config" / PROFILE_NAME)
+    return next((c for c in candidates if c.is_file()), None)
+
+
+def _user_configures_fastdds() -> bool:
+    """True if the environment or the working directory already configures Fast DDS's
+    discovery or transports, or another middleware is selected."""
+    env = os.environ
+    if env.get(PROFILE_VARIABLE) or env.get("ROS_STATIC_PEERS"):
+        return True
+    if env.get("ROS_DISCOVERY_SERVER"):
+        return True
+    if env.get("RMW_IMPLEMENTATION", "") not in FASTDDS_RMWS:
+        return True
+    skip_cwd_file = env.get("SKIP_DEFAULT_XML_FILE", "").startswith("1")
+    return not skip_cwd_file and Path("DEFAULT_FASTDDS_PROFILES.xml").is_file()
 
 
 def apply_defaults() -> None:
-    """Set localhost-only discovery and an ament prefix if the user set neither."""
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    if not os.environ.get("AMENT_PREFIX_PATH"):
-        os.environ["AMENT_PREFIX_PATH"] = sys.prefix
+    """Localhost-only discovery unless the user chose otherwise (an empty range counts as
+    unset), the localhost Fast DDS profile in that case, and an ament prefix.
+
+    Idempotent, and safe in a process whose parent already called it (see the module doc).
+    """
+    env = os.environ
+    ours = env.pop(MARKER_VARIABLE, None)
+    if ours is not None and env.get(PROFILE_VARIABLE) == ours:
+        # undo this function's earlier substitution (in this process or a parent)
+        del env[PROFILE_VARIABLE]
+        if env.get(RANGE_VARIABLE) == "SYSTEM_DEFAULT":
+            env[RANGE_VARIABLE] = "LOCALHOST"
+    if not env.get(RANGE_VARIABLE, "").strip():
+        env[RANGE_VARIABLE] = "LOCALHOST"
+    if not env.get("AMENT_PREFIX_PATH"):
+        env["AMENT_PREFIX_PATH"] = sys.prefix
+    if env[RANGE_VARIABLE].strip().upper() != "LOCALHOST" or _user_configures_fastdds():
+        return
+    profile = localhost_profile_path()
+    if profile is None:
+        return
+    env[PROFILE_VARIABLE] = env[MARKER_VARIABLE] = str(profile)
+    env[RANGE_VARIABLE] = "SYSTEM_DEFAULT"
+
+
+def localhost_only() -> bool:
+    """True if the graph of this process is restricted to this machine (after
+    :func:`apply_defaults`): ``LOCALHOST`` mode or the localhost Fast DDS profile."""
+    env = os.environ
+    if env.get(MARKER_VARIABLE) and env.get(PROFILE_VARIABLE) == env[MARKER_VARIABLE]:
+        return True
+    return env.get(RANGE_VARIABLE, "").strip().upper() == "LOCALHOST"
 
 
 def install_stop_request() -> tuple[dict, dict]:

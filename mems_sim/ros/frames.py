@@ -1,8 +1,9 @@
 """Conversion between numpy sample blocks and the frame messages of mems_msgs.
 
 Frames carry consecutive samples: ``header.stamp`` is the
-time of the first sample, derived from its index and the sample rate, never
-from the wall clock, so that recordings are bit-identical across runs.
+time of the first sample, derived from its index and the sample rate
+(:func:`index_to_ns`: epoch + index / fs), never from the wall clock at
+publication, so that recordings are bit-identical across runs with the same epoch.
 """
 
 from __future__ import annotations
@@ -19,16 +20,44 @@ from mems_sim.bag.writer import FrameGapCounter as IndexTracker  # noqa: F401 (r
 
 
 class FrameError(ValueError):
-    """A malformed or non-finite frame (rejected and counted, never used)."""
+    """A malformed or non-finite frame (rejected and counted, never used).
+
+    ``reason`` names the kind of fault for the counters of the consumer (``rejected_<reason>``
+    on /diagnostics): one of :data:`REJECT_REASONS`.
+    """
+
+    def __init__(self, message: str, reason: str = "malformed") -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+#: Kinds of rejected frames: inconsistent fields or sizes, no samples, more samples than the
+#: consumer takes, codes outside the declared bit range, non-finite values (or a conversion
+#: that overflows), another sample rate, channel set or format than the stream's.
+REJECT_REASONS = (
+    "malformed",
+    "empty",
+    "oversized",
+    "out_of_range",
+    "non_finite",
+    "foreign",
+)
+
+#: Largest converter resolution an AdcFrame may declare [bits] (codes are int32).
+MAX_ADC_BITS = 32
 
 
 def index_to_ns(index: int, sample_rate_hz: float, t0_ns: int = 0) -> int:
     """Time of sample ``index`` [ns] = t0 + index / fs, exact in integer arithmetic.
 
+    The one definition of sensor time: every stamp of a frame, and the log time a recorder
+    gives it, is the run's epoch plus the sample index over the device's own sample rate.
+
     Args:
         index: sample index (>= 0).
-        sample_rate_hz: sample rate [Hz] (> 0).
-        t0_ns: time of sample 0 [ns].
+        sample_rate_hz: sample rate [Hz] (> 0), the device's own sample clock.
+        t0_ns: time of sample 0 [ns]: the run's epoch (0 in fast simulated runs, the
+            graph's time at start in live ones).
     """
     rate = Fraction(repr(float(sample_rate_hz)))
     return t0_ns + (int(index) * 10**9 * rate.denominator) // rate.numerator
@@ -168,17 +197,33 @@ def _check_common(msg, values_len: int, what: str) -> int:
     return channels
 
 
-def adc_physical(msg: AdcFrame) -> np.ndarray:
-    """Physical values (n, channels) = codes * lsb + offset of a validated AdcFrame.
+def code_range(bits: int) -> tuple[int, int]:
+    """Smallest and largest code of a ``bits``-bit converter: two's complement
+    [-2^(bits-1), 2^(bits-1) - 1]; [-1, 1] for one bit (0/1 and -1/+1 streams).
 
     Raises:
-        FrameError: inconsistent sizes, non-positive or non-finite rate/lsb.
+        FrameError: ``bits`` outside 1..:data:`MAX_ADC_BITS`.
+    """
+    if not 1 <= bits <= MAX_ADC_BITS:
+        raise FrameError(f"AdcFrame: bits = {bits} outside 1..{MAX_ADC_BITS}")
+    if bits == 1:
+        return -1, 1
+    return -(2 ** (bits - 1)), 2 ** (bits - 1) - 1
+
+
+def adc_codes(msg: AdcFrame) -> np.ndarray:
+    """Codes (n, channels) of an AdcFrame after the checks of its fields.
+
+    Raises:
+        FrameError: inconsistent sizes, non-positive or non-finite rate/lsb, non-finite
+            offset (``malformed``); a code outside the declared bit range
+            (``out_of_range``).
     """
     channels = _check_common(msg, len(msg.codes), "AdcFrame")
-    lsb = np.asarray(msg.lsb, dtype=float)
-    offset = np.asarray(msg.offset, dtype=float) if len(msg.offset) else np.zeros(channels)
-    if lsb.shape != (channels,) or offset.shape != (channels,):
+    if len(msg.lsb) != channels or len(msg.offset) not in (0, channels):
         raise FrameError(f"AdcFrame: lsb/offset need {channels} entries")
+    lsb = np.asarray(msg.lsb, dtype=float)
+    offset = np.asarray(msg.offset, dtype=float)
     if not (np.all(np.isfinite(lsb)) and np.all(lsb > 0) and np.all(np.isfinite(offset))):
         raise FrameError("AdcFrame: lsb must be finite and > 0, offset finite")
     codes = (
@@ -186,14 +231,46 @@ def adc_physical(msg: AdcFrame) -> np.ndarray:
         if isinstance(msg.codes, array.array)
         else np.asarray(msg.codes, dtype=np.int32)
     )
-    return codes.reshape(msg.num_samples, channels) * lsb + offset
+    lo, hi = code_range(int(msg.bits))
+    if codes.size and (codes.min() < lo or codes.max() > hi):
+        bad = codes[(codes < lo) | (codes > hi)][:3].tolist()
+        one_bit = " (one-bit streams: -1/+1 or 0/1)" if msg.bits == 1 else ""
+        raise FrameError(
+            f"AdcFrame at {msg.first_sample_index}: codes {bad} outside the declared "
+            f"{msg.bits}-bit range [{lo}, {hi}]{one_bit}",
+            "out_of_range",
+        )
+    return codes.reshape(msg.num_samples, channels)
+
+
+def adc_physical(msg: AdcFrame) -> np.ndarray:
+    """Physical values (n, channels) = codes * lsb + offset of a validated AdcFrame.
+
+    Raises:
+        FrameError: inconsistent sizes, non-positive or non-finite rate/lsb
+            (``malformed``), codes outside the declared bit range (``out_of_range``), or
+            values whose conversion overflows (``non_finite``).
+    """
+    codes = adc_codes(msg)
+    channels = codes.shape[1]
+    lsb = np.asarray(msg.lsb, dtype=float)
+    offset = np.asarray(msg.offset, dtype=float) if len(msg.offset) else np.zeros(channels)
+    with np.errstate(over="ignore", invalid="ignore"):
+        values = codes * lsb + offset
+    if not np.all(np.isfinite(values)):
+        raise FrameError(
+            f"AdcFrame at {msg.first_sample_index}: conversion code * lsb + offset overflows",
+            "non_finite",
+        )
+    return values
 
 
 def signal_data(msg: SignalFrame) -> np.ndarray:
     """Samples (n, channels) of a validated SignalFrame.
 
     Raises:
-        FrameError: inconsistent sizes or non-finite samples.
+        FrameError: inconsistent sizes (``malformed``) or non-finite samples
+            (``non_finite``).
     """
     channels = _check_common(msg, len(msg.data), "SignalFrame")
     data = (
@@ -202,5 +279,57 @@ def signal_data(msg: SignalFrame) -> np.ndarray:
         else np.asarray(msg.data, dtype=float)
     )
     if not np.all(np.isfinite(data)):
-        raise FrameError("SignalFrame: non-finite samples")
+        raise FrameError("SignalFrame: non-finite samples", "non_finite")
     return data.reshape(msg.num_samples, channels)
+
+
+def estimate_states(msg: StateEstimate) -> np.ndarray:
+    """States (n, states) of a validated StateEstimate.
+
+    Raises:
+        FrameError: no states, sizes inconsistent (``malformed``) or non-finite states
+            (``non_finite``).
+    """
+    k = len(msg.state_names)
+    if k == 0 or len(msg.state_units) != k:
+        raise FrameError(f"StateEstimate at {msg.first_sample_index}: state names/units")
+    if not np.isfinite(msg.sample_rate_hz) or msg.sample_rate_hz <= 0:
+        raise FrameError(f"StateEstimate: sample_rate_hz = {msg.sample_rate_hz} must be > 0")
+    if len(msg.states) != msg.num_samples * k:
+        raise FrameError(
+            f"StateEstimate at {msg.first_sample_index}: {len(msg.states)} values for "
+            f"num_samples = {msg.num_samples} x {k} states"
+        )
+    states = (
+        np.frombuffer(msg.states, dtype=np.float64)
+        if isinstance(msg.states, array.array)
+        else np.asarray(msg.states, dtype=float)
+    )
+    if not np.all(np.isfinite(states)):
+        raise FrameError(
+            f"StateEstimate at {msg.first_sample_index}: non-finite values", "non_finite"
+        )
+    return states.reshape(msg.num_samples, k)
+
+
+def frame_format(msg) -> tuple:
+    """What a stream's frames share (sample rate, channel or state names and units and, for
+    an AdcFrame, bits, lsb, offset and full scale): frames of one stream have equal formats."""
+    if isinstance(msg, AdcFrame):
+        return (
+            float(msg.sample_rate_hz),
+            tuple(msg.channel_names),
+            tuple(msg.channel_units),
+            int(msg.bits),
+            tuple(msg.lsb),
+            tuple(msg.offset),
+            tuple(msg.full_scale),
+        )
+    if isinstance(msg, StateEstimate):
+        return (
+            float(msg.sample_rate_hz),
+            msg.estimator,
+            tuple(msg.state_names),
+            tuple(msg.state_units),
+        )
+    return float(msg.sample_rate_hz), tuple(msg.channel_names), tuple(msg.channel_units)

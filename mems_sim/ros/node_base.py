@@ -2,7 +2,8 @@
 estimator nodes.
 
 * :class:`MemsNode`: every node (default namespace, ParamSpec parameters, diagnostics);
-* :class:`PacedEmulator`: wall-clock pacing and duration of an emulator;
+* :class:`PacedEmulator`: sensor time (epoch), pacing (wall clock or /clock), /clock and
+  duration of an emulator;
 * :class:`EmulatorNode`: every emulator node (device, frame publishers, ``step``);
 * :func:`run_node`: the ``main()`` of every node executable (exit code 2 on a bad parameter).
 
@@ -15,13 +16,22 @@ import dataclasses
 import sys
 from collections.abc import Callable
 
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.diagnostics import DiagnosticsReporter
+from mems_sim.ros.end_of_stream import (
+    END_OF_STREAM,
+    END_OF_STREAM_QOS,
+    account_publishers,
+    end_of_stream_message,
+)
 from mems_sim.ros.env import apply_defaults
+from mems_sim.ros.frames import make_signal_frame
+from mems_sim.ros.node_help import node_help, wants_help
 from mems_sim.ros.params import declare_specs
 from mems_sim.ros.qos import FRAME_QOS
 
@@ -49,7 +59,8 @@ EMULATOR_SPECS: tuple[ParamSpec, ...] = (
         "realtime_factor",
         1.0,
         "-",
-        "pacing of the standalone node: simulated seconds per wall-clock second",
+        "pacing of the standalone node: simulated seconds per wall-clock second "
+        "(not used while it follows /clock under use_sim_time)",
         "",
         min=0.0,
         max=1.0e6,
@@ -66,12 +77,24 @@ EMULATOR_SPECS: tuple[ParamSpec, ...] = (
     ),
     ParamSpec(
         "stamp_origin",
-        "zero",
+        "auto",
         "-",
-        "time of sample 0: 'zero' (simulated time from 0, bit-identical runs) or "
-        "'wall' (wall-clock time at start)",
+        "epoch, the time of sample 0: 'zero' (0, bit-identical runs), 'wall' (the graph's "
+        "time at start: the wall clock, or /clock when use_sim_time is true), 'auto' ('wall' "
+        "when the node paces itself from start, as its executable does; 'zero' when its "
+        "owner steps or starts it, as the scenario runner does)",
         "sensor time: sample k is stamped epoch + k / fs",
-        choices=("zero", "wall"),
+        choices=("auto", "zero", "wall"),
+    ),
+    ParamSpec(
+        "publish_clock",
+        0.0,
+        "Hz",
+        "publish the node's sensor time on /clock this many times per wall-clock second "
+        "(the node is then the graph's clock source); 0: off",
+        "rosgraph_msgs/Clock, the time that nodes with use_sim_time follow",
+        min=0.0,
+        max=1000.0,
     ),
     ParamSpec("frame_id", "imu_link", "-", "frame_id of published headers", "REP-103/105"),
 )
@@ -89,22 +112,62 @@ def emulator_specs(**defaults) -> tuple[ParamSpec, ...]:
 
 
 class PacedEmulator:
-    """Mixin of emulator nodes: wall-clock pacing of ``step()`` and the duration limit.
+    """Mixin of emulator nodes: sensor time, pacing of ``step()``, /clock and the duration limit.
 
     The node sets ``self.p`` (with the :data:`EMULATOR_SPECS` values), calls
     :meth:`init_emulator` with its sample rate, and implements ``step()`` with
-    :meth:`next_frame_size` and :meth:`frame_published`. ``realtime_factor`` may change
-    while the node runs: :meth:`repace` continues the pacing from the current sample
-    index at the new rate.
+    :meth:`next_frame_size` and :meth:`frame_published`.
+
+    Sensor time: sample k is stamped ``t0_ns + k / fs`` (:func:`~mems_sim.ros.frames.index_to_ns`,
+    exact integer arithmetic), ``t0_ns`` being the run's epoch (``stamp_origin``): 0, or the
+    graph's time when the node starts publishing (the wall clock; /clock's time when
+    use_sim_time is true). The epoch is fixed once, before the first frame, and never moves.
+
+    Pacing (a node that paces itself, :meth:`start`): a timer on the steady clock wakes the
+    node every few milliseconds whatever the ROS time does, so the node never waits on a
+    clock that does not move and still stops on SIGINT/SIGTERM. Each tick publishes the
+    frames whose last sample is due:
+
+    * by default on the wall clock, ``realtime_factor`` simulated seconds per wall-clock
+      second, catching up on lag; ``realtime_factor`` may change while the node runs
+      (:meth:`repace` continues from the current sample index at the new rate);
+    * when use_sim_time is true (set at start or at runtime) and the node does not publish
+      /clock itself: on the node's ROS clock, i.e. the /clock it receives, one simulated
+      second per second of /clock (``realtime_factor`` does not apply; the clock's source
+      sets the pace, e.g. ``mcap_play --clock --rate R``). The pacing is relative: from the
+      sample index and /clock time at which it started, so the epochs of the node and of the
+      clock source need not agree. Nothing is published before the first /clock message;
+      a /clock that goes backwards (a replay that loops) restarts the pacing from there.
+
+    Each tick does at most :data:`TICK_BUDGET_S` of work and continues at the next tick.
+
+    /clock (``publish_clock`` > 0): the node is the graph's clock source and publishes its
+    sensor time (:meth:`sensor_time_ns`) on /clock that many times per wall-clock second while
+    it runs, then once more at the end of its data, and stops; it then paces on the wall clock
+    even when use_sim_time is true (its own ROS clock follows the /clock it publishes).
     """
 
-    def init_emulator(self, fs: float, schedule_samples: int | None = None) -> None:
+    #: Longest time [s] one pacing tick spends publishing frames (then the executor runs).
+    TICK_BUDGET_S = 0.2
+
+    def init_emulator(
+        self, fs: float, schedule_samples: int | None = None, *, self_paced: bool = False
+    ) -> None:
         """Sample rate fs [Hz], stamp origin, sample budget (``duration_s``; 0: unlimited;
-        at most ``schedule_samples`` if given), counters and pacing state."""
-        import time
+        at most ``schedule_samples`` if given), counters and pacing state.
+
+        ``self_paced``: the node paces itself from start (its executable); ``stamp_origin``
+        'auto' is then 'wall', else 'zero'.
+        """
+        from rclpy.clock import Clock, ClockType
 
         self.fs = fs
-        self.t0_ns = 0 if self.p["stamp_origin"] == "zero" else time.time_ns()
+        origin = self.p["stamp_origin"]
+        if origin == "auto":
+            origin = "wall" if self_paced else "zero"
+        self.stamp_origin = origin
+        #: Epoch [ns]: time of sample 0 (None until fixed, see :meth:`fix_epoch`).
+        self.t0_ns: int | None = 0 if origin == "zero" else None
         total = int(round(self.p["duration_s"] * fs)) if self.p["duration_s"] > 0 else None
         if schedule_samples is not None:
             total = schedule_samples if total is None else min(total, schedule_samples)
@@ -112,13 +175,79 @@ class PacedEmulator:
         self.next_index = 0
         self.frames_published = 0
         self._timer = None
-        self._wall_start = None  # wall clock [s] at which sample _index_start was due
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._wall_start = None  # monotonic time [s] at which sample _index_start was due
+        self._sim_start_ns = None  # /clock time [ns] at which sample _index_start was due
+        self._sim_last_ns = 0  # /clock time [ns] at the last tick
         self._index_start = 0
+        self._clock_pub = None
+        self._next_clock = None  # monotonic time [s] of the next /clock message
+        self._clock_done = False
+        if self.p["publish_clock"] > 0:
+            from rosgraph_msgs.msg import Clock as ClockMsg
+
+            self._clock_pub = self.create_publisher(ClockMsg, "/clock", 10)
+
+    # ------------------------------------------------------------------ sensor time
+
+    def ros_time_active(self) -> bool:
+        """True while use_sim_time is true (the node's ROS clock follows /clock)."""
+        return bool(self.get_clock().ros_time_is_active)
+
+    def follows_clock(self) -> bool:
+        """True when the pacing follows /clock: use_sim_time is true and the node is not the
+        clock source itself (``publish_clock`` = 0)."""
+        return self.p["publish_clock"] <= 0 and self.ros_time_active()
+
+    def fix_epoch(self, wait_for_clock: bool = False) -> bool:
+        """Fix ``t0_ns`` if it is not fixed yet; True once it is.
+
+        'zero': 0; 'wall': the node's ROS clock now (the wall clock, or /clock's time when
+        use_sim_time is true). With ``wait_for_clock``, a node under use_sim_time that has not
+        received /clock yet leaves the epoch open and returns False.
+        """
+        if self.t0_ns is not None:
+            return True
+        now = self.get_clock().now().nanoseconds
+        if wait_for_clock and now == 0 and self.ros_time_active():
+            return False
+        self.t0_ns = int(now)
+        return True
+
+    def sensor_time_ns(self) -> int:
+        """The node's current time on its sensor timeline [ns] (stamps and /clock).
+
+        Following /clock: the node's ROS clock. Pacing itself on the wall clock: the epoch plus
+        the simulated time reached by the pacing (at most the end of the data). Otherwise (its
+        owner steps it): the time of the next sample to publish, epoch + next_index / fs.
+        """
+        from mems_sim.ros.frames import index_to_ns
+
+        if self.follows_clock() and self._timer is not None:
+            return self.get_clock().now().nanoseconds
+        t0 = self.t0_ns if self.t0_ns is not None else self.get_clock().now().nanoseconds
+        done = index_to_ns(self.next_index, self.fs, t0)
+        if self._timer is None or self._wall_start is None or self._sim_start_ns is not None:
+            return done
+        import time
+
+        elapsed = (time.monotonic() - self._wall_start) * self.p["realtime_factor"]
+        now = index_to_ns(self._index_start, self.fs, t0) + int(elapsed * 1e9)
+        if self.total_samples is not None:
+            now = min(now, index_to_ns(self.total_samples, self.fs, t0))
+        return max(now, done) if self.finished else now
+
+    def graph_time_ns(self) -> int:
+        """Time of the node's diagnostics stamps: its sensor time."""
+        return self.sensor_time_ns()
 
     @property
     def frame_kwargs(self) -> dict:
         """``frame_id`` and ``t0_ns`` of every frame the node publishes."""
+        self.fix_epoch()
         return dict(frame_id=self.p["frame_id"], t0_ns=self.t0_ns)
+
+    # ------------------------------------------------------------------ frames
 
     def next_frame_size(self) -> int:
         """Samples of the next frame: ``frame_size``, fewer at the end, 0 when finished."""
@@ -137,14 +266,18 @@ class PacedEmulator:
         """True once ``duration_s`` worth of samples has been published."""
         return self.total_samples is not None and self.next_index >= self.total_samples
 
+    # ------------------------------------------------------------------ pacing
+
     def _timer_period(self) -> float:
         period = self.p["frame_size"] / self.fs / self.p["realtime_factor"]
         return max(min(period, 0.05), 0.001)
 
     def start(self) -> None:
-        """Start publishing paced to the wall clock (``realtime_factor``)."""
+        """Start publishing, paced by a timer on the steady clock (class docstring)."""
         if self._timer is None:
-            self._timer = self.create_timer(self._timer_period(), self._on_timer)
+            self._timer = self.create_timer(
+                self._timer_period(), self._on_timer, clock=self._steady
+            )
 
     def repace(self) -> None:
         """After a change of ``realtime_factor``: pace on from the current sample index at
@@ -156,18 +289,68 @@ class PacedEmulator:
             self._index_start = self.next_index
         if self._timer is not None:
             self.destroy_timer(self._timer)
-            self._timer = self.create_timer(self._timer_period(), self._on_timer)
+            self._timer = self.create_timer(
+                self._timer_period(), self._on_timer, clock=self._steady
+            )
+
+    def _due(self) -> float | None:
+        """Samples due by now (None: nothing can be published yet); (re)starts the pacing
+        reference when the pacing starts, changes between wall clock and /clock, or /clock
+        went backwards."""
+        import time
+
+        if self.follows_clock():
+            now_ns = self.get_clock().now().nanoseconds
+            if now_ns == 0:
+                return None  # no /clock received yet
+            if self._sim_start_ns is None or now_ns < self._sim_last_ns:
+                self._sim_start_ns, self._wall_start = now_ns, None
+                self._index_start = self.next_index
+            self._sim_last_ns = now_ns
+            return self._index_start + (now_ns - self._sim_start_ns) * 1e-9 * self.fs
+        now = time.monotonic()
+        if self._wall_start is None:
+            self._wall_start, self._sim_start_ns = now, None
+            self._index_start = self.next_index
+        return self._index_start + (now - self._wall_start) * self.p["realtime_factor"] * self.fs
 
     def _on_timer(self) -> None:
-        """Publish every frame whose last sample is due at the pacing (catches up on lag)."""
+        """Publish every frame whose last sample is due (catches up on lag, within
+        :data:`TICK_BUDGET_S` per tick); publish /clock when due."""
+        import time
+
+        if not self.finished and self.fix_epoch(wait_for_clock=True):
+            due = self._due()
+            if due is not None:
+                budget = time.monotonic() + self.TICK_BUDGET_S
+                while (
+                    not self.finished
+                    and self.next_index + self.p["frame_size"] <= due
+                    and time.monotonic() < budget
+                ):
+                    self.step()
+        self.publish_clock_if_due()
+
+    def publish_clock_if_due(self) -> None:
+        """Publish the sensor time on /clock when ``publish_clock`` says so (wall-clock
+        period; once more at the end of the data, then no more)."""
+        if self._clock_pub is None or self._clock_done or self.t0_ns is None:
+            return
         import time
 
         now = time.monotonic()
-        if self._wall_start is None:
-            self._wall_start = now
-        due = self._index_start + (now - self._wall_start) * self.p["realtime_factor"] * self.fs
-        while not self.finished and self.next_index + self.p["frame_size"] <= due:
-            self.step()
+        if self.finished:
+            self._clock_done = True
+        elif self._next_clock is not None and now < self._next_clock:
+            return
+        period = 1.0 / self.p["publish_clock"]
+        nxt = now + period if self._next_clock is None else self._next_clock + period
+        self._next_clock = max(nxt, now)
+        from rosgraph_msgs.msg import Clock as ClockMsg
+
+        msg = ClockMsg()
+        msg.clock.sec, msg.clock.nanosec = divmod(int(self.sensor_time_ns()), 1_000_000_000)
+        self._clock_pub.publish(msg)
 
 
 class MemsNode(Node):
@@ -209,8 +392,17 @@ class MemsNode(Node):
         title = title if isinstance(title, str) else title(self.p)
         hardware_id = self.get_fully_qualified_name() if self.DIAGNOSTICS_HARDWARE_ID else ""
         self.diag = DiagnosticsReporter(
-            self, f"{self.get_name()}: {title}", hardware_id=hardware_id
+            self, f"{self.get_name()}: {title}", hardware_id=hardware_id, now_ns=self.graph_time_ns
         )
+
+    def graph_time_ns(self) -> int:
+        """Time of the node's diagnostics stamps [ns]: its ROS clock (the wall clock, or
+        /clock when use_sim_time is true); emulators use their sensor time."""
+        return self.get_clock().now().nanoseconds
+
+    def values_of(self, specs) -> dict:
+        """The node's parameter values of one of its tables (e.g. the device's), by name."""
+        return {spec.name: self.p[spec.name] for spec in specs}
 
     def parameter_changed(self, name: str, value) -> None:
         """Called after a change of one of :attr:`RUNTIME_PARAMETERS` was accepted
@@ -228,14 +420,19 @@ class EmulatorNode(PacedEmulator, MemsNode):
     :data:`EMULATOR_SPECS`; ``realtime_factor`` can be changed while the node runs, every
     other parameter is set at start), then calls :meth:`make_device` (the subclass builds
     its device and publishers from ``self.p`` and returns the sample rate), sets up the
-    pacing (:meth:`schedule_samples` bounds it) and starts the wall-clock timer unless
+    pacing (:meth:`schedule_samples` bounds it) and starts the pacing timer unless
     ``drive_externally`` or not ``autostart``. :meth:`step` publishes one frame through
-    the subclass's :meth:`publish_frame`.
+    the subclass's :meth:`publish_frame`. Every data publisher the subclass made is
+    counted (``streams``) and, once the duration is published, an end-of-stream record
+    with those counts goes out on ``end_of_stream`` (:mod:`~mems_sim.ros.end_of_stream`),
+    so that a recorder sees a missing tail. Sensor time, pacing and /clock:
+    :class:`PacedEmulator`; a node that paces itself from start (``stamp_origin`` 'auto')
+    stamps from the graph's time at start, one its owner drives or starts from 0.
 
     Args:
         drive_externally: if True no timer is created; the owner calls :meth:`step`
             (the scenario runner does this to run faster than real time without loss).
-        autostart: start the wall-clock timer at once; if False the owner calls
+        autostart: start the pacing timer at once; if False the owner calls
             :meth:`start` once its subscribers are matched (no frame is lost to discovery).
         **node_kwargs: passed to rclpy's Node (context, namespace, parameter_overrides).
     """
@@ -248,7 +445,15 @@ class EmulatorNode(PacedEmulator, MemsNode):
     ) -> None:
         super().__init__(**node_kwargs)
         fs = self.make_device()
-        self.init_emulator(fs, self.schedule_samples())
+        self.init_emulator(
+            fs, self.schedule_samples(), self_paced=not drive_externally and autostart
+        )
+        # loss accounting: every data topic counted, an end-of-stream record at the end
+        self.streams = account_publishers(self)
+        self.pub_end_of_stream = self.create_publisher(
+            DiagnosticArray, END_OF_STREAM, END_OF_STREAM_QOS
+        )
+        self.end_of_stream_sent = False
         if not drive_externally and autostart:
             self.start()
 
@@ -273,15 +478,57 @@ class EmulatorNode(PacedEmulator, MemsNode):
             for name in names
         )
 
+    def publish_signals(self, pub: Publisher, first: int, data, names, units) -> None:
+        """Publish ``data`` (n, channels) [SI units ``units``] as one SignalFrame whose first
+        sample is ``first``, stamped in the node's sensor time."""
+        pub.publish(
+            make_signal_frame(
+                data, first, self.fs, channel_names=names, channel_units=units, **self.frame_kwargs
+            )
+        )
+
     def step(self) -> int:
         """Generate and publish the next frame; return the number of samples (0 when done)."""
         n = self.next_frame_size()
         if n <= 0:
             return 0
+        self.fix_epoch()
         self.publish_frame(self.next_index, n)
         self.diag.count("frames")
         self.frame_published(n)
+        if self.finished:
+            self.publish_end_of_stream()
+        if self._timer is None:
+            self.publish_clock_if_due()
         return n
+
+    def publish_end_of_stream(self) -> None:
+        """Publish the end-of-stream record (once): per data topic the messages and, for
+        frames, the end sample index and samples published
+        (:mod:`~mems_sim.ros.end_of_stream`). Sent when the duration is published, or at
+        :meth:`close` for a node stopped before."""
+        if self.end_of_stream_sent:
+            return
+        from mems_sim.ros.frames import index_to_ns, ns_to_time
+
+        stamp = ns_to_time(index_to_ns(self.next_index, self.fs, self.t0_ns or 0))
+        self.pub_end_of_stream.publish(
+            end_of_stream_message(self.streams, stamp, self.get_fully_qualified_name())
+        )
+        self.end_of_stream_sent = True
+
+    def cut_topic(self, topic: str, keep_messages: int) -> None:
+        """Fault injection (tests of the loss reporting): hand only the first
+        ``keep_messages`` messages of ``topic`` (absolute name) to the middleware; the
+        end-of-stream record still counts every message the device produced."""
+        if topic not in self.streams:
+            raise KeyError(f"{self.get_fully_qualified_name()} does not publish {topic}")
+        self.streams[topic].cut(keep_messages)
+
+    def close(self) -> None:
+        """End of the node's run: publish the end-of-stream record if not sent yet."""
+        if self.frames_published:
+            self.publish_end_of_stream()
 
     def parameter_changed(self, name: str, value) -> None:
         """``realtime_factor``: the pacing continues from the current index at the new rate."""
@@ -297,8 +544,15 @@ def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> in
     """Init rclpy, spin the node made by ``factory`` until shutdown; clean exit codes.
 
     An invalid parameter ends the process with exit code 2 and one line on
-    stderr naming the parameter, the value and the allowed range.
+    stderr naming the parameter, the value and the allowed range. ``-h``/``--help``
+    before any ``--ros-args`` prints the usage and the parameter table of the node class
+    ``factory`` (:func:`~mems_sim.ros.node_help.node_help`) and returns 0 without
+    starting ROS.
     """
+    args = argv if argv is not None else sys.argv
+    if isinstance(factory, type) and wants_help(args):
+        sys.stdout.write(node_help(factory))
+        return 0
     import signal
 
     import rclpy
@@ -308,9 +562,7 @@ def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> in
     apply_defaults()
     # Our own SIGINT/SIGTERM handling: the node publishes its final results
     # before the context shuts down.
-    rclpy.init(
-        args=argv if argv is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO
-    )
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     # SIGINT explicitly too: a process started in the background of a script inherits it
     # ignored, and would not stop on the SIGINT that launch tools send
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -318,7 +570,10 @@ def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> in
     node = None
     try:
         node = factory()
-        rclpy.spin(node)
+        # short waits: SIGINT/SIGTERM are handled within 0.1 s even when no timer of the
+        # node fires (e.g. under use_sim_time while nobody publishes /clock)
+        while rclpy.ok():
+            rclpy.spin_once(node, timeout_sec=0.1)
     except ParameterError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -165,3 +165,13 @@ def test_license_and_changelog_exist():
     text = (REPO / "CHANGELOG.rst").read_text()
     version = ET.parse(REPO / "package.xml").getroot().findtext("version")
     assert version in text
+
+
+def test_readme_is_an_entry_under_10_kb():
+    """The README stays an entry (what it is, the two commands, layout, executables, links);
+    references and notes live in docs/."""
+    readme = (REPO / "README.md").read_bytes()
+    assert len(readme) < 10_000, len(readme)
+    text = readme.decode()
+    for must in ("make demo", "make test", "Import rule", "docs/"):
+        assert must in text, must

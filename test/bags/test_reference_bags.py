@@ -4,8 +4,9 @@
 * Regeneration reproduces the committed bags message for message: every family is
   regenerated into a temporary directory (all six take about 8 s here, so none is left
   out) and its messages are compared deserialised, field by field, per topic and in order
-  (raw CDR bytes differ in alignment padding; ``log_time`` is the wall clock and is not
-  compared). The stage's identified parameter YAML must be the same text.
+  (raw CDR bytes differ in alignment padding), and so are their log times (sensor time,
+  from epoch 0; ``publish_time`` is the wall clock and is not compared). The stage's
+  identified parameter YAML must be the same text.
 * Replay: the device topics of each bag are published through rclpy, as recorded, to a real
   estimator node built with the bag's parameters (those of ``make_bags.FAMILIES``); what it
   publishes must equal the estimates stored in the bag exactly (the pipeline is
@@ -109,6 +110,11 @@ def test_regeneration_reproduces_the_bag(name, tmp_path, domain_id):
     assert sorted(new) == sorted(old)
     for topic, messages in old.items():
         assert_same_messages(new[topic], messages, f"{name}: {topic}")
+    log_times = [{}, {}]  # per topic, in order (across topics equal times may swap)
+    for times, path in zip(log_times, (result["path"], BAGS / f"{name}.mcap")):
+        for m in iter_messages(str(path)):
+            times.setdefault(m.topic, []).append(m.log_time_ns)
+    assert log_times[0] == log_times[1], f"{name}: log times"
     if family.prepare is not None:
         assert (tmp_path / make_bags.STAGE_YAML).read_text() == (
             BAGS / make_bags.STAGE_YAML

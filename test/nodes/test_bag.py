@@ -302,8 +302,9 @@ def test_record_and_read_back(ctx, tmp_path):
     assert [m.angular_velocity.x for _, m in decoded["/dev/imu"]] == [
         i.angular_velocity.x for i in imus
     ]
-    # publish_time is the header stamp
-    assert decoded["/dev/imu"][3][0].publish_time == 103 * 10**9
+    # log_time is the header stamp (sensor time); publish_time is when it was published
+    assert decoded["/dev/imu"][3][0].log_time == 103 * 10**9
+    assert abs(decoded["/dev/imu"][3][0].publish_time - time.time_ns()) < 60 * 10**9
 
     # the real classes: exact equality
     got = {"/dev/adc": [], "/dev/imu": []}

@@ -1,0 +1,71 @@
+"""Real-time factor of the imu_noise graph in fast mode, with and without the recorder.
+
+The scenario's graph in one process (emulator stepped by the runner, Allan identifier,
+optionally the MCAP recorder), run as fast as its consumers take the frames: simulated
+seconds per wall second from the first frame to the last frame delivered (set-up and the
+final identification excluded). Ratios measured in one run on this machine.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")))
+
+from mems_estimation.nodes.imu_noise_identifier_node import NoiseIdentifierNode
+from mems_scenarios.base import Graph, drive_fast, finish_delivery, parameters
+from mems_sim.bag.recorder import RecorderNode
+from mems_sim.nodes.imu_node import ImuNoiseNode
+
+DURATION_S = 2000.0
+FRAME = 100  # samples per frame at 100 Hz, as the scenario's fast runs
+
+
+def rtf(record: bool, tmp: Path) -> float:
+    """Simulated s / wall s of DURATION_S of the imu_noise graph (with or without recorder)."""
+    graph = Graph()
+    try:
+        emu = graph.add_device(
+            ImuNoiseNode,
+            {"seed": 1, "duration_s": DURATION_S, "frame_size": FRAME, "publish_imu": False},
+            realtime=False,
+        )
+        ident = graph.add(
+            NoiseIdentifierNode(
+                context=graph.context, namespace="imu", parameter_overrides=parameters({})
+            )
+        )
+        if record:
+            topics = ["/imu/adc", "/imu/truth", "/imu/noise_model"]
+            graph.add(RecorderNode(str(tmp / "bench.mcap"), topics=topics, context=graph.context))
+        graph.spin_until(
+            lambda: emu.pub_adc.get_subscription_count() >= (2 if record else 1),
+            30.0,
+            "subscribers",
+        )
+        t0 = time.perf_counter()
+        drive_fast(graph, [emu], lambda _d: ident.frames_received, None, 50)
+        finish_delivery(graph, [emu], lambda _d: ident.frames_received)
+        wall = time.perf_counter() - t0
+    finally:
+        graph.close()
+    return DURATION_S / wall
+
+
+def main() -> None:
+    with tempfile.TemporaryDirectory() as d:
+        without = rtf(False, Path(d))
+        with_rec = rtf(True, Path(d))
+    print(
+        f"imu_noise fast mode, {DURATION_S:.0f} s at 100 Hz in frames of {FRAME}: "
+        f"real-time factor {without:.0f}x without the recorder, {with_rec:.0f}x with it "
+        f"(ratio {with_rec / without:.2f})"
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,819 @@
+"""``run_graph``: run a node graph written in ROS 2 launch YAML, one process per node.
+
+Usage::
+
+    run_graph FILE.launch.yaml [name:=value ...] [--duration S] [--record FILE.mcap]
+              [--record-regex RE] [--overwrite] [--log-dir DIR] [--kill-timeout S]
+              [--show-args] [--dry-run]
+
+Supported subset of the ROS 2 launch YAML format (what graph files need; anything else is
+refused with one line naming the file, the entry and what is not supported)::
+
+    launch:                    the root: a list of the entries below, run in order
+    - arg:                     declares a launch argument
+        name: NAME             (required)
+        default: VALUE         (optional; without it the argument must be given)
+        description: TEXT      (optional)
+    - let:                     sets a launch variable
+        name: NAME
+        value: VALUE
+    - node:                    starts one executable as a process of its own
+        pkg: PACKAGE           (required)
+        exec: EXECUTABLE       (required)
+        name: NODE_NAME        (optional: ``-r __node:=NODE_NAME``)
+        namespace: NS          (optional: ``-r __ns:=/NS``; made absolute)
+        output: screen | log   (optional, default log as ros2 launch)
+        param:                 (optional list)
+        - name: P              ``-p P:=VALUE``
+          value: VALUE
+        - from: FILE.yaml      ``--params-file FILE.yaml``
+        remap:                 (optional list)
+        - from: A              ``-r A:=B``
+          to: B
+    - include:                 runs another launch YAML file's entries
+        file: PATH
+        arg:                   (optional list)
+        - name: NAME
+          value: VALUE
+
+Substitutions, in any value: ``$(var NAME)`` (a launch argument or variable) and
+``$(find-pkg-share PACKAGE)`` (the package's share directory in the ament index).
+
+Semantics, as ros2 launch has them: a command-line ``name:=value`` sets the launch
+configuration ``name`` before the file runs; an ``arg`` keeps a value already set (command
+line, including file) and otherwise takes its default; ``let`` always sets; every value is
+text after substitution, and a parameter value is typed by the node as YAML (``3`` an
+integer, ``0.5`` a float, ``true`` a boolean). Each ``node`` is resolved through the ament
+index as ``ros2 run`` does (``<prefix of PKG>/lib/PKG/EXECUTABLE``) and started as
+``EXECUTABLE --ros-args -r __node:=NAME -r __ns:=/NS -p P:=VALUE ... --params-file F ...
+-r A:=B ...`` in a process group of its own. Includes are not scoped: the include's ``arg``
+values, and what the included file declares or sets, stay set for the entries after the
+include (so an include that does not pass ``namespace`` inherits the one an earlier include
+set). A relative path (``include`` file, ``param`` from) is relative to
+the working directory, as for ros2 launch.
+
+Where run_graph is stricter than ros2 launch: everything is checked before any process
+starts -- YAML syntax, tags and attributes, substitutions, required arguments, command-line
+arguments that no file declares, packages, executables, parameter files -- and a problem
+gives one line on stderr and exit status 2.
+
+Output: ``screen`` writes the node's stdout and stderr lines to the terminal prefixed with
+``[label]``; ``log`` writes both to ``LOG_DIR/<label>.log`` and its stderr lines to the
+terminal too. The log directory is ``--log-dir`` or a new directory
+``run_graph_<time>_<pid>`` under ``$ROS_LOG_DIR`` (default ``~/.ros/log``).
+
+Recording: ``--record FILE.mcap`` adds this package's recorder, ``mcap_record -o FILE.mcap
+-a`` (or ``--regex RE`` with ``--record-regex``), resolved through the ament index like the
+nodes; the nodes start once its node is visible in the ROS graph (at most 15 s). It
+discovers topics periodically, so a topic is recorded from its subscription on (the first
+messages of a node that publishes at once can be missed), as with a recorder started next
+to a launch. It is stopped after the nodes, so their last messages are still recorded.
+
+Stopping: SIGINT and SIGTERM are forwarded to every node's process group (a second signal
+is forwarded again); ``--duration S`` sends SIGINT after S seconds. A node that has not
+exited ``--kill-timeout`` seconds (default 5) after the signal gets SIGKILL; then the
+recorder is stopped the same way. A node that exits with a non-zero status while the graph
+runs stops the graph (ros2 launch would keep the others running). Exit status: 0 when
+every process exited with status 0 (or from the signal it was sent); 1 when a node failed
+to start, exited non-zero, or had to be killed (one line on stderr for each, naming it);
+2 for a problem found before starting.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shlex
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+PROG = "run_graph"
+
+#: Entries of the ``launch`` list and the attributes of each.
+TAGS = {
+    "arg": {"name", "default", "description"},
+    "let": {"name", "value"},
+    "node": {"pkg", "exec", "name", "namespace", "param", "remap", "output"},
+    "include": {"file", "arg"},
+}
+REQUIRED = {
+    "arg": ("name",),
+    "let": ("name", "value"),
+    "node": ("pkg", "exec"),
+    "include": ("file",),
+}
+OUTPUTS = ("screen", "log")
+#: Deepest chain of includes (deeper: an include cycle).
+MAX_INCLUDE_DEPTH = 20
+#: ``$( ... )`` without nested parentheses.
+SUBSTITUTION = re.compile(r"\$\(([^()]*)\)")
+CLI_ARG = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):=(.*)$", re.DOTALL)
+#: Exit statuses.
+OK, FAILED, BAD_INPUT = 0, 1, 2
+#: Package and executable of the recorder that ``--record`` adds.
+RECORDER = ("mems_emulator", "mcap_record")
+
+
+class GraphError(Exception):
+    """A problem with the graph file or the command line, found before anything starts."""
+
+
+# --------------------------------------------------------------------------- model
+
+
+@dataclass
+class NodeAction:
+    """One ``node`` entry, substituted and resolved."""
+
+    pkg: str
+    exe: str
+    executable: str
+    name: str = ""
+    namespace: str = ""
+    output: str = "log"
+    params: list[tuple[str, str]] = field(default_factory=list)
+    param_files: list[str] = field(default_factory=list)
+    remaps: list[tuple[str, str]] = field(default_factory=list)
+    #: Extra command-line arguments before ``--ros-args`` (the recorder's options).
+    arguments: list[str] = field(default_factory=list)
+    #: Extra ROS arguments after the generated ones.
+    ros_arguments: list[str] = field(default_factory=list)
+    label: str = ""
+    #: How messages name the process (default: its node name and executable).
+    title: str = ""
+
+    def fqn(self) -> str:
+        """Fully qualified node name (the executable's name when no name is given)."""
+        ns = self.namespace.rstrip("/")
+        return f"{ns}/{self.name or self.exe}" if ns else f"/{self.name or self.exe}"
+
+    def command(self) -> list[str]:
+        """The process's command line."""
+        cmd = [self.executable, *self.arguments, "--ros-args"]
+        if self.name:
+            cmd += ["-r", f"__node:={self.name}"]
+        if self.namespace:
+            cmd += ["-r", f"__ns:={self.namespace}"]
+        for key, value in self.params:
+            cmd += ["-p", f"{key}:={value}"]
+        for path in self.param_files:
+            cmd += ["--params-file", path]
+        for src, dst in self.remaps:
+            cmd += ["-r", f"{src}:={dst}"]
+        return cmd + self.ros_arguments
+
+
+@dataclass
+class Graph:
+    """What a launch file (with its includes) starts, and the arguments it declares."""
+
+    nodes: list[NodeAction] = field(default_factory=list)
+    #: name -> (default or None, description), in declaration order.
+    arguments: dict[str, tuple[str | None, str]] = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------- loading
+
+
+def resolve_executable(pkg: str, exe: str) -> str:
+    """``<prefix of pkg>/lib/pkg/exe`` from the ament index, as ``ros2 run`` finds it."""
+    from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+
+    try:
+        prefix = get_package_prefix(pkg)
+    except (PackageNotFoundError, ValueError):
+        raise GraphError(f"package {pkg!r} not found in the ament index") from None
+    path = Path(prefix) / "lib" / pkg / exe
+    if "/" in exe or not path.is_file() or not os.access(path, os.X_OK):
+        raise GraphError(f"executable {exe!r} not found in package {pkg!r} ({path.parent})")
+    return str(path)
+
+
+def _text(value) -> str:
+    """A YAML scalar as launch text (booleans as YAML writes them)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if value is None:
+        return ""
+    return str(value)
+
+
+class _Loader:
+    """Walks the entries of a file and its includes, collecting nodes and arguments."""
+
+    def __init__(self, cli: dict[str, str], require: bool = True) -> None:
+        self.cli = cli
+        self.require = require
+        self.graph = Graph()
+
+    def load(self, path: Path, scope: dict[str, str], depth: int = 0) -> None:
+        if depth > MAX_INCLUDE_DEPTH:
+            raise GraphError(f"{path}: includes nested deeper than {MAX_INCLUDE_DEPTH} (a cycle?)")
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            raise GraphError(f"{path}: cannot read: {exc.strerror or exc}") from None
+        try:
+            doc = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else str(path)
+            problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+            raise GraphError(f"{where}: YAML syntax error: {problem}") from None
+        if not isinstance(doc, dict) or set(doc) != {"launch"}:
+            raise GraphError(f"{path}: the document must be a mapping with the one key 'launch'")
+        entries = doc["launch"] or []
+        if not isinstance(entries, list):
+            raise GraphError(f"{path}: 'launch' must be a list of entries")
+        for i, entry in enumerate(entries, 1):
+            where = f"{path}: entry {i}"
+            if not isinstance(entry, dict) or len(entry) != 1:
+                raise GraphError(
+                    f"{where}: must be a mapping with one tag (arg, let, node, include)"
+                )
+            ((tag, attrs),) = entry.items()
+            if tag not in TAGS:
+                raise GraphError(f"{where}: unsupported tag {tag!r} (supported: {', '.join(TAGS)})")
+            where = f"{where} ({tag})"
+            if not isinstance(attrs, dict):
+                raise GraphError(f"{where}: attributes must be a mapping")
+            unknown = sorted(set(map(str, attrs)) - TAGS[tag])
+            if unknown:
+                raise GraphError(
+                    f"{where}: unsupported attribute {unknown[0]!r} "
+                    f"(supported: {', '.join(sorted(TAGS[tag]))})"
+                )
+            missing = [a for a in REQUIRED[tag] if attrs.get(a) is None]
+            if missing:
+                raise GraphError(f"{where}: attribute {missing[0]!r} is required")
+            getattr(self, f"_{tag}")(path, where, attrs, scope, depth)
+
+    # -- substitutions
+
+    def sub(self, value, scope: dict[str, str], where: str) -> str:
+        """``value`` as text with ``$(var NAME)`` and ``$(find-pkg-share PKG)`` replaced."""
+        if isinstance(value, (dict, list)):
+            raise GraphError(f"{where}: expected a single value, got a {type(value).__name__}")
+        text = _text(value)
+
+        def replace(m: re.Match) -> str:
+            words = m.group(1).split()
+            if len(words) == 2 and words[0] == "var":
+                if words[1] not in scope:
+                    raise GraphError(f"{where}: $(var {words[1]}): no such argument or variable")
+                return scope[words[1]]
+            if len(words) == 2 and words[0] == "find-pkg-share":
+                from ament_index_python.packages import (
+                    PackageNotFoundError,
+                    get_package_share_directory,
+                )
+
+                try:
+                    return get_package_share_directory(words[1])
+                except (PackageNotFoundError, ValueError):
+                    raise GraphError(
+                        f"{where}: $(find-pkg-share {words[1]}): package not found"
+                    ) from None
+            raise GraphError(
+                f"{where}: unsupported substitution $({m.group(1)}) "
+                "(supported: $(var NAME), $(find-pkg-share PACKAGE))"
+            )
+
+        if "$(" in SUBSTITUTION.sub("", text):
+            raise GraphError(f"{where}: unterminated or nested substitution in {text!r}")
+        return SUBSTITUTION.sub(replace, text)
+
+    def param_value(self, value, scope: dict[str, str], where: str) -> str:
+        """A parameter value as the text after ``-p NAME:=`` (YAML, as the node parses it)."""
+        if isinstance(value, dict):
+            raise GraphError(f"{where}: nested parameter values are not supported")
+        if isinstance(value, list):
+            items = [yaml.safe_load(self.param_value(v, scope, where) or "''") for v in value]
+            return yaml.safe_dump(items, default_flow_style=True, width=1 << 30).strip()
+        if isinstance(value, float):
+            return repr(value)
+        text = self.sub(value, scope, where)
+        return text if text else "''"
+
+    # -- tags
+
+    def _arg(self, path, where, attrs, scope, depth) -> None:
+        name = self.sub(attrs["name"], scope, where)
+        default = attrs.get("default")
+        default = None if default is None else self.sub(default, scope, where)
+        self.graph.arguments.setdefault(
+            name, (default, self.sub(attrs.get("description", ""), scope, where))
+        )
+        if name in scope:
+            return
+        if default is None and self.require:
+            raise GraphError(f"{where}: argument {name!r} is required (give {name}:=VALUE)")
+        scope[name] = f"<{name}>" if default is None else default
+
+    def _let(self, path, where, attrs, scope, depth) -> None:
+        scope[self.sub(attrs["name"], scope, where)] = self.sub(attrs["value"], scope, where)
+
+    def _include(self, path, where, attrs, scope, depth) -> None:
+        target = Path(self.sub(attrs["file"], scope, where))
+        if not target.name.endswith((".yaml", ".yml")):
+            raise GraphError(f"{where}: only launch YAML files can be included, not {target}")
+        items = attrs.get("arg") or []
+        if not isinstance(items, list):
+            raise GraphError(f"{where}: 'arg' must be a list of name/value entries")
+        values = {}
+        for item in items:
+            if not isinstance(item, dict) or set(item) != {"name", "value"}:
+                raise GraphError(f"{where}: each arg needs exactly 'name' and 'value'")
+            values[self.sub(item["name"], scope, where)] = self.sub(item["value"], scope, where)
+        scope.update(values)  # not scoped: the including file sees them afterwards too
+        self.load(target, scope, depth + 1)
+
+    def _node(self, path, where, attrs, scope, depth) -> None:
+        pkg = self.sub(attrs["pkg"], scope, where)
+        exe = self.sub(attrs["exec"], scope, where)
+        where = f"{path}: node {exe!r}"
+        try:
+            node = NodeAction(pkg=pkg, exe=exe, executable=resolve_executable(pkg, exe))
+        except GraphError as exc:
+            raise GraphError(f"{where}: {exc}") from None
+        node.name = self.sub(attrs.get("name", ""), scope, where)
+        ns = self.sub(attrs.get("namespace", ""), scope, where).strip().rstrip("/")
+        node.namespace = ("" if not ns or ns.startswith("/") else "/") + ns
+        node.output = self.sub(attrs.get("output", "log"), scope, where)
+        if node.output not in OUTPUTS:
+            raise GraphError(f"{where}: output {node.output!r} is not one of {', '.join(OUTPUTS)}")
+        params = attrs.get("param") or []
+        if not isinstance(params, list):
+            raise GraphError(f"{where}: 'param' must be a list")
+        for item in params:
+            if isinstance(item, dict) and set(item) == {"name", "value"}:
+                key = self.sub(item["name"], scope, where)
+                node.params.append((key, self.param_value(item["value"], scope, f"{where}: {key}")))
+            elif isinstance(item, dict) and set(item) == {"from"}:
+                file = self.sub(item["from"], scope, where)
+                if not Path(file).is_file():
+                    raise GraphError(f"{where}: parameter file {file} not found")
+                node.param_files.append(file)
+            else:
+                raise GraphError(f"{where}: each param needs 'name' and 'value', or 'from'")
+        remaps = attrs.get("remap") or []
+        if not isinstance(remaps, list):
+            raise GraphError(f"{where}: 'remap' must be a list")
+        for item in remaps:
+            if not isinstance(item, dict) or set(item) != {"from", "to"}:
+                raise GraphError(f"{where}: each remap needs exactly 'from' and 'to'")
+            node.remaps.append(
+                (self.sub(item["from"], scope, where), self.sub(item["to"], scope, where))
+            )
+        self.graph.nodes.append(node)
+
+
+def parse_cli_args(items: list[str]) -> dict[str, str]:
+    """``name:=value`` items as a dict (GraphError for anything else)."""
+    out = {}
+    for item in items:
+        m = CLI_ARG.match(item)
+        if m is None:
+            raise GraphError(f"launch arguments are name:=value, got {item!r}")
+        out[m.group(1)] = m.group(2)
+    return out
+
+
+def load_graph(path: str | Path, cli: dict[str, str] | None = None, require: bool = True) -> Graph:
+    """Read a launch YAML file (and its includes) with the command-line arguments ``cli``.
+
+    Raises GraphError (one line) for anything the module doc refuses. With ``require``
+    False a required argument that is not given stands as ``<name>`` (to list the
+    arguments).
+    """
+    cli = dict(cli or {})
+    loader = _Loader(cli, require)
+    loader.load(Path(path), dict(cli))
+    unknown = sorted(set(cli) - set(loader.graph.arguments))
+    if unknown:
+        declared = ", ".join(loader.graph.arguments) or "none"
+        raise GraphError(f"{path}: no argument {unknown[0]!r} is declared (declared: {declared})")
+    _label(loader.graph.nodes)
+    return loader.graph
+
+
+def _label(nodes: list[NodeAction]) -> None:
+    """A unique label per node (its name without the leading slash, '/' as '.')."""
+    seen: dict[str, int] = {}
+    for node in nodes:
+        base = node.fqn().lstrip("/").replace("/", ".")
+        seen[base] = seen.get(base, 0) + 1
+        node.label = base if seen[base] == 1 else f"{base}-{seen[base]}"
+        if seen[base] == 2:
+            print(f"{PROG}: warning: two nodes named {node.fqn()}", file=sys.stderr)
+
+
+def recorder_action(output: str, regex: str | None, overwrite: bool) -> NodeAction:
+    """The recorder process that ``--record`` adds."""
+    out = Path(output)
+    if out.exists() and not overwrite:
+        raise GraphError(f"--record {output}: the file exists (add --overwrite to replace it)")
+    if not out.parent.is_dir():
+        raise GraphError(f"--record {output}: directory {out.parent} does not exist")
+    pkg, exe = RECORDER
+    args = ["-o", str(out)] + (["--regex", regex] if regex else ["-a"])
+    if overwrite:
+        args.append("--overwrite")
+    return NodeAction(
+        pkg=pkg,
+        exe=exe,
+        executable=resolve_executable(pkg, exe),
+        output="screen",
+        arguments=args,
+        # its summary (stdout) on the terminal, not a line per topic it subscribes
+        ros_arguments=["--log-level", "warn"],
+        name=f"mcap_record_{os.getpid()}",
+        label="mcap_record",
+        title="recorder mcap_record",
+    )
+
+
+# --------------------------------------------------------------------------- running
+
+
+class _Process:
+    """One started node: its Popen, output pumps and how it ended."""
+
+    def __init__(self, action: NodeAction, log_dir: Path | None, env: dict, lock) -> None:
+        self.action = action
+        self.log_path = log_dir / f"{action.label}.log" if action.output == "log" else None
+        self.signalled: int | None = None  # the last signal sent by us
+        self.killed = False
+        self._log = open(self.log_path, "ab") if self.log_path else None
+        try:
+            self.popen = subprocess.Popen(
+                action.command(),
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                env=env,
+                start_new_session=True,  # a process group of its own: signals come from us only
+            )
+        except OSError:
+            if self._log is not None:
+                self._log.close()
+            raise
+        prefix = f"[{action.label}] ".encode()
+        screen_out = action.output == "screen"
+        self._pumps = [
+            threading.Thread(
+                target=_pump,
+                args=(
+                    self.popen.stdout,
+                    prefix,
+                    sys.stdout if screen_out else None,
+                    self._log,
+                    lock,
+                ),
+                daemon=True,
+            ),
+            threading.Thread(
+                target=_pump,
+                args=(self.popen.stderr, prefix, sys.stderr, self._log, lock),
+                daemon=True,
+            ),
+        ]
+        for t in self._pumps:
+            t.start()
+
+    @property
+    def returncode(self) -> int | None:
+        return self.popen.poll()
+
+    def send(self, sig: int) -> None:
+        """Send ``sig`` to the process group (nothing if it has exited)."""
+        if self.popen.poll() is None:
+            self.signalled = sig
+            try:
+                os.killpg(self.popen.pid, sig)
+            except ProcessLookupError:
+                pass
+
+    def kill(self) -> None:
+        if self.popen.poll() is None:
+            self.killed = True
+            try:
+                os.killpg(self.popen.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+    def join(self) -> None:
+        """Wait for the output pumps (bounded) and close the log file."""
+        for t in self._pumps:
+            t.join(timeout=2.0)
+        if self._log is not None:
+            self._log.close()
+
+    def clean(self) -> bool:
+        """Exited with status 0, or from the signal it was sent."""
+        rc = self.popen.poll()
+        return rc == 0 or (self.signalled is not None and rc == -self.signalled and not self.killed)
+
+    def problem(self) -> str:
+        """One line on how the process failed."""
+        a = self.action
+        what = a.title or f"{a.fqn()} ({a.exe})"
+        rc = self.popen.poll()
+        if self.killed:
+            text = f"{what} did not stop after {signal.Signals(self.signalled or 2).name}; killed"
+        elif rc is not None and rc < 0:
+            text = f"{what} died from {signal.Signals(-rc).name}"
+        else:
+            text = f"{what} exited with status {rc}"
+        return text + (f" (log: {self.log_path})" if self.log_path else "")
+
+
+def _pump(stream, prefix: bytes, screen, log, lock) -> None:
+    """Copy lines of ``stream`` to the screen (prefixed) and to the log file."""
+    for line in iter(stream.readline, b""):
+        with lock:
+            if log is not None:
+                log.write(line)
+                log.flush()
+            if screen is not None:
+                raw = getattr(screen, "buffer", None)
+                if raw is not None:
+                    raw.write(prefix + line)
+                else:  # a text stream without bytes underneath (e.g. a captured one)
+                    screen.write((prefix + line).decode(errors="replace"))
+                screen.flush()
+    stream.close()
+
+
+def default_log_dir() -> Path:
+    """``$ROS_LOG_DIR`` (or ``$ROS_HOME/log``, ``~/.ros/log``) / ``run_graph_<time>_<pid>``."""
+    base = os.environ.get("ROS_LOG_DIR") or str(
+        Path(os.environ.get("ROS_HOME") or Path.home() / ".ros") / "log"
+    )
+    stamp = time.strftime("%Y-%m-%d-%H-%M-%S")
+    return Path(base) / f"{PROG}_{stamp}_{os.getpid()}"
+
+
+class Runner:
+    """Starts the processes, forwards signals, stops the graph in order, reports."""
+
+    POLL_S = 0.05
+    #: Longest wait for the recorder to appear in the graph before the nodes start [s].
+    READY_TIMEOUT_S = 15.0
+
+    def __init__(
+        self,
+        graph: Graph,
+        recorder: NodeAction | None = None,
+        duration: float | None = None,
+        kill_timeout: float = 5.0,
+        log_dir: Path | None = None,
+    ) -> None:
+        self.graph = graph
+        self.recorder_action = recorder
+        self.duration = duration
+        self.kill_timeout = kill_timeout
+        self.log_dir = log_dir
+        self._signals: list[int] = []
+        self._lock = threading.Lock()
+        self.failures: list[str] = []
+
+    def _on_signal(self, signum, _frame) -> None:
+        self._signals.append(signum)
+
+    def run(self) -> int:
+        """Run the graph until it stops; the exit status (module doc)."""
+        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            return self._run()
+        finally:
+            for s, h in previous.items():
+                signal.signal(s, h)
+
+    def _start(self, action: NodeAction, env: dict) -> _Process | None:
+        try:
+            return _Process(action, self.log_dir, env, self._lock)
+        except OSError as exc:
+            self._fail(f"{action.title or f'{action.fqn()} ({action.exe})'} failed to start: {exc}")
+            return None
+
+    def _run(self) -> int:
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        actions = self.graph.nodes + ([self.recorder_action] if self.recorder_action else [])
+        if any(a.output == "log" for a in actions):
+            if self.log_dir is None:
+                self.log_dir = default_log_dir()
+            self.log_dir.mkdir(parents=True, exist_ok=True)
+            print(f"{PROG}: logs in {self.log_dir}", file=sys.stderr, flush=True)
+        recorder = None
+        if self.recorder_action is not None:
+            recorder = self._start(self.recorder_action, env)
+            if recorder is not None and not self._wait_visible(recorder):
+                if recorder.returncode is None and not self._signals:
+                    print(
+                        f"{PROG}: warning: the recorder is not in the ROS graph after "
+                        f"{self.READY_TIMEOUT_S:g} s; starting the nodes anyway",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+        nodes: list[_Process] = []
+        for action in self.graph.nodes:
+            if self.failures or self._signals or (recorder and recorder.returncode is not None):
+                break
+            proc = self._start(action, env)
+            if proc is not None:
+                nodes.append(proc)
+        started = time.monotonic()
+        # phase: nodes run -> nodes stopping -> recorder stopping -> done
+        stopping_nodes = bool(self.failures)
+        node_deadline = recorder_deadline = None
+        reported: set[int] = set()
+        if stopping_nodes:
+            node_deadline = time.monotonic() + self.kill_timeout
+            for p in nodes:
+                p.send(signal.SIGINT)
+        while True:
+            while self._signals:
+                sig = self._signals.pop(0)
+                if not stopping_nodes:
+                    stopping_nodes, node_deadline = True, time.monotonic() + self.kill_timeout
+                for p in nodes:
+                    p.send(sig)
+                if recorder_deadline is not None and recorder is not None:
+                    recorder.send(sig)
+            if (
+                not stopping_nodes
+                and self.duration is not None
+                and time.monotonic() - started >= self.duration
+            ):
+                stopping_nodes, node_deadline = True, time.monotonic() + self.kill_timeout
+                for p in nodes:
+                    p.send(signal.SIGINT)
+            for p in nodes + ([recorder] if recorder else []):
+                if id(p) not in reported and p.returncode is not None and not p.clean():
+                    reported.add(id(p))
+                    if not p.killed:
+                        self._fail(p.problem())
+                    if not stopping_nodes:
+                        stopping_nodes, node_deadline = True, time.monotonic() + self.kill_timeout
+                        for q in nodes:
+                            q.send(signal.SIGINT)
+            running = [p for p in nodes if p.returncode is None]
+            if running and node_deadline is not None and time.monotonic() >= node_deadline:
+                for p in running:
+                    p.kill()
+                    self._fail(p.problem())
+                    reported.add(id(p))
+            if not running and recorder is not None and recorder_deadline is None:
+                recorder_deadline = time.monotonic() + self.kill_timeout
+                recorder.send(signal.SIGINT)
+            if recorder is not None and recorder.returncode is None:
+                if recorder_deadline is not None and time.monotonic() >= recorder_deadline:
+                    recorder.kill()
+                    self._fail(recorder.problem())
+                    reported.add(id(recorder))
+            if not running and (recorder is None or recorder.returncode is not None):
+                break
+            time.sleep(self.POLL_S)
+        for p in nodes + ([recorder] if recorder else []):
+            p.popen.wait()
+            p.join()
+            if id(p) not in reported and not p.clean():
+                self._fail(p.problem())
+        return FAILED if self.failures else OK
+
+    def _wait_visible(self, proc: _Process) -> bool:
+        """Wait until ``proc``'s node is in the ROS graph (at most :attr:`READY_TIMEOUT_S`),
+        unless it exits or a stop signal arrives first; True if it is."""
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.signals import SignalHandlerOptions
+
+        name = proc.action.name
+        ctx = Context()
+        # no signal handlers of rclpy's: SIGINT/SIGTERM stay run_graph's
+        rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
+        try:
+            node = rclpy.create_node(
+                f"run_graph_{os.getpid()}",
+                context=ctx,
+                enable_rosout=False,
+                start_parameter_services=False,
+            )
+            deadline = time.monotonic() + self.READY_TIMEOUT_S
+            while time.monotonic() < deadline and proc.returncode is None and not self._signals:
+                if any(n == name for n, _ns in node.get_node_names_and_namespaces()):
+                    return True
+                time.sleep(self.POLL_S)
+            return False
+        finally:
+            rclpy.try_shutdown(context=ctx)
+
+    def _fail(self, text: str) -> None:
+        self.failures.append(text)
+        with self._lock:
+            print(f"{PROG}: error: {text}", file=sys.stderr, flush=True)
+
+
+# --------------------------------------------------------------------------- command line
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog=PROG,
+        description=__doc__.splitlines()[0],
+        epilog="Supported launch YAML: tags launch, arg, let, node (pkg, exec, name, "
+        "namespace, param, remap, output), include; substitutions $(var NAME), "
+        "$(find-pkg-share PACKAGE).",
+    )
+    p.add_argument("file", help="launch YAML file (e.g. FILE.launch.yaml)")
+    p.add_argument("launch_args", nargs="*", metavar="name:=value", help="launch arguments")
+    p.add_argument(
+        "--duration", type=float, default=None, metavar="S", help="stop after S seconds (SIGINT)"
+    )
+    p.add_argument(
+        "--record",
+        default=None,
+        metavar="FILE.mcap",
+        help="record every topic with mcap_record (started first, stopped last)",
+    )
+    p.add_argument(
+        "--record-regex", default=None, metavar="RE", help="record only topics matching RE"
+    )
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --record file")
+    p.add_argument(
+        "--log-dir",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="directory of the output: log files (default: a new one under ~/.ros/log)",
+    )
+    p.add_argument(
+        "--kill-timeout",
+        type=float,
+        default=5.0,
+        metavar="S",
+        help="seconds between the stop signal and SIGKILL (default 5)",
+    )
+    p.add_argument(
+        "--show-args", action="store_true", help="list the file's launch arguments and exit"
+    )
+    p.add_argument(
+        "--dry-run", action="store_true", help="print each process's command line and exit"
+    )
+    return p
+
+
+def _error(message: str) -> int:
+    print(f"{PROG}: error: {message}", file=sys.stderr)
+    return BAD_INPUT
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point ``run_graph``; returns the exit status (module doc)."""
+    from mems_sim.ros.env import apply_defaults
+
+    args = _parser().parse_intermixed_args(argv)
+    if args.duration is not None and not 0 < args.duration < 1e9:
+        return _error(f"--duration = {args.duration!r} is invalid: allowed (0, 1e9) s")
+    if not 0 <= args.kill_timeout < 1e6:
+        return _error(f"--kill-timeout = {args.kill_timeout!r} is invalid: allowed [0, 1e6) s")
+    if args.record_regex is not None:
+        if args.record is None:
+            return _error("--record-regex needs --record FILE.mcap")
+        try:
+            re.compile(args.record_regex)
+        except re.error as exc:
+            return _error(f"--record-regex {args.record_regex!r}: {exc}")
+    apply_defaults()  # localhost discovery and an ament prefix, inherited by every process
+    try:
+        graph = load_graph(args.file, parse_cli_args(args.launch_args), not args.show_args)
+        if args.show_args:
+            for name, (default, description) in graph.arguments.items():
+                value = "(required)" if default is None else f"(default: {default!r})"
+                print(f"{name} {value}" + (f": {description}" if description else ""))
+            return OK
+        recorder = None
+        if args.record is not None:
+            recorder = recorder_action(args.record, args.record_regex, args.overwrite)
+    except GraphError as exc:
+        return _error(str(exc))
+    if args.dry_run:
+        for action in ([recorder] if recorder else []) + graph.nodes:
+            print(shlex.join(action.command()))
+        return OK
+    if not graph.nodes:
+        return _error(f"{args.file}: no node to run")
+    return Runner(graph, recorder, args.duration, args.kill_timeout, args.log_dir).run()
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

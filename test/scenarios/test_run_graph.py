@@ -1,0 +1,431 @@
+"""run_graph, through its command line: the launch YAML subset it reads, the one-line
+refusals (exit 2), how it stops processes and reports failures, and a recorded
+two-namespace graph stopped with SIGINT."""
+
+import os
+import shlex
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+from conftest import spin_until
+
+VENV_BIN = Path(sys.executable).parent
+LIB = Path(sys.prefix) / "lib" / "mems_emulator"
+RUN_GRAPH = str(VENV_BIN / "run_graph")
+
+
+def write(path: Path, text: str) -> Path:
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+def run_graph(args, env, timeout=60) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [RUN_GRAPH, *map(str, args)], env=env, capture_output=True, text=True, timeout=timeout
+    )
+
+
+def refusal(args, env) -> str:
+    """run_graph's exit status is 2 and stderr is one line; that line."""
+    run = run_graph(args, env)
+    assert run.returncode == 2, run.stderr
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1, run.stderr
+    assert lines[0].startswith("run_graph: error: ")
+    return lines[0]
+
+
+def commands(run: subprocess.CompletedProcess) -> list[list[str]]:
+    assert run.returncode == 0, run.stderr
+    return [shlex.split(line) for line in run.stdout.splitlines()]
+
+
+# --------------------------------------------------------------------------- the subset
+
+
+def test_args_let_include_param_remap_become_command_lines(tmp_path, subprocess_env):
+    params = write(tmp_path / "p.yaml", "/**:\n  ros__parameters:\n    frame_size: 50\n")
+    inner = write(
+        tmp_path / "inner.launch.yaml",
+        """\
+        launch:
+        - arg: {name: ns}
+        - arg: {name: rate, default: "1.0"}
+        - node:
+            pkg: mems_emulator
+            exec: imu_node
+            name: imu_$(var ns)
+            namespace: $(var ns)
+            param:
+            - {name: realtime_factor, value: $(var rate)}
+            - from: $(var params)
+            remap:
+            - {from: truth, to: truth_$(var ns)}
+        - let: {name: leaked, value: "yes"}
+        """,
+    )
+    outer = write(
+        tmp_path / "outer.launch.yaml",
+        f"""\
+        launch:
+        - arg: {{name: first, default: a, description: first namespace}}
+        - let: {{name: params, value: {params}}}
+        - include:
+            file: {inner}
+            arg:
+            - {{name: ns, value: $(var first)}}
+        - include:
+            file: {inner}
+            arg:
+            - {{name: ns, value: /b/}}
+            - {{name: rate, value: "2"}}
+        - node:
+            pkg: mems_emulator
+            exec: imu_noise_identifier_node
+            output: screen
+            param:
+            - {{name: publish_period_s, value: 5.0}}
+            - {{name: flag, value: true}}
+            - {{name: list, value: [1, 2.5, x]}}
+            - {{name: empty, value: ""}}
+            - {{name: share, value: $(find-pkg-share mems_emulator)/x}}
+        """,
+    )
+    from ament_index_python.packages import get_package_share_directory
+
+    share = get_package_share_directory("mems_emulator")
+    assert commands(run_graph([outer, "first:=x/y", "--dry-run"], subprocess_env)) == [
+        [
+            str(LIB / "imu_node"),
+            *("--ros-args", "-r", "__node:=imu_x/y", "-r", "__ns:=/x/y"),
+            *("-p", "realtime_factor:=1.0", "--params-file", str(params)),
+            *("-r", "truth:=truth_x/y"),
+        ],
+        [
+            str(LIB / "imu_node"),
+            *("--ros-args", "-r", "__node:=imu_/b/", "-r", "__ns:=/b"),
+            *("-p", "realtime_factor:=2", "--params-file", str(params)),
+            *("-r", "truth:=truth_/b/"),
+        ],
+        [
+            str(LIB / "imu_noise_identifier_node"),
+            *("--ros-args", "-p", "publish_period_s:=5.0", "-p", "flag:=true"),
+            *("-p", "list:=[1, 2.5, x]", "-p", "empty:=''", "-p", f"share:={share}/x"),
+        ],
+    ]
+    # includes are not scoped: what the included file sets, and its arguments, stay set
+    after = write(
+        tmp_path / "after.launch.yaml",
+        f"launch:\n- include: {{file: {inner}, arg: [{{name: ns, value: a}}, "
+        f"{{name: params, value: {params}}}]}}\n"
+        "- node: {pkg: mems_emulator, exec: imu_node, name: $(var leaked), "
+        "namespace: $(var ns)}\n",
+    )
+    last = commands(run_graph([after, "--dry-run"], subprocess_env))[-1]
+    assert last[-4:] == ["-r", "__node:=yes", "-r", "__ns:=/a"]
+
+
+def test_show_args_lists_the_arguments_of_the_file_and_its_includes(tmp_path, subprocess_env):
+    inner = write(tmp_path / "inner.launch.yaml", "launch:\n- arg: {name: rate, default: '2'}\n")
+    f = write(
+        tmp_path / "g.launch.yaml",
+        f"""\
+        launch:
+        - arg: {{name: seed, default: "3", description: run seed}}
+        - arg: {{name: where}}
+        - include: {{file: {inner}}}
+        - node: {{pkg: mems_emulator, exec: imu_node, namespace: $(var where)}}
+        """,
+    )
+    run = run_graph([f, "--show-args"], subprocess_env)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.splitlines() == [
+        "seed (default: '3'): run seed",
+        "where (required)",
+        "rate (default: '2')",
+    ]
+
+
+def test_dry_run_prints_the_recorder_then_the_nodes(tmp_path, subprocess_env):
+    f = write(
+        tmp_path / "g.launch.yaml",
+        "launch:\n- node: {pkg: mems_emulator, exec: imu_node, namespace: a}\n",
+    )
+    out = tmp_path / "r.mcap"
+    run = run_graph([f, "--dry-run", "--record", out, "--record-regex", "^/a/"], subprocess_env)
+    recorder, imu = commands(run)
+    assert recorder[:6] == [
+        str(LIB / "mcap_record"),
+        "-o",
+        str(out),
+        "--regex",
+        "^/a/",
+        "--ros-args",
+    ]
+    assert recorder[6] == "-r" and recorder[7].startswith("__node:=mcap_record_")
+    assert recorder[8:] == ["--log-level", "warn"]
+    assert imu == [str(LIB / "imu_node"), "--ros-args", "-r", "__ns:=/a"]
+
+
+# --------------------------------------------------------------------------- refusals
+
+
+NODE = "- node: {pkg: mems_emulator, exec: imu_node}\n"
+
+
+@pytest.mark.parametrize(
+    "text, cli, expected",
+    [
+        ("launch:\n- node: {pkg: mems_emulator\n", [], ":3:1: YAML syntax error"),
+        ("launch:\n- node:\n\tpkg: x\n", [], "YAML syntax error"),
+        ("launch:\n- node: {pkg: mems_emulator, exec: no_such_exe}\n", [], "'no_such_exe' not"),
+        ("launch:\n- node: {pkg: no_such_pkg, exec: imu_node}\n", [], "package 'no_such_pkg'"),
+        ("launch:\n- group: {}\n", [], "unsupported tag 'group'"),
+        ("launch:\n- node: {pkg: mems_emulator, exec: imu_node, args: -x}\n", [], "'args'"),
+        ("launch:\n- node: {pkg: mems_emulator}\n", [], "'exec' is required"),
+        ("launch:\n- arg: {name: ns}\n" + NODE, [], "argument 'ns' is required"),
+        ("launch:\n" + NODE, ["ns:=a"], "no argument 'ns' is declared"),
+        ("launch:\n" + NODE, ["ns=a"], "name:=value"),
+        (
+            "launch:\n- node: {pkg: mems_emulator, exec: imu_node, name: $(env USER)}\n",
+            [],
+            "unsupported substitution $(env USER)",
+        ),
+        (
+            "launch:\n- node: {pkg: mems_emulator, exec: imu_node, name: $(var nope)}\n",
+            [],
+            "$(var nope): no such",
+        ),
+        ("launch:\n- node: {pkg: mems_emulator, exec: $(var x}\n", [], "unterminated"),
+        ("launch:\n- node: {pkg: mems_emulator, exec: imu_node, output: both}\n", [], "output"),
+        ("launch:\n- include: {file: other.launch.py}\n", [], "only launch YAML"),
+        ("launch:\n- include: {file: /nonexistent/x.launch.yaml}\n", [], "cannot read"),
+        ("nodes: []\n", [], "one key 'launch'"),
+        (
+            "launch:\n- node:\n    pkg: mems_emulator\n    exec: imu_node\n"
+            "    param: [{from: /nonexistent.yaml}]\n",
+            [],
+            "parameter file /nonexistent.yaml not found",
+        ),
+    ],
+)
+def test_refused_with_one_line_and_status_2(tmp_path, subprocess_env, text, cli, expected):
+    f = write(tmp_path / "bad.launch.yaml", text)
+    assert expected in refusal([f, *cli], subprocess_env)
+
+
+def test_unknown_executable_line_names_file_node_package_and_folder(tmp_path, subprocess_env):
+    f = write(tmp_path / "g.launch.yaml", "launch:\n- node: {pkg: mems_emulator, exec: nope}\n")
+    assert refusal([f], subprocess_env) == (
+        f"run_graph: error: {f}: node 'nope': executable 'nope' not found in package "
+        f"'mems_emulator' ({LIB})"
+    )
+
+
+def test_include_cycle_and_bad_options_are_refused(tmp_path, subprocess_env):
+    f = tmp_path / "loop.launch.yaml"
+    write(f, f"launch:\n- include: {{file: {f}}}\n")
+    assert "nested deeper" in refusal([f], subprocess_env)
+    g = write(tmp_path / "g.launch.yaml", "launch:\n" + NODE)
+    existing = tmp_path / "exists.mcap"
+    existing.write_bytes(b"")
+    assert "--overwrite" in refusal([g, "--record", existing], subprocess_env)
+    assert "--duration" in refusal([g, "--duration", "0"], subprocess_env)
+    assert "needs --record" in refusal([g, "--record-regex", "x"], subprocess_env)
+    empty = write(tmp_path / "e.launch.yaml", "launch: []\n")
+    assert "no node" in refusal([empty], subprocess_env)
+
+
+# --------------------------------------------------------------------------- the runner
+
+
+@pytest.fixture
+def fake_pkg(tmp_path, subprocess_env):
+    """(make, env): ``make(name, body)`` puts a shell script standing in for a node
+    executable (it ignores --ros-args) in package ``fake`` of an ament prefix of its own;
+    ``env`` finds that package."""
+    prefix = tmp_path / "prefix"
+    (prefix / "share/ament_index/resource_index/packages").mkdir(parents=True)
+    (prefix / "share/ament_index/resource_index/packages/fake").write_text("")
+    (prefix / "lib/fake").mkdir(parents=True)
+
+    def make(name: str, body: str, shebang: str = "#!/bin/bash") -> None:
+        path = prefix / "lib/fake" / name
+        path.write_text(f"{shebang}\n{body}\n")
+        path.chmod(0o755)
+
+    env = dict(subprocess_env)
+    env["AMENT_PREFIX_PATH"] = f"{prefix}{os.pathsep}{env.get('AMENT_PREFIX_PATH', sys.prefix)}"
+    return make, env
+
+
+def graph_file(tmp_path: Path, *nodes: str, output: str = "screen") -> Path:
+    text = "launch:\n" + "".join(
+        f"- node: {{pkg: fake, exec: {n}, name: {n}, output: {output}}}\n" for n in nodes
+    )
+    return write(tmp_path / "fake.launch.yaml", text)
+
+
+def test_a_failing_node_stops_the_graph_and_is_named(tmp_path, fake_pkg):
+    make, env = fake_pkg
+    make("slow", "trap 'exit 0' INT; while true; do sleep 0.05; done")
+    make("bad", "echo starting; echo broken >&2; sleep 0.3; exit 3")
+    logs = tmp_path / "logs"
+    t0 = time.monotonic()
+    run = run_graph([graph_file(tmp_path, "slow", "bad", output="log"), "--log-dir", logs], env)
+    assert time.monotonic() - t0 < 5
+    assert run.returncode == 1
+    problems = [line for line in run.stderr.splitlines() if line.startswith("run_graph: error")]
+    assert problems == [
+        f"run_graph: error: /bad (bad) exited with status 3 (log: {logs / 'bad.log'})"
+    ]
+    assert "[bad] broken" in run.stderr  # a log node's stderr is on the screen too
+    assert "starting" not in run.stdout
+    assert (logs / "bad.log").read_text().splitlines() == ["starting", "broken"]
+
+
+def test_a_node_that_ignores_the_stop_signal_is_killed(tmp_path, fake_pkg):
+    make, env = fake_pkg
+    make("stubborn", "trap '' INT TERM; while true; do sleep 0.05; done")
+    make("polite", "trap 'exit 0' INT; while true; do sleep 0.05; done")
+    f = graph_file(tmp_path, "stubborn", "polite")
+    t0 = time.monotonic()
+    run = run_graph([f, "--duration", "0.5", "--kill-timeout", "0.5"], env)
+    assert 0.9 < time.monotonic() - t0 < 5
+    assert run.returncode == 1
+    assert run.stderr.strip().splitlines() == [
+        "run_graph: error: /stubborn (stubborn) did not stop after SIGINT; killed"
+    ]
+
+
+def test_a_node_that_cannot_start_is_named_and_nothing_else_runs(tmp_path, fake_pkg):
+    make, env = fake_pkg
+    make("broken", "true", shebang="#!/nonexistent/interpreter")
+    make("later", "touch " + str(tmp_path / "ran"))
+    run = run_graph([graph_file(tmp_path, "broken", "later")], env)
+    assert run.returncode == 1
+    assert run.stderr.startswith("run_graph: error: /broken (broken) failed to start: ")
+    assert len(run.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "ran").exists()
+
+
+def test_nodes_that_finish_on_their_own_end_the_run_with_status_0(tmp_path, fake_pkg):
+    make, env = fake_pkg
+    make("quick", "echo done")
+    make("quicker", "echo 'to stderr' >&2")
+    run = run_graph([graph_file(tmp_path, "quick", "quicker")], env)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout == "[quick] done\n"
+    assert run.stderr == "[quicker] to stderr\n"
+
+
+# --------------------------------------------------------------------------- a real graph
+
+
+GRAPH = """\
+launch:
+- arg: {name: first, default: left, description: namespace of the first IMU}
+- arg: {name: second, default: right}
+- arg: {name: rate, default: "20.0"}
+- node:
+    pkg: mems_emulator
+    exec: imu_node
+    name: imu
+    namespace: $(var first)
+    param:
+    - {name: realtime_factor, value: $(var rate)}
+    - {name: frame_size, value: 100}
+    - {name: seed, value: 1}
+- include:
+    file: INNER
+    arg:
+    - {name: ns, value: $(var second)}
+    - {name: rate, value: $(var rate)}
+"""
+INNER = """\
+launch:
+- arg: {name: ns}
+- arg: {name: rate}
+- let: {name: truth_topic, value: truth_remapped}
+- node:
+    pkg: mems_emulator
+    exec: imu_node
+    name: imu
+    namespace: $(var ns)
+    output: screen
+    param:
+    - {name: realtime_factor, value: $(var rate)}
+    - {name: seed, value: 2}
+    - from: PARAMS
+    remap:
+    - {from: truth, to: $(var truth_topic)}
+"""
+
+
+def stderr_of(f) -> str:
+    f.seek(0)
+    return f.read()[-3000:]
+
+
+def test_graph_with_args_two_namespaces_and_recorder_stops_cleanly_on_sigint(
+    tmp_path, graph, subprocess_env
+):
+    from mems_msgs.msg import AdcFrame
+    from mems_sim.bag.player import read_messages
+    from mems_sim.ros.qos import FRAME_QOS
+
+    _, ex, probe = graph
+    params = write(tmp_path / "p.yaml", "/**:\n  ros__parameters:\n    frame_size: 50\n")
+    inner = write(tmp_path / "inner.launch.yaml", INNER.replace("PARAMS", str(params)))
+    outer = write(tmp_path / "g.launch.yaml", GRAPH.replace("INNER", str(inner)))
+    bag = tmp_path / "graph.mcap"
+    got = {"/a/adc": [], "/b/adc": []}
+    for topic, box in got.items():
+        probe.create_subscription(AdcFrame, topic, box.append, FRAME_QOS)
+    out, err = (open(tmp_path / n, "w+") for n in ("stdout", "stderr"))
+    proc = subprocess.Popen(
+        [str(VENV_BIN / "run_graph"), str(outer), "first:=a", "second:=/b"]
+        + ["--record", str(bag), "--log-dir", str(tmp_path / "logs"), "--duration", "60"],
+        env=subprocess_env,
+        stdout=out,
+        stderr=err,
+        start_new_session=True,
+    )
+    recorded = ("/a/adc", "/a/truth", "/b/adc", "/b/truth_remapped")
+    try:
+        # the recorder (a second subscriber next to the probe) has subscribed every topic
+        assert spin_until(
+            ex,
+            lambda: all(probe.count_subscribers(t) >= 1 + t.endswith("adc") for t in recorded),
+            timeout=40,
+        ), stderr_of(err)
+        # then 10 more frames each (20 frames/s per IMU)
+        n = {t: len(v) for t, v in got.items()}
+        assert spin_until(ex, lambda: all(len(v) >= n[t] + 10 for t, v in got.items()), 20)
+        os.kill(proc.pid, signal.SIGINT)
+        assert proc.wait(timeout=30) == 0
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    out.seek(0)
+    err.seek(0)
+    stdout, stderr = out.read(), err.read()
+    assert "run_graph: error" not in stderr, stderr
+    assert f"[mcap_record] {bag}:" in stdout  # the recorder's summary, stopped last
+    # the first IMU logs to a file, the second one to the screen
+    assert (tmp_path / "logs" / "a.imu.log").is_file()
+    assert not (tmp_path / "logs" / "b.imu.log").exists()
+    sizes: dict[str, set] = {}
+    for topic, _type, _t, msg in read_messages(str(bag)):
+        if hasattr(msg, "num_samples"):
+            sizes.setdefault(topic, set()).add(msg.num_samples)
+    # -p frame_size for /a, the parameter file for /b; /b's truth remapped
+    assert sizes["/a/adc"] == {100} and sizes["/a/truth"] == {100}
+    assert sizes["/b/adc"] == {50} and sizes["/b/truth_remapped"] == {50}
+    assert "/b/truth" not in sizes
