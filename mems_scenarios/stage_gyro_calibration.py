@@ -267,9 +267,13 @@ def run_graph(options, plan: Plan, models: dict, out: Path, instances: dict | No
         wall = _time.monotonic() - wall0
         progress.close()
         graph.spin_until(
-            lambda: all(cals[ns].estimates_received >= ekfs[ns].frames_done for ns in INSTANCES),
+            lambda: all(
+                cals[ns].estimates_received >= ekfs[ns].frames_done
+                and cals[ns].gyro_frames_received >= rec.received(f"/{ns}/gyro/adc")
+                for ns in INSTANCES
+            ),
             60.0,
-            "the calibration nodes to receive the last estimates",
+            "the calibration nodes to receive the last estimates and gyro frames",
         )
         for ns, c in cals.items():
             c.close()

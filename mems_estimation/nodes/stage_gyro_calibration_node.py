@@ -117,6 +117,8 @@ class GyroCalibrationNode(EstimatorNode):
 
     def __init__(self, **node_kwargs) -> None:
         super().__init__(**node_kwargs)
+        #: gyro frames taken off the wire (accepted or not): lets an owner wait for them
+        self.gyro_frames_received = 0
         p = self.p
         self.cal = StreamingCalibrator(p["sample_rate_hz"], p["settle_fraction"], p["half_window"])
         # load the compiled (numba) harmonic fit now, not at the first trial (~1 s)
@@ -151,6 +153,7 @@ class GyroCalibrationNode(EstimatorNode):
 
     def on_gyro(self, msg: AdcFrame) -> None:
         """Gyro samples, placed on the stage's sample index through their stamps."""
+        self.gyro_frames_received += 1
         v = self.take_frame("gyro", msg, _gyro_rate, check_rate=False)
         if v is None or not self.sequence(
             "gyro", msg.first_sample_index, msg.num_samples, hooks=False
