@@ -216,7 +216,6 @@ def test_invalid_parameters_refused(ros_context):
 
 
 def test_shared_amdm_front_end_publishes(graph):
-    pytest.importorskip("mems_sim.devices.scanner_amdm")
     ctx, ex, probe = graph
     dev = MicroScannerNode(
         context=ctx,
