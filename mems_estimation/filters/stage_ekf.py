@@ -210,6 +210,41 @@ class StageEkf:
         self.uprev = np.zeros(1)
         self.resets += 1
 
+    def start_forced(self, u: np.ndarray, f_drive: np.ndarray, periods: int = 8) -> None:
+        """Re-initialise at the forced steady state of the model under the coming drive,
+        P = P0: the prior of a stage that has been driven, unseen, for much longer than
+        its time constant 1/(zeta wn) (a long gap).
+
+        The drive u_k [V] (first samples of the coming frame, at most ``periods`` periods
+        of the frequency ``f_drive[0]`` [Hz] it starts with) is fitted by least squares as
+        u_k = Re(U z^k) + c, z = exp(j 2 pi f / fs). The steady state of the discrete model
+        x_k = A_d x_{k-1} + B_d u_{k-1} (eqs. 34, 48) is x_k = Re(X z^k) + X_0 with
+        X = (z I - A_d)^-1 B_d U and X_0 = (I - A_d)^-1 B_d c; the carried state is its
+        value at k = -1 (state and held input before the first coming sample). Without a
+        drive frequency (f <= 0) or with fewer than 8 samples only the constant part is
+        used.
+        """
+        u = np.asarray(u, float)
+        f = float(f_drive[0]) if len(f_drive) else 0.0
+        n = len(u)
+        if f > 0.0:
+            other = np.flatnonzero(np.asarray(f_drive) != f_drive[0])
+            n = min(n if other.size == 0 else int(other[0]), int(periods * self.model.fs / f))
+        k = np.arange(n)
+        if f > 0.0 and n >= 8:
+            w = 2.0 * math.pi * f / self.model.fs
+            M = np.column_stack([np.cos(w * k), np.sin(w * k), np.ones(n)])
+            (a, b, c), *_ = np.linalg.lstsq(M, u[:n], rcond=None)
+            z, U = complex(math.cos(w), math.sin(w)), complex(a, -b)
+        else:
+            z, U, c = 1.0 + 0.0j, 0.0j, float(np.mean(u[:n])) if n else 0.0
+        self.reset()
+        B = np.asarray(self.B, float).reshape(2)
+        X = np.linalg.solve(z * np.eye(2) - self.A, B * U)
+        X0 = np.linalg.solve(np.eye(2) - self.A, B * c)
+        self.x[:] = (X / z).real + X0
+        self.uprev[:] = (U / z).real + c
+
     def diverged(self) -> bool:
         """True if the state is not finite, the covariance is not positive definite
         (:func:`~mems_sim.kernels.divergence.covariance_ok`) or the tilt is not inside

@@ -63,7 +63,8 @@ INPUT_SPECS: tuple[ParamSpec, ...] = (
         2**32,
         "samples",
         "largest forward jump of first_sample_index handled as a gap; a larger jump (or "
-        "one back by more) is a stream reset: the estimator starts again from its prior",
+        "one back by more) is a stream reset: the estimator starts again (from its prior, "
+        "or as its node documents)",
         "chosen: 2^32 samples, over an hour at 1 MHz",
         min=1,
         max=2**62,
@@ -159,6 +160,8 @@ class StreamIndex:
     def __init__(self, max_gap: int = 2**32) -> None:
         self.max_gap = int(max_gap)
         self.expected: int | None = None
+        #: whether the last stream reset jumped ahead (True) or back (False)
+        self.ahead = False
         self._recent: deque[int] = deque(maxlen=self.HISTORY)
         self._behind_next: int | None = None
         self._behind_run = 0
@@ -190,6 +193,7 @@ class StreamIndex:
             event, missing = "reset", 0
         if event == "reset":
             self._recent.clear()
+            self.ahead = first > self.expected
         self.expected = first + n
         self._recent.append(first)
         self._behind_next, self._behind_run = None, 0
@@ -319,8 +323,9 @@ class EstimatorNode(MemsNode):
        (``out_of_order_frames``), a forward jump up to ``max_gap_samples`` is a gap
        (``gaps``, ``missing_samples``, warning with :attr:`GAP_NOTE`, then :meth:`on_gap`),
        a larger jump (either way) or a stream that started again is a stream reset
-       (``stream_resets``, then :meth:`on_stream_reset`: by default the estimator starts
-       again from its prior, :meth:`reset_estimator`).
+       (``stream_resets``, then :meth:`on_stream_reset`, told whether the jump was ahead:
+       by default the estimator starts again from its prior, :meth:`reset_estimator`; a
+       node may take a jump ahead as a long gap).
     3. Pairing (:meth:`subscribe_pair`): good frames of the two streams are paired by
        ``first_sample_index``; frames waiting for their partner are bounded to
        ``max_unpaired_samples`` samples (and :data:`~mems_sim.ros.qos.FRAME_DEPTH`
@@ -489,7 +494,7 @@ class EstimatorNode(MemsNode):
                 f"beyond max_gap_samples = {self._limit('max_gap_samples')} or a restart)"
             )
             if hooks:
-                self.on_stream_reset()
+                self.on_stream_reset(index.ahead)
         elif event == "gap":
             self.note_gap(first, missing)
             if hooks:
@@ -576,9 +581,11 @@ class EstimatorNode(MemsNode):
     def on_gap(self, gap: int) -> None:
         """Called after ``gap`` samples were found missing, before the next pair."""
 
-    def on_stream_reset(self) -> None:
-        """Called at a stream reset, before the frame that starts the new stream:
-        :meth:`reset_estimator`."""
+    def on_stream_reset(self, ahead: bool) -> None:
+        """Called at a stream reset, before the frame that starts the new stream; ``ahead``:
+        the index jumped ahead by more than ``max_gap_samples`` (the device ran on, unseen),
+        else the stream started again (a device or a replay that started again). By
+        default both: :meth:`reset_estimator`."""
         self.reset_estimator()
 
     def on_format_change(self, kind: str) -> None:

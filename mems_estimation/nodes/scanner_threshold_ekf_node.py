@@ -23,7 +23,8 @@ Publishes (estimates are *final*: they lag the input by the filter's ``lag`` sam
 
 Input path: :class:`EstimatorNode`. Over a gap the filters continue as if the samples
 were consecutive; the estimates keep the input's sample indices (a message never spans a
-gap). A stream reset, or a divergence of either EKF (non-finite state or covariance not
+gap), also over a jump ahead beyond ``max_gap_samples`` (a counted stream reset). A
+stream that started again, or a divergence of either EKF (non-finite state or covariance not
 positive definite; counted ``divergences``, that frame's outputs not published), starts
 both EKFs again from their prior (the pending ``lag`` estimates become the prior;
 detections of earlier samples are too late).
@@ -259,6 +260,13 @@ class ScannerThresholdNode(EstimatorNode):
         lo = k - self.hybrid.lag
         while len(self._segments) > 1 and self._segments[1][0] <= lo:
             self._segments.pop(0)
+
+    def on_stream_reset(self, ahead: bool) -> None:
+        """A jump ahead is taken as a gap (the scanner ran on, unseen: the filters
+        continue as if the samples were consecutive); a stream that started again (a
+        scanner that starts at rest) starts both EKFs again from their prior."""
+        if not ahead:
+            self.reset_estimator()
 
     def reset_estimator(self) -> None:
         """Both EKFs start again from their prior at the current sample."""

@@ -9,9 +9,12 @@ the stage's ``estimate`` (StateEstimate: theta [rad], omega [rad/s] with varianc
 sample). Malformed or non-finite frames are rejected and counted on /diagnostics; the
 estimator keeps running (input path: :class:`EstimatorNode`). Over a gap of at most
 :attr:`StageEkfNode.BRIDGE_TIME_CONSTANTS` time constants 1/(zeta wn) of the model the EKF
-runs time updates only (in bounded chunks); after a longer gap, a stream reset or a
-divergence (non-finite state, covariance not positive definite, |theta| >= pi/2; counted
-``divergences``, that frame's estimates not published) it starts again from its prior;
+runs time updates only (in bounded chunks); after a longer gap or a jump ahead beyond
+``max_gap_samples`` (the stage ran on, unseen, for many time constants) it starts again at
+the forced steady state under the drive of the next frame; after a stream that started
+again or a divergence (non-finite state, covariance not positive definite,
+|theta| >= pi/2; counted ``divergences``, that frame's estimates not published) it starts
+again from its prior;
 the feedthrough cancellation history starts again in every case.
 """
 
@@ -101,6 +104,7 @@ class StageEkfNode(EstimatorNode):
         self.model = model.select(chans)
         self.fs = self.model.fs
         self.ekf = StageEkf(self.model)
+        self._start_forced = False
         self.canceller = FeedthroughCanceller(
             len(chans), self.model.fs, enabled=p["cancel_feedthrough"]
         )
@@ -132,25 +136,40 @@ class StageEkfNode(EstimatorNode):
 
     def on_gap(self, gap: int) -> None:
         """The EKF continues with time updates only over the missing span (at most
-        :attr:`BRIDGE_TIME_CONSTANTS` time constants, else it starts again from its prior);
-        the feedthrough cancellation starts again."""
+        :attr:`BRIDGE_TIME_CONSTANTS` time constants; after a longer one it starts again at
+        the forced steady state under the next frame's drive); the feedthrough
+        cancellation starts again."""
         m = self.model
         bridge = self.BRIDGE_TIME_CONSTANTS * m.fs / (m.zeta * m.wn)
         if gap <= bridge:
             self.ekf.time_update(gap)
         else:
-            self.ekf.reset()
+            self._start_forced = True
         self.canceller.reset()
+
+    def on_stream_reset(self, ahead: bool) -> None:
+        """A jump ahead (the stage ran on unseen, longer than any bridged gap) starts the
+        EKF again at the forced steady state under the next frame's drive
+        (:meth:`StageEkf.start_forced`); a stream that started again (a stage that starts at
+        rest), from its prior."""
+        if ahead:
+            self.on_gap(2**63)
+        else:
+            self.reset_estimator()
 
     def reset_estimator(self) -> None:
         """The EKF starts again from its prior, the feedthrough cancellation from no
         history."""
         self.ekf.reset()
         self.canceller.reset()
+        self._start_forced = False
 
     def process_pair(self, first: int, stamp_ns: int, y: np.ndarray, drive) -> None:
         """Cancel the feedthrough, run the EKF on one frame and publish theta, omega."""
         u, vb, fd = drive
+        if self._start_forced:
+            self.ekf.start_forced(u, fd)
+            self._start_forced = False
         yc = self.canceller.step(y, vb, fd)
         x, v = self.ekf.step(yc, u, corrected=self.p["output_correction"])
         if self.ekf.diverged() or not state_ok(x, v):

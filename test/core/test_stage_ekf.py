@@ -241,3 +241,26 @@ def test_gain_adaptive_ekf_follows_actuator_drift(identified):
     assert out["drift"][0] / out["nominal"][0] == pytest.approx(1.01, abs=1e-3)
     assert out["drift"][1] == pytest.approx(out["nominal"][1], abs=5e-4)
     assert out["drift"][2] / out["nominal"][2] == pytest.approx(1 / 1.01, abs=2e-3)
+
+
+def test_forced_start_is_the_steady_state_of_the_model(identified):
+    """After a long gap the EKF starts at the forced steady state of eqs. (34)/(48) under
+    the coming drive: equal to the model driven from rest for 20 time constants."""
+    m, _ = identified
+    ekf = StageEkf(m)
+    f, fs = 1703.0, m.fs
+    k_end = int(20 * fs / (m.zeta * m.wn))
+    k = np.arange(k_end + 4000)
+    u = 0.9 * np.sin(2 * np.pi * f * k / fs + 0.7) + 0.05
+    A, B = ekf.A, np.asarray(ekf.B, float).reshape(2)
+    x = np.zeros(2)
+    for j in range(1, k_end):  # x_{k_end - 1}, moved by u_0 .. u_{k_end - 2}
+        x = A @ x + B * u[j - 1]
+    ekf.start_forced(u[k_end:], np.full(4000, f))
+    assert ekf.x == pytest.approx(x, rel=1e-6, abs=1e-12 * np.abs(x).max())
+    assert ekf.uprev[0] == pytest.approx(u[k_end - 1], rel=1e-9)
+    assert np.allclose(ekf.P, np.diag(ekf.p0))
+    # no drive frequency: the constant part only (the stage at its static deflection)
+    ekf.start_forced(np.full(100, 0.05), np.zeros(100))
+    static = np.linalg.solve(np.eye(2) - A, B * 0.05)
+    assert ekf.x == pytest.approx(static, rel=1e-9) and ekf.uprev[0] == pytest.approx(0.05)
