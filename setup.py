@@ -31,8 +31,13 @@ RUNTIME = (
     "rosbags",
     "zstandard",
     "lz4",
+    "foxglove-sdk",
+    "dask",
+    "distributed",
+    "pandas",
+    "pyarrow",
 )
-TEST = ("pytest", "ruff", "xmlschema", "AllanTools", "filterpy")
+TEST = ("pytest", "ruff", "xmlschema", "AllanTools", "filterpy", "websockets")
 
 
 def locked(names):
@@ -71,7 +76,11 @@ setup(
         ),
         (
             f"share/{PACKAGE}/config",
-            sorted(str(p.relative_to(HERE)) for p in (HERE / "config").glob("*")),
+            sorted(str(p.relative_to(HERE)) for p in (HERE / "config").glob("*") if p.is_file()),
+        ),
+        (
+            f"share/{PACKAGE}/config/foxglove",
+            sorted(str(p.relative_to(HERE)) for p in (HERE / "config" / "foxglove").glob("*.json")),
         ),
     ],
     install_requires=locked(RUNTIME),
@@ -87,6 +96,7 @@ setup(
         "console_scripts": [
             "run_scenario = mems_scenarios.cli:main",
             "run_graph = mems_scenarios.launch_graph:main",
+            "run_campaign = mems_scenarios.campaign:main",
             "imu_node = mems_sim.nodes.imu_node:main",
             "imu_noise_identifier_node = mems_estimation.nodes.imu_noise_identifier_node:main",
             "resonator_node = mems_sim.nodes.resonator_node:main",
@@ -99,11 +109,13 @@ setup(
             "scanner_node = mems_sim.nodes.scanner_node:main",
             "scanner_threshold_ekf_node = mems_estimation.nodes.scanner_threshold_ekf_node:main",
             "scanner_amdm_node = mems_sim.nodes.scanner_amdm_node:main",
+            "view_node = mems_sim.nodes.view_node:main",
             "scanner_amdm_estimator_node = mems_estimation.nodes.scanner_amdm_estimator_node:main",
             "identify_noise = mems_estimation.tools.identify_noise:main",
             "mcap_record = mems_sim.bag.recorder:main",
             "mcap_play = mems_sim.bag.player:main",
             "mcap_info = mems_sim.bag.info:main",
+            "live_view = mems_sim.ros.live_view:main",
         ],
     },
 )

@@ -13,11 +13,14 @@ ARGS = {
     # 120 s of data: pacing at rates 1 and 10 and the lossless replay in ~3 min
     # (bench_replay.py alone defaults to the 600 s of the data-path figures)
     "bench_replay.py": ["--duration", "120"],
+    # 40 runs of 600 s on 1 and 2 workers, 10 alone (~6 min)
+    "bench_campaign.py": ["--runs", "40", "--duration", "600"],
 }
 
 for name in (
     "bench_allan.py",
     "bench_recorder.py",
+    "bench_recorder_split.py",
     "bench_sd_resonator.py",
     "bench_accelerometer.py",
     "bench_scanner.py",
@@ -25,6 +28,8 @@ for name in (
     "bench_stage_ekf.py",
     "bench_imu_fast.py",
     "bench_replay.py",
+    "bench_live_view.py",
+    "bench_campaign.py",
 ):
     print(f"== {name}")
     sys.argv = [str(HERE / name)] + ARGS.get(name, [])

@@ -33,12 +33,11 @@ from mems_scenarios.base import (
     ScenarioOptions,
     format_table,
     graph_for,
-    parameters,
     publish_all,
     run_recorded,
     topic_frames,
 )
-from mems_sim.bag.recorder import RecorderNode
+from mems_scenarios.figures import Figure, cell
 from mems_sim.devices import accelerometer as fra
 from mems_sim.nodes.accelerometer_node import FrAccelerometerNode
 
@@ -125,22 +124,16 @@ def build_graph(options: ScenarioOptions, out: Path, duration: float):
         devices[ns] = graph.add_device(
             FrAccelerometerNode, p, realtime=options.realtime, namespace=ns
         )
-    ekf = graph.add(
-        HybridEkfNode(
-            context=graph.context,
-            namespace="acc_pi_1g",
-            parameter_overrides=parameters(
-                dict(
-                    device_cases()["acc_pi_1g"],
-                    device_namespace="/acc_pi_1g",
-                    output_topic="/acc_pi_1g/hybrid_ekf/estimate",
-                )
-            ),
-        )
+    ekf = graph.node(
+        HybridEkfNode,
+        dict(
+            device_cases()["acc_pi_1g"],
+            device_namespace="/acc_pi_1g",
+            output_topic="/acc_pi_1g/hybrid_ekf/estimate",
+        ),
+        namespace="acc_pi_1g",
     )
-    rec = graph.add(
-        RecorderNode(str(out), regex=r"^/acc_", exclude=NOT_RECORDED, context=graph.context)
-    )
+    rec = graph.recorder(str(out), regex=r"^/acc_", exclude=NOT_RECORDED)
     return graph, devices, ekf, rec
 
 
@@ -259,8 +252,8 @@ def table3(f: dict) -> str:
             paper = PAPER_III.get((a, m))
             state = "CONTACT" if d["contact"] else ("v_F clipped" if d["saturated"] else "")
             row += [
-                f"{d['snr']:.1f}",
-                f"{d['x_max']:.2e}",
+                cell(d["snr"], ".1f"),
+                cell(d["x_max"], ".2e"),
                 state,
                 "-"
                 if paper is None
@@ -269,7 +262,13 @@ def table3(f: dict) -> str:
         rows.append(row)
     d = f["devices"][f"acc_{OPEN_OVER}"]
     rows.append(
-        ["15 g", f"{d['snr']:.1f}", f"{d['x_max']:.2e}", "CONTACT" if d["contact"] else "", "-"]
+        [
+            "15 g",
+            cell(d["snr"], ".1f"),
+            cell(d["x_max"], ".2e"),
+            "CONTACT" if d["contact"] else "",
+            "-",
+        ]
         + [""] * 8
     )
     head = ["input"]
@@ -286,10 +285,10 @@ def table4(f: dict) -> str:
         rows.append(
             [
                 QR_LABELS[case],
-                f"{d['snr']:.1f}",
-                f"{d['accel_snr']:.1f}",
-                f"{d['err_max']:.2e}",
-                f"{d['err_std']:.2e}",
+                cell(d["snr"], ".1f"),
+                cell(d["accel_snr"], ".1f"),
+                cell(d["err_max"], ".2e"),
+                cell(d["err_std"], ".2e"),
                 "yes" if d["not_pd"] == 0 else f"NO ({d['not_pd']} samples)",
                 PAPER_IV[case],
             ]
@@ -329,7 +328,8 @@ def checks(f: dict) -> list[tuple[str, str, str, str, bool]]:
             "contact",
             "contact"
             if d5["contact"]
-            else f"tracks, max |x| {d5['x_max']:.2e} m; static pull-in at {f['pull_in_g']:.1f} g",
+            else f"tracks, max |x| {cell(d5['x_max'], '.2e')} m; static pull-in at "
+            f"{cell(f['pull_in_g'], '.1f')} g",
             d5["contact"],
         )
     )
@@ -351,7 +351,7 @@ def checks(f: dict) -> list[tuple[str, str, str, str, bool]]:
                 f"{m.upper()} loop tracks 10 g without contact",
                 "yes",
                 "yes",
-                f"SNR {d['snr']:.1f} dB, max |x| {d['x_max']:.2e} m",
+                f"SNR {cell(d['snr'], '.1f')} dB, max |x| {cell(d['x_max'], '.2e')} m",
                 ok,
             )
         )
@@ -365,7 +365,7 @@ def checks(f: dict) -> list[tuple[str, str, str, str, bool]]:
             "open-loop / closed-loop max displacement (0.1 g, 1 g)",
             "17.5",
             ">= 10",
-            f"{ratio:.1f}",
+            cell(ratio, ".1f"),
             ratio >= 10,
         )
     )
@@ -377,7 +377,7 @@ def checks(f: dict) -> list[tuple[str, str, str, str, bool]]:
                 f"EKF loop - PI loop SNR at {AMPS[a]:g} g (max |x| ratio)",
                 "+8 dB",
                 ">= +6 dB, same |x|",
-                f"{gain:+.1f} dB ({xr:.2f})",
+                f"{cell(gain, '+.1f')} dB ({cell(xr, '.2f')})",
                 gain >= 6 and xr <= 1.1,
             )
         )
@@ -412,11 +412,73 @@ def checks(f: dict) -> list[tuple[str, str, str, str, bool]]:
                 f"{label}: x error mean / std vs predicted",
                 "zero mean, 1e-10",
                 "|mean| <= 3 se, std within 20 %",
-                f"{c['mean']:.1e} (se {c['stderr']:.1e}) / {c['std']:.2e} vs "
-                f"{c['predicted_std']:.2e} ({c['std_ratio']:.2f})",
+                f"{cell(c['mean'], '.1e')} (se {cell(c['stderr'], '.1e')}) / "
+                f"{cell(c['std'], '.2e')} vs {cell(c['predicted_std'], '.2e')} "
+                f"({cell(c['std_ratio'], '.2f')})",
                 ok,
             )
         )
+    return out
+
+
+#: Stable names of the acceptance items of :func:`checks`, in its order.
+CHECK_NAMES = (
+    "check.open_loop_tracks_0g1_1g",
+    "check.open_loop_contact_5g",
+    "check.open_loop_contact_15g",
+    "check.pi_loop_tracks_10g",
+    "check.ekf_loop_tracks_10g",
+    "check.open_closed_x_max_ratio",
+    "check.ekf_minus_pi_snr_0g1",
+    "check.ekf_minus_pi_snr_1g",
+    "check.qr_sweep_direction",
+    "check.qr_covariance_pd_flagged",
+    "check.ekf_1g_consistency",
+    "check.downstream_ekf_1g_consistency",
+)
+
+
+def _consistency_records(prefix: str, c: dict) -> list[Figure]:
+    return [
+        Figure(f"{prefix}.x_err_mean", c["mean"], "m"),
+        Figure(f"{prefix}.x_err_mean_stderr", c["stderr"], "m"),
+        Figure(f"{prefix}.x_err_std", c["std"], "m"),
+        Figure(f"{prefix}.x_err_predicted_std", c["predicted_std"], "m"),
+        Figure(f"{prefix}.x_err_std_ratio", c["std_ratio"], "1"),
+    ]
+
+
+def records(f: dict) -> list[Figure]:
+    """The scenario's figures as data: per device (namespace) output SNR [dB], max |x| [m],
+    contact and clipping flags, the EKF loops' a_hat SNR and x errors [m], the Table IV
+    covariance check, the consistency figures, and the acceptance items (value: the measured
+    text of the item)."""
+    out = []
+    for ns, params in device_cases().items():
+        d = f["devices"][ns]
+        out += [
+            Figure(f"{ns}.output_snr", d["snr"], "dB"),
+            Figure(f"{ns}.x_max", d["x_max"], "m"),
+            Figure(f"{ns}.contact", d["contact"], ""),
+            Figure(f"{ns}.v_f_clipped", d["saturated"], ""),
+        ]
+        if params["mode"] == "ekf_rebalance":
+            out += [
+                Figure(f"{ns}.accel_snr", d["accel_snr"], "dB"),
+                Figure(f"{ns}.x_err_max", d["err_max"], "m"),
+                Figure(f"{ns}.x_err_std", d["err_std"], "m"),
+            ]
+        if ns == "acc_ekf_0g1" or ns.startswith("acc_qr_"):
+            out.append(Figure(f"{ns}.not_pd_samples", d["not_pd"], "", "== 0", d["not_pd"] == 0))
+    out += _consistency_records("acc_ekf_1g.consistency", f["devices"]["acc_ekf_1g"]["consistency"])
+    out += _consistency_records("acc_pi_1g.hybrid_ekf.consistency", f["downstream"])
+    out.append(Figure("acc_pi_1g.hybrid_ekf.accel_snr", f["downstream"]["accel_snr"], "dB"))
+    out.append(Figure("pull_in", f["pull_in_g"], "g"))
+    items = f["checks"]
+    if len(items) != len(CHECK_NAMES):
+        raise ScenarioError(f"{len(items)} acceptance items, {len(CHECK_NAMES)} names")
+    for name, (_, _, asked, measured, ok) in zip(CHECK_NAMES, items):
+        out.append(Figure(name, measured, "", asked, bool(ok)))
     return out
 
 
@@ -491,11 +553,12 @@ def run(options: ScenarioOptions) -> dict:
         check_duration=_check_duration,
         run_graph=run_graph,
         figures=lambda out, res, _d: figures(out, res["diagnostics"]),
+        records=records,
         table=table,
         plot=plot,
     )
-    f = r["figures"]
-    r["figures"] = dict(
+    f = r["values"]
+    r["values"] = dict(
         devices={
             ns: {k: v for k, v in d.items() if k != "series"} for ns, d in f["devices"].items()
         },

@@ -33,9 +33,11 @@ from mems_scenarios.domain import (  # noqa: F401  (DEFAULT_DOMAINS, DomainLease
     lease_domain,
 )
 from mems_sim.bag.recorder import RecorderNode
+from mems_sim.params import ParameterError, spec_table
 from mems_sim.ros.env import apply_defaults
 from mems_sim.ros.frames import index_to_ns
 from mems_sim.ros.node_base import PacedEmulator
+from mems_sim.ros.params_file import Override, node_matches
 from mems_sim.table import format_table  # noqa: F401  (scenarios print with it)
 
 #: Topics a scenario's recorder leaves out: the estimators' flow-control reports
@@ -63,6 +65,11 @@ class ScenarioOptions:
         domain_id: ROS domain of the private context.
         progress: show a progress bar (default: when stderr is a terminal).
         plots: write PNG figures next to the MCAP file.
+        overrides: node parameters the user set (``--params-file`` entries, then ``--set``
+            ones; later wins): they take precedence over the scenario's own values
+            (:meth:`Graph.node`).
+        applied: filled by the run: (node, parameter) -> (value, origin) of every override
+            applied to a node (the run's graphs share it).
     """
 
     duration_s: float | None = None
@@ -73,6 +80,8 @@ class ScenarioOptions:
     progress: bool | None = None
     plots: bool = True
     extra: dict = field(default_factory=dict)
+    overrides: list[Override] = field(default_factory=list)
+    applied: dict = field(default_factory=dict)
 
 
 def default_domain_id() -> int:
@@ -107,10 +116,25 @@ class Graph:
         cut: fault injection for tests of the loss reporting: topic -> messages; an
             emulator added later that publishes the topic hands only that many of its
             messages to the middleware (:meth:`EmulatorNode.cut_topic`).
+        overrides: node parameters the user set (:class:`ScenarioOptions`), applied by
+            :meth:`node` and :meth:`add_device` on top of the scenario's values and checked
+            by :meth:`check_overrides`.
     """
 
-    def __init__(self, domain_id: int | None = None, *, cut: dict | None = None) -> None:
+    def __init__(
+        self,
+        domain_id: int | None = None,
+        *,
+        cut: dict | None = None,
+        overrides: list[Override] | None = None,
+    ) -> None:
         apply_defaults()
+        self.overrides = list(overrides or [])
+        #: (node, parameter) -> (value, origin) of every override applied, in order.
+        self.applied: dict[tuple[str, str], tuple[object, str]] = {}
+        #: Fully qualified name -> class of every node made by :meth:`node`.
+        self.node_classes: dict[str, type] = {}
+        self._used: set[int] = set()
         if domain_id is None:
             domain_id = default_domain_id()
         try:
@@ -163,15 +187,78 @@ class Graph:
         """Add an emulator node of ``node_class`` with parameters ``params``: driven by the
         runner in fast runs, paced by its own timer in real-time runs (started by
         :func:`publish_all` once every consumer is matched, so no frame is lost to discovery)."""
-        kwargs = {} if namespace is None else {"namespace": namespace}
-        node = node_class(
-            context=self.context,
-            drive_externally=not realtime,
-            autostart=False,
-            parameter_overrides=parameters(params),
-            **kwargs,
+        return self.node(
+            node_class, params, namespace=namespace, drive_externally=not realtime, autostart=False
         )
+
+    def node(self, node_class, params: dict | None = None, *, namespace: str | None = None, **kw):
+        """Create a node of ``node_class`` (a :class:`~mems_sim.ros.node_base.MemsNode`) in
+        the graph's context with the scenario's parameters ``params`` and, on top of them, the
+        user's overrides whose node name matches it (:meth:`overridden`); add it and return it.
+        ``kw`` go to the node's constructor."""
+        if namespace is not None:
+            kw["namespace"] = namespace
+        values = self.overridden(node_class, namespace, params or {})
+        node = node_class(context=self.context, parameter_overrides=parameters(values), **kw)
         return self.add(node)
+
+    def overridden(self, node_class, namespace: str | None, params: dict) -> dict:
+        """``params`` of a node of ``node_class`` in ``namespace`` (None: the class's
+        default) with the overrides that match its fully qualified name, as rcl matches a
+        parameter file's node names (:mod:`mems_sim.ros.params_file`). Each value is checked
+        against the node's parameter table first: a value out of range raises
+        :class:`ScenarioError` naming the node, the parameter, the value and the range."""
+        ns = getattr(node_class, "DEFAULT_NAMESPACE", "") if namespace is None else namespace
+        fqn = "/" + "/".join(p for p in (ns.strip("/"), node_class.NODE_NAME) if p)
+        self.node_classes[fqn] = node_class
+        specs = spec_table(node_class.SPECS)
+        out = dict(params)
+        for i, o in enumerate(self.overrides):
+            if not node_matches(o.node, fqn) or o.name not in specs:
+                continue
+            try:
+                value = specs[o.name].validate(o.value)
+            except ParameterError as exc:
+                self.close()
+                raise ScenarioError(f"{o.where()}: node {fqn}: {exc}") from None
+            self._used.add(i)
+            out[o.name] = value
+            self.applied.pop((fqn, o.name), None)
+            self.applied[(fqn, o.name)] = (value, o.origin)
+        return out
+
+    def check_overrides(self) -> None:
+        """Refuse (:class:`ScenarioError`, one line) an override whose node name matches no
+        node made by :meth:`node`, or whose parameter no node it matches has. Called by
+        :meth:`recorder` (the last node a scenario adds, before the MCAP file is opened) and
+        :func:`prepare_delivery`."""
+        import difflib
+
+        for i, o in enumerate(self.overrides):
+            if i in self._used:
+                continue
+            nodes = [n for n in self.node_classes if node_matches(o.node, n)]
+            if not nodes:
+                self.close()
+                raise ScenarioError(
+                    f"{o.where()}: no node of this scenario matches {o.node}; its nodes are "
+                    + ", ".join(sorted(self.node_classes))
+                )
+            known = sorted({s.name for n in nodes for s in self.node_classes[n].SPECS})
+            near = difflib.get_close_matches(o.name, known, n=1)
+            hint = f"did you mean '{near[0]}'? " if near else ""
+            what = nodes[0] if len(nodes) == 1 else f"none of the {len(nodes)} nodes {o.node}"
+            self.close()
+            raise ScenarioError(
+                f"{o.where()}: {what} has no parameter '{o.name}' ({hint}"
+                f"known are {', '.join(known)})"
+            )
+
+    def recorder(self, output: str, **kwargs) -> RecorderNode:
+        """Add the scenario's recorder (the last node): :meth:`check_overrides` first, so a
+        bad override is refused before the MCAP file is opened."""
+        self.check_overrides()
+        return self.add(RecorderNode(output, context=self.context, **kwargs))
 
     def publish_clock(self, ns: int) -> None:
         """Publish simulated time on /clock (not again while it has not moved)."""
@@ -238,13 +325,37 @@ class Graph:
             if self.context.ok():
                 rclpy.shutdown(context=self.context)
         finally:
+            if getattr(self, "live_view", None) is not None:  # graph_for's, if any
+                self.live_view.stop()
             self.lease.release()
 
 
+def output_path(out: Path | str, seed: int, suffix: str) -> Path:
+    """A file a scenario writes beside its MCAP file ``out`` (a figure, a YAML result),
+    named with the run seed so that runs with other seeds never overwrite it:
+    ``<stem>-seed<N><suffix>``, the stem being the MCAP file's without a trailing ``-<N>``
+    or ``-seed<N>`` (the default ``runs/imu_noise-1.mcap`` gives
+    ``runs/imu_noise-seed1-allan.png`` for the suffix ``-allan.png``)."""
+    out = Path(out)
+    stem = out.stem.removesuffix(f"-seed{seed}").removesuffix(f"-{seed}") or out.stem
+    return out.with_name(f"{stem}-seed{seed}{suffix}")
+
+
 def graph_for(options: ScenarioOptions) -> Graph:
-    """The Graph of a scenario run: its domain (None: a free one, leased) and the fault
+    """The Graph of a scenario run: its domain (None: a free one, leased), the user's
+    parameter overrides (recorded as applied in ``options.applied``) and the fault
     injection of ``options.extra['cut']`` (topic -> messages, tests only)."""
-    return Graph(options.domain_id, cut=options.extra.get("cut"))
+    graph = Graph(options.domain_id, cut=options.extra.get("cut"), overrides=options.overrides)
+    graph.applied = options.applied
+    if options.extra.get("live_view") is not None:  # run_scenario --live-view [PORT]
+        from mems_scenarios.live import LiveView, LiveViewError
+
+        try:
+            graph.live_view = LiveView(graph.domain_id, options.extra["live_view"])
+        except LiveViewError as exc:
+            graph.close()
+            raise ScenarioError(str(exc)) from None
+    return graph
 
 
 class Progress:
@@ -311,6 +422,7 @@ def prepare_delivery(graph: Graph, devices: list, timeout_s: float = 30.0) -> No
     that no message is lost to discovery; then :meth:`Graph.check_alone`."""
     topics = [(rec, acc.topic) for rec, acc, _ in recorded_streams(graph, devices)]
     topics += [(rec, t) for rec, _, t in _end_of_stream_topics(graph, devices)]
+    graph.check_overrides()
     deadline = time.monotonic() + timeout_s
     while not all(rec.matched(t) for rec, t in topics):
         if time.monotonic() > deadline:
@@ -543,6 +655,7 @@ def run_recorded(
     check_duration: Callable[[float], None],
     run_graph: Callable[..., dict],
     figures: Callable[[Path, dict, float], dict],
+    records: Callable[[dict], list],
     table: Callable[[dict], str],
     plot: Callable[..., None],
     png_suffixes: tuple[str, ...] = ("",),
@@ -555,10 +668,13 @@ def run_recorded(
             ``recorder`` and ``published``.
         figures: ``(mcap_path, run_graph_result, duration) -> dict`` (key ``series`` holds
             arrays for the plots only).
+        records: ``figures dict -> list`` of :class:`~mems_scenarios.figures.Figure`, the
+            figures as data (``run_scenario --json``).
         plot: ``(figures, *png_paths)``; one PNG per entry of ``png_suffixes``, named
-            ``<mcap stem><suffix>.png`` next to the MCAP file.
+            ``<mcap stem>-seed<N><suffix>.png`` next to the MCAP file (:func:`output_path`).
     Returns:
-        dict with ``table``, ``figures`` (without ``series``), ``mcap``, ``figure`` (first
+        dict with ``table``, ``figures`` (the :class:`~mems_scenarios.figures.Figure`
+        records), ``values`` (the figures dict without ``series``), ``mcap``, ``figure`` (first
         PNG), ``figure_paths``, ``recorder``, ``published``, ``duration_s``.
     """
     duration = default_duration_s if options.duration_s is None else options.duration_s
@@ -573,7 +689,7 @@ def run_recorded(
     f = figures(out, result, duration)
     pngs = None
     if options.plots:
-        pngs = tuple(out.with_name(out.stem + s + ".png") for s in png_suffixes)
+        pngs = tuple(output_path(out, options.seed, s + ".png") for s in png_suffixes)
         with warnings.catch_warnings():
             # matplotlib warns when placing a "best" legend over many points takes over a
             # second, which depends on the host's load, not on the figure
@@ -581,7 +697,8 @@ def run_recorded(
             plot(f, *pngs)
     return dict(
         table=table(f),
-        figures={k: v for k, v in f.items() if k != "series"},
+        figures=records(f),
+        values={k: v for k, v in f.items() if k != "series"},
         mcap=out,
         figure=pngs[0] if pngs else None,
         figure_paths=pngs,

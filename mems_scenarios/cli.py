@@ -2,7 +2,8 @@
 
 Usage:
     run_scenario --list
-    run_scenario NAME [--duration S] [--seed N] [--realtime] [--out FILE.mcap]
+    run_scenario NAME [--duration S] [--seed N] [--set NODE.PARAM=VALUE ...]
+                 [--params-file FILE.yaml] [--realtime] [--out FILE.mcap] [--json]
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from mems_scenarios.base import ScenarioError, ScenarioOptions
 from mems_sim.params import ParameterError
 from mems_sim.ros.end_of_stream import is_end_of_stream_topic
 from mems_sim.ros.env import apply_defaults
+from mems_sim.ros.params_file import Override, ParamsFileError, load_params_file, parse_set
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -32,9 +34,37 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--seed", type=int, default=0, metavar="N", help="run seed (default 0)")
     p.add_argument(
+        "--set",
+        dest="set_params",
+        action="append",
+        default=[],
+        metavar="NODE.PARAM=VALUE",
+        help="set a parameter of one of the scenario's nodes (NODE: its name, e.g. imu, in any "
+        "namespace, or its fully qualified name, e.g. /imu/imu; VALUE: a YAML scalar or list); "
+        "repeatable, applied after --params-file; overrides the scenario's own value",
+    )
+    p.add_argument(
+        "--params-file",
+        action="append",
+        default=[],
+        metavar="FILE.yaml",
+        help="ROS 2 parameter file (node names, /** and namespaced names with "
+        "ros__parameters, as --ros-args --params-file reads it) applied to the scenario's nodes",
+    )
+    p.add_argument(
         "--realtime",
         action="store_true",
         help="pace the graph to the wall clock (default: as fast as possible)",
+    )
+    p.add_argument(
+        "--live-view",
+        type=int,
+        nargs="?",
+        const=8765,
+        default=None,
+        metavar="PORT",
+        help="show the run live in Foxglove: a WebSocket server on ws://127.0.0.1:PORT "
+        "(default 8765; 0: a free port, printed); at most 30 messages/s per topic",
     )
     p.add_argument(
         "--out",
@@ -56,6 +86,13 @@ def _parser() -> argparse.ArgumentParser:
     # messages of TOPIC to the middleware (the run must then fail naming TOPIC)
     p.add_argument("--cut", action="append", default=[], help=argparse.SUPPRESS)
     p.add_argument("--no-plots", action="store_true", help="do not write PNG figures")
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="print the scenario's figures as a JSON list of {name, value, unit, target, pass} "
+        "records on stdout (the table and the other lines go to stderr); a missed target does "
+        "not change the exit status",
+    )
     p.add_argument(
         "--progress",
         dest="progress",
@@ -85,10 +122,16 @@ def validate(args) -> str | None:
         return f"--seed = {args.seed} is invalid: allowed [0, 2^62]"
     if args.domain_id is not None and not 0 <= args.domain_id <= 232:
         return f"--domain-id = {args.domain_id} is invalid: allowed [0, 232]"
+    if args.live_view is not None and not 0 <= args.live_view <= 65535:
+        return f"--live-view = {args.live_view} is invalid: allowed [0, 65535] (a TCP port)"
     for cut in args.cut:
         topic, _, n = cut.rpartition(":")
         if not topic.startswith("/") or not n.isdigit():
             return f"--cut = {cut!r} is invalid: TOPIC:MESSAGES"
+    try:
+        args.overrides = overrides(args)
+    except ParamsFileError as exc:
+        return str(exc)
     if args.out is not None and args.out.suffix != ".mcap":
         return f"--out = {str(args.out)!r} is invalid: the file name must end in .mcap"
     if args.out is not None and args.out.parent.is_dir():
@@ -100,9 +143,42 @@ def validate(args) -> str | None:
     return None
 
 
+def overrides(args) -> list[Override]:
+    """The node parameters of ``--params-file`` (in file order), then of ``--set``."""
+    out = []
+    for path in args.params_file:
+        out += load_params_file(path)
+    return out + [parse_set(text) for text in args.set_params]
+
+
+def applied_text(applied: dict) -> str:
+    """One line per node: the overrides the run applied, e.g.
+    ``/imu/imu: seed=3 (--set)``."""
+    by_node: dict[str, list[str]] = {}
+    for (node, name), (value, origin) in applied.items():
+        by_node.setdefault(node, []).append(f"{name}={value!r} ({origin})")
+    return "\n".join(f"  {node}: {', '.join(items)}" for node, items in sorted(by_node.items()))
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``run_scenario``."""
+    """Entry point of ``run_scenario``. Exit status: 0 ran, 1 lost data, 2 bad input; a missed
+    target is reported in the table (and ``--json``), it does not change the status."""
     args = _parser().parse_args(argv)
+    args.result = None
+    if not args.json or args.list:
+        return _main(args)
+    import contextlib
+
+    from mems_scenarios.figures import to_json
+
+    with contextlib.redirect_stdout(sys.stderr):  # stdout carries the JSON only
+        status = _main(args)
+    if args.result is not None:
+        print(to_json(args.result["figures"]))
+    return status
+
+
+def _main(args) -> int:
     if args.list:
         for name in SCENARIOS:
             module = load(name)
@@ -126,12 +202,15 @@ def main(argv: list[str] | None = None) -> int:
         domain_id=args.domain_id,
         progress=args.progress,
         plots=not args.no_plots,
+        overrides=args.overrides,
     )
     if args.cut:
         options.extra["cut"] = {c.rpartition(":")[0]: int(c.rpartition(":")[2]) for c in args.cut}
+    if args.live_view is not None:
+        options.extra["live_view"] = args.live_view
     start = time.monotonic()
     try:
-        result = module.run(options)
+        result = args.result = module.run(options)
     except (ScenarioError, ParameterError) as exc:
         return _fail(str(exc))
     except OSError as exc:  # e.g. the output directory cannot be created, the disk is full
@@ -143,6 +222,9 @@ def main(argv: list[str] | None = None) -> int:
         f"\nscenario {args.name}: seed {args.seed}, {result['duration_s']:g} s simulated in "
         f"{wall:.1f} s wall ({'real time' if args.realtime else 'as fast as possible'})\n"
     )
+    if options.applied:
+        print("parameters set (they override the scenario's values):")
+        print(applied_text(options.applied) + "\n")
     print(result["table"])
     rec = result.get("recorder") or {}
     counts = {t: n for t, n in (rec.get("counts") or {}).items() if not is_end_of_stream_topic(t)}

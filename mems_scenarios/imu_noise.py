@@ -1,7 +1,8 @@
 """Scenario ``imu_noise``: IMU noise emulator -> Allan noise identification -> MCAP.
 
 Graph (one process): ``/imu/imu_noise`` (mems_sim.nodes.imu_node) publishes
-``/imu/adc``, ``/imu/truth`` (and ``/imu/data`` in --realtime runs);
+``/imu/adc``, ``/imu/truth`` (and ``/imu/data``, sensor_msgs/Imu per sample, in
+--realtime runs, and in fast runs with ``--set imu.publish_imu=true``);
 ``/imu/noise_identifier`` identifies N, B, K, T per axis from ``/imu/adc`` and
 publishes ``/imu/noise_model``; the recorder writes everything to MCAP.
 Prints configured vs identified N, B, K, T per axis and writes an Allan
@@ -24,10 +25,10 @@ from mems_scenarios.base import (
     finish_delivery,
     format_table,
     graph_for,
-    parameters,
+    output_path,
     prepare_delivery,
 )
-from mems_sim.bag.recorder import RecorderNode
+from mems_scenarios.figures import Figure, cell, is_finite
 from mems_sim.nodes.imu_node import ImuNoiseNode
 from mems_sim.ros.frames import index_to_ns
 
@@ -69,17 +70,16 @@ def build_graph(options: ScenarioOptions, out: Path, duration_s: float):
     }
     emu_params.update(options.extra.get("emulator", {}))
     emu = graph.add_device(ImuNoiseNode, emu_params, realtime=options.realtime)
-    ident = graph.add(
-        NoiseIdentifierNode(
-            context=graph.context,
-            namespace="imu",
-            parameter_overrides=parameters(
-                {"publish_period_s": 0.0 if duration_s < 7200 else 3600.0}
-            ),
-        )
+    ident = graph.node(
+        NoiseIdentifierNode,
+        {"publish_period_s": 0.0 if duration_s < 7200 else 3600.0},
+        namespace="imu",
     )
-    topics = TOPICS + (["/imu/data"] if options.realtime else [])
-    rec = graph.add(RecorderNode(str(out), topics=topics, context=graph.context))
+    # sensor_msgs/Imu (one per sample) whenever the emulator publishes it: on by default in
+    # --realtime runs, in fast runs with publish_imu set (lossless through drive_fast's flow
+    # control, which counts every data topic the recorder records)
+    topics = TOPICS + (["/imu/data"] if emu.pub_imu is not None else [])
+    rec = graph.recorder(str(out), topics=topics)
     return graph, emu, ident, rec
 
 
@@ -157,10 +157,10 @@ def results_table(model, configured: dict) -> tuple[str, list[dict]]:
                     axis.axis,
                     sym,
                     unit,
-                    f"{conf:.4g}",
-                    f"{term.value:.4g}",
-                    f"[{term.ci_low:.3g}, {term.ci_high:.3g}]",
-                    f"{100 * rel:+.1f} %",
+                    cell(conf, ".4g"),
+                    cell(term.value, ".4g"),
+                    f"[{cell(term.ci_low, '.3g')}, {cell(term.ci_high, '.3g')}]",
+                    cell(100 * rel if is_finite(rel) else rel, "+.1f", " %"),
                 ]
             )
             records.append(
@@ -170,6 +170,30 @@ def results_table(model, configured: dict) -> tuple[str, list[dict]]:
             )
     header = ["axis", "param", "unit", "configured", "identified", "95 % CI", "rel. error"]
     return format_table(header, rows), records
+
+
+def figure_records(model, configured: dict) -> list[Figure]:
+    """The table as data, per axis and term (e.g. ``gyro_x.N.identified``): configured and
+    identified value, 95 % CI bounds (unit as printed: SI per axis) and the relative error
+    (a fraction). No targets: the identification is reported, not judged."""
+    out = []
+    for axis in model.axes:
+        sensor = "gyro" if axis.axis.startswith("gyro") else "accel"
+        for sym, _ in PARAM_NAMES:
+            term = getattr(axis, FIELD[sym])
+            conf = configured[sensor][sym]
+            rel = (term.value - conf) / conf if conf else math.nan
+            unit = {"N": f"{axis.unit}/sqrt(Hz)", "B": axis.unit, "K": f"{axis.unit}/sqrt(s)"}
+            unit = unit.get(sym, "s")
+            key = f"{axis.axis}.{sym}"
+            out += [
+                Figure(f"{key}.configured", conf, unit),
+                Figure(f"{key}.identified", term.value, unit),
+                Figure(f"{key}.ci_low", term.ci_low, unit),
+                Figure(f"{key}.ci_high", term.ci_high, unit),
+                Figure(f"{key}.rel_error", rel, "1"),
+            ]
+    return out
 
 
 def run(options: ScenarioOptions) -> dict:
@@ -204,12 +228,14 @@ def run(options: ScenarioOptions) -> dict:
         )
         graph.close()
     table, records = results_table(model, configured)
+    figures = figure_records(model, configured)
     figure = None
     if options.plots:
-        figure = out.with_name(out.stem + "-allan.png")
+        figure = output_path(out, options.seed, "-allan.png")
         plot_allan(model, figure)
     return dict(
         table=table,
+        figures=figures,
         records=records,
         mcap=out,
         figure=figure,

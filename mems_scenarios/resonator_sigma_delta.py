@@ -31,15 +31,13 @@ from mems_scenarios.base import (
     ScenarioOptions,
     format_table,
     graph_for,
-    parameters,
     publish_all,
     run_recorded,
     topic_frames,
 )
-from mems_sim.bag.recorder import RecorderNode
+from mems_scenarios.figures import Figure, cell, is_finite, met_cell
 from mems_sim.devices.resonator import default_pulse_amplitude
 from mems_sim.nodes.resonator_node import SdResonatorNode
-from mems_sim.table import yes_no
 
 NAME = "sd_resonator"
 DESCRIPTION = (
@@ -104,14 +102,8 @@ def build_graph(options: ScenarioOptions, out: Path, duration: float):
     observers = {}
     for name, (ns, params) in observer_cases().items():
         p = dict(params, device_namespace=f"/{ns}", output_topic=f"/{ns}/{name}/estimate")
-        observers[name] = graph.add(
-            SdObserverNode(
-                context=graph.context, namespace=f"{ns}/{name}", parameter_overrides=parameters(p)
-            )
-        )
-    rec = graph.add(
-        RecorderNode(str(out), regex=r"^/sd_", exclude=NOT_RECORDED, context=graph.context)
-    )
+        observers[name] = graph.node(SdObserverNode, p, namespace=f"{ns}/{name}")
+    rec = graph.recorder(str(out), regex=r"^/sd_", exclude=NOT_RECORDED)
     return graph, devices, observers, rec
 
 
@@ -252,84 +244,148 @@ def figures(path: Path, duration: float) -> dict:
     return f
 
 
+def records(f: dict) -> list[Figure]:
+    """The scenario's figures as data (ratios as fractions, unit "1")."""
+    settled = f["settle_periods"] is not None
+    return [
+        Figure(
+            "exact.rms_error_rel", f["exact_err_rel"], "1", "<= 1e-9", f["exact_err_rel"] <= 1e-9
+        ),
+        Figure("observer.amplitude", f["amp_observer"], "V"),
+        Figure("comparator.amplitude", f["amp_comparator"], "V"),
+        Figure(
+            "comparator_observer.amplitude_ratio",
+            f["amp_ratio"],
+            "1",
+            "< 0.1",
+            f["amp_ratio"] < 0.1,
+        ),
+        Figure("pulse.x_rel_mean", f["pulse_x_rel_mean"], "1"),
+        Figure(
+            "pulse.x_rel_max", f["pulse_x_rel_max"], "1", "<= 0.02", f["pulse_x_rel_max"] <= 0.02
+        ),
+        Figure("pulse.center_x_rel_max", f["pulse_center_rel_max"], "1"),
+        Figure("pulse.count", f["pulses"], ""),
+        Figure("pulse.per_half_period", f["pulses_per_half_period"], "1"),
+        Figure("pulse.between_samples", f["pulse_sub_sample"], "1"),
+        Figure("pulse.estimate_error_rel_max", f["pulse_est_err_rel"], "1"),
+        Figure(
+            "exact_noisy.error_variance_ratio",
+            f["consistency"],
+            "1",
+            "0.8-1.2",
+            0.8 <= f["consistency"] <= 1.2,
+        ),
+        Figure(
+            "exact_noisy.error_acf1",
+            f["error_acf1"],
+            "1",
+            "|acf1| < 0.1",
+            abs(f["error_acf1"]) < 0.1,
+        ),
+        Figure("exact_noisy.error_corr_x", f["error_corr_x"], "1"),
+        Figure("f0_error.error_corr_x", f["f0_error_corr_x"], "1"),
+        Figure(
+            "f0_error.error_ratio", f["f0_error_ratio"], "1", ">= 10", f["f0_error_ratio"] >= 10
+        ),
+        Figure("adaptive.error_ratio", f["adaptive_ratio"], "1", "<= 2", f["adaptive_ratio"] <= 2),
+        Figure("adaptive.f0_error", f["adaptive_f0_ppm"], "ppm"),
+        Figure(
+            "tracking.settle_periods",
+            f["settle_periods"],
+            "periods",
+            "settles within 100 ppm",
+            settled,
+        ),
+        Figure("tracking.tail_mean_error", f["tracking_tail_ppm"], "ppm"),
+    ]
+
+
 def table(f: dict) -> str:
     """The scenario's results next to the paper's figures and the targets."""
+    F = {r.name: r for r in records(f)}
+
+    def c(name: str, spec: str, scale: float = 1.0, suffix: str = "") -> str:
+        v = F[name].value
+        return cell(v * scale if is_finite(v) else v, spec, suffix)
 
     settle = "never" if f["settle_periods"] is None else f"{f['settle_periods']:.0f} periods"
-    settle += f" (last 50 ms: mean {f['tracking_tail_ppm']:+.0f} ppm)"
+    settle += f" (last 50 ms: mean {c('tracking.tail_mean_error', '+.0f')} ppm)"
     rows = [
         [
             "exact model, no state noise: RMS error / amplitude",
             "~1e-10",
             "<= 1e-9",
-            f"{f['exact_err_rel']:.1e}",
-            yes_no(f["exact_err_rel"] <= 1e-9),
+            c("exact.rms_error_rel", ".1e"),
+            met_cell(F["exact.rms_error_rel"]),
         ],
         [
             "noise = amplitude: comparator amplitude / observer amplitude",
             "never starts",
             "< 10 %",
-            f"{100 * f['amp_ratio']:.1f} % ({f['amp_comparator']:.3f} / {f['amp_observer']:.3f} V)",
-            yes_no(f["amp_ratio"] < 0.1),
+            f"{c('comparator_observer.amplitude_ratio', '.1f', 100, ' %')} "
+            f"({c('comparator.amplitude', '.3f')} / {c('observer.amplitude', '.3f')} V)",
+            met_cell(F["comparator_observer.amplitude_ratio"]),
         ],
         [
             "observer loop: |x| at the firing instant / amplitude (mean, max)",
             "0 (at crossings)",
             "<= 2 %",
-            f"{100 * f['pulse_x_rel_mean']:.2f} %, {100 * f['pulse_x_rel_max']:.2f} %",
-            yes_no(f["pulse_x_rel_max"] <= 0.02),
+            f"{c('pulse.x_rel_mean', '.2f', 100, ' %')}, {c('pulse.x_rel_max', '.2f', 100, ' %')}",
+            met_cell(F["pulse.x_rel_max"]),
         ],
         [
             "observer loop: |x| at the pulse centre / amplitude (max)",
             "0",
             "-",
-            f"{100 * f['pulse_center_rel_max']:.4f} % ({f['pulses']} pulses, "
-            f"{f['pulses_per_half_period']:.4f} per half period, "
-            f"{100 * f['pulse_sub_sample']:.0f} % between samples; max estimate error "
-            f"{f['pulse_est_err_rel']:.0e} of A)",
+            f"{c('pulse.center_x_rel_max', '.4f', 100, ' %')} ({f['pulses']} pulses, "
+            f"{c('pulse.per_half_period', '.4f')} per half period, "
+            f"{c('pulse.between_samples', '.0f', 100, ' %')} between samples; max estimate "
+            f"error {c('pulse.estimate_error_rel_max', '.0e')} of A)",
             "-",
         ],
         [
             "state noise: measured / predicted error variance",
             "-",
             "1 +- 0.2",
-            f"{f['consistency']:.3f}",
-            yes_no(0.8 <= f["consistency"] <= 1.2),
+            c("exact_noisy.error_variance_ratio", ".3f"),
+            met_cell(F["exact_noisy.error_variance_ratio"]),
         ],
         [
             "state noise: error lag-1 autocorrelation (white: ~0)",
             "white",
             "white",
-            f"{f['error_acf1']:.3f} (narrow-band at f0)",
-            yes_no(abs(f["error_acf1"]) < 0.1),
+            f"{c('exact_noisy.error_acf1', '.3f')} (narrow-band at f0)",
+            met_cell(F["exact_noisy.error_acf1"]),
         ],
         [
             "corr(error, true position): exact model / 5 % f0 error",
             "small / strong",
             "-",
-            f"{f['error_corr_x']:+.3f} / {f['f0_error_corr_x']:+.3f}",
+            f"{c('exact_noisy.error_corr_x', '+.3f')} / {c('f0_error.error_corr_x', '+.3f')}",
             "-",
         ],
         [
             "5 % f0 model error: error / exact-model error",
             "substantial",
             ">= 10x",
-            f"{f['f0_error_ratio']:.1f}x",
-            yes_no(f["f0_error_ratio"] >= 10),
+            c("f0_error.error_ratio", ".1f", suffix="x"),
+            met_cell(F["f0_error.error_ratio"]),
         ],
         [
             "adaptive observer from 5 % error: error / exact-model error",
             "(future work)",
             "<= 2x",
-            f"{f['adaptive_ratio']:.2f}x (f0 {f['adaptive_f0_ppm']:+.0f} ppm)",
-            yes_no(f["adaptive_ratio"] <= 2),
+            f"{c('adaptive.error_ratio', '.2f', suffix='x')} "
+            f"(f0 {c('adaptive.f0_error', '+.0f')} ppm)",
+            met_cell(F["adaptive.error_ratio"]),
         ],
         [
             "+2 % f0 step: adaptive f0 within 100 ppm after",
             "-",
             "settles",
             settle,
-            yes_no(f["settle_periods"] is not None),
+            met_cell(F["tracking.settle_periods"]),
         ],
     ]
     return format_table(["figure", "paper", "target", "measured", "met"], rows)
@@ -395,6 +451,7 @@ def run(options: ScenarioOptions) -> dict:
         check_duration=_check_duration,
         run_graph=run_graph,
         figures=lambda out, _res, duration: figures(out, duration),
+        records=records,
         table=table,
         plot=plot,
     )

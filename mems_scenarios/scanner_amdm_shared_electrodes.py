@@ -33,15 +33,13 @@ from mems_scenarios.base import (
     ScenarioOptions,
     format_table,
     graph_for,
-    parameters,
     publish_all,
     run_recorded,
     topic_frames,
 )
-from mems_sim.bag.recorder import RecorderNode
+from mems_scenarios.figures import Figure, cell, met_cell
 from mems_sim.devices import scanner_amdm as sa
 from mems_sim.nodes.scanner_amdm_node import ScannerAmdmNode
-from mems_sim.table import yes_no
 
 NAME = "scanner_shared_electrodes"
 DESCRIPTION = (
@@ -77,18 +75,12 @@ def build_graph(options: ScenarioOptions, out: Path, duration: float):
         p = dict(dev, seed=int(options.seed) * 10 + k, duration_s=float(duration), frame_size=1000)
         devices[ns] = graph.add_device(ScannerAmdmNode, p, realtime=options.realtime, namespace=ns)
         delay = devices[ns].device.delay
-        estimators[ns] = graph.add(
-            ScannerAmdmEstimatorNode(
-                context=graph.context,
-                namespace=f"{ns}/estimator",
-                parameter_overrides=parameters(
-                    dict(device_namespace=f"/{ns}", chain_delay_s=delay)
-                ),
-            )
+        estimators[ns] = graph.node(
+            ScannerAmdmEstimatorNode,
+            dict(device_namespace=f"/{ns}", chain_delay_s=delay),
+            namespace=f"{ns}/estimator",
         )
-    rec = graph.add(
-        RecorderNode(str(out), regex=r"^/scanner_amdm", exclude=NOT_RECORDED, context=graph.context)
-    )
+    rec = graph.recorder(str(out), regex=r"^/scanner_amdm", exclude=NOT_RECORDED)
     return graph, devices, estimators, rec
 
 
@@ -255,8 +247,102 @@ def figures(path: Path, state: dict) -> dict:
     return f
 
 
+def _ratio(a: float, b: float) -> float:
+    return a / b if b else math.nan
+
+
+def records(f: dict) -> list[Figure]:
+    """The scenario's figures as data (angles in deg, as the table prints them)."""
+    ukf_lt_ekf = {q: f[f"ukf_{q}_deg"] < f[f"ekf_{q}_deg"] for q in ("amp", "phase")}
+    out = []
+    for k in ("ekf", "ukf"):
+        out.append(
+            Figure(f"{k}.amplitude_rmse", f[f"{k}_amp_deg"], "deg", "UKF < EKF", ukf_lt_ekf["amp"])
+        )
+        if k == "ekf":
+            out.append(
+                Figure(
+                    f"{k}.phase_rmse", f[f"{k}_phase_deg"], "deg", "UKF < EKF", ukf_lt_ekf["phase"]
+                )
+            )
+        else:
+            out += [
+                Figure(
+                    f"{k}.phase_rmse",
+                    f[f"{k}_phase_deg"],
+                    "deg",
+                    "<= 0.39 deg",
+                    f[f"{k}_phase_deg"] <= 0.39,
+                ),
+                Figure(
+                    f"{k}.phase_rmse_target",
+                    f[f"{k}_phase_deg"],
+                    "deg",
+                    f"<= {TARGET_PHASE_DEG:g} deg",
+                    f[f"{k}_phase_deg"] <= TARGET_PHASE_DEG,
+                ),
+            ]
+        out += [
+            Figure(f"{k}.phase_bias", f[f"{k}_phase_bias_deg"], "deg"),
+            Figure(f"{k}.extrema_pairs", f[f"{k}_pairs"], ""),
+        ]
+    out += [
+        Figure(
+            "ukf_ekf.amplitude_rmse_ratio",
+            _ratio(f["ukf_amp_deg"], f["ekf_amp_deg"]),
+            "1",
+            "<= 0.95",
+            f["ukf_amp_deg"] <= 0.95 * f["ekf_amp_deg"],
+        ),
+        Figure(
+            "ukf_ekf.phase_rmse_ratio",
+            _ratio(f["ukf_phase_deg"], f["ekf_phase_deg"]),
+            "1",
+            "<= 0.95",
+            f["ukf_phase_deg"] <= 0.95 * f["ekf_phase_deg"],
+        ),
+    ]
+    for k in ("ekf", "ukf"):
+        nees = f[f"{k}_nees"]
+        out += [
+            Figure(f"{k}.theta_rmse", f[f"{k}_theta_rmse_deg"], "deg"),
+            Figure(f"{k}.nees", nees, "1", "0.5-2", 0.5 <= nees <= 2.0),
+            Figure(
+                f"{k}.pd_failures", f[f"{k}_pd_failures"], "", "== 0", f[f"{k}_pd_failures"] == 0
+            ),
+            Figure(
+                f"{k}.min_variance", f[f"{k}_min_var"], "state unit^2", "> 0", f[f"{k}_min_var"] > 0
+            ),
+        ]
+    out += [
+        Figure(
+            "off.final_theta_true",
+            f["off_final_amplitude"],
+            "rad",
+            "< 1e-3 rad",
+            f["off_final_amplitude"] < 1e-3,
+        ),
+        Figure("off.final_theta_estimate", f["off_final_theta_est"], "rad"),
+        Figure(
+            "off.low_signal_warned",
+            f["off_low_signal_warned"],
+            "",
+            "true",
+            bool(f["off_low_signal_warned"]),
+        ),
+        Figure("off.tracking", f["off_tracking"], "", "false", not f["off_tracking"]),
+        Figure("off.extrema", f["off_events"], ""),
+        Figure("off.finite", f["off_finite"], "", "true", bool(f["off_finite"])),
+    ]
+    return out
+
+
 def table(f: dict) -> str:
     """Table 5.3 form next to the paper, plus consistency and the off-resonance check."""
+    F = {r.name: r for r in records(f)}
+
+    def c(name: str, spec: str) -> str:
+        return cell(F[name].value, spec)
 
     rows = []
     for k in ("ekf", "ukf"):
@@ -265,8 +351,8 @@ def table(f: dict) -> str:
                 f"{k.upper()} RMSE amplitude [deg]",
                 f"{PAPER[k][0]:.2f}",
                 "UKF < EKF",
-                f"{f[f'{k}_amp_deg']:.3f}",
-                "-",
+                c(f"{k}.amplitude_rmse", ".3f"),
+                met_cell(F[f"{k}.amplitude_rmse"]),
             ]
         )
         rows.append(
@@ -274,12 +360,11 @@ def table(f: dict) -> str:
                 f"{k.upper()} RMSE phase shift [deg]",
                 f"{PAPER[k][1]:.2f}",
                 "UKF <= 0.39 (0.18 target)" if k == "ukf" else "UKF < EKF",
-                f"{f[f'{k}_phase_deg']:.3f} (bias {f[f'{k}_phase_bias_deg']:+.3f}, "
+                f"{c(f'{k}.phase_rmse', '.3f')} (bias {c(f'{k}.phase_bias', '+.3f')}, "
                 f"{f[f'{k}_pairs']} extrema)",
-                yes_no(f["ukf_phase_deg"] <= 0.39)
-                + (", target " + yes_no(f["ukf_phase_deg"] <= TARGET_PHASE_DEG))
+                met_cell(F["ukf.phase_rmse"]) + ", target " + met_cell(F["ukf.phase_rmse_target"])
                 if k == "ukf"
-                else "-",
+                else met_cell(F["ekf.phase_rmse"]),
             ]
         )
     rows.append(
@@ -287,9 +372,9 @@ def table(f: dict) -> str:
             "UKF beats EKF (>= 5 % lower) on amplitude and phase",
             "yes",
             "yes",
-            f"ukf/ekf = {f['ukf_amp_deg'] / f['ekf_amp_deg']:.4f}, "
-            f"{f['ukf_phase_deg'] / f['ekf_phase_deg']:.4f}",
-            yes_no(f["ukf_beats_ekf"]),
+            f"ukf/ekf = {c('ukf_ekf.amplitude_rmse_ratio', '.4f')}, "
+            f"{c('ukf_ekf.phase_rmse_ratio', '.4f')}",
+            met_cell(F["ukf_ekf.amplitude_rmse_ratio"], F["ukf_ekf.phase_rmse_ratio"]),
         ]
     )
     for k in ("ekf", "ukf"):
@@ -297,9 +382,9 @@ def table(f: dict) -> str:
             [
                 f"{k.upper()} theta RMSE (sign-aligned) [deg] / NEES",
                 "-",
-                "consistent",
-                f"{f[f'{k}_theta_rmse_deg']:.3f} / {f[f'{k}_nees']:.2f}",
-                "-",
+                "consistent: NEES 0.5-2",
+                f"{c(f'{k}.theta_rmse', '.3f')} / {c(f'{k}.nees', '.2f')}",
+                met_cell(F[f"{k}.nees"]),
             ]
         )
         rows.append(
@@ -307,8 +392,8 @@ def table(f: dict) -> str:
                 f"{k.upper()} covariance PD over the run (failures, min var)",
                 "-",
                 "0",
-                f"{f[f'{k}_pd_failures']}, {f[f'{k}_min_var']:.1e}",
-                yes_no(f[f"{k}_pd_failures"] == 0 and f[f"{k}_min_var"] > 0),
+                f"{f[f'{k}_pd_failures']}, {c(f'{k}.min_variance', '.1e')}",
+                met_cell(F[f"{k}.pd_failures"], F[f"{k}.min_variance"]),
             ]
         )
     rows.append(
@@ -316,8 +401,8 @@ def table(f: dict) -> str:
             "off resonance (25 kHz): final |theta| true / est [rad]",
             "-",
             "no motion",
-            f"{f['off_final_amplitude']:.1e} / {f['off_final_theta_est']:.1e}",
-            yes_no(f["off_final_amplitude"] < 1e-3),
+            f"{c('off.final_theta_true', '.1e')} / {c('off.final_theta_estimate', '.1e')}",
+            met_cell(F["off.final_theta_true"]),
         ]
     )
     rows.append(
@@ -327,7 +412,7 @@ def table(f: dict) -> str:
             "yes",
             f"warned={f['off_low_signal_warned']}, tracking={f['off_tracking']}, "
             f"extrema={f['off_events']}, finite={f['off_finite']}",
-            yes_no(f["off_low_signal_warned"] and not f["off_tracking"] and f["off_finite"]),
+            met_cell(F["off.low_signal_warned"], F["off.tracking"], F["off.finite"]),
         ]
     )
     return format_table(["figure", "paper", "target", "measured", "met"], rows)
@@ -424,6 +509,7 @@ def run(options: ScenarioOptions) -> dict:
         check_duration=_check_duration,
         run_graph=run_graph,
         figures=lambda out, res, _d: figures(out, res["state"]),
+        records=records,
         table=table,
         plot=plot,
         png_suffixes=("-fig5_8", "-fig5_9"),

@@ -54,12 +54,11 @@ from mems_scenarios.base import (
     ScenarioOptions,
     format_table,
     graph_for,
-    parameters,
     publish_all,
     run_recorded,
     topic_frames,
 )
-from mems_sim.bag.recorder import RecorderNode
+from mems_scenarios.figures import Figure, cell, is_finite
 from mems_sim.devices.scanner import dc_transimpedance_output, resolve_scanner, scanner_params
 from mems_sim.nodes.scanner_node import MicroScannerNode
 
@@ -107,20 +106,12 @@ def run_graph(
         frame_size=int(frame),
     )
     dev = graph.add_device(MicroScannerNode, p, realtime=options.realtime, namespace=NS)
-    est = graph.add(
-        ScannerThresholdNode(
-            context=graph.context,
-            namespace=f"{NS}/threshold",
-            parameter_overrides=parameters(dict(device_namespace=f"/{NS}", dog_sigma=DOG_SIGMA)),
-        )
+    est = graph.node(
+        ScannerThresholdNode,
+        dict(device_namespace=f"/{NS}", dog_sigma=DOG_SIGMA),
+        namespace=f"{NS}/threshold",
     )
-    rec = (
-        graph.add(
-            RecorderNode(str(out), regex=rf"^/{NS}/", exclude=NOT_RECORDED, context=graph.context)
-        )
-        if record
-        else None
-    )
+    rec = graph.recorder(str(out), regex=rf"^/{NS}/", exclude=NOT_RECORDED) if record else None
 
     def delivered(_d) -> int:
         """Frames the estimator took; the recorder counts for the device's topics in the
@@ -324,45 +315,116 @@ def figures(path: Path, duration: float, seed: int) -> dict:
     return f
 
 
+def _segment_names(f: dict) -> list[str]:
+    """``seg1`` .. ``segN`` (ring-down segments in order of falling SNR), then ``overall``."""
+    return [f"seg{i + 1}" for i in range(len(f["segments"]))] + ["overall"]
+
+
+def records(f: dict) -> list[Figure]:
+    """The scenario's figures as data (angles in rad; no targets: the table sets the results
+    beside the paper's, it does not judge them)."""
+    segs = _segment_names(f)
+    out = [Figure(f"{g}.snr", snr, "1") for g, (_, _, snr) in zip(segs, f["segments"])]
+    per_segment = (
+        ("ekf.theta_rmse", "rmse_ekf", "rad"),
+        ("hyb.theta_rmse", "rmse_hyb", "rad"),
+        ("theta_rmse_reduction", "reduction", "1"),
+        ("ekf_full_jacobian.theta_rmse", "rmse_full_ekf", "rad"),
+        ("hyb_full_jacobian.theta_rmse", "rmse_full_hyb", "rad"),
+        ("ekf.theta_rmse_th", "rmse_th_ekf", "rad"),
+        ("hyb.theta_rmse_th", "rmse_th_hyb", "rad"),
+    )
+    for name, key, unit in per_segment:
+        out += [Figure(f"{g}.{name}", x, unit) for g, x in zip(segs, f[key])]
+    out += [
+        Figure(f"{g}.theta_rmse_th_reduction", _reduction(h, p), "1")
+        for g, h, p in zip(segs, f["rmse_th_hyb"], f["rmse_th_ekf"])
+    ]
+    for g, (n, mean, std, p) in zip(segs, f["ks"]):
+        out += [
+            Figure(f"{g}.e_theta_th.n", n, ""),
+            Figure(f"{g}.e_theta_th.mean", mean, "rad"),
+            Figure(f"{g}.e_theta_th.std", std, "rad"),
+            Figure(f"{g}.e_theta_th.ks_p", p, "1"),
+        ]
+    for sig, d in f["sigma_sweep"].items():
+        out += [
+            Figure(f"{g}.sigma_dog_{sig:g}.var_e_theta", x, "rad^2") for g, x in zip(segs, d["var"])
+        ]
+        out += [
+            Figure(f"{g}.sigma_dog_{sig:g}.hyb_nrmse", x, "1") for g, x in zip(segs, d["nrmse"])
+        ]
+    for (fac, fs), (var, n) in sorted(f["fs_study"].items()):
+        out += [
+            Figure(f"fs_study.sigma_n_x{fac:g}.fs_{fs:.0f}hz.var_e_theta_th", var, "rad^2"),
+            Figure(f"fs_study.sigma_n_x{fac:g}.fs_{fs:.0f}hz.detections", n, ""),
+        ]
+    out += [
+        Figure("detector.latency", f["latency"], "samples"),
+        Figure("detector.online_detections", f["n_detections"], ""),
+        Figure("detector.online_equals_offline", f["online_offline_same"], ""),
+    ]
+    for k in ("hyb", "ekf"):
+        out += [
+            Figure(f"{k}.min_variance", f[f"min_var_{k}"], "state unit^2"),
+            Figure(f"{k}.max_var_theta", f[f"max_var_theta_{k}"], "rad^2"),
+            Figure(f"{k}.ringdown_abs_z_p99", f[f"z99_{k}"], "1"),
+        ]
+    return out
+
+
+def _reduction(h: float, p: float) -> float:
+    return 1 - h / p if p else math.nan
+
+
 def _pct(x: float) -> str:
-    return f"{100 * x:.1f}%"
+    return cell(100 * x if is_finite(x) else x, ".1f", "%")
 
 
 def table(f: dict) -> str:
     """Table 4.3 form + detection study, next to the paper's figures."""
     hdr = ["", *[f"SNR {s:.0f}" for _, _, s in f["segments"]], "overall"]
+
+    def mrad(x: float) -> str:
+        return cell(1e3 * x if is_finite(x) else x, ".2f")
+
     r = [
-        ["EKF theta_RMSE [rad]", *[f"{x:.5f}" for x in f["rmse_ekf"]]],
-        ["HYB theta_RMSE [rad]", *[f"{x:.5f}" for x in f["rmse_hyb"]]],
+        ["EKF theta_RMSE [rad]", *[cell(x, ".5f") for x in f["rmse_ekf"]]],
+        ["HYB theta_RMSE [rad]", *[cell(x, ".5f") for x in f["rmse_hyb"]]],
         ["theta_RMSE reduction", *[_pct(x) for x in f["reduction"]]],
         ["  paper reduction", *[f"{x}%" for x in PAPER["red"]]],
-        ["EKF, full Jacobian [rad]", *[f"{x:.5f}" for x in f["rmse_full_ekf"]]],
-        ["HYB, full Jacobian [rad]", *[f"{x:.5f}" for x in f["rmse_full_hyb"]]],
-        ["EKF theta_RMSE,th", *[f"{x:.5f}" for x in f["rmse_th_ekf"]]],
-        ["HYB theta_RMSE,th", *[f"{x:.5f}" for x in f["rmse_th_hyb"]]],
+        ["EKF, full Jacobian [rad]", *[cell(x, ".5f") for x in f["rmse_full_ekf"]]],
+        ["HYB, full Jacobian [rad]", *[cell(x, ".5f") for x in f["rmse_full_hyb"]]],
+        ["EKF theta_RMSE,th", *[cell(x, ".5f") for x in f["rmse_th_ekf"]]],
+        ["HYB theta_RMSE,th", *[cell(x, ".5f") for x in f["rmse_th_hyb"]]],
         [
             "theta_RMSE,th reduction",
-            *[_pct(1 - h / p) for h, p in zip(f["rmse_th_hyb"], f["rmse_th_ekf"])],
+            *[_pct(_reduction(h, p)) for h, p in zip(f["rmse_th_hyb"], f["rmse_th_ekf"])],
         ],
         ["  paper", "26.0%", "11.6%", "2.6%", "8.1%", "12.3%"],
         [
             "e_theta,th n / mean / std [mrad]",
-            *[f"{k[0]} / {1e3 * k[1]:.2f} / {1e3 * k[2]:.2f}" for k in f["ks"]],
+            *[f"{k[0]} / {mrad(k[1])} / {mrad(k[2])}" for k in f["ks"]],
             "-",
         ],
-        ["KS p-value (normal if > 0.05)", *[f"{k[3]:.2f}" for k in f["ks"]], "-"],
+        ["KS p-value (normal if > 0.05)", *[cell(k[3], ".2f") for k in f["ks"]], "-"],
     ]
     for sig, d in f["sigma_sweep"].items():
-        r.append([f"var(e_theta) sigma_DOG={sig:g} [rad^2]", *[f"{x:.2e}" for x in d["var"]], "-"])
+        r.append(
+            [f"var(e_theta) sigma_DOG={sig:g} [rad^2]", *[cell(x, ".2e") for x in d["var"]], "-"]
+        )
     for sig, d in f["sigma_sweep"].items():
-        r.append([f"HYB NRMSE sigma_DOG={sig:g}", *[f"{x:.4f}" for x in d["nrmse"]]])
+        r.append([f"HYB NRMSE sigma_DOG={sig:g}", *[cell(x, ".4f") for x in d["nrmse"]]])
     out = format_table(hdr, r)
     rates = sorted({fs for (_, fs) in f["fs_study"]})
     facs = sorted({fac for (fac, _) in f["fs_study"]})
     r2 = [
         [
             f"sigma_n x {fac:g}",
-            *[f"{f['fs_study'][(fac, fs)][0]:.2e} ({f['fs_study'][(fac, fs)][1]})" for fs in rates],
+            *[
+                f"{cell(f['fs_study'][(fac, fs)][0], '.2e')} ({f['fs_study'][(fac, fs)][1]})"
+                for fs in rates
+            ],
         ]
         for fac in facs
     ]
@@ -371,10 +433,12 @@ def table(f: dict) -> str:
     out += (
         f"\n\ndetector latency {f['latency']} samples; {f['n_detections']} online detections;"
         f" online = offline within one sample: {f['online_offline_same']}; "
-        f"min variance (PD): HYB {f['min_var_hyb']:.2e}, EKF {f['min_var_ekf']:.2e}; "
-        f"max var(theta) HYB {f['max_var_theta_hyb']:.2e}, EKF {f['max_var_theta_ekf']:.2e};"
-        f" 99th pct |err|/sigma in the ring-down: HYB {f['z99_hyb']:.1f}, "
-        f"EKF {f['z99_ekf']:.1f} (overconfident under the drifted analog map)"
+        f"min variance (PD): HYB {cell(f['min_var_hyb'], '.2e')}, "
+        f"EKF {cell(f['min_var_ekf'], '.2e')}; "
+        f"max var(theta) HYB {cell(f['max_var_theta_hyb'], '.2e')}, "
+        f"EKF {cell(f['max_var_theta_ekf'], '.2e')};"
+        f" 99th pct |err|/sigma in the ring-down: HYB {cell(f['z99_hyb'], '.1f')}, "
+        f"EKF {cell(f['z99_ekf'], '.1f')} (overconfident under the drifted analog map)"
     )
     return out
 
@@ -497,6 +561,7 @@ def run(options: ScenarioOptions) -> dict:
         check_duration=_check_duration,
         run_graph=run_graph,
         figures=lambda out, _res, duration: figures(out, duration, int(options.seed)),
+        records=records,
         table=table,
         plot=plot,
         png_suffixes=("", "-detection"),

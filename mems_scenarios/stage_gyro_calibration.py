@@ -38,6 +38,7 @@ from mems_estimation.identification.stage_gyro_calibration import (
     retrain_at,
 )
 from mems_estimation.identification.stage_identification import evaluate, fold_period
+from mems_scenarios.figures import Figure, cell, is_finite, met_cell
 
 NAME = "gyro_calibration"
 DESCRIPTION = (
@@ -49,9 +50,13 @@ DESCRIPTION = (
 DEFAULT_DURATION_S = round(7 * 400 / 1700.0, 3)
 
 
-def write_plots(out_dir: Path, runs: dict) -> list[Path]:
-    """Fig. 3.14-like averaged period and Fig. 3.15-like peak-to-peak plot."""
+def write_plots(out: Path, runs: dict, seed: int) -> list[Path]:
+    """Fig. 3.14-like averaged period and Fig. 3.15-like peak-to-peak plot, beside the MCAP
+    file ``out`` and named with the run seed (``<stem>-seed<N>-period.png``,
+    ``-peak_to_peak.png``)."""
     import matplotlib
+
+    from mems_scenarios.base import output_path
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -80,7 +85,7 @@ def write_plots(out_dir: Path, runs: dict) -> list[Path]:
     ae.set_ylabel("EKF - truth [mrad/s]")
     ae.set_title(f"error, RMS {1e3 * np.sqrt(np.mean(err**2)):.2f} mrad/s", fontsize=9)
     fig.tight_layout()
-    p = out_dir / f"{NAME}_period.png"
+    p = output_path(out, seed, "-period.png")
     fig.savefig(p, dpi=100)
     plt.close(fig)
     paths.append(p)
@@ -103,7 +108,7 @@ def write_plots(out_dir: Path, runs: dict) -> list[Path]:
     ax.set_title("gyro vs stage peak-to-peak rate per trial")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    p = out_dir / f"{NAME}_peak_to_peak.png"
+    p = output_path(out, seed, "-peak_to_peak.png")
     fig.savefig(p, dpi=100)
     plt.close(fig)
     paths.append(p)
@@ -114,7 +119,7 @@ def run_pipeline(
     seed: int = 0, plan: Plan | None = None, out_dir: Path | None = None, plots: bool = True
 ) -> dict:
     """Whole scenario without ROS; returns figures, table text and file paths."""
-    from mems_scenarios.base import format_table
+    from mems_scenarios.base import format_table, output_path
 
     plan = plan or Plan()
     model, rep = identify_stage(seed, plan)
@@ -152,10 +157,11 @@ def run_pipeline(
     paths = []
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
-        save_model(model, str(out_dir / f"{NAME}_stage_params_{T1}C.yaml"))
-        save_model(models[T2], str(out_dir / f"{NAME}_stage_params_{T2}C.yaml"))
+        base = out_dir / f"{NAME}.mcap"
+        save_model(model, str(output_path(base, seed, f"-stage_params_{T1}C.yaml")))
+        save_model(models[T2], str(output_path(base, seed, f"-stage_params_{T2}C.yaml")))
         if plots:
-            paths = write_plots(out_dir, runs)
+            paths = write_plots(base, runs, seed)
     return {
         "table": table,
         "model": model,
@@ -181,8 +187,7 @@ def run_graph(options, plan: Plan, models: dict, out: Path, instances: dict | No
 
     from mems_estimation.nodes.stage_ekf_node import StageEkfNode
     from mems_estimation.nodes.stage_gyro_calibration_node import GyroCalibrationNode
-    from mems_scenarios.base import Progress, graph_for, parameters, publish_all
-    from mems_sim.bag.recorder import RecorderNode
+    from mems_scenarios.base import Progress, graph_for, output_path, publish_all
     from mems_sim.nodes.stage_node import MicroStageNode
 
     graph = graph_for(options)
@@ -192,46 +197,33 @@ def run_graph(options, plan: Plan, models: dict, out: Path, instances: dict | No
     rec = None
     try:
         for k, (ns, T) in enumerate(INSTANCES.items()):
-            yaml_path = out.parent / f"{NAME}_stage_params_{T}C.yaml"
+            yaml_path = output_path(out, options.seed, f"-stage_params_{T}C.yaml")
             save_model(models[T], str(yaml_path))
-            devs[ns] = graph.add(
-                MicroStageNode(
-                    context=graph.context,
-                    namespace=ns,
-                    drive_externally=not options.realtime,
-                    autostart=False,
-                    parameter_overrides=parameters(
-                        dict(
-                            seed=int(options.seed) * 100 + 50 + k,
-                            temperature_c=T,
-                            n_trials=plan.cal_trials,
-                            periods_per_trial=plan.cal_periods,
-                            frame_size=FRAME,
-                            frame_id=ns,
-                            publish_imu=bool(options.realtime),
-                        )
-                    ),
-                )
+            devs[ns] = graph.add_device(
+                MicroStageNode,
+                dict(
+                    seed=int(options.seed) * 100 + 50 + k,
+                    temperature_c=T,
+                    n_trials=plan.cal_trials,
+                    periods_per_trial=plan.cal_periods,
+                    frame_size=FRAME,
+                    frame_id=ns,
+                    publish_imu=bool(options.realtime),
+                ),
+                realtime=options.realtime,
+                namespace=ns,
             )
-            ekfs[ns] = graph.add(
-                StageEkfNode(
-                    context=graph.context,
-                    namespace=ns,
-                    parameter_overrides=parameters(
-                        dict(device_namespace=f"/{ns}", params_yaml=str(yaml_path))
-                    ),
-                )
+            ekfs[ns] = graph.node(
+                StageEkfNode,
+                dict(device_namespace=f"/{ns}", params_yaml=str(yaml_path)),
+                namespace=ns,
             )
-            cals[ns] = graph.add(
-                GyroCalibrationNode(
-                    context=graph.context,
-                    namespace=ns,
-                    parameter_overrides=parameters(
-                        dict(device_namespace=f"/{ns}", n_trials=plan.cal_trials)
-                    ),
-                )
+            cals[ns] = graph.node(
+                GyroCalibrationNode,
+                dict(device_namespace=f"/{ns}", n_trials=plan.cal_trials),
+                namespace=ns,
             )
-        rec = graph.add(RecorderNode(str(out), topics=topics, context=graph.context))
+        rec = graph.recorder(str(out), topics=topics)
 
         def delivered(d) -> int:
             """Frames the device's EKF took (the recorder counts in the skeleton)."""
@@ -336,6 +328,44 @@ def graph_figures(out: Path, g: dict) -> dict:
     return figs
 
 
+def figure_records(off_axis: list, figs: dict, rms: float, g: dict) -> list[Figure]:
+    """The scenario's figures as data: off-axis rejection (fraction) per off-axis share, per
+    stage instance omega RMSE [rad/s], alpha, beta [rad/s], the gyro scale factor, its
+    standard error, the true one and the error [ppm]; the RMS error over the temperatures
+    [ppm]; the graph's simulated and wall time [s]."""
+    out = [
+        Figure(
+            f"off_axis_{100 * r:g}pct.rejection",
+            v,
+            "1",
+            ">= 0.9998" if r <= 0.1 else ">= 0.999",
+            v >= (0.9998 if r <= 0.1 else 0.999),
+        )
+        for r, v in off_axis
+    ]
+    for ns, T in INSTANCES.items():
+        f = figs[T]
+        ev = f["eval"]
+        out += [
+            Figure(f"{ns}.temperature", T, "C"),
+            Figure(f"{ns}.omega_rmse", ev["rmse"], "rad/s", "<= 0.114 rad/s", ev["rmse"] <= 0.114),
+            Figure(
+                f"{ns}.alpha", ev["alpha"], "1", "|alpha - 1| <= 8e-4", abs(ev["alpha"] - 1) <= 8e-4
+            ),
+            Figure(f"{ns}.beta", ev["beta"], "rad/s"),
+            Figure(f"{ns}.scale_factor", f["cal"]["scale_factor"], "1"),
+            Figure(f"{ns}.scale_factor_se", f["cal"]["scale_factor_se"], "1"),
+            Figure(f"{ns}.scale_factor_true", f["k_true"], "1"),
+            Figure(f"{ns}.scale_factor_error", f["ppm"], "ppm"),
+        ]
+    out += [
+        Figure("scale_factor_error_rms", rms, "ppm", "<= 100 ppm", rms <= 100),
+        Figure("graph.simulated_time", g["simulated_s"], "s"),
+        Figure("graph.wall_time", g["wall_s"], "s"),
+    ]
+    return out
+
+
 def run(options) -> dict:
     """``run_scenario gyro_calibration``: identification (ROS-free cores), then the
     calibration at both temperatures through the node graph, recorded to MCAP.
@@ -355,44 +385,57 @@ def run(options) -> dict:
     models = {T1: model, T2: retrain_at(model, T2, seed, plan)}
     g = run_graph(options, plan, models, out)
     figs = graph_figures(out, g)
+    off_axis = off_axis_table(float(np.mean(model.gap)), model.limits)
+    rms = math.sqrt(np.mean([figs[T]["ppm"] ** 2 for T in (T1, T2)]))
+    figures = figure_records(off_axis, figs, rms, g)
+    F = {r.name: r for r in figures}
     rows = [
         [
             "off-axis rejection R_off",
             f"{100 * r:g} % off-axis",
-            f"{100 * v:.3f} %",
+            cell(100 * v if is_finite(v) else v, ".3f", " %"),
             ">= 99.98 %" if r <= 0.1 else ">= 99.90 %",
+            met_cell(F[f"off_axis_{100 * r:g}pct.rejection"]),
         ]
-        for r, v in off_axis_table(float(np.mean(model.gap)), model.limits)
+        for r, v in off_axis
     ]
-    for T in (T1, T2):
-        ev = figs[T]["eval"]
+    for ns, T in INSTANCES.items():
         rows += [
             [
                 "omega RMSE (1 period avg)",
                 f"{T} C",
-                f"{ev['rmse']:.4f} rad/s",
+                f"{cell(F[f'{ns}.omega_rmse'].value, '.4f')} rad/s",
                 "<= 0.114 (paper 0.1140)",
+                met_cell(F[f"{ns}.omega_rmse"]),
             ],
             [
                 "stage alpha / beta",
                 f"{T} C",
-                f"{ev['alpha']:.5f} / {ev['beta']:+.4f}",
+                f"{cell(F[f'{ns}.alpha'].value, '.5f')} / {cell(F[f'{ns}.beta'].value, '+.4f')}",
                 "|a-1| <= 8e-4 (paper 1.0008/-0.0207)",
+                met_cell(F[f"{ns}.alpha"]),
             ],
         ]
-    for T in (T1, T2):
+    for ns, T in INSTANCES.items():
         f = figs[T]
         rows.append(
             [
-                f"SF_IMU by stage (true {f['k_true']:.5f})",
+                f"SF_IMU by stage (true {cell(f['k_true'], '.5f')})",
                 f"{T} C",
-                f"{f['cal']['scale_factor']:.5f} +- {f['cal']['scale_factor_se']:.5f}",
-                f"{f['ppm']:+.0f} ppm (paper -340/+220)",
+                f"{cell(f['cal']['scale_factor'], '.5f')} +- "
+                f"{cell(f['cal']['scale_factor_se'], '.5f')}",
+                f"{cell(f['ppm'], '+.0f')} ppm (paper -340/+220)",
+                "-",
             ]
         )
-    rms = math.sqrt(np.mean([figs[T]["ppm"] ** 2 for T in (T1, T2)]))
     rows.append(
-        ["SF error RMS over temps", f"{T1}/{T2} C", f"{rms:.0f} ppm", "<= 100 ppm (paper 286)"]
+        [
+            "SF error RMS over temps",
+            f"{T1}/{T2} C",
+            f"{cell(rms, '.0f')} ppm",
+            "<= 100 ppm (paper 286)",
+            met_cell(F["scale_factor_error_rms"]),
+        ]
     )
     rows.append(
         [
@@ -400,19 +443,21 @@ def run(options) -> dict:
             "fast" if not options.realtime else "realtime",
             f"{g['simulated_s']:.2f} s sim in {g['wall_s']:.1f} s wall",
             f"RTF {g['simulated_s'] / g['wall_s']:.2f}",
+            "-",
         ]
     )
-    table = format_table(["quantity", "condition", "value", "target / note"], rows)
+    table = format_table(["quantity", "condition", "value", "target / note", "met"], rows)
     plots = []
     if options.plots:
-        plots = _graph_plots(out.parent, figs)
+        plots = _graph_plots(out, options.seed, figs)
     return {
         "table": table,
         "duration_s": g["simulated_s"],
         "mcap": str(out),
         "recorder": g["recorder"],
         "figure": ", ".join(str(p) for p in plots),
-        "figures": figs,
+        "figures": figures,
+        "values": figs,
         "sf_rms_ppm": rms,
         "rejected": g["rejected"],
         "published": g["published"],
@@ -420,7 +465,7 @@ def run(options) -> dict:
     }
 
 
-def _graph_plots(out_dir: Path, figs: dict) -> list:
+def _graph_plots(out: Path, seed: int, figs: dict) -> list:
     """PNG figures from the graph run (Fig. 3.14 / 3.15 forms)."""
     runs = {}
     for T, f in figs.items():
@@ -430,4 +475,4 @@ def _graph_plots(out_dir: Path, figs: dict) -> list:
             "omega": f["truth"][:, [1, 3]],
         }
         runs[T] = {"rec": rec, "x": f["est"], "cal": f["cal"]}
-    return write_plots(out_dir, runs)
+    return write_plots(out, runs, seed)

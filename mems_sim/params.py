@@ -9,13 +9,79 @@ ROS parameters with descriptors built from the same table.
 from __future__ import annotations
 
 import math
+import zlib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 
 class ParameterError(ValueError):
     """A parameter value outside its documented range or of the wrong type."""
+
+
+@dataclass(frozen=True)
+class Spread:
+    """Manufacturing spread of a parameter: how one device of a batch differs from the
+    nominal one.
+
+    Attributes:
+        kind: ``"uniform"`` (within +-width) or ``"normal"`` (standard deviation width).
+        width: half-range or standard deviation, a fraction of the nominal value if
+            ``relative`` (0.1 = +-10 %), else in the parameter's unit.
+        relative: whether ``width`` is relative to the nominal value.
+        source: where the spread comes from (datasheet, paper) or the stated assumption.
+    """
+
+    kind: str
+    width: float
+    relative: bool = True
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("uniform", "normal") or not (self.width >= 0.0):
+            raise ValueError(f"invalid spread {self.kind!r} +- {self.width!r}")
+
+    def draw(self, nominal: float, rng: np.random.Generator) -> float:
+        """One device's value around ``nominal``."""
+        u = rng.uniform(-1.0, 1.0) if self.kind == "uniform" else rng.standard_normal()
+        delta = self.width * u
+        return nominal * (1.0 + delta) if self.relative else nominal + delta
+
+    def text(self, unit: str) -> str:
+        """Human-readable, e.g. ``+-10 % (uniform)``."""
+        w = f"{100 * self.width:g} %" if self.relative else f"{self.width:g} {unit}"
+        return f"{'+-' if self.kind == 'uniform' else 'sd '}{w} ({self.kind})"
+
+
+@dataclass(frozen=True)
+class TempCo:
+    """Linear temperature coefficient of a parameter around a reference temperature:
+    value(T) = value(T_ref) * (1 + coefficient (T - T_ref)) if ``relative`` (coefficient in
+    1/K), else value(T_ref) + coefficient (T - T_ref) (coefficient in unit/K).
+
+    Attributes:
+        coefficient: 1/K (relative) or the parameter's unit per K.
+        relative: whether the coefficient is relative.
+        source: where it comes from (material property, datasheet, paper).
+    """
+
+    coefficient: float
+    relative: bool = True
+    source: str = ""
+
+    def at(self, value: float, delta_k: float) -> float:
+        """The value ``delta_k`` kelvin away from the reference temperature."""
+        if self.relative:
+            return value * (1.0 + self.coefficient * delta_k)
+        return value + self.coefficient * delta_k
+
+    def text(self, unit: str) -> str:
+        """Human-readable, e.g. ``-30 ppm/K``."""
+        if self.relative:
+            return f"{self.coefficient * 1e6:+g} ppm/K"
+        return f"{self.coefficient:+g} {unit}/K"
 
 
 @dataclass(frozen=True)
@@ -32,6 +98,8 @@ class ParamSpec:
         max: largest allowed value (inclusive).
         min_exclusive: True if ``min`` itself is not allowed.
         choices: allowed values for string parameters.
+        spread: manufacturing spread (:class:`Spread`), where physics gives one.
+        tempco: temperature coefficient (:class:`TempCo`), where physics gives one.
     """
 
     name: str
@@ -43,6 +111,8 @@ class ParamSpec:
     max: float | None = None
     min_exclusive: bool = False
     choices: tuple[str, ...] | None = None
+    spread: Spread | None = None
+    tempco: TempCo | None = None
 
     def range_text(self) -> str:
         """Human-readable allowed range, e.g. ``(0, 1e3] s``."""
@@ -139,3 +209,42 @@ def resolve(
             )
         values[name] = table[name].validate(value)
     return values
+
+
+def draw_device(
+    specs: Iterable[ParamSpec],
+    values: Mapping[str, Any],
+    device_seed: int | None = None,
+    delta_k: float = 0.0,
+    fixed: Iterable[str] = (),
+) -> dict[str, Any]:
+    """One device: ``values`` with every parameter that has a :class:`Spread` drawn around
+    its value (``device_seed`` None or negative: the nominal device, nothing drawn) and
+    every parameter with a :class:`TempCo` moved ``delta_k`` kelvin from its reference
+    temperature. Names in ``fixed`` (values a user set explicitly) are left as given.
+
+    Each parameter's draw depends only on the device seed and the parameter's name
+    (``np.random.default_rng([seed, crc32(name)])``), so adding a parameter to a table
+    does not change the others' draws. A drawn or temperature-moved value outside the
+    parameter's range is clipped into it (a spread is a batch, not a fault).
+    """
+    out = dict(values)
+    fixed = set(fixed)
+    for spec in specs:
+        if spec.name in fixed or spec.name not in out:
+            continue
+        value = out[spec.name]
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            continue
+        v = float(value)
+        if spec.spread is not None and device_seed is not None and device_seed >= 0:
+            rng = np.random.default_rng([int(device_seed), zlib.crc32(spec.name.encode())])
+            v = spec.spread.draw(v, rng)
+        if spec.tempco is not None and delta_k != 0.0:
+            v = spec.tempco.at(v, delta_k)
+        if spec.min is not None and v < spec.min:
+            v = spec.min
+        if spec.max is not None and v > spec.max:
+            v = spec.max
+        out[spec.name] = int(round(v)) if isinstance(spec.default, int) else v
+    return out

@@ -251,7 +251,10 @@ def _summarise(c, T, cov):
         ci[p] = (math.sqrt(lo), math.sqrt(hi))
     if c[2] > 0 and cov[4, 4] >= 0:
         s = math.sqrt(cov[4, 4])
-        vals["T"], se["T"], ci["T"] = T, T * s, (T * math.exp(-_Z95 * s), T * math.exp(_Z95 * s))
+        # a short record leaves log T almost undetermined: the interval may reach [0, inf]
+        z = min(_Z95 * s, 700.0)
+        hi = T * math.exp(z) if z < 700.0 else math.inf
+        vals["T"], se["T"], ci["T"] = T, T * s, (T * math.exp(-z), hi)
     else:
         vals["T"], se["T"], ci["T"] = math.nan, math.nan, (math.nan, math.nan)
     return vals, se, ci

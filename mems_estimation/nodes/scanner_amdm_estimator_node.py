@@ -42,7 +42,13 @@ from mems_estimation.nodes.frame_input import (
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.kernels.divergence import state_ok
 from mems_sim.params import ParamSpec
-from mems_sim.ros.frames import FrameError, adc_physical, make_state_estimate, signal_data
+from mems_sim.ros.frames import (
+    FrameError,
+    adc_physical,
+    index_to_ns,
+    make_state_estimate,
+    signal_data,
+)
 from mems_sim.ros.node_base import run_node
 from mems_sim.ros.qos import FRAME_QOS
 
@@ -180,7 +186,8 @@ class ScannerAmdmEstimatorNode(EstimatorNode):
                     vars_,
                     first=self.events_published[k],
                     fs=self.event_rate,
-                    stamp_ns=int(round(ev.t[0] * 1e9)),
+                    # event times count from the base sample: on the input's timeline
+                    stamp_ns=stamp_ns - index_to_ns(rel, self.fs) + int(round(ev.t[0] * 1e9)),
                     estimator=f"scanner_{k}_phase",
                     state_names=EVENT_NAMES,
                     state_units=EVENT_UNITS,

@@ -54,6 +54,7 @@ from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.frames import (
     FrameError,
     adc_physical,
+    index_to_ns,
     make_signal_frame,
     make_state_estimate,
     signal_data,
@@ -184,6 +185,7 @@ class ScannerThresholdNode(EstimatorNode):
         # samples starts: the filters count samples without gaps, the estimates carry the
         # input's indices
         self._segments: list[tuple[int, int]] = []
+        self._epoch_ns = 0  # time of input sample 0 [ns] (from the last frame taken)
         self._stream_next: int | None = None
         self.subscribe_pair(("adc", AdcFrame, _y_cap), ("drive", SignalFrame, _v_drive))
 
@@ -218,6 +220,7 @@ class ScannerThresholdNode(EstimatorNode):
                     var[a:b],
                     first=index,
                     fs=self.fs,
+                    stamp_ns=index_to_ns(index, self.fs, self._epoch_ns),
                     estimator=est_name,
                     state_names=STATE_NAMES,
                     state_units=STATE_UNITS,
@@ -277,6 +280,8 @@ class ScannerThresholdNode(EstimatorNode):
     def process_pair(self, first: int, stamp_ns: int, y: np.ndarray, v: np.ndarray) -> None:
         """Detector, hybrid (and plain) EKF on one frame; publish the final estimates."""
         k0 = self.hybrid.next_index  # the filters' (and the detector's) sample index
+        # the input's epoch: the (lagged) estimates are stamped on the input's timeline
+        self._epoch_ns = stamp_ns - index_to_ns(first, self.fs)
         self._note_input(first, y.size)
         self._update_snr(y)
         det = self.detector.process(y)
@@ -307,6 +312,7 @@ class ScannerThresholdNode(EstimatorNode):
                 rows,
                 first=first,
                 fs=self.fs,
+                stamp_ns=stamp_ns,
                 channel_names=DET_CHANNELS,
                 channel_units=DET_UNITS,
                 frame_id="scanner",

@@ -1,4 +1,9 @@
-"""``mcap_info FILE``: topics, types, counts, duration, sample rates, frame gaps of an MCAP bag.
+"""``mcap_info BAG``: topics, types, counts, duration, sample rates, frame gaps of an MCAP bag.
+
+``BAG`` is an MCAP file or a rosbag2 bag directory of MCAP files (a split
+recording: :func:`mems_sim.bag.reader.bag_files`), described as one recording:
+counts, times and loss (frame-index gaps, sequence gaps, end-of-stream tails)
+over all its files together, in their recording order.
 
 :func:`bag_info` returns the same as a dict for tests and other code. Message
 counts come from the Statistics record when the file has one; frame topics
@@ -38,7 +43,9 @@ from mcap.records import Channel, Chunk, Header, Message, Schema
 from mems_sim.bag.reader import (
     TRUNCATED_TEXT,
     BagReadError,
+    bag_files,
     check_channel,
+    closed_pipe_exit,
     iter_stream_records,
     one_line,
     open_bag,
@@ -61,92 +68,124 @@ from mems_sim.ros.end_of_stream import (
 )
 
 
-def _scan(path: str) -> dict:
-    """Scan all records in file order: channels, per-channel counts/times, frames, chunk compressions.
+def _scan(files: list[str]) -> dict:
+    """Scan all records of the files in order: channels, per-topic counts/times, frames,
+    sequences, chunk compressions. The accounting runs over the files as one recording
+    (a split bag's files in recording order), keyed by topic.
 
     Raises :class:`BagReadError` for a corrupt record, an invalid topic name or absurd QoS.
     """
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
-    counts: dict[int, int] = {}
-    frames: dict[int, FrameGapCounter] = {}
-    rates: dict[int, set] = {}
-    data_ends: dict[int, int] = {}
-    sequences: dict[int, SequenceGapCounter] = {}
+    channels: dict[str, Channel] = {}  # the first channel of each topic
+    types: dict[str, str] = {}  # topic -> schema name
+    origin: dict[str, str] = {}  # topic -> file of its first channel
+    file_channels: list[dict[int, Channel]] = []
+    file_counts: list[dict[str, int]] = []
+    file_times: list[tuple[int | None, int | None]] = []
+    frames: dict[str, FrameGapCounter] = {}
+    rates: dict[str, set] = {}
+    data_ends: dict[str, int] = {}
+    sequences: dict[str, SequenceGapCounter] = {}
     end_records: list[bytes] = []
     compressions = set()
     header = None
-    start = end = None
-    truncated = False
+    truncated: list[str] = []
 
     def on_chunk(chunk: Chunk) -> None:
         compressions.add(chunk.compression or "none")
 
-    handle = open_bag(path)
-    with handle:
-        for item, cut in iter_stream_records(handle, path, on_chunk=on_chunk):
-            if cut:
-                truncated = True
-            elif isinstance(item, Header):
-                header = item
-            elif isinstance(item, Schema):
-                schemas[item.id] = item
-            elif isinstance(item, Channel):
-                check_channel(path, item)
-                channels[item.id] = item
-            elif isinstance(item, Message):
-                start = item.log_time if start is None else min(start, item.log_time)
-                end = item.log_time if end is None else max(end, item.log_time)
-                counts[item.channel_id] = counts.get(item.channel_id, 0) + 1
-                _account_frame(item, channels, schemas, frames, rates, data_ends)
-                _account_sequence(item, channels, schemas, sequences, end_records)
-    if header is None:
-        raise BagReadError(f"{path}: unreadable MCAP header")
+    for path in files:
+        schemas: dict[int, Schema] = {}
+        by_id: dict[int, Channel] = {}
+        counts: dict[str, int] = {}
+        start = end = None
+        file_header = None
+        handle = open_bag(path)
+        with handle:
+            for item, cut in iter_stream_records(handle, path, on_chunk=on_chunk):
+                if cut:
+                    truncated.append(path)
+                elif isinstance(item, Header):
+                    file_header = item
+                elif isinstance(item, Schema):
+                    schemas[item.id] = item
+                elif isinstance(item, Channel):
+                    check_channel(path, item)
+                    by_id[item.id] = item
+                    schema = schemas.get(item.schema_id)
+                    _add_channel(path, item, schema.name if schema else "", channels, types, origin)
+                elif isinstance(item, Message):
+                    channel = by_id.get(item.channel_id)
+                    if channel is None:
+                        continue
+                    start = item.log_time if start is None else min(start, item.log_time)
+                    end = item.log_time if end is None else max(end, item.log_time)
+                    topic = channel.topic
+                    counts[topic] = counts.get(topic, 0) + 1
+                    type_name = types.get(topic, "")
+                    _account_frame(item, topic, type_name, frames, rates, data_ends)
+                    _account_sequence(item, topic, type_name, sequences, end_records)
+        if file_header is None:
+            raise BagReadError(f"{path}: unreadable MCAP header")
+        header = header or file_header
+        file_channels.append(by_id)
+        file_counts.append(counts)
+        file_times.append((start, end))
     return {
         "header": header,
-        "schemas": schemas,
         "channels": channels,
-        "counts": counts,
+        "types": types,
+        "file_channels": file_channels,
+        "file_counts": file_counts,
+        "file_times": file_times,
         "frames": frames,
         "rates": rates,
         "data_ends": data_ends,
         "sequences": sequences,
         "end_records": end_records,
         "compressions": compressions,
-        "start": start,
-        "end": end,
         "truncated": truncated,
     }
 
 
-def _account_frame(message: Message, channels, schemas, frames, rates, data_ends) -> None:
-    channel = channels.get(message.channel_id)
-    schema = schemas.get(channel.schema_id) if channel is not None else None
-    layout = FRAME_LAYOUTS.get(schema.name) if schema is not None else None
+def _add_channel(path: str, channel: Channel, type_name: str, channels, types, origin) -> None:
+    """Keep the first channel of each topic; a topic whose type differs in a later file of
+    the bag raises (within one file the first channel's type is kept)."""
+    topic = channel.topic
+    if topic not in channels:
+        channels[topic] = channel
+        types[topic] = type_name
+        origin[topic] = path
+    elif types[topic] != type_name and origin[topic] != path:
+        raise BagReadError(
+            f"{path}: {shown(topic)} is {shown(type_name)} here but {shown(types[topic])} "
+            f"in {origin[topic]}"
+        )
+
+
+def _account_frame(message: Message, topic, type_name, frames, rates, data_ends) -> None:
+    layout = FRAME_LAYOUTS.get(type_name)
     if layout is None:
         return
     fields = peek_frame_fields(message.data, layout)
     if fields is None:
         return
     first, num, rate = fields
-    rates.setdefault(message.channel_id, set()).add(rate)
-    counter = frames.setdefault(message.channel_id, FrameGapCounter())
-    if schema.name in GAP_CHECKED_TYPES:
+    rates.setdefault(topic, set()).add(rate)
+    counter = frames.setdefault(topic, FrameGapCounter())
+    if type_name in GAP_CHECKED_TYPES:
         counter.update(first, num)
         stamp = peek_header_stamp_ns(message.data)  # time of the frame's first sample
         if stamp is not None and rate > 0 and math.isfinite(rate):
             end = stamp + int(round(num * 1e9 / rate))
-            data_ends[message.channel_id] = max(data_ends.get(message.channel_id, end), end)
+            data_ends[topic] = max(data_ends.get(topic, end), end)
     else:
         counter.frames += 1
 
 
-def _account_sequence(message: Message, channels, schemas, sequences, end_records) -> None:
-    """Count gaps of the message sequence numbers per channel; keep end-of-stream records."""
-    sequences.setdefault(message.channel_id, SequenceGapCounter()).update(message.sequence)
-    channel = channels.get(message.channel_id)
-    schema = schemas.get(channel.schema_id) if channel is not None else None
-    if schema is not None and is_end_of_stream_topic(channel.topic, schema.name):
+def _account_sequence(message: Message, topic, type_name, sequences, end_records) -> None:
+    """Count gaps of the message sequence numbers per topic; keep end-of-stream records."""
+    sequences.setdefault(topic, SequenceGapCounter()).update(message.sequence)
+    if type_name and is_end_of_stream_topic(topic, type_name):
         end_records.append(message.data)
 
 
@@ -179,9 +218,8 @@ def _add_losses(topics: dict, scan: dict) -> None:
     is missing after the last recorded message, :func:`missing_tail`) and
     ``end_of_stream`` (the announced counts).
     """
-    by_topic = {ch.topic: cid for cid, ch in scan["channels"].items()}
     for topic, entry in topics.items():
-        counter = scan["sequences"].get(by_topic[topic])
+        counter = scan["sequences"].get(topic)
         checkable = counter is not None and counter.resets == 0
         if entry.get("type") not in GAP_CHECKED_TYPES:
             entry["sequence_gaps"] = counter.gaps if checkable else None
@@ -190,13 +228,12 @@ def _add_losses(topics: dict, scan: dict) -> None:
         if topic not in topics:
             continue  # not selected for recording: nothing to compare
         entry = topics[topic]
-        cid = by_topic[topic]
-        counter = scan["sequences"].get(cid)
+        counter = scan["sequences"].get(topic)
         if counter is not None and counter.resets == 0 and counter.last is not None:
             seen = counter.last
         else:
             seen = entry.get("count", 0)
-        frames = scan["frames"].get(cid)
+        frames = scan["frames"].get(topic)
         end = frames.expected if frames is not None else None
         entry["end_of_stream"] = expected
         entry["tail"] = missing_tail(expected, seen, end)
@@ -240,33 +277,53 @@ def bag_info(path: str) -> dict:
     or corrupt file, an invalid topic name or absurd QoS metadata; a truncated file is
     read up to its last complete chunk (``truncated`` = True).
     """
-    handle = open_bag(path)
-    with handle:
-        summary = read_summary(handle, path)
-    if summary is not None:
-        for channel in summary.channels.values():
-            check_channel(path, channel)
-    scan = _scan(path)
+    files = bag_files(path)
+    stats_list = []
+    for name in files:
+        handle = open_bag(name)
+        with handle:
+            summary = read_summary(handle, name)
+        if summary is not None:
+            for channel in summary.channels.values():
+                check_channel(name, channel)
+        stats_list.append(summary.statistics if summary is not None else None)
+    scan = _scan(files)
     header = scan["header"]
-    stats = summary.statistics if summary is not None else None
-    topics = {}
-    for cid, channel in scan["channels"].items():
-        schema = scan["schemas"].get(channel.schema_id)
-        count = scan["counts"].get(cid, 0)
+    counts: dict[str, int] = {}
+    total = 0
+    start = end = None
+    for stats, by_id, scanned, times in zip(
+        stats_list, scan["file_channels"], scan["file_counts"], scan["file_times"]
+    ):
+        file_counts = dict(scanned)
         if stats is not None:
-            count = stats.channel_message_counts.get(cid, count)
-        type_name = schema.name if schema else ""
+            for cid, channel in by_id.items():
+                if cid in stats.channel_message_counts:
+                    file_counts[channel.topic] = stats.channel_message_counts[cid]
+        for topic, n in file_counts.items():
+            counts[topic] = counts.get(topic, 0) + n
+        if stats is not None and stats.message_count:
+            times = (stats.message_start_time, stats.message_end_time)
+            total += stats.message_count
+        else:
+            total += sum(scanned.values())
+        if times[0] is not None:
+            start = times[0] if start is None else min(start, times[0])
+            end = times[1] if end is None else max(end, times[1])
+    topics = {}
+    for topic, channel in scan["channels"].items():
+        type_name = scan["types"][topic]
         entry = {
             "type": type_name,
             "type_problem": interface_problem(type_name) if type_name else None,
             "message_encoding": channel.message_encoding,
-            "count": count,
+            "count": counts.get(topic, 0),
             "offered_qos_profiles": channel.metadata.get("offered_qos_profiles", ""),
             "topic_type_hash": channel.metadata.get("topic_type_hash"),
         }
-        if cid in scan["frames"]:
-            counter = scan["frames"][cid]
-            rates = scan["rates"].get(cid, set())
+        if topic in scan["frames"]:
+            counter = scan["frames"][topic]
+            rates = scan["rates"].get(topic, set())
             entry.update(
                 sample_rate_hz=next(iter(rates)) if len(rates) == 1 else None,
                 total_samples=counter.samples,
@@ -275,21 +332,19 @@ def bag_info(path: str) -> dict:
                 missing_samples=counter.missing_samples,
                 resets=counter.resets,
             )
-        topics[channel.topic] = entry
+        topics[topic] = entry
     _add_losses(topics, scan)
-    if stats is not None and stats.message_count:
-        start, end, total = stats.message_start_time, stats.message_end_time, stats.message_count
-    else:
-        start, end, total = scan["start"], scan["end"], sum(scan["counts"].values())
     data_end = max(scan["data_ends"].values(), default=None)
     last = end if data_end is None or end is None else max(end, data_end)
     return {
         "path": path,
-        "file_size": os.path.getsize(path),
+        "files": files,
+        "file_size": sum(os.path.getsize(name) for name in files),
         "profile": header.profile,
         "library": header.library,
-        "has_summary": summary is not None and stats is not None,
-        "truncated": scan["truncated"],
+        "has_summary": all(stats is not None for stats in stats_list),
+        "truncated": bool(scan["truncated"]),
+        "truncated_files": scan["truncated"],
         "compression": sorted(scan["compressions"]),
         "message_count": total,
         "start_ns": start,
@@ -325,8 +380,12 @@ def _time_text(ns: int | None) -> str:
 
 def format_info(info: dict) -> str:
     """Human-readable multi-line text of :func:`bag_info`'s dict."""
-    lines = [
-        f"File:        {info['path']}",
+    lines = [f"File:        {info['path']}"]
+    files = info.get("files", [info["path"]])
+    if files != [info["path"]]:
+        names = ", ".join(os.path.relpath(name, info["path"]) for name in files)
+        lines.append(f"Files:       {len(files)}: " + one_line(names, 1000))
+    lines += [
         f"Size:        {info['file_size'] / 1e6:.3f} MB",
         f"Profile:     {_printable(info['profile'])} ({_printable(info['library'])})",
         f"Compression: {', '.join(info['compression']) or 'none'}",
@@ -360,9 +419,17 @@ def format_info(info: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``mcap_info``; exit code 2 with a one-line error for a bad file."""
+    """Entry point of ``mcap_info``; exit code 2 with a one-line error for a bad file, 141
+    when stdout is a pipe whose reader closed it (:func:`closed_pipe_exit`)."""
+    try:
+        return _main(argv)
+    except BrokenPipeError:
+        return closed_pipe_exit()
+
+
+def _main(argv: list[str] | None) -> int:
     parser = argparse.ArgumentParser(prog="mcap_info", description=__doc__.splitlines()[0])
-    parser.add_argument("file")
+    parser.add_argument("file", metavar="BAG", help="MCAP file or rosbag2 bag directory")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     from mems_sim.ros.env import apply_defaults
 
@@ -373,8 +440,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"mcap_info: error: {one_line(exc)}", file=sys.stderr)
         return 2
     print(format_info(info), flush=True)
-    if info["truncated"]:
-        print(f"mcap_info: warning: {args.file}: {TRUNCATED_TEXT}", file=sys.stderr, flush=True)
+    for name in info["truncated_files"]:
+        print(f"mcap_info: warning: {name}: {TRUNCATED_TEXT}", file=sys.stderr, flush=True)
     unknown = {t: v["type"] for t, v in info["topics"].items() if v.get("type_problem")}
     if unknown:
         listed = ", ".join(f"{shown(t)} [{shown(n)}]" for t, n in sorted(unknown.items()))

@@ -1,4 +1,10 @@
-"""MCAP player: ``mcap_play FILE [--rate R | --as-fast-as-possible] [--loop] [--clock [HZ]] ...``.
+"""MCAP player: ``mcap_play BAG [--rate R | --as-fast-as-possible] [--loop] [--clock [HZ]] ...``.
+
+``BAG`` is an MCAP file or a rosbag2 bag directory (a split recording), played as
+one timeline (:func:`iter_raw`). Topics are remapped with ``--remap FROM:=TO`` or
+ROS's ``--ros-args -r FROM:=TO``; ``--start-paused`` and the services of
+:class:`PlaybackControl` (rosbag2's ``~/pause``, ``~/resume``, ``~/toggle_paused``,
+``~/is_paused``, ``~/play_next``, as std_srvs/srv/Trigger) pause and step the replay.
 
 Publishes the serialised bytes stored in the file (no deserialisation) with
 publishers created from the file's schemas (``pkg/msg/Type``, imported only
@@ -38,6 +44,7 @@ from __future__ import annotations
 import argparse
 import bisect
 import heapq
+import os
 import signal
 import sys
 import time
@@ -49,7 +56,9 @@ from mcap.records import Channel, Message, Schema
 from mems_sim.bag.reader import (
     BagReadError,
     BagSummary,
+    bag_files,
     check_channel,
+    closed_pipe_exit,
     one_line,
     open_bag,
     read_chunk_at,
@@ -156,13 +165,75 @@ def iter_raw(
     end_time_ns: int | None = None,
     on_truncated: Callable[[str], None] | None = warn_truncated,
 ) -> Iterator[tuple[Schema | None, Channel, Message]]:
-    """``(schema, channel, message)`` of the file in log-time order (file order without a Summary).
+    """``(schema, channel, message)`` of the bag in log-time order (file order without a Summary).
 
+    ``path`` is an MCAP file or a rosbag2 bag directory (:func:`~mems_sim.bag.reader.bag_files`),
+    whose files are merged into one log-time ordered timeline (files may overlap in time;
+    equal log times keep the files' order).
     Raises :class:`BagReadError` (one line) for a missing, non-MCAP or corrupt file, an
     invalid topic name or absurd QoS metadata; a truncated file is read up to its last
     complete chunk and reported through ``on_truncated(path)`` (default: a warning line).
     """
     topics = None if topics is None else set(topics)
+    files = bag_files(path)
+    if len(files) == 1:
+        yield from _iter_file(files[0], topics, start_time_ns, end_time_ns, on_truncated)
+    else:
+        yield from _iter_merged(files, topics, start_time_ns, end_time_ns, on_truncated)
+
+
+def _file_start_ns(path: str) -> int | None:
+    """First log time of one file from its Statistics (None: no Statistics or no messages)."""
+    handle = open_bag(path)
+    with handle:
+        summary = _summary(handle, path)
+    if summary is not None and summary.statistics is not None and summary.statistics.message_count:
+        return summary.statistics.message_start_time
+    return None
+
+
+def _iter_merged(files, topics, start_time_ns, end_time_ns, on_truncated):
+    """The files' messages merged by log time. A file is opened only once the timeline
+    reaches its first log time (from its Statistics; a file without them at once), so a
+    long split recording keeps few files open."""
+    starts = []
+    for order, path in enumerate(files):
+        first = _file_start_ns(path)
+        if first is not None and end_time_ns is not None and first >= end_time_ns:
+            continue
+        starts.append((-1 if first is None else first, order))
+    starts.sort()
+    heap: list = []
+    seq = 0
+
+    def push(order: int, iterator) -> None:
+        nonlocal seq
+        item = next(iterator, None)
+        if item is not None:
+            heapq.heappush(heap, (item[2].log_time, order, seq, item, iterator))
+            seq += 1
+
+    k = 0
+    try:
+        while heap or k < len(starts):
+            while k < len(starts) and (not heap or starts[k][0] <= heap[0][0]):
+                order = starts[k][1]
+                push(
+                    order,
+                    _iter_file(files[order], topics, start_time_ns, end_time_ns, on_truncated),
+                )
+                k += 1
+            if heap:
+                _, order, _, item, iterator = heapq.heappop(heap)
+                yield item
+                push(order, iterator)
+    finally:
+        for entry in heap:
+            entry[4].close()
+
+
+def _iter_file(path, topics, start_time_ns, end_time_ns, on_truncated):
+    """``(schema, channel, message)`` of one MCAP file (see :func:`iter_raw`)."""
     handle = open_bag(path)
     with handle:
         summary = _summary(handle, path)
@@ -193,15 +264,22 @@ def iter_raw(
 
 
 def bag_start_time_ns(path: str) -> int | None:
-    """log_time of the first message [ns] (from Statistics, else by scanning), None if empty."""
-    handle = open_bag(path)
-    with handle:
-        summary = _summary(handle, path)
-    if summary is not None and summary.statistics is not None and summary.statistics.message_count:
-        return summary.statistics.message_start_time
-    for _, _, message in iter_raw(path):
-        return message.log_time
-    return None
+    """log_time of the bag's first message [ns] (from Statistics, else by scanning), None if
+    empty; of all files of a bag directory."""
+    starts = []
+    for name in bag_files(path):
+        first = _file_start_ns(name)
+        if first is None:
+            first = next(
+                (
+                    message.log_time
+                    for _, _, message in _iter_file(name, None, None, None, warn_truncated)
+                ),
+                None,
+            )
+        if first is not None:
+            starts.append(first)
+    return min(starts, default=None)
 
 
 def iter_messages(
@@ -274,11 +352,32 @@ def read_messages(
 def recorded_topics(
     path: str, on_truncated: Callable[[str], None] | None = warn_truncated
 ) -> dict[str, tuple[str, str]]:
-    """``{topic: (type_name, offered_qos_profiles_yaml)}`` of the file's channels.
+    """``{topic: (type_name, offered_qos_profiles_yaml)}`` of the bag's channels.
 
     Every channel is checked (topic name, QoS metadata); a file without a Summary is
-    scanned completely, so a corrupt chunk raises :class:`BagReadError` here.
+    scanned completely, so a corrupt chunk raises :class:`BagReadError` here. Of a bag
+    directory, the topics of all its files (the first file's QoS of a topic); a topic
+    whose type differs between files raises :class:`BagReadError`.
     """
+    files = bag_files(path)
+    if len(files) == 1:
+        return _recorded_topics_file(files[0], on_truncated)
+    out: dict[str, tuple[str, str]] = {}
+    where: dict[str, str] = {}
+    for name in files:
+        for topic, (type_name, qos_yaml) in _recorded_topics_file(name, on_truncated).items():
+            if topic not in out:
+                out[topic], where[topic] = (type_name, qos_yaml), name
+            elif out[topic][0] != type_name:
+                raise BagReadError(
+                    f"{path}: {shown(topic)} is {shown(out[topic][0])} in {where[topic]} "
+                    f"but {shown(type_name)} in {name}"
+                )
+    return out
+
+
+def _recorded_topics_file(path: str, on_truncated) -> dict[str, tuple[str, str]]:
+    """:func:`recorded_topics` of one MCAP file."""
     handle = open_bag(path)
     out: dict[str, tuple[str, str]] = {}
     with handle:
@@ -370,6 +469,141 @@ def parse_remaps(remaps: Iterable[str]) -> dict[str, str]:
     return out
 
 
+class _Timeline:
+    """Maps wall-clock time to the bag's log time at a rate, with pause, jump and shift
+    (the time controller of rosbag2's player: paused, the log time holds)."""
+
+    def __init__(self, rate: float, bag_ns: int, wall_s: float):
+        self.rate = rate
+        self.bag_ref = int(bag_ns)  # log time [ns] at wall_ref
+        self.wall_ref = wall_s  # monotonic time [s]
+        self.paused = False
+
+    def now_ns(self, wall_s: float) -> int:
+        """Log time [ns] reached at monotonic time ``wall_s``."""
+        if self.paused:
+            return self.bag_ref
+        return self.bag_ref + int((wall_s - self.wall_ref) * self.rate * 1e9)
+
+    def pause(self, wall_s: float) -> None:
+        self.bag_ref = self.now_ns(wall_s)
+        self.paused = True
+
+    def resume(self, wall_s: float) -> None:
+        self.wall_ref = wall_s
+        self.paused = False
+
+    def jump(self, bag_ns: int, wall_s: float) -> None:
+        """Move the log time to ``bag_ns`` (held there while paused)."""
+        self.bag_ref = int(bag_ns)
+        self.wall_ref = wall_s
+
+    def shift(self, seconds: float) -> None:
+        """Hold the log time for ``seconds`` of wall time that just passed."""
+        if not self.paused:
+            self.wall_ref += seconds
+
+
+#: The player's control services: name (relative to the node, ``~/``) -> what it does.
+#: Names are those of rosbag2's player; the types are std_srvs/srv/Trigger, because
+#: rosbag2_interfaces is not distributed as a Python wheel.
+CONTROL_SERVICES = {
+    "pause": "pause playback (the clock holds); success true",
+    "resume": "resume playback; success true",
+    "toggle_paused": "pause when playing, resume when paused; message: the new state",
+    "is_paused": "success: true when paused; message: paused or playing",
+    "play_next": "while paused, publish the next message; success false when playing "
+    "or at the end of the bag",
+}
+
+
+class PlaybackControl:
+    """Pause, resume and play-next of a replay, as rosbag2's player offers them.
+
+    The services (:data:`CONTROL_SERVICES`, on the player's node, ``~/NAME``) are
+    std_srvs/srv/Trigger; rosbag2_interfaces' types map onto it so: Pause, Resume,
+    TogglePaused -> Trigger (success true; message the state afterwards), IsPaused ->
+    Trigger (success = paused), PlayNext -> Trigger (success as PlayNext's: true when the
+    player is paused and a message is left; the message is published right after the
+    reply). While paused the player publishes nothing and /clock holds.
+
+    :param paused: start paused (``--start-paused``).
+    """
+
+    def __init__(self, paused: bool = False):
+        self.paused = bool(paused)
+        self.next_requests = 0  # play_next calls not served yet
+        self.finished = False  # the replay reached its end
+        self.services: list = []
+
+    def pause(self) -> None:
+        self.paused = True
+
+    def resume(self) -> None:
+        self.paused = False
+        self.next_requests = 0
+
+    def request_next(self) -> tuple[bool, str]:
+        """Ask for the next message (paused only); ``(success, message)``."""
+        if not self.paused:
+            return False, "not paused"
+        if self.finished:
+            return False, "end of the bag"
+        self.next_requests += 1
+        return True, "publishing the next message"
+
+    def take_next(self) -> bool:
+        """True (once per request) when the player should publish one message now."""
+        if self.next_requests > 0:
+            self.next_requests -= 1
+            return True
+        return False
+
+    def state(self) -> str:
+        return "paused" if self.paused else "playing"
+
+    def create_services(self, node) -> None:
+        """Offer :data:`CONTROL_SERVICES` on ``node`` (std_srvs must be installed)."""
+        from std_srvs.srv import Trigger
+
+        def handler(action):
+            def call(request, response):
+                response.success, response.message = action()
+                return response
+
+            return call
+
+        def set_paused(paused: bool):
+            def action():
+                self.pause() if paused else self.resume()
+                return True, self.state()
+
+            return action
+
+        def toggle():
+            self.resume() if self.paused else self.pause()
+            return True, self.state()
+
+        actions = {
+            "pause": set_paused(True),
+            "resume": set_paused(False),
+            "toggle_paused": toggle,
+            "is_paused": lambda: (self.paused, self.state()),
+            "play_next": self.request_next,
+        }
+        for name in CONTROL_SERVICES:
+            self.services.append(node.create_service(Trigger, f"~/{name}", handler(actions[name])))
+
+
+def control_available() -> str | None:
+    """None when the control services can be offered, else why not (one line)."""
+    try:
+        import std_srvs.srv  # noqa: F401  (import check: the services need its Trigger type)
+    except ImportError:
+        return "the std_srvs interfaces (std_srvs/srv/Trigger) are not installed"
+    return None
+
+
 class Player:
     """Publishes a bag's messages on a node (used by :func:`main`; usable in-process).
 
@@ -379,6 +613,9 @@ class Player:
     :param remap: ``{recorded_topic: published_topic}``.
     :param resolved: the result of :func:`playable_topics` when the caller already
         has it (then skipped topics are not reported again on the node's logger).
+    :param control: :class:`PlaybackControl` (pause, resume, play next), or None.
+    :param executor: an executor of ``node``, spun while the player waits (for the
+        control services and flow control); None: the player sleeps while it waits.
     """
 
     def __init__(
@@ -388,8 +625,12 @@ class Player:
         topics: Iterable[str] | None = None,
         remap: dict[str, str] | None = None,
         resolved: tuple[dict[str, tuple[type, str]], dict[str, str]] | None = None,
+        control: PlaybackControl | None = None,
+        executor=None,
     ):
         self.node = node
+        self.control = control
+        self.executor = executor
         self.path = path
         self.topics = None if topics is None else list(topics)
         self.remap = dict(remap or {})
@@ -424,7 +665,7 @@ class Player:
         while time.monotonic() < deadline and not stop():
             if all(p.get_subscription_count() >= count for p in self.publishers.values()):
                 return True
-            time.sleep(0.02)
+            self._wait(0.02)
         return all(p.get_subscription_count() >= count for p in self.publishers.values())
 
     def play(
@@ -447,55 +688,91 @@ class Player:
         :param clock_publisher: publisher of rosgraph_msgs/Clock, published at ``clock_hz``
             [Hz] of wall-clock time with the log time reached (paced: the log time the
             wall clock has reached; as fast as possible: the last published message's), and
-            once more with the last message's log time at the end.
+            once more with the last message's log time at the end; it never goes back,
+            and holds while :attr:`control` is paused.
         :param flow: :class:`FlowControl`: a frame for a named consumer waits for its
             credit; paced playback pauses meanwhile (the time waited does not count).
+        Paused (:class:`PlaybackControl`), nothing is published until it resumes, except one
+        message per play-next request; the log time then continues from that message.
         Returns the number of messages published.
         """
         from rosgraph_msgs.msg import Clock
 
-        wall0 = bag0 = None
+        control = self.control
+        timeline = None
         clock_period = 1.0 / clock_hz if clock_publisher is not None and clock_hz > 0 else None
         next_clock = time.monotonic()
+        next_spin = time.monotonic()
         end_ns = None
         last_ns = None
         count = 0
 
+        clock_ns = None  # the last time published on /clock: it never goes back
+
         def publish_clock(bag_ns: int):
+            nonlocal clock_ns
+            clock_ns = int(bag_ns) if clock_ns is None else max(clock_ns, int(bag_ns))
             msg = Clock()
-            msg.clock.sec, msg.clock.nanosec = divmod(int(bag_ns), 1_000_000_000)
+            msg.clock.sec, msg.clock.nanosec = divmod(clock_ns, 1_000_000_000)
             clock_publisher.publish(msg)
 
+        if control is not None:
+            control.finished = False
         for item in iter_messages(self.path, self.publishers.keys(), start_offset_s):
             if stop():
                 break
-            if wall0 is None:
-                wall0, bag0 = time.monotonic(), item.log_time_ns
-                started = wall0
+            if timeline is None:
+                timeline = _Timeline(rate, item.log_time_ns, time.monotonic())
+                timeline.paused = control is not None and control.paused  # held from the start
+                started = timeline.wall_ref
+                bag0 = item.log_time_ns
                 if duration_s is not None:
                     end_ns = bag0 + int(duration_s * 1e9)
             if end_ns is not None and item.log_time_ns > end_ns:
                 break
-            if not fast:
-                target = wall0 + (item.log_time_ns - bag0) / 1e9 / rate
-                while not stop():
-                    now = time.monotonic()
-                    if clock_period is not None and now >= next_clock:
-                        publish_clock(bag0 + (now - wall0) * rate * 1e9)
+            while not stop():
+                now = time.monotonic()
+                paused = control is not None and control.paused
+                if paused != timeline.paused:
+                    (timeline.pause if paused else timeline.resume)(now)
+                if fast:
+                    shown_ns = last_ns if last_ns is not None else item.log_time_ns
+                else:
+                    shown_ns = timeline.now_ns(now)
+                if clock_period is not None and now >= next_clock:
+                    if paused or not fast:
+                        publish_clock(shown_ns)
                         next_clock += clock_period
-                    if now >= target:
+                        if next_clock < now:
+                            next_clock = now + clock_period
+                    else:
+                        publish_clock(item.log_time_ns)
+                        next_clock = now + clock_period
+                if paused:
+                    if control.take_next():
+                        timeline.jump(item.log_time_ns, now)  # the clock moves to this message
                         break
-                    wake = target if clock_period is None else min(target, next_clock)
-                    time.sleep(max(0.0, min(wake - now, 0.05)))
-            elif clock_period is not None and time.monotonic() >= next_clock:
-                publish_clock(item.log_time_ns)
-                next_clock = time.monotonic() + clock_period
+                    wake = 0.05 if clock_period is None else next_clock - now
+                    self._wait(max(0.0, min(wake, 0.05)))
+                    continue
+                if fast:
+                    if self.executor is not None and now >= next_spin:
+                        self.executor.spin_once(timeout_sec=0)  # serve the control services
+                        next_spin = now + 0.02
+                        continue
+                    break
+                due_in = (item.log_time_ns - timeline.now_ns(now)) / 1e9 / rate
+                if due_in <= 0:
+                    break
+                wake = due_in if clock_period is None else min(due_in, next_clock - now)
+                self._wait(max(0.0, min(wake, 0.05)))
+            if stop():
+                break
             peek = None
             if flow is not None:
                 waited = flow.waited_s
                 peek = flow.before(item.topic, item.data, stop)
-                if not fast:
-                    wall0 += flow.waited_s - waited  # paused while waiting for credit
+                timeline.shift(flow.waited_s - waited)  # paused while waiting for credit
                 if stop():
                     break
             self._publish(item.topic, item.data)
@@ -504,13 +781,23 @@ class Player:
             self.topic_counts[item.topic] = self.topic_counts.get(item.topic, 0) + 1
             last_ns = item.log_time_ns
             count += 1
+        if control is not None:
+            control.finished = True
         if clock_period is not None and last_ns is not None and not stop():
             publish_clock(last_ns)
-        if wall0 is not None and last_ns is not None:
+        if timeline is not None and last_ns is not None:
             self.played_log_s = (last_ns - bag0) / 1e9
             self.played_wall_s = time.monotonic() - started
         self.published += count
         return count
+
+    def _wait(self, seconds: float) -> None:
+        """Wait up to ``seconds``: serving the node's callbacks when there is an executor."""
+        seconds = max(0.0, seconds)  # a negative timeout would make spin_once wait forever
+        if self.executor is not None:
+            self.executor.spin_once(timeout_sec=seconds)
+        else:
+            time.sleep(seconds)
 
     def _publish(self, topic: str, data: bytes) -> None:
         """Publish the serialised bytes on the (possibly remapped) topic."""
@@ -721,7 +1008,7 @@ class FlowControl:
         """Wait until every consumer is in the graph, publishes progress, subscribes to at
         least one played frame topic, and every publisher of those topics is matched with
         all their subscribers; None when ready, else why not (one line)."""
-        inverse = {player.remap.get(t, t): t for t in player.publishers}
+        inverse = {p.topic_name: t for t, p in player.publishers.items()}
         deadline = time.monotonic() + timeout_s
         why = "not ready"
         while time.monotonic() < deadline and not stop():
@@ -752,7 +1039,7 @@ class FlowControl:
                 # suffice (another subscriber may have an incompatible QoS)
                 late = time.monotonic() > deadline - min(1.0, timeout_s / 2)
                 for topic in {t for c in self.consumers for t in c.topics}:
-                    name = player.remap.get(topic, topic)
+                    name = player.publishers[topic].topic_name
                     subs = self.node.get_subscriptions_info_by_topic(name)
                     if late:
                         fqns = {c.fqn for c in self.consumers if topic in c.topics}
@@ -905,7 +1192,9 @@ class FlowControl:
 
 def _parse_args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="mcap_play", description=__doc__.splitlines()[0])
-    parser.add_argument("file", help="MCAP file to play")
+    parser.add_argument(
+        "file", nargs="?", metavar="BAG", help="MCAP file or rosbag2 bag directory to play"
+    )
     parser.add_argument("--rate", "-r", type=float, default=1.0, help="playback rate factor (> 0)")
     parser.add_argument(
         "--as-fast-as-possible",
@@ -927,7 +1216,21 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
     )
     parser.add_argument("--duration", type=float, default=None, help="play this much bag time [s]")
     parser.add_argument("--topics", nargs="+", default=None, help="play only these topics")
-    parser.add_argument("--remap", nargs="+", default=[], metavar="FROM:=TO", help="topic remaps")
+    parser.add_argument(
+        "--remap",
+        "-m",
+        nargs="+",
+        action="extend",
+        default=[],
+        metavar="FROM:=TO",
+        help="topic remaps (also: --ros-args -r FROM:=TO, ROS's remapping rules)",
+    )
+    parser.add_argument(
+        "--start-paused",
+        action="store_true",
+        help="start paused: ~/resume, ~/toggle_paused and ~/play_next (std_srvs/srv/Trigger "
+        "services, rosbag2's names) go on",
+    )
     parser.add_argument(
         "--wait-for-subscribers",
         type=int,
@@ -965,6 +1268,14 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
         help="stop waiting for a consumer whose progress has not moved for S seconds [s]",
     )
     args = parser.parse_args(argv)
+    if args.file is None:
+        # "--remap A:=B BAG" or "--topics T BAG": the bag was taken as one more list item
+        if args.remap and ":=" not in args.remap[-1]:
+            args.file = args.remap.pop()
+        elif args.topics and len(args.topics) > 1 and os.path.exists(args.topics[-1]):
+            args.file = args.topics.pop()
+        else:
+            parser.error("the following arguments are required: BAG")
     if not args.rate > 0 or args.rate == float("inf"):
         parser.error("--rate must be a finite number > 0 (use --as-fast-as-possible)")
     try:
@@ -979,18 +1290,50 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
     return args
 
 
+def split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
+    """``(own arguments, ROS arguments)``: by rcl's rule, the arguments from each
+    ``--ros-args`` up to the next ``--`` (or the end) are ROS's (kept with their
+    ``--ros-args``); everything else is the program's, including ``FROM:=TO`` after
+    ``--remap``, which rcl alone would also take as a (deprecated) global remapping rule."""
+    own: list[str] = []
+    ros: list[str] = []
+    inside = False
+    for arg in argv:
+        if inside:
+            if arg == "--":
+                inside = False
+            else:
+                ros.append(arg)
+        elif arg == "--ros-args":
+            inside = True
+            ros.append(arg)
+        else:
+            own.append(arg)
+    return own, ros
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``mcap_play``; returns the process exit code (2 for a bad file)."""
+    """Entry point of ``mcap_play``; returns the process exit code (2 for a bad file,
+    3 for loss in a lossless replay, 141 when stdout's reader went away)."""
+    try:
+        return _main(argv)
+    except BrokenPipeError:
+        return closed_pipe_exit()
+
+
+def _main(argv: list[str] | None) -> int:
     apply_defaults()
     argv = sys.argv[1:] if argv is None else list(argv)
-    from rclpy.utilities import remove_ros_args
-
-    args = _parse_args(remove_ros_args(["mcap_play"] + argv)[1:])
+    own, ros_args = split_ros_args(argv)
+    args = _parse_args(own)
     try:
         remap = parse_remaps(args.remap)
         resolved = playable_topics(args.file, args.topics)
     except (BagReadError, ValueError) as exc:
         print(f"mcap_play: error: {one_line(exc)}", file=sys.stderr)
+        return 2
+    if args.start_paused and control_available() is not None:
+        print(f"mcap_play: error: --start-paused: {control_available()}", file=sys.stderr)
         return 2
     playable, skipped = resolved
     if not playable:
@@ -1015,18 +1358,29 @@ def main(argv: list[str] | None = None) -> int:
     from rclpy.signals import SignalHandlerOptions
     from rosgraph_msgs.msg import Clock
 
-    rclpy.init(args=["mcap_play"] + argv, signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(args=["mcap_play"] + ros_args, signal_handler_options=SignalHandlerOptions.NO)
     stop, previous = install_stop_request()
     node = None
     code = 0
     try:
         node = Node("mcap_player")
-        player = Player(node, args.file, args.topics, remap, resolved=resolved)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        control = PlaybackControl(paused=args.start_paused)
+        if control_available() is None:
+            control.create_services(node)
+        player = Player(
+            node,
+            args.file,
+            args.topics,
+            remap,
+            resolved=resolved,
+            control=control,
+            executor=executor,
+        )
         clock_pub = node.create_publisher(Clock, "/clock", 10) if args.clock else None
         flow = None
         if args.consumers:
-            executor = SingleThreadedExecutor()
-            executor.add_node(node)
             flow = FlowControl(
                 node, executor, args.consumers, args.credit, stall_s=args.consumer_timeout
             )
@@ -1038,8 +1392,9 @@ def main(argv: list[str] | None = None) -> int:
             args.wait_for_subscribers, args.wait_timeout, lambda: stop["flag"]
         ):
             node.get_logger().warning("not every topic has its subscribers; playing anyway")
-        if args.delay > 0:
-            time.sleep(args.delay)
+        delay_end = time.monotonic() + args.delay
+        while not stop["flag"] and time.monotonic() < delay_end:
+            player._wait(min(0.05, delay_end - time.monotonic()))
         while not stop["flag"]:
             player.play(
                 rate=args.rate,

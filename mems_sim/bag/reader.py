@@ -28,6 +28,13 @@ it is trusted:
 The Summary section is read by :func:`read_summary` from the Footer's
 ``summary_start``; a missing or damaged Summary makes the readers fall back to
 a sequential scan (:func:`iter_stream_records`).
+
+A bag is a single ``.mcap`` file or a rosbag2 bag directory (a recording split
+by size or duration): :func:`bag_files` lists its files in the order of
+``relative_file_paths`` in its ``metadata.yaml`` (rosbag2's
+``rosbag2_bagfile_information``), or, without one, its ``*.mcap`` files sorted
+naturally (``x_2.mcap`` before ``x_10.mcap``). Listed paths must stay inside the
+directory; each file is a complete MCAP file, checked as above.
 """
 
 from __future__ import annotations
@@ -35,6 +42,7 @@ from __future__ import annotations
 import io
 import os
 import re
+import signal
 import stat
 import struct
 import sys
@@ -78,6 +86,10 @@ MAX_QOS_DEPTH = 100_000
 
 #: Largest topic name [characters].
 MAX_TOPIC_LENGTH = 1024
+
+#: Name of a bag directory's metadata file (rosbag2) and the largest one accepted [bytes].
+METADATA_NAME = "metadata.yaml"
+MAX_METADATA_BYTES = 4 << 20
 
 _HEADER = struct.Struct("<BQ")
 _FOOTER_RECORD_SIZE = 9 + 8 + 8 + 4
@@ -133,6 +145,84 @@ def open_bag(path: str):
         handle.close()
         raise BagReadError(f"{path}: not an MCAP file (bad magic)")
     return handle
+
+
+def _natural_key(name: str) -> list:
+    """Sort key that orders the digit runs of a name by value (``x_2`` before ``x_10``)."""
+    return [(0, int(t), "") if t.isdigit() else (1, 0, t) for t in re.split(r"(\d+)", name) if t]
+
+
+def _listed_files(directory: str) -> list[str] | None:
+    """``relative_file_paths`` of the directory's ``metadata.yaml`` (None: no such file or
+    no such list); raises :class:`BagReadError` for a metadata file that is unreadable,
+    too large, not rosbag2's layout, of another storage than MCAP, or that lists a path
+    outside the directory."""
+    meta = os.path.join(directory, METADATA_NAME)
+    try:
+        size = os.stat(meta).st_size
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        raise BagReadError(f"{meta}: cannot open ({exc.strerror})") from None
+    if size > MAX_METADATA_BYTES:
+        raise BagReadError(f"{meta}: {size} bytes (limit {MAX_METADATA_BYTES})")
+    import yaml
+
+    try:
+        with open(meta, "rb") as handle:
+            doc = yaml.safe_load(handle.read(MAX_METADATA_BYTES + 1))
+    except (OSError, yaml.YAMLError, ValueError, RecursionError) as exc:
+        raise BagReadError(f"{meta}: unreadable ({one_line(exc, 120)})") from None
+    info = doc.get("rosbag2_bagfile_information") if isinstance(doc, dict) else None
+    if not isinstance(info, dict):
+        raise BagReadError(f"{meta}: no rosbag2_bagfile_information mapping")
+    storage = info.get("storage_identifier")
+    if storage is not None and str(storage) != "mcap":
+        raise BagReadError(f"{meta}: storage {shown(str(storage))} is not MCAP")
+    paths = info.get("relative_file_paths")
+    if paths is None:
+        return None
+    if not isinstance(paths, list) or not all(isinstance(p, str) and p for p in paths):
+        raise BagReadError(f"{meta}: relative_file_paths is not a list of file names")
+    out = []
+    for rel in paths:
+        norm = os.path.normpath(rel)
+        if os.path.isabs(norm) or norm == ".." or norm.startswith(".." + os.sep):
+            raise BagReadError(f"{meta}: {shown(rel)} is outside the bag directory")
+        out.append(norm)
+    return out
+
+
+def bag_files(path: str) -> list[str]:
+    """The MCAP files of a bag, in recording order.
+
+    A path that is not a directory is the bag itself (``[path]``; :func:`open_bag`
+    checks it). A rosbag2 bag directory gives its ``metadata.yaml``'s
+    ``relative_file_paths``, or, without that list, its ``*.mcap`` files sorted
+    naturally. Raises :class:`BagReadError` (one line) for a bad ``metadata.yaml``
+    and for a directory without bag files.
+    """
+    try:
+        info = os.stat(path)
+    except OSError:
+        return [path]
+    if not stat.S_ISDIR(info.st_mode):
+        return [path]
+    names = _listed_files(path)
+    if not names:
+        try:
+            entries = os.listdir(path)
+        except OSError as exc:
+            raise BagReadError(f"{path}: cannot list the directory ({exc.strerror})") from None
+        names = sorted(
+            (n for n in entries if n.endswith(".mcap") and os.path.isfile(os.path.join(path, n))),
+            key=_natural_key,
+        )
+    if not names:
+        raise BagReadError(
+            f"{path}: a directory without bag files ({METADATA_NAME} lists none, no *.mcap)"
+        )
+    return [os.path.join(path, n) for n in names]
 
 
 def _file_size(handle) -> int:
@@ -538,3 +628,20 @@ TRUNCATED_TEXT = (
 def warn_truncated(path: str) -> None:
     """Default report of a truncated file (one line on stderr, once per path)."""
     warn_once(path, TRUNCATED_TEXT)
+
+
+def closed_pipe_exit() -> int:
+    """Exit status after stdout's reader went away (``mcap_info BAG | head -1``).
+
+    Call it on :class:`BrokenPipeError`.
+    As the Python documentation's note on SIGPIPE recommends, stdout is pointed at
+    ``os.devnull`` so that the interpreter's final flush does not fail again; the status
+    is 128 + SIGPIPE (141), what a shell reports for a program that SIGPIPE ended.
+    """
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):
+        pass
+    return 128 + signal.SIGPIPE

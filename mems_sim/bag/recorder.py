@@ -1,4 +1,13 @@
-"""MCAP recorder node: ``mcap_record -o FILE.mcap [-a | TOPIC ...] [--regex RE] [--exclude RE]``.
+"""MCAP recorder node: ``mcap_record -o FILE.mcap [-a | TOPIC ...] [-e RE] [-x RE] [-b BYTES] [-d S]``.
+
+The command line follows ``ros2 bag record`` (rosbag2, Jazzy/Rolling) where an option
+exists there: ``-s/--storage`` (``mcap`` only), ``--topics``, ``-a/--all``, ``-e/--regex``,
+``-x/--exclude-regex``, ``--include-hidden-topics``, ``-b/--max-bag-size``,
+``-d/--max-bag-duration``, ``--qos-profile-overrides-path``, ``--compression-format``.
+``--duration`` (rosbag2 has no such option) ends recording after that much wall-clock
+time. With ``-b`` or ``-d`` the output is a rosbag2 bag directory of split MCAP files and a
+``metadata.yaml`` (:class:`~mems_sim.bag.writer.McapBagWriter`); without them ``-o`` names
+one ``.mcap`` file.
 
 :class:`RecorderNode` discovers topics periodically, subscribes with
 ``raw=True`` (the serialised CDR bytes go to the file untouched, no
@@ -46,7 +55,6 @@ directory, a full disk) give one line on stderr naming the path and exit status
 from __future__ import annotations
 
 import argparse
-import os
 import re
 import signal
 import sys
@@ -70,7 +78,14 @@ from mems_sim.bag.schema import (
     schema_text,
     type_hash,
 )
-from mems_sim.bag.writer import BagWriteError, McapBagWriter, gap_summary, output_problem
+from mems_sim.bag.writer import (
+    BagWriteError,
+    McapBagWriter,
+    bag_directory_path,
+    bag_directory_problem,
+    gap_summary,
+    output_problem,
+)
 from mems_sim.ros.end_of_stream import (
     describe_tail,
     is_end_of_stream_topic,
@@ -91,6 +106,92 @@ STOP_GRACE_S = 0.4
 #: After a stop request the file is finalised by this time at the latest [s]
 #: (queued messages not written by then are dropped and counted).
 STOP_FINALISE_S = 1.0
+
+#: After ``--duration`` the writer queue is drained for at most this long before the
+#: Summary is written [s] (what is still queued then is dropped and counted).
+DURATION_FINALISE_S = 0.3
+
+
+def is_hidden_topic(topic: str) -> bool:
+    """True for a hidden topic: a name token starts with an underscore (the ROS 2 rule
+    ``ros2 topic list`` and rosbag2 apply)."""
+    return any(token.startswith("_") for token in topic.split("/"))
+
+
+_QOS_DURATION_KEYS = ("deadline", "lifespan", "liveliness_lease_duration")
+_QOS_POLICY_KEYS = ("history", "reliability", "durability", "liveliness")
+_QOS_VALUE_KEYS = ("depth", "avoid_ros_namespace_conventions")
+
+
+def qos_profile_from_dict(entry: dict, where: str = "") -> QoSProfile:
+    """A ``QoSProfile`` from rosbag2's QoS override dict (``history``, ``depth``,
+    ``reliability``, ``durability``, ``deadline``/``lifespan``/``liveliness_lease_duration``
+    as ``{sec, nsec}``, ``liveliness``, ``avoid_ros_namespace_conventions``; policies by
+    their short names as in ``ros2 bag record --qos-profile-overrides-path``).
+
+    Raises ValueError with one line naming ``where`` and the bad key or value.
+    """
+    from rclpy.duration import Duration
+    from rclpy.qos import LivelinessPolicy
+
+    enums = {
+        "history": HistoryPolicy,
+        "reliability": ReliabilityPolicy,
+        "durability": DurabilityPolicy,
+        "liveliness": LivelinessPolicy,
+    }
+    if not isinstance(entry, dict):
+        raise ValueError(f"{where}: expected a mapping of QoS policies, got {entry!r}")
+    kwargs = {}
+    for key, value in entry.items():
+        if key in _QOS_POLICY_KEYS:
+            try:
+                kwargs[key] = enums[key][str(value).upper()]
+            except KeyError:
+                names = ", ".join(p.name.lower() for p in enums[key])
+                raise ValueError(f"{where}: {key} {value!r} is not one of {names}") from None
+        elif key in _QOS_DURATION_KEYS:
+            if not (isinstance(value, dict) and set(value) <= {"sec", "nsec"}):
+                raise ValueError(f"{where}: {key} must be {{sec: S, nsec: N}}, got {value!r}")
+            try:
+                sec, nsec = int(value.get("sec", 0)), int(value.get("nsec", 0))
+            except (TypeError, ValueError):
+                raise ValueError(f"{where}: {key} must be whole numbers, got {value!r}") from None
+            if sec < 0 or nsec < 0:
+                raise ValueError(f"{where}: {key} must not be negative")
+            kwargs[key] = Duration(seconds=sec, nanoseconds=nsec)
+        elif key == "depth":
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"{where}: depth must be a whole number >= 0, got {value!r}")
+            kwargs[key] = value
+        elif key == "avoid_ros_namespace_conventions":
+            kwargs[key] = bool(value)
+        else:
+            allowed = ", ".join(_QOS_POLICY_KEYS + _QOS_VALUE_KEYS + _QOS_DURATION_KEYS)
+            raise ValueError(f"{where}: unknown QoS key {key!r} (allowed: {allowed})")
+    kwargs.setdefault("depth", 10)
+    if kwargs.get("history") == HistoryPolicy.KEEP_LAST and kwargs["depth"] == 0:
+        raise ValueError(f"{where}: history keep_last needs a depth > 0")
+    return QoSProfile(**kwargs)
+
+
+def load_qos_overrides(path: str) -> dict[str, QoSProfile]:
+    """Topic -> QoSProfile from a rosbag2 QoS override file (YAML: ``/topic: {history:
+    keep_last, depth: 10, reliability: best_effort, ...}``). Raises ValueError (one line)."""
+    import yaml
+
+    try:
+        with open(path, encoding="utf-8") as handle:
+            data = yaml.safe_load(handle)
+    except OSError as exc:
+        raise ValueError(f"{path}: {exc.strerror or exc}") from None
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a mapping of topic names to QoS profiles")
+    return {str(t): qos_profile_from_dict(e, f"{path}: {t}") for t, e in data.items()}
 
 
 def adapt_qos(offered: list[QoSProfile], keep_all: bool = True) -> QoSProfile:
@@ -142,6 +243,13 @@ class RecorderNode(Node):
     :param node_name: ROS node name.
     :param overwrite: replace an existing output file (the ``mcap_record`` CLI passes
         ``--overwrite``; a symbolic link is refused either way).
+    :param max_bag_size: split into a new file at this many bytes (0: never); with a split
+        the output is a rosbag2 bag directory (:class:`~mems_sim.bag.writer.McapBagWriter`).
+    :param max_bag_duration: split into a new file at this much log time [s] (0: never).
+    :param qos_overrides: topic -> QoSProfile used for that topic's subscription instead of
+        the adapted one (rosbag2's ``--qos-profile-overrides-path``).
+    :param include_hidden_topics: with ``all_topics`` or ``regex``, record hidden topics
+        too (listed topics always are); the ``mcap_record`` CLI defaults to False as rosbag2.
     :param kwargs: passed to ``rclpy.node.Node`` (e.g. ``context=ctx``).
 
     The constructor arguments can be overridden by ROS parameters of the same
@@ -160,6 +268,10 @@ class RecorderNode(Node):
         chunk_size: int = 1 << 20,
         node_name: str = "mcap_recorder",
         overwrite: bool = True,
+        max_bag_size: int = 0,
+        max_bag_duration: float = 0.0,
+        qos_overrides: dict[str, QoSProfile] | None = None,
+        include_hidden_topics: bool = True,
         **kwargs,
     ):
         super().__init__(node_name, **kwargs)
@@ -174,12 +286,16 @@ class RecorderNode(Node):
         self._all = all_topics
         self._regex = re.compile(regex) if regex else None
         self._exclude = re.compile(exclude) if exclude else None
+        self._hidden = bool(include_hidden_topics)
+        self._qos_overrides = dict(qos_overrides or {})
         self._bag = McapBagWriter(
             output,
             chunk_size=chunk_size,
             compression=compression,
             on_gap=self._log_gap,
             overwrite=overwrite,
+            max_bag_size=max_bag_size,
+            max_bag_duration=max_bag_duration,
         )
         self._topic_subs: dict[str, object] = {}
         self._unusable: dict[str, str] = {}
@@ -208,6 +324,8 @@ class RecorderNode(Node):
         if self._exclude is not None and self._exclude.search(topic):
             return False
         if topic in DEFAULT_EXCLUDED:
+            return False
+        if not self._hidden and is_hidden_topic(topic):
             return False
         if self._all:
             return True
@@ -247,7 +365,7 @@ class RecorderNode(Node):
             self._eos_topics.add(topic)
         # a Clock message starts with its time, laid out as a header's stamp
         self._stamped[topic] = stamped or type_name == "rosgraph_msgs/msg/Clock"
-        qos = adapt_qos(offered)
+        qos = self._qos_overrides.get(topic) or adapt_qos(offered)
         self._topic_subs[topic] = self.create_subscription(
             msg_type, topic, partial(self._on_message, topic), qos, raw=True
         )
@@ -396,8 +514,12 @@ class RecorderNode(Node):
 
     @property
     def output(self) -> str:
-        """Path of the MCAP file."""
+        """Path of the MCAP file (of the bag directory when splitting)."""
         return self._bag.path
+
+    def output_files(self) -> list[str]:
+        """The MCAP files written so far (one, or the split files of the bag directory)."""
+        return self._bag.files()
 
     # ---------------------------------------------------------------- end
 
@@ -426,10 +548,11 @@ class RecorderNode(Node):
     def summary(self) -> str:
         """Multi-line human-readable summary: topics, counts, gaps, file size."""
         counts, details = self.counts(), self.gap_details()
-        size = os.path.getsize(self.output) if os.path.exists(self.output) else 0
+        size = self._bag.size_bytes()
+        files = f", {len(self.output_files())} files" if self._bag.is_directory else ""
         lines = [
             f"{self.output}: {sum(counts.values())} messages, {len(counts)} topics, "
-            f"{size / 1e6:.3f} MB"
+            f"{size / 1e6:.3f} MB{files}"
         ]
         for topic, type_name in sorted(self.recorded_topics().items()):
             line = f"  {topic} [{type_name}]: {counts.get(topic, 0)} messages"
@@ -461,24 +584,168 @@ class RecorderNode(Node):
 # -------------------------------------------------------------------- CLI
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse with errors as one line (``mcap_record: error: ...``) and exit status 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a finite number > 0")
+    return value
+
+
+def _non_negative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a finite number >= 0")
+    return value
+
+
+def _byte_count(text: str) -> int:
+    """A number of bytes: an integer, or a number with a k/M/G suffix (powers of 1000)."""
+    scale = {"k": 10**3, "K": 10**3, "M": 10**6, "G": 10**9}.get(text[-1:], 1)
+    number = text[:-1] if scale != 1 else text
+    try:
+        value = float(number) * scale
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of bytes") from None
+    if not (0 <= value < 2**63) or value != int(value):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a whole number of bytes >= 0")
+    return int(value)
+
+
+def _storage(text: str) -> str:
+    if text != "mcap":
+        raise argparse.ArgumentTypeError(f"{text!r}: only 'mcap' is supported")
+    return text
+
+
+def _regex(text: str) -> str:
+    try:
+        re.compile(text)
+    except re.error as exc:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a regular expression: {exc}") from None
+    return text
+
+
 def _parse_args(argv: list[str]) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="mcap_record", description=__doc__.splitlines()[0])
+    parser = _OneLineParser(
+        prog="mcap_record",
+        description=__doc__.splitlines()[0],
+        epilog="Without -b/-d, -o names one MCAP file. With -b or -d, -o names a rosbag2 bag "
+        "directory (a .mcap suffix is dropped) holding NAME_0.mcap, NAME_1.mcap, ... and "
+        "metadata.yaml; an existing directory is refused unless --overwrite (which replaces "
+        "only a bag directory).",
+    )
     parser.add_argument("topics", nargs="*", help="topics to record")
-    parser.add_argument("-o", "--output", required=True, help="output file (.mcap)")
     parser.add_argument(
-        "--overwrite", action="store_true", help="replace the output file if it exists"
+        "--topics",
+        dest="more_topics",
+        nargs="+",
+        default=[],
+        metavar="TOPIC",
+        help="topics to record (as rosbag2; the same as positional topics)",
+    )
+    parser.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        help="output: FILE.mcap, or the bag directory with -b/-d",
+    )
+    parser.add_argument(
+        "-s", "--storage", type=_storage, default="mcap", help="storage identifier: mcap only"
+    )
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the output file (bag directory) if it exists",
     )
     parser.add_argument("-a", "--all", action="store_true", help="record all topics")
-    parser.add_argument("--regex", "-e", default=None, help="record topics matching this regex")
-    parser.add_argument("--exclude", "-x", default=None, help="exclude topics matching this regex")
     parser.add_argument(
-        "--duration", "-d", type=float, default=None, help="stop after this many seconds [s]"
+        "-e", "--regex", type=_regex, default=None, help="record topics matching this regex"
     )
-    parser.add_argument("--compression", choices=["zstd", "lz4", "none"], default="zstd")
-    parser.add_argument("--chunk-size", type=int, default=1 << 20, help="chunk size [bytes]")
+    parser.add_argument(
+        "-x",
+        "--exclude-regex",
+        "--exclude",
+        dest="exclude",
+        metavar="REGEX",
+        type=_regex,
+        default=None,
+        help="exclude topics matching this regex (--exclude: old name)",
+    )
+    parser.add_argument(
+        "--include-hidden-topics",
+        action="store_true",
+        help="with -a/-e, record hidden topics (a name token starting with '_') too",
+    )
+    parser.add_argument(
+        "--qos-profile-overrides-path",
+        default=None,
+        metavar="FILE.yaml",
+        help="YAML file of topic -> QoS profile (history, depth, reliability, durability, "
+        "deadline, lifespan, liveliness, liveliness_lease_duration, "
+        "avoid_ros_namespace_conventions) used for those subscriptions",
+    )
+    parser.add_argument(
+        "-b",
+        "--max-bag-size",
+        type=_byte_count,
+        default=0,
+        metavar="BYTES",
+        help="split the bag into a new file at this size [bytes; k/M/G suffixes] (0: never)",
+    )
+    parser.add_argument(
+        "-d",
+        "--max-bag-duration",
+        type=_non_negative_float,
+        default=0.0,
+        metavar="SECONDS",
+        help="split the bag into a new file at this much log (sensor) time [s] (0: never)",
+    )
+    parser.add_argument(
+        "--duration",
+        type=_positive_float,
+        default=None,
+        metavar="SECONDS",
+        help="stop after this much wall-clock time from the start of recording [s]",
+    )
+    parser.add_argument(
+        "--compression-format",
+        "--compression",
+        dest="compression",
+        choices=["zstd", "lz4", "none"],
+        default="zstd",
+        help="MCAP chunk compression (default zstd; --compression: old name)",
+    )
+    parser.add_argument(
+        "--chunk-size", type=_byte_count, default=1 << 20, help="MCAP chunk size [bytes]"
+    )
     args = parser.parse_args(argv)
+    args.topics = list(args.topics) + list(args.more_topics)
     if not (args.topics or args.all or args.regex):
-        parser.error("give topics, -a/--all or --regex")
+        parser.error("give topics, -a/--all or -e/--regex")
+    if args.chunk_size < 1:
+        parser.error("argument --chunk-size: must be at least 1 byte")
+    args.split = bool(args.max_bag_size or args.max_bag_duration)
+    if args.split:
+        args.output = bag_directory_path(args.output)
+    args.qos_overrides = {}
+    if args.qos_profile_overrides_path:
+        try:
+            args.qos_overrides = load_qos_overrides(args.qos_profile_overrides_path)
+        except ValueError as exc:
+            parser.error(f"argument --qos-profile-overrides-path: {exc}")
     return args
 
 
@@ -560,7 +827,8 @@ def _run(argv: list[str] | None, stop: _StopRequest) -> int:
 
     argv = sys.argv[1:] if argv is None else list(argv)
     args = _parse_args(remove_ros_args(["mcap_record"] + argv)[1:])
-    problem = output_problem(args.output, overwrite=args.overwrite)
+    check = bag_directory_problem if args.split else output_problem
+    problem = check(args.output, overwrite=args.overwrite)
     if problem is not None:
         return _error(problem, 2)
 
@@ -578,18 +846,28 @@ def _run(argv: list[str] | None, stop: _StopRequest) -> int:
                 compression=args.compression,
                 chunk_size=args.chunk_size,
                 overwrite=args.overwrite,
+                max_bag_size=args.max_bag_size,
+                max_bag_duration=args.max_bag_duration,
+                qos_overrides=args.qos_overrides,
+                include_hidden_topics=args.include_hidden_topics,
             )
         except BagWriteError as exc:
             return _error(exc, 1)
         executor = SingleThreadedExecutor()
         executor.add_node(recorder)
-        deadline = None if args.duration is None else time.monotonic() + args.duration
+        # --duration: wall-clock time from here (the file is open, discovery has run once)
+        started = time.monotonic()
+        deadline = None if args.duration is None else started + args.duration
+        timed_out = False
         try:
             while not stop.count and recorder.write_error is None:
-                if deadline is not None and time.monotonic() >= deadline:
+                now = time.monotonic()
+                if deadline is not None and now >= deadline:
+                    timed_out = True
                     break
-                executor.spin_once(timeout_sec=0.1)
-            if recorder.write_error is None:
+                wait = 0.1 if deadline is None else min(0.1, deadline - now)
+                executor.spin_once(timeout_sec=wait)
+            if recorder.write_error is None and not timed_out:
                 if stop.count:  # bounded: grace window, then a drain deadline
                     t0 = stop.first_at
                     drain(
@@ -607,6 +885,8 @@ def _run(argv: list[str] | None, stop: _StopRequest) -> int:
         timeout = None
         if stop.count:
             timeout = max(0.0, stop.first_at + STOP_FINALISE_S - time.monotonic())
+        elif timed_out:  # end on time: what the writer has not taken by then is counted
+            timeout = DURATION_FINALISE_S
         try:
             recorder.close(timeout_s=timeout, abort=lambda: stop.count > 1)
         except BagWriteError as exc:
@@ -618,6 +898,13 @@ def _run(argv: list[str] | None, stop: _StopRequest) -> int:
             print(
                 f"mcap_record: {stop.first_name}: file finalised "
                 f"{time.monotonic() - stop.first_at:.3f} s after the stop request",
+                flush=True,
+            )
+        elif code == 0 and timed_out:
+            print(
+                f"mcap_record: --duration {args.duration:g} s: file finalised "
+                f"{time.monotonic() - deadline:.3f} s after it "
+                f"({time.monotonic() - started:.3f} s of recording)",
                 flush=True,
             )
         print(recorder.summary(), flush=True)

@@ -43,6 +43,23 @@ previous frame on the same topic), peeked from the CDR bytes. Messages written w
 their publisher's sequence number (the recorder passes the middleware's publication
 sequence number) keep it as the MCAP ``sequence``, and gaps of each publisher's
 numbers are counted, so a lost message is visible on every topic, frames or not.
+
+Split recordings (``max_bag_size`` / ``max_bag_duration``, rosbag2's ``--max-bag-size`` and
+``--max-bag-duration``): the output is a rosbag2 bag directory ``NAME/`` holding
+``NAME_0.mcap``, ``NAME_1.mcap``, ... and a ``metadata.yaml`` in rosbag2's format
+(``rosbag2_bagfile_information`` version 9, as rosbag2_storage encodes bag metadata).
+The writer thread closes a file between two messages: before the message whose log time
+is ``max_bag_duration`` past the file's first log time (on the highest log time seen, so
+topics on different timelines cannot make it split at every message), or after the message
+with which the bytes written to the file reach ``max_bag_size`` (chunks are written whole,
+so a file ends at most one chunk past the limit; the chunk size is capped at a quarter of
+it). Every file is a complete MCAP file on its own (its Summary with Statistics and footer
+written and fsync'ed before the next file is opened) and registers every schema and channel
+known so far, as rosbag2 does. ``metadata.yaml`` is rewritten (atomically) at every split
+and at close; its ``compression_format``/``compression_mode`` are empty because the MCAP
+chunk compression is internal to each file (rosbag2's fields describe its own file or
+message compression). Loss accounting (counts, frame-index and sequence gaps) is over the
+whole bag, not per file.
 """
 
 from __future__ import annotations
@@ -50,6 +67,7 @@ from __future__ import annotations
 import errno
 import os
 import queue
+import re
 import stat
 import threading
 import time
@@ -136,6 +154,99 @@ def output_problem(path: str, overwrite: bool = False, probe: bool = True) -> st
         except OSError:
             pass
     return None
+
+
+#: rosbag2 metadata file of a bag directory and the version written (rosbag2_storage).
+METADATA_FILE = "metadata.yaml"
+METADATA_VERSION = 9
+
+
+def bag_directory_path(path: str) -> str:
+    """The bag directory a split recording of ``path`` is written to: ``path`` without a
+    trailing separator and without a ``.mcap`` suffix (``run.mcap`` -> ``run``)."""
+    path = str(path)
+    stripped = path.rstrip(os.sep) or path
+    return stripped[: -len(".mcap")] if stripped.endswith(".mcap") else stripped
+
+
+def bag_file_name(directory: str, index: int) -> str:
+    """File name of split ``index`` in bag ``directory`` (rosbag2's ``<name>_<index>``)."""
+    return f"{os.path.basename(directory)}_{index}.mcap"
+
+
+def _foreign_entries(directory: str) -> list[str]:
+    """Entries of ``directory`` that are not parts of a bag written here (split files
+    ``<name>_<n>.mcap`` and ``metadata.yaml``)."""
+    own = re.compile(rf"^{re.escape(os.path.basename(directory))}_\d+\.mcap$")
+    names = sorted(os.listdir(directory))
+    return [n for n in names if n != METADATA_FILE and not own.match(n)]
+
+
+def bag_directory_problem(path: str, overwrite: bool = False, probe: bool = True) -> str | None:
+    """Why ``path`` cannot be used as a bag directory, or None (one line naming the path).
+
+    Refused: a symbolic link, an existing file that is not a directory, an existing directory
+    unless ``overwrite`` (rosbag2 refuses one always), and even with ``overwrite`` a directory
+    holding anything but a bag written here (nothing else is ever deleted); a parent directory
+    that is missing or not writable. With ``probe`` a new directory is created and removed.
+    """
+    path = str(path)
+    try:
+        info = os.lstat(path)
+    except FileNotFoundError:
+        info = None
+    except OSError as exc:
+        return _describe(path, exc)
+    if info is not None:
+        if stat.S_ISLNK(info.st_mode):
+            return f"{path}: is a symbolic link; refusing to write through it"
+        if not stat.S_ISDIR(info.st_mode):
+            return f"{path}: exists and is not a directory (a split recording is a directory)"
+        if not overwrite:
+            return f"{path}: exists (give --overwrite to replace it)"
+        try:
+            foreign = _foreign_entries(path)
+        except OSError as exc:
+            return _describe(path, exc)
+        if foreign:
+            shown = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
+            return f"{path}: holds files that are not part of a bag ({shown}); not replacing it"
+        if not os.access(path, os.W_OK | os.X_OK):
+            return f"{path}: not writable"
+        return None
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        return f"{path}: directory {parent} does not exist"
+    if not os.access(parent, os.W_OK | os.X_OK):
+        return f"{path}: directory {parent} is not writable"
+    if probe:
+        try:
+            os.mkdir(path, 0o755)
+        except FileExistsError:
+            return None  # appeared meanwhile: the real creation decides
+        except OSError as exc:
+            return _describe(path, exc)
+        try:
+            os.rmdir(path)
+        except OSError:
+            pass
+    return None
+
+
+def _prepare_directory(path: str, overwrite: bool) -> None:
+    """Create the bag directory, or with ``overwrite`` empty an existing bag directory of
+    its split files and metadata (anything else in it: refused). Raises BagWriteError."""
+    problem = bag_directory_problem(path, overwrite=overwrite, probe=False)
+    if problem is not None:
+        raise BagWriteError(problem)
+    try:
+        if os.path.isdir(path):
+            for name in os.listdir(path):
+                os.unlink(os.path.join(path, name))
+        else:
+            os.mkdir(path, 0o755)
+    except OSError as exc:
+        raise BagWriteError(_describe(path, exc)) from None
 
 
 class _WriteThroughFile:
@@ -274,7 +385,14 @@ class McapBagWriter:
     :param on_gap: optional callback ``(topic, expected_index, first_index)``
         called when a frame-index gap appears.
     :param queue_size: messages the writer thread may lag behind (module doc).
-    :param overwrite: replace an existing regular file (else :class:`BagWriteError`).
+    :param overwrite: replace an existing regular file (else :class:`BagWriteError`); for a
+        bag directory, replace the bag in an existing directory (nothing else is deleted).
+    :param max_bag_size: split into a new file once a file has this many bytes (0: never).
+    :param max_bag_duration: split into a new file once a file spans this much log time
+        [s] (0: never).
+    :param directory: write a rosbag2 bag directory (module doc) instead of one file;
+        None: when splitting is asked. ``path`` then names the directory (a ``.mcap``
+        suffix is dropped, :func:`bag_directory_path`).
 
     Raises :class:`BagWriteError` (one line naming the path) when the output cannot be
     created or its first bytes cannot be written.
@@ -288,22 +406,48 @@ class McapBagWriter:
         on_gap=None,
         queue_size: int = 256,
         overwrite: bool = True,
+        max_bag_size: int = 0,
+        max_bag_duration: float = 0.0,
+        directory: bool | None = None,
     ):
         if compression not in _COMPRESSION:
             raise ValueError(f"unknown compression {compression!r} (zstd, lz4 or none)")
-        self.path = str(path)
+        if max_bag_size < 0 or max_bag_duration < 0:
+            raise ValueError("max_bag_size and max_bag_duration must not be negative")
         self.compression = compression or "none"
-        self._stream = _WriteThroughFile(self.path, overwrite=overwrite)
-        try:
-            self._writer = Writer(
-                self._stream, chunk_size=chunk_size, compression=_COMPRESSION[compression]
-            )
-            self._writer.start(profile="ros2", library="mems_sim.bag/mcap-python")
-        except OSError as exc:
-            self._stream.close()
-            raise BagWriteError(_describe(self.path, exc)) from None
+        self._max_bytes = int(max_bag_size)
+        self._max_span_ns = int(round(float(max_bag_duration) * 1e9))
+        self._directory = (
+            bool(self._max_bytes or self._max_span_ns) if directory is None else bool(directory)
+        )
+        if self._max_bytes:
+            chunk_size = max(1024, min(int(chunk_size), self._max_bytes // 4))
+        self._chunk_size = int(chunk_size)
+        self._overwrite = overwrite
+        # the bag's schemas and channels in registration order: every split file registers
+        # them all again (bag channel id = index + 1, the id mcap's Writer gives in one file)
+        self._topic_defs: list[tuple[str, str, bytes, dict[str, str]]] = []
+        self._done_files: list[dict] = []  # finished split files: path, times, counts
+        self._file_index = 0
+        self._file_ids: dict[int, int] = {}  # bag channel id -> channel id in the open file
+        self._file_schema_ids: dict[str, int] = {}
+        self._file_counts: dict[int, int] = {}
+        self._file_first: int | None = None  # lowest log time in the open file
+        self._file_last: int | None = None  # highest log time in the open file
+        self._file_start_hw: int | None = None  # high-water log time at its first message
+        self._high_water: int | None = None  # highest log time written to the bag
+        self._roll_pending = False
+        self._writer = None
+        self._stream = None
+        if self._directory:
+            self.path = bag_directory_path(path)
+            _prepare_directory(self.path, overwrite)
+            self._open_file()
+            self._write_metadata()
+        else:
+            self.path = str(path)
+            self._open_file()
         self._lock = threading.Lock()
-        self._schema_ids: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._types: dict[str, str] = {}
         self._counts: dict[str, int] = {}
@@ -337,15 +481,203 @@ class McapBagWriter:
                 continue
             try:
                 with self._wlock:
-                    self._writer.add_message(
-                        channel_id=item[0],
-                        log_time=item[1],
-                        data=item[2],
-                        publish_time=item[3],
-                        sequence=item[4],
-                    )
+                    self._add(item)
             except BaseException as exc:
                 self._error = exc
+
+    # ---------------------------------------------------------------- files
+
+    def _file_path(self) -> str:
+        if not self._directory:
+            return self.path
+        return os.path.join(self.path, bag_file_name(self.path, self._file_index))
+
+    def _open_file(self) -> None:
+        """Open the next output file and register the bag's schemas and channels in it."""
+        path = self._file_path()
+        stream = _WriteThroughFile(path, overwrite=self._overwrite or self._directory)
+        try:
+            writer = Writer(
+                stream, chunk_size=self._chunk_size, compression=_COMPRESSION[self.compression]
+            )
+            writer.start(profile="ros2", library="mems_sim.bag/mcap-python")
+        except OSError as exc:
+            stream.close()
+            raise BagWriteError(_describe(path, exc)) from None
+        self._stream, self._writer = stream, writer
+        self._file_ids, self._file_schema_ids, self._file_counts = {}, {}, {}
+        self._file_first = self._file_last = self._file_start_hw = None
+        for bag_id, (topic, type_name, schema, metadata) in enumerate(self._topic_defs, 1):
+            self._register_in_file(bag_id, topic, type_name, schema, metadata)
+
+    def _register_in_file(
+        self, bag_id: int, topic: str, type_name: str, schema: bytes, metadata: dict[str, str]
+    ) -> None:
+        schema_id = self._file_schema_ids.get(type_name)
+        if schema_id is None:
+            schema_id = self._writer.register_schema(
+                name=type_name, encoding="ros2msg", data=schema
+            )
+            self._file_schema_ids[type_name] = schema_id
+        self._file_ids[bag_id] = self._writer.register_channel(
+            topic=topic, message_encoding="cdr", schema_id=schema_id, metadata=metadata
+        )
+
+    def _add(self, item) -> None:
+        """Append one queued message to the open file, splitting first when due (writer
+        thread, under the writer lock)."""
+        log_time = item[1]
+        high_water = log_time if self._high_water is None else max(self._high_water, log_time)
+        if self._file_first is not None and (
+            self._roll_pending
+            or (self._max_span_ns and high_water - self._file_start_hw >= self._max_span_ns)
+        ):
+            self._roll()
+        self._writer.add_message(
+            channel_id=self._file_ids.get(item[0], item[0]),
+            log_time=log_time,
+            data=item[2],
+            publish_time=item[3],
+            sequence=item[4],
+        )
+        self._high_water = high_water
+        if self._file_first is None:
+            self._file_first = self._file_last = log_time
+            self._file_start_hw = high_water
+        else:
+            self._file_first = min(self._file_first, log_time)
+            self._file_last = max(self._file_last, log_time)
+        self._file_counts[item[0]] = self._file_counts.get(item[0], 0) + 1
+        if self._max_bytes and self._stream.tell() >= self._max_bytes:
+            self._roll_pending = True  # split before the next message: no empty last file
+
+    def _file_info(self) -> dict:
+        return {
+            "path": os.path.basename(self._file_path()),
+            "first": self._file_first,
+            "last": self._file_last,
+            "counts": dict(self._file_counts),
+        }
+
+    def _finish_file(self) -> None:
+        """Write the open file's last chunk, Summary and footer, fsync and close it."""
+        stream, self._stream = self._stream, None
+        try:
+            self._writer.finish()
+            stream.fsync()
+        finally:
+            stream.close()
+
+    def _roll(self) -> None:
+        """Finish the open split file and open the next one (writer thread)."""
+        info = self._file_info()
+        self._finish_file()
+        self._done_files.append(info)
+        self._file_index += 1
+        self._roll_pending = False
+        self._writer = None
+        self._open_file()
+        self._write_metadata()
+
+    def _metadata(self) -> dict:
+        """rosbag2's ``metadata.yaml`` content (``rosbag2_bagfile_information``, version 9)."""
+        import yaml  # only bag directories need it
+
+        files = list(self._done_files)
+        if self._stream is not None or self._writer is not None:
+            files.append(self._file_info())
+        totals: dict[int, int] = {}
+        for f in files:
+            for cid, n in f["counts"].items():
+                totals[cid] = totals.get(cid, 0) + n
+        firsts = [f["first"] for f in files if f["first"] is not None]
+        lasts = [f["last"] for f in files if f["last"] is not None]
+        start = min(firsts) if firsts else 0
+        topics = []
+        for bag_id, (topic, type_name, _, metadata) in enumerate(self._topic_defs, 1):
+            qos = yaml.safe_load(metadata.get("offered_qos_profiles") or "[]") or []
+            topics.append(
+                {
+                    "topic_metadata": {
+                        "name": topic,
+                        "type": type_name,
+                        "serialization_format": "cdr",
+                        "offered_qos_profiles": qos,
+                        "type_description_hash": metadata.get("topic_type_hash", ""),
+                    },
+                    "message_count": totals.get(bag_id, 0),
+                }
+            )
+        return {
+            "rosbag2_bagfile_information": {
+                "version": METADATA_VERSION,
+                "storage_identifier": "mcap",
+                "duration": {"nanoseconds": (max(lasts) - start) if lasts else 0},
+                "starting_time": {"nanoseconds_since_epoch": start},
+                "message_count": sum(totals.values()),
+                "topics_with_message_count": topics,
+                "compression_format": "",
+                "compression_mode": "",
+                "relative_file_paths": [f["path"] for f in files],
+                "files": [
+                    {
+                        "path": f["path"],
+                        "starting_time": {"nanoseconds_since_epoch": f["first"] or 0},
+                        "duration": {
+                            "nanoseconds": (f["last"] - f["first"]) if f["first"] is not None else 0
+                        },
+                        "message_count": sum(f["counts"].values()),
+                    }
+                    for f in files
+                ],
+                "custom_data": None,
+                "ros_distro": os.environ.get("ROS_DISTRO", ""),
+            }
+        }
+
+    def _write_metadata(self) -> None:
+        """Write ``metadata.yaml`` atomically (a temporary file renamed over it)."""
+        import yaml
+
+        text = yaml.safe_dump(self._metadata(), sort_keys=False, default_flow_style=False)
+        final = os.path.join(self.path, METADATA_FILE)
+        tmp = final + ".tmp"
+        try:
+            with open(tmp, "w", encoding="utf-8") as handle:
+                handle.write(text)
+                handle.flush()
+                os.fsync(handle.fileno())
+            os.replace(tmp, final)
+        except OSError as exc:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+            raise BagWriteError(_describe(final, exc)) from None
+
+    def files(self) -> list[str]:
+        """Paths of the output files so far (one file, or a bag directory's split files)."""
+        if not self._directory:
+            return [self.path]
+        names = [f["path"] for f in self._done_files]
+        if self._writer is not None:
+            names.append(bag_file_name(self.path, self._file_index))
+        return [os.path.join(self.path, n) for n in names]
+
+    @property
+    def is_directory(self) -> bool:
+        """True when the output is a rosbag2 bag directory of split files."""
+        return self._directory
+
+    def size_bytes(self) -> int:
+        """Bytes in the output files (all split files of a bag directory)."""
+        total = 0
+        for path in self.files():
+            try:
+                total += os.path.getsize(path)
+            except OSError:
+                pass
+        return total
 
     # ---------------------------------------------------------------- setup
 
@@ -372,20 +704,14 @@ class McapBagWriter:
             self._check_open()
             if topic in self._channels:
                 return self._channels[topic]
-            schema_id = self._schema_ids.get(type_name)
-            if schema_id is None:
-                with self._wlock:
-                    schema_id = self._writer.register_schema(
-                        name=type_name, encoding="ros2msg", data=schema_text.encode("utf-8")
-                    )
-                self._schema_ids[type_name] = schema_id
             metadata = {"offered_qos_profiles": qos_yaml}
             if type_hash:
                 metadata["topic_type_hash"] = type_hash
             with self._wlock:
-                channel_id = self._writer.register_channel(
-                    topic=topic, message_encoding="cdr", schema_id=schema_id, metadata=metadata
-                )
+                self._topic_defs.append((topic, type_name, schema_text.encode("utf-8"), metadata))
+                channel_id = len(self._topic_defs)
+                if self._writer is not None:  # None only after a failed split
+                    self._register_in_file(channel_id, *self._topic_defs[-1])
             self._channels[topic] = channel_id
             self._topic_of[channel_id] = topic
             self._types[topic] = type_name
@@ -564,15 +890,23 @@ class McapBagWriter:
                 if expired():
                     self._abandon = True
             try:
-                if self._error is None:
+                if self._error is None and self._stream is not None:
                     try:
                         with self._wlock:
-                            self._writer.finish()
-                        self._stream.fsync()
+                            self._finish_file()
+                        if self._directory:
+                            self._write_metadata()
                     except OSError as exc:
                         self._error = exc
             finally:
-                self._stream.close()
+                if self._stream is not None:
+                    self._stream.close()
+                    self._stream = None
+                if self._directory and self._error is not None:
+                    try:  # list what was written (the last file may lack its Summary)
+                        self._write_metadata()
+                    except OSError:
+                        pass
         if self._error is not None:
             raise self._failure() from self._error
 

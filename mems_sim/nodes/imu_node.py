@@ -3,7 +3,10 @@
 Topics (relative to the node namespace, default ``/imu``):
     ``adc``   mems_msgs/AdcFrame   6 channels gyro_x..z [rad/s], accel_x..z [m/s^2], 14-bit codes
     ``truth`` mems_msgs/SignalFrame true angular rate and specific force, same channels
-    ``data``  sensor_msgs/Imu      one message per sample, SI, model covariances
+    ``data``  sensor_msgs/Imu      one message per sample (``publish_imu``), stamped in sensor
+                                   time (epoch + k / fs), the ADC codes times their LSB as a
+                                   driver converts them, model covariances, no orientation
+                                   (REP-145 raw IMU data: remap to ``data_raw`` for imu_tools)
     ``/diagnostics``               frames, saturated samples
 Parameters: the table ``mems_sim.devices.imu.IMU_SPECS`` (units, ranges, sources),
 ``EMULATOR_SPECS`` and the motion parameters below.
@@ -12,13 +15,15 @@ Parameters: the table ``mems_sim.devices.imu.IMU_SPECS`` (units, ranges, sources
 from __future__ import annotations
 
 import numpy as np
+from rclpy.qos import QoSProfile
 from sensor_msgs.msg import Imu
 
 from mems_sim.devices import imu as imu_noise
 from mems_sim.params import ParameterError, ParamSpec
-from mems_sim.ros.frames import index_to_ns, make_adc_frame, ns_to_time
+from mems_sim.ros.frames import index_to_ns, make_adc_frame
+from mems_sim.ros.imu_msg import ImuSerializer
 from mems_sim.ros.node_base import EMULATOR_SPECS, EmulatorNode, run_node
-from mems_sim.ros.qos import FRAME_QOS
+from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS
 
 MOTION_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
@@ -36,7 +41,8 @@ MOTION_SPECS: tuple[ParamSpec, ...] = (
         "publish_imu",
         True,
         "-",
-        "also publish sensor_msgs/Imu, one message per sample",
+        "also publish sensor_msgs/Imu on 'data', one message per sample stamped in sensor "
+        "time (fast scenario runs: off unless set, e.g. --set imu.publish_imu=true)",
         "interoperable: sensor_msgs/Imu so existing tools (imu_tools, robot_localization) can subscribe",
     ),
 )
@@ -79,9 +85,18 @@ class ImuNoiseNode(EmulatorNode):
             + [self.p["accel_lsb"] * 2 ** (bits - 1)] * 3,
         )
         self.pub_adc, self.pub_truth = self.create_frame_publishers("adc", "truth")
-        self.pub_imu = (
-            self.create_publisher(Imu, "data", FRAME_QOS) if self.p["publish_imu"] else None
-        )
+        self.pub_imu = None
+        if self.p["publish_imu"]:
+            # one message per sample: the history holds a whole frame of them on top of the
+            # frames' depth, so a reader up to FRAME_DEPTH messages behind loses none
+            qos = QoSProfile(
+                reliability=FRAME_QOS.reliability,
+                durability=FRAME_QOS.durability,
+                history=FRAME_QOS.history,
+                depth=FRAME_DEPTH + int(self.p["frame_size"]),
+            )
+            self.pub_imu = self.create_publisher(Imu, "data", qos)
+            self._imu_cdr = ImuSerializer(self.p["frame_id"], self._gyro_cov, self._accel_cov)
         return fs
 
     def _truth(self, first: int, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -121,25 +136,12 @@ class ImuNoiseNode(EmulatorNode):
             self._publish_imu(first, frame.gyro_si, frame.accel_si)
 
     def _publish_imu(self, first: int, gyro: np.ndarray, accel: np.ndarray) -> None:
-        for i in range(gyro.shape[0]):
-            msg = Imu()
-            msg.header.stamp = ns_to_time(index_to_ns(first + i, self.fs, self.t0_ns))
-            msg.header.frame_id = self.p["frame_id"]
-            msg.orientation_covariance[0] = -1.0
-            g, a = gyro[i], accel[i]
-            msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = (
-                float(g[0]),
-                float(g[1]),
-                float(g[2]),
-            )
-            msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = (
-                float(a[0]),
-                float(a[1]),
-                float(a[2]),
-            )
-            msg.angular_velocity_covariance = self._gyro_cov
-            msg.linear_acceleration_covariance = self._accel_cov
-            self.pub_imu.publish(msg)
+        """One sensor_msgs/Imu per sample: stamp epoch + k / fs (the frames' definition),
+        the values of the ADC codes (code * LSB), serialised for the frame at once."""
+        stamps = [index_to_ns(first + i, self.fs, self.t0_ns) for i in range(gyro.shape[0])]
+        publish = self.pub_imu.publish
+        for raw in self._imu_cdr.serialize(stamps, gyro, accel):
+            publish(raw)
 
 
 def main(argv: list[str] | None = None) -> int:

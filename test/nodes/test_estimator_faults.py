@@ -64,9 +64,11 @@ from mems_sim.nodes.scanner_amdm_node import ScannerAmdmNode
 from mems_sim.nodes.scanner_node import MicroScannerNode
 from mems_sim.nodes.stage_node import MicroStageNode
 from mems_sim.ros.frames import (
+    index_to_ns,
     make_adc_frame,
     make_signal_frame,
     make_state_estimate,
+    ns_to_time,
     signal_data,
     time_to_ns,
 )
@@ -74,6 +76,7 @@ from mems_sim.ros.node_base import FRAME_TYPES
 from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
 
 REPO = Path(__file__).resolve().parents[2]
+EPOCH_NS = 1_767_225_600 * 10**9  # 2026-01-01 UTC: the clean run's epoch
 JUMP_GAP = 10**9  # below max_gap_samples (2^32): a gap
 JUMP_RESET = 2**62  # beyond it: a stream reset
 BIG = 10**7  # samples of the oversized frame
@@ -261,6 +264,16 @@ def clone(msg, **fields):
 def shifted(msg, offset: int):
     """The frame with its first sample index moved by ``offset`` (same stamp and data)."""
     return msg if offset == 0 else clone(msg, first_sample_index=msg.first_sample_index + offset)
+
+
+def restamped(msg, epoch_ns: int):
+    """The frame with its header stamp moved by ``epoch_ns`` (another run's epoch)."""
+    if epoch_ns == 0:
+        return msg
+    header = type(msg.header)()
+    header.frame_id = msg.header.frame_id
+    header.stamp = ns_to_time(time_to_ns(msg.header.stamp) + epoch_ns)
+    return clone(msg, header=header)
 
 
 def payload_field(msg) -> str:
@@ -505,10 +518,12 @@ class Feeder:
         )
         self.gyro = list(record.get("gyro/adc", []))
         self.gyro_sent = 0
+        #: added to every stamp published (the clean run: a wall-clock-like epoch)
+        self.epoch_ns = 0
         self.streams = 2 if case.secondary else 1
 
     def publish(self, topic: str, msg) -> None:
-        self.pubs[topic].publish(msg)
+        self.pubs[topic].publish(restamped(msg, self.epoch_ns))
 
     def wait(self, key: str, delta: int, base: dict, timeout: float = 60.0) -> None:
         target = int(base.get(key, 0)) + delta
@@ -547,7 +562,19 @@ class Feeder:
 
 
 def run_clean(ex, feeder: Feeder, n: int) -> None:
+    """The record as it is, its stamps on a wall-clock-like epoch (:data:`EPOCH_NS`)."""
+    feeder.epoch_ns = EPOCH_NS
     feeder.normal(range(n), 0)
+
+
+def check_timeline(msgs: list, topic: str) -> None:
+    """Every estimate is stamped on its input's timeline: EPOCH_NS + first / fs, up to one
+    constant per topic (a documented delay, e.g. the AMDM chain's) below 1 ms."""
+    offsets = {
+        time_to_ns(m.header.stamp) - EPOCH_NS - index_to_ns(m.first_sample_index, m.sample_rate_hz)
+        for m in msgs
+    }
+    assert len(offsets) == 1 and abs(min(offsets)) < 10**6, (topic, sorted(offsets)[:5])
 
 
 def run_faults(ex, feeder: Feeder, n: int, mem: Memory) -> tuple[int, int]:
@@ -768,6 +795,9 @@ def test_estimator_survives_faults(name, graph):
         diags.clear()
         node.diag.publish()
         assert spin_until(ex, lambda: last_status(diags, title).get("frames") is not None, 10)
+        if run == "clean":
+            for topic, msgs in got.items():
+                check_timeline(msgs, topic)
         outputs[run] = dict(got=got, results=list(results), last=last, off=off)
         outputs[run]["status"] = last_status(diags, title)
         outputs[run]["counters"] = dict(node.diag.counters)

@@ -2,6 +2,7 @@
 (Zhang 2010, Tables III and IV)."""
 
 import pytest
+from figure_checks import assert_figures
 
 from mems_scenarios import accelerometer_snr as sc
 from mems_scenarios.base import ScenarioOptions
@@ -16,7 +17,7 @@ def result(tmp_path_factory):
 
 
 def _check(result, prefix):
-    found = [c for c in result["figures"]["checks"] if c[0].startswith(prefix)]
+    found = [c for c in result["values"]["checks"] if c[0].startswith(prefix)]
     assert found, prefix
     return found
 
@@ -33,7 +34,7 @@ def test_recording_complete(result):
 
 def test_table_iii(result):
     print("\n" + result["table"])
-    dev = result["figures"]["devices"]
+    dev = result["values"]["devices"]
     assert not dev["acc_open_0g1"]["contact"] and not dev["acc_open_1g"]["contact"]
     assert dev["acc_open_15g"]["contact"]  # above the open loop's pull-in
     for m in ("pi", "ekf"):
@@ -65,4 +66,14 @@ def test_table_iv_and_consistency(result):
     ),
 )
 def test_open_loop_fails_at_5g(result):
-    assert result["figures"]["devices"]["acc_open_5g"]["contact"]
+    assert result["values"]["devices"]["acc_open_5g"]["contact"]
+
+
+def test_figures_as_data_and_every_miss_flagged(result):
+    figs = assert_figures(result)
+    checks = [r for name, r in figs.items() if name.startswith("check.")]
+    items = result["values"]["checks"]
+    assert len(checks) == len(items)
+    assert [r["pass"] for r in checks] == [bool(c[4]) for c in items]
+    assert figs["acc_open_1g.output_snr"]["unit"] == "dB"
+    assert figs["acc_qr_qx10.not_pd_samples"]["target"] == "== 0"

@@ -17,6 +17,7 @@ test ``test/acceptance/test_loaded_runs.py``.
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import threading
@@ -113,13 +114,14 @@ def test_second_graph_on_a_domain_is_refused_and_the_first_is_unchanged(
     tmp_path, domain_id, subprocess_env
 ):
     """A run in another process holds the domain: a second run on it is refused with one
-    line; the first run's recording equals a solo run of the same seed."""
+    line; the first run's recording equals a solo run of the same seed. The first run prints
+    its figures with ``--json``: stdout is the JSON list alone, the table goes to stderr."""
     first = tmp_path / "first.mcap"
     cmd = [str(Path(sys.executable).parent / "run_scenario"), "imu_noise", "--duration", "600"]
-    cmd += ["--seed", "6", "--out", str(first), "--no-plots", "--no-progress"]
+    cmd += ["--seed", "6", "--out", str(first), "--no-plots", "--no-progress", "--json"]
     cmd += ["--domain-id", str(domain_id)]
     proc = subprocess.Popen(
-        cmd, env=subprocess_env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+        cmd, env=subprocess_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
     try:
         deadline = time.monotonic() + 30
@@ -132,8 +134,16 @@ def test_second_graph_on_a_domain_is_refused_and_the_first_is_unchanged(
         assert f"ROS domain {domain_id} is in use by another scenario graph" in refused
         assert "imu_noise" in refused and "\n" not in refused
     finally:
-        _, err = proc.communicate(timeout=120)
+        out, err = proc.communicate(timeout=120)
     assert proc.returncode == 0, err
+    figures = json.loads(out)  # nothing but the JSON on stdout
+    assert isinstance(figures, list) and figures
+    assert all(set(f) == {"name", "value", "unit", "target", "pass"} for f in figures)
+    assert len({f["name"] for f in figures}) == len(figures)
+    assert all(f["pass"] in (True, False, None) for f in figures)
+    assert all((f["target"] is None) == (f["pass"] is None) for f in figures)
+    assert {f["name"] for f in figures} >= {"gyro_x.N.identified", "accel_z.T.rel_error"}
+    assert "rel. error" in err  # the table went to stderr
     solo = tmp_path / "solo.mcap"
     imu_noise.run(
         ScenarioOptions(

@@ -4,6 +4,7 @@ node graph (Chen 2018 ch. 3, Tables 3.4-3.6)."""
 from pathlib import Path
 
 import pytest
+from figure_checks import assert_figures, met_of, verdict
 
 from mems_estimation.identification.stage_gyro_calibration import T1, T2
 from mems_scenarios import stage_gyro_calibration as gyro_calibration
@@ -34,7 +35,7 @@ def test_recording_complete(result):
 
 def test_table_figures_through_graph(result):
     print("\n" + result["table"])
-    f = result["figures"]
+    f = result["values"]
     ev = f[T1]["eval"]
     assert ev["rmse"] <= 0.114 and abs(ev["alpha"] - 1) <= 8e-4
     ev2 = f[T2]["eval"]
@@ -51,3 +52,14 @@ def test_table_figures_through_graph(result):
 def test_refuses_duration():
     with pytest.raises(ScenarioError, match="duration"):
         gyro_calibration.run(ScenarioOptions(duration_s=1.0))
+
+
+def test_figures_as_data_and_every_miss_flagged(result):
+    figs = assert_figures(result)
+    table = result["table"]
+    assert table.splitlines()[0].split()[-1] == "met"
+    rows = [line for line in table.splitlines() if line.strip().startswith("off-axis")]
+    for line, share in zip(rows, (1, 10, 50)):
+        assert line.split()[-1] == verdict(figs[f"off_axis_{share}pct.rejection"])
+    assert met_of(table, "SF error RMS") == verdict(figs["scale_factor_error_rms"])
+    assert figs["scale_factor_error_rms"]["value"] == pytest.approx(result["sf_rms_ppm"])

@@ -2,6 +2,7 @@
 (Chen 2018 ch. 5: Table 5.3 form, consistency, off-resonance low signal)."""
 
 import pytest
+from figure_checks import assert_figures, met_of, verdict
 
 from mems_scenarios import scanner_amdm_shared_electrodes as sse
 from mems_scenarios.base import ScenarioOptions
@@ -26,7 +27,7 @@ def test_recording_complete_and_figures(result):
 
 
 def test_table_5_3_ukf_phase_and_amplitude(result):
-    f = result["figures"]
+    f = result["values"]
     print("\n" + result["table"])
     assert f["ukf_pairs"] > 500
     assert f["ukf_phase_deg"] <= 0.39  # Table 5.3 (paper's UKF)
@@ -35,7 +36,7 @@ def test_table_5_3_ukf_phase_and_amplitude(result):
 
 
 def test_filters_keep_a_positive_definite_bounded_covariance(result):
-    f = result["figures"]
+    f = result["values"]
     for k in ("ekf", "ukf"):
         assert f[f"{k}_pd_failures"] == 0 and f[f"{k}_min_var"] > 0
         assert f[f"{k}_max_var_theta_eval"] < 1e-4  # no blow-up after acquisition
@@ -43,7 +44,7 @@ def test_filters_keep_a_positive_definite_bounded_covariance(result):
 
 
 def test_off_resonance_reports_low_signal(result):
-    f = result["figures"]
+    f = result["values"]
     assert f["off_final_amplitude"] < 1e-3
     assert f["off_low_signal_warned"] and not f["off_tracking"]
     assert f["off_events"] == 0 and f["off_finite"] and f["off_pd_failures"] == 0
@@ -60,4 +61,15 @@ def test_off_resonance_reports_low_signal(result):
     ),
 )
 def test_ukf_beats_ekf(result):
-    assert result["figures"]["ukf_beats_ekf"]
+    assert result["values"]["ukf_beats_ekf"]
+
+
+def test_figures_as_data_and_every_miss_flagged(result):
+    figs = assert_figures(result)
+    table = result["table"]
+    for k in ("EKF", "UKF"):
+        nees = figs[f"{k.lower()}.nees"]
+        assert nees["target"] == "0.5-2" and nees["unit"] == "1"
+        assert met_of(table, f"{k} theta RMSE") == verdict(nees)  # never "-" for a miss
+        assert met_of(table, f"{k} RMSE amplitude") == verdict(figs[f"{k.lower()}.amplitude_rmse"])
+    assert figs["ukf.phase_rmse_target"]["target"] == "<= 0.18 deg"

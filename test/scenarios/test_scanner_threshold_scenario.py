@@ -4,6 +4,7 @@ chapter 4)."""
 import math
 
 import pytest
+from figure_checks import assert_figures
 
 from mems_scenarios import scanner_threshold
 from mems_scenarios.base import ScenarioError, ScenarioOptions
@@ -30,7 +31,7 @@ def test_recording_complete(result):
 
 
 def test_table_4_3_hybrid_better_everywhere(result):
-    f = result["figures"]
+    f = result["values"]
     print("\n" + result["table"])
     snrs = [s for _, _, s in f["segments"]]
     assert 60 < snrs[0] < 120 and 15 < snrs[1] < 35 and 3 < snrs[2] < 8 and 0.5 < snrs[3] < 2
@@ -41,7 +42,7 @@ def test_table_4_3_hybrid_better_everywhere(result):
 
 
 def test_detection_study(result):
-    f = result["figures"]
+    f = result["values"]
     assert f["online_offline_same"] and f["latency"] == 300
     assert all(k[3] > 0.05 for k in f["ks"])  # normal at every tested SNR
     sw = f["sigma_sweep"]
@@ -52,7 +53,7 @@ def test_detection_study(result):
 
 
 def test_filters_positive_definite(result):
-    f = result["figures"]
+    f = result["values"]
     assert f["min_var_hyb"] > 0 and f["min_var_ekf"] > 0
     assert f["max_var_theta_hyb"] <= 0.04 + 1e-12 and f["max_var_theta_ekf"] <= 0.04 + 1e-12
 
@@ -60,3 +61,12 @@ def test_filters_positive_definite(result):
 def test_bad_duration_refused():
     with pytest.raises(ScenarioError, match="duration"):
         scanner_threshold.run(ScenarioOptions(duration_s=0.1))
+
+
+def test_figures_as_data(result):
+    figs = assert_figures(result)
+    assert all(r["pass"] is None for r in figs.values())  # beside the paper, not judged
+    f = result["values"]
+    assert figs["overall.hyb.theta_rmse"]["value"] == f["rmse_hyb"][-1]
+    assert figs["seg1.snr"]["value"] == f["segments"][0][2]
+    assert figs["detector.latency"]["value"] == f["latency"]

@@ -1,6 +1,7 @@
 """End-to-end: scenario sd_resonator through the node graph, figures from its MCAP (Colinet et al.)."""
 
 import pytest
+from figure_checks import assert_figures, met_of, verdict
 
 from mems_scenarios import resonator_sigma_delta as sd_resonator
 from mems_scenarios.base import ScenarioOptions
@@ -26,7 +27,7 @@ def test_recording_complete(result):
 
 
 def test_exact_model_error_and_noise_immunity(result):
-    f = result["figures"]
+    f = result["values"]
     print("\n" + result["table"])
     assert f["exact_err_rel"] <= 1e-9  # paper ~1e-10
     assert f["amp_ratio"] < 0.10  # comparator loop does not build up
@@ -35,7 +36,7 @@ def test_exact_model_error_and_noise_immunity(result):
 
 
 def test_consistency_model_error_and_adaptive(result):
-    f = result["figures"]
+    f = result["values"]
     assert 0.8 <= f["consistency"] <= 1.2
     assert f["f0_error_ratio"] >= 10
     assert f["adaptive_ratio"] <= 2
@@ -46,7 +47,18 @@ def test_pulses_at_two_percent_of_amplitude(result):
     """Sub-sample pulse timing (default): the pulses are centred on the crossing the observer
     predicts; the true position at the firing instant (start of the 50 ns pulse) and at its
     centre, from the recorded truth, are within 2 % of the amplitude."""
-    f = result["figures"]
+    f = result["values"]
     assert f["pulse_x_rel_max"] <= 0.02
     assert f["pulse_center_rel_max"] <= 0.02
     assert f["pulse_sub_sample"] > 0.9  # the pulses do fall between the samples
+
+
+def test_figures_as_data_and_every_miss_flagged(result):
+    figs = assert_figures(result)
+    table = result["table"]
+    assert met_of(table, "state noise: error lag-1") == verdict(figs["exact_noisy.error_acf1"])
+    assert met_of(table, "state noise: measured / predicted") == verdict(
+        figs["exact_noisy.error_variance_ratio"]
+    )
+    assert met_of(table, "+2 % f0 step") == verdict(figs["tracking.settle_periods"])
+    assert figs["pulse.count"]["value"] == result["values"]["pulses"]

@@ -1,0 +1,137 @@
+"""A scenario's figures as data: one :class:`Figure` record per reported number.
+
+Every scenario returns its figures as a list of records (``result["figures"]``) besides the
+printed table; ``run_scenario --json`` prints them as a JSON list of objects
+``{"name", "value", "unit", "target", "pass"}``:
+
+* ``name``: stable and unique within the scenario, dotted (e.g. ``gyro_x.N.rel_error``);
+* ``value``: a number, a string or ``null`` (a value that is not finite, NaN or infinite, is
+  written as ``null``, never as ``"nan"``);
+* ``unit``: the unit the scenario's table prints, except that ratios and percentages are
+  plain fractions (unit ``"1"``); ``""`` for counts, flags and text;
+* ``target``: the criterion in words and in the figure's unit (``"<= 0.18 deg"``,
+  ``"0.8-1.2"``) or ``null`` where none applies;
+* ``pass``: ``true`` or ``false`` where a target applies (``false`` whenever the value is not
+  finite or missing), ``null`` where none does.
+
+A missed target is reported, not an error: it does not change ``run_scenario``'s exit status.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import numbers
+from dataclasses import dataclass
+
+from mems_sim.table import format_table, yes_no
+
+#: Table cell of a value that is not finite (NaN, infinite) or missing.
+NOT_FINITE = "n/a (not finite)"
+
+
+@dataclass(frozen=True)
+class Figure:
+    """One reported figure.
+
+    Attributes:
+        name: stable, machine-friendly name, unique within a scenario.
+        value: the figure (number, text, or None where it could not be computed).
+        unit: unit of ``value`` (``"1"`` for ratios, ``""`` for counts, flags and text).
+        target: the criterion in words (e.g. ``"<= 0.18 deg"``), None where none applies.
+        passed: whether the target is met; None exactly when there is no target.
+    """
+
+    name: str
+    value: float | int | str | None
+    unit: str
+    target: str | None = None
+    passed: bool | None = None
+
+    def __post_init__(self) -> None:
+        if (self.target is None) != (self.passed is None):
+            raise ValueError(
+                f"figure {self.name!r}: a target needs a pass/fail and a pass/fail a target "
+                f"(target={self.target!r}, passed={self.passed!r})"
+            )
+
+    @property
+    def finite(self) -> bool:
+        """False for a missing value and a number that is NaN or infinite."""
+        return is_finite(self.value)
+
+    @property
+    def met(self) -> bool | None:
+        """The verdict as reported: None without a target, False for a value that is not
+        finite, else ``passed``."""
+        if self.target is None:
+            return None
+        return bool(self.passed) and self.finite
+
+    def record(self) -> dict:
+        """The JSON object of the figure (``value`` None where not finite)."""
+        return {
+            "name": self.name,
+            "value": json_value(self.value),
+            "unit": self.unit,
+            "target": self.target,
+            "pass": self.met,
+        }
+
+
+def is_finite(value) -> bool:
+    """True for text and finite numbers; False for None, NaN and infinities."""
+    if value is None:
+        return False
+    if isinstance(value, str | bool):
+        return True
+    return isinstance(value, numbers.Real) and math.isfinite(float(value))
+
+
+def json_value(value):
+    """``value`` as a plain JSON scalar: numpy numbers become Python ones, values that are
+    not finite become None."""
+    if not is_finite(value):
+        return None
+    if isinstance(value, str | bool):
+        return value
+    if isinstance(value, numbers.Integral):
+        return int(value)
+    return float(value)
+
+
+def to_json(figures: list[Figure]) -> str:
+    """The figures as a JSON list of ``{"name", "value", "unit", "target", "pass"}``
+    (strict JSON: no NaN). Raises ValueError for a name used twice."""
+    names = [f.name for f in figures]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ValueError(f"figure names used more than once: {', '.join(twice)}")
+    return json.dumps([f.record() for f in figures], indent=1, allow_nan=False)
+
+
+def cell(value, spec: str = ".4g", suffix: str = "") -> str:
+    """A table cell of a value: ``format(value, spec) + suffix``, or :data:`NOT_FINITE` for a
+    value that is missing, NaN or infinite (never ``nan``)."""
+    if not is_finite(value):
+        return NOT_FINITE
+    if isinstance(value, str | bool):
+        return str(value)
+    return format(value, spec) + suffix
+
+
+def met_cell(*figures: Figure) -> str:
+    """The ``met`` cell of a table row judged by one or more figures: ``-`` where none has a
+    target, ``NO`` where any target is missed (or its value is not finite), else ``yes``."""
+    verdicts = [f.met for f in figures if f.met is not None]
+    if not verdicts:
+        return "-"
+    return yes_no(all(verdicts))
+
+
+def figure_table(figures: list[Figure], spec: str = ".4g") -> str:
+    """The figures as a plain table: name, value, unit, target, met."""
+    rows = [
+        [f.name, cell(f.value, spec), f.unit or "-", f.target or "-", met_cell(f)] for f in figures
+    ]
+    return format_table(["figure", "value", "unit", "target", "met"], rows)

@@ -1,0 +1,217 @@
+"""The live view: a Foxglove WebSocket client connected during a scenario run subscribes to
+the estimate channel and decodes a message with the schema the server advertised.
+
+The client side of the Foxglove WebSocket protocol (JSON ``serverInfo``/``advertise`` from
+the server, ``subscribe`` from the client, binary Message Data frames: opcode 1, u32
+subscription id, u64 log time, payload; all little-endian) is written here on the
+``websockets`` library. The SDK's server speaks the protocol under the subprotocol name
+``foxglove.sdk.v1`` and refuses the handshake of the older name ``foxglove.websocket.v1``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import re
+import signal
+import struct
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+BIN = Path(sys.executable).parent
+SUBPROTOCOL = "foxglove.sdk.v1"
+ESTIMATE = "/scanner/estimate"
+URL_LINE = re.compile(r"live view: ws://127\.0\.0\.1:(\d+)")
+MESSAGE_DATA = 1
+
+
+def _lines_until(stream, pattern, timeout_s: float, seen: list[str]):
+    """Read ``stream`` in a thread; return the first match of ``pattern`` (None on timeout
+    or at the end of the stream). Every line goes to ``seen``; the thread keeps draining the
+    stream afterwards."""
+    found = threading.Event()
+    match = []
+
+    def read():
+        for line in stream:
+            seen.append(line)
+            m = pattern.search(line)
+            if m and not match:
+                match.append(m)
+                found.set()
+        found.set()  # end of the stream: the process ended
+
+    threading.Thread(target=read, daemon=True).start()
+    found.wait(timeout_s)
+    return match[0] if match else None
+
+
+async def _subscribe_and_take(port: int, topic: str, timeout_s: float) -> dict:
+    """Connect, wait for ``topic``'s advertisement, subscribe, return the channel and the
+    first Message Data frame's (log time, payload)."""
+    import websockets
+
+    deadline = time.monotonic() + timeout_s
+    async with websockets.connect(
+        f"ws://127.0.0.1:{port}", subprotocols=[SUBPROTOCOL], max_size=None, proxy=None
+    ) as ws:
+        assert ws.subprotocol == SUBPROTOCOL
+        channel, sub_id, info = None, 7, None
+
+        def subscribe(ch: dict) -> str:
+            return json.dumps(
+                {"op": "subscribe", "subscriptions": [{"id": sub_id, "channelId": ch["id"]}]}
+            )
+
+        while time.monotonic() < deadline:
+            raw = await asyncio.wait_for(ws.recv(), max(0.01, deadline - time.monotonic()))
+            if isinstance(raw, str):
+                msg = json.loads(raw)
+                if msg["op"] == "serverInfo":
+                    info = msg
+                elif msg["op"] == "advertise" and channel is None:
+                    channel = next((c for c in msg["channels"] if c["topic"] == topic), None)
+                    if channel is not None:
+                        await ws.send(subscribe(channel))
+                elif (
+                    msg["op"] == "status"
+                    and channel is not None
+                    and msg["message"] == f"Unknown channel ID: {channel['id']}"
+                ):
+                    # the SDK's server sends an advertisement before it registers the
+                    # channel for that client; a subscription sent at once can fall in
+                    # between and be refused: subscribe again
+                    await asyncio.sleep(0.05)
+                    await ws.send(subscribe(channel))
+                continue
+            if raw[0] == MESSAGE_DATA:
+                got_id, log_time = struct.unpack_from("<IQ", raw, 1)
+                assert got_id == sub_id
+                return dict(info=info, channel=channel, log_time=log_time, payload=raw[13:])
+        raise AssertionError(f"no message on {topic} within {timeout_s} s (channel {channel})")
+
+
+def test_foxglove_client_decodes_the_estimate_during_a_scenario(tmp_path, subprocess_env):
+    from rclpy.serialization import deserialize_message
+
+    from mems_sim.bag.schema import message_class, schema_text
+
+    out = tmp_path / "live.mcap"
+    run = subprocess.Popen(
+        [
+            str(BIN / "run_scenario"),
+            "scanner_threshold",
+            "--duration",
+            "1.5",
+            "--realtime",
+            "--live-view",
+            "0",
+            "--out",
+            str(out),
+            "--no-plots",
+            "--no-progress",
+        ],
+        env=subprocess_env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    seen: list[str] = []
+    try:
+        m = _lines_until(run.stderr, URL_LINE, 60.0, seen)
+        assert m, "run_scenario printed no live view URL:\n" + "".join(seen)
+        got = asyncio.run(_subscribe_and_take(int(m.group(1)), ESTIMATE, 30.0))
+        stdout, _ = run.communicate(timeout=90)
+    finally:
+        if run.poll() is None:
+            run.send_signal(signal.SIGINT)
+            run.wait(30)
+    assert run.returncode == 0, stdout + "".join(seen)
+    assert "scenario scanner_threshold" in stdout
+    assert out.exists()
+
+    ch = got["channel"]
+    assert ch["encoding"] == "cdr" and ch["schemaEncoding"] == "ros2msg"
+    assert ch["schemaName"] == "mems_msgs/msg/StateEstimate"
+    assert ch["schema"] == schema_text(ch["schemaName"])
+    msg = deserialize_message(got["payload"], message_class(ch["schemaName"]))
+    k = len(msg.state_names)
+    assert k >= 1 and msg.num_samples >= 1 and msg.sample_rate_hz > 0
+    assert len(msg.states) == len(msg.variances) == k * msg.num_samples
+    assert all(math.isfinite(x) for x in msg.states)
+    assert all(v >= 0 for v in msg.variances)
+    # the log time is the message's sensor time (its header stamp)
+    stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+    assert got["log_time"] == stamp
+
+
+@pytest.mark.parametrize("port", ["-1", "70000"])
+def test_run_scenario_refuses_a_bad_live_view_port(port, subprocess_env):
+    run = subprocess.run(
+        [str(BIN / "run_scenario"), "scanner_threshold", "--live-view", port],
+        env=subprocess_env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert run.returncode == 2
+    assert "--live-view" in run.stderr and len(run.stderr.strip().splitlines()) == 1
+
+
+def test_live_view_refuses_a_port_in_use(subprocess_env):
+    import socket
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        run = subprocess.run(
+            [str(BIN / "live_view"), "--ros-args", "-p", f"port:={port}"],
+            env=subprocess_env,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+    assert run.returncode == 2, run.stderr
+    assert "port" in run.stderr and str(port) in run.stderr
+
+
+def test_foxglove_layouts_are_generated_and_name_recorded_topics():
+    """config/foxglove/<device>.json are what tools/foxglove_layouts.py writes, each panel
+    of the layout tree is configured, and every plotted topic is in the device's reference
+    bag."""
+    import importlib.util
+
+    from mcap.reader import make_reader
+
+    repo = Path(__file__).resolve().parents[2]
+    spec = importlib.util.spec_from_file_location(
+        "foxglove_layouts", repo / "tools" / "foxglove_layouts.py"
+    )
+    gen = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gen)
+    files = sorted((repo / "config" / "foxglove").glob("*.json"))
+    assert [f.stem for f in files] == sorted(gen.DEVICES)
+    for path in files:
+        text = path.read_text()
+        assert text == gen.render(path.stem), f"{path.name}: run tools/foxglove_layouts.py"
+        layout = json.loads(text)
+
+        def leaves(node):
+            return (
+                [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+            )
+
+        assert sorted(leaves(layout["layout"])) == sorted(layout["configById"])
+        with open(repo / "bags" / f"{path.stem}.mcap", "rb") as f:
+            topics = {c.topic for c in make_reader(f).get_summary().channels.values()}
+        for panel, config in layout["configById"].items():
+            for series in config.get("paths", []):
+                topic = series["value"].split(".", 1)[0]
+                assert topic in topics, f"{path.name}: {panel} plots {topic}, not in the bag"
