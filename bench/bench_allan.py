@@ -1,12 +1,17 @@
-"""Benchmark: our overlapping Allan deviation vs allantools.oadev, and the IMU emulator rate.
+"""Benchmark: overlapping Allan deviation vs allantools.oadev, the streaming identification's
+memory and time, and the IMU emulator rate.
 
-Run:  .venv/bin/python bench/bench_allan.py [n_samples]
-Prints both oadev times on 1e7 samples (octave taus, same data, one run), the
-ratio, the max relative difference, and the emulator's 6-axis samples/s for 1e6
-samples.  The numba compile warm-up is done before timing.
+Run:  .venv/bin/python bench/bench_allan.py [n_samples] [--stream-seconds S]
+Prints both oadev times on 1e7 samples (octave taus, same data, one run), the ratio and the
+max relative difference; then streams S seconds (default 1e6 s) of the 6-axis IMU model at
+100 Hz into the identifier's accumulator (StreamingAllan, as imu_noise_identifier_node and
+identify_noise run it) and identifies, printing the peak RSS (target < 500 MB) and the time
+per sample at 1/10 of the record and at the whole record (linear: equal per-sample times);
+then the emulator's 6-axis samples/s for 1e6 samples.  Numba compile warm-up precedes timing.
 """
 
 import os
+import resource
 import sys
 import time
 
@@ -16,7 +21,8 @@ sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")
 
 import allantools
 
-from mems_estimation.identification.allan import oadev, tau_grid
+from mems_estimation.identification.allan import StreamingAllan, oadev, tau_grid
+from mems_estimation.identification.imu_noise_fit import identify_stream
 from mems_sim.devices.imu import ImuNoiseModel
 
 
@@ -40,6 +46,52 @@ def bench_oadev(n: int, fs: float = 100.0) -> None:
     print(f"  speed-up: {t_ref / t_ours:.2f}x   max relative difference: {rel:.3e}")
 
 
+def _rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def bench_stream(seconds: float, fs: float = 100.0, block: int = 100_000) -> None:
+    """Peak RSS and time per sample of streaming identification of a 6-axis record."""
+    model = ImuNoiseModel({}, seed=1)
+    st = StreamingAllan(6, fs, "octave")
+    st.add(np.zeros((10, 6)))  # compile / cache load
+    st = StreamingAllan(6, fs, "octave")
+    base = _rss_mb()
+    n_total = int(seconds * fs)
+    t_gen = t_acc = 0.0
+    marks = {}
+    done = 0
+    while done < n_total:
+        k = min(block, n_total - done)
+        t0 = time.perf_counter()
+        f = model.generate(k)
+        y = np.hstack([f.gyro_si, f.accel_si])
+        t1 = time.perf_counter()
+        st.add(y)
+        t_acc += time.perf_counter() - t1
+        t_gen += t1 - t0
+        done += k
+        if done >= n_total // 10 and "tenth" not in marks:
+            marks["tenth"] = (done, t_acc)
+    t0 = time.perf_counter()
+    results = identify_stream(st)
+    t_fit = time.perf_counter() - t0
+    n10, t10 = marks["tenth"]
+    print(
+        f"streaming identification of {seconds:.0e} s at {fs:g} Hz x 6 axes ({n_total:.2e} samples):"
+    )
+    print(
+        f"  accumulator state {st.nbytes() / 1e6:.1f} MB, peak RSS {_rss_mb():.0f} MB "
+        f"(target < 500; {base:.0f} MB after imports, compile and the accumulator's allocation)"
+    )
+    print(
+        f"  Allan accumulation {t_acc:.1f} s: {1e9 * t10 / n10:.1f} ns/sample over the first "
+        f"tenth, {1e9 * t_acc / n_total:.1f} ns/sample over the whole (linear if equal); "
+        f"emulator {t_gen:.1f} s; fit of 6 axes {t_fit:.1f} s"
+    )
+    print(f"  accel_x: B = {results[3][0].B:.4g} m/s^2, T = {results[3][0].T:.4g} s")
+
+
 def bench_emulator(n: int = 1_000_000, frame: int = 1000) -> None:
     """6-axis samples/s of ImuNoiseModel, one call and in frames of ``frame``."""
     m = ImuNoiseModel({}, seed=1)
@@ -59,5 +111,12 @@ def bench_emulator(n: int = 1_000_000, frame: int = 1000) -> None:
 
 
 if __name__ == "__main__":
-    bench_oadev(int(float(sys.argv[1])) if len(sys.argv) > 1 else 10_000_000)
+    args = sys.argv[1:]
+    seconds = 1e6
+    if "--stream-seconds" in args:
+        i = args.index("--stream-seconds")
+        seconds = float(args[i + 1])
+        del args[i : i + 2]
+    bench_stream(seconds)
+    bench_oadev(int(float(args[0])) if args else 10_000_000)
     bench_emulator()

@@ -25,8 +25,9 @@ DURATION_S = 2000.0
 FRAME = 100  # samples per frame at 100 Hz, as the scenario's fast runs
 
 
-def rtf(record: bool, tmp: Path) -> float:
-    """Simulated s / wall s of DURATION_S of the imu_noise graph (with or without recorder)."""
+def rtf(record: bool, tmp: Path, split: dict | None = None) -> float:
+    """Simulated s / wall s of DURATION_S of the imu_noise graph (with or without recorder;
+    ``split``: the recorder's max_bag_size / max_bag_duration, a split bag directory)."""
     graph = Graph()
     try:
         emu = graph.add_device(
@@ -41,7 +42,8 @@ def rtf(record: bool, tmp: Path) -> float:
         )
         if record:
             topics = ["/imu/adc", "/imu/truth", "/imu/noise_model"]
-            graph.add(RecorderNode(str(tmp / "bench.mcap"), topics=topics, context=graph.context))
+            out = tmp / ("split.mcap" if split else "bench.mcap")
+            graph.add(RecorderNode(str(out), topics=topics, context=graph.context, **(split or {})))
         graph.spin_until(
             lambda: emu.pub_adc.get_subscription_count() >= (2 if record else 1),
             30.0,
@@ -60,10 +62,14 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         without = rtf(False, Path(d))
         with_rec = rtf(True, Path(d))
+        # 2000 s of 6-axis frames are ~1 MB of MCAP: split every 100 s of data (20 files)
+        split = rtf(True, Path(d), dict(max_bag_duration=100.0))
+        files = len(list((Path(d) / "split").glob("*.mcap")))
     print(
         f"imu_noise fast mode, {DURATION_S:.0f} s at 100 Hz in frames of {FRAME}: "
         f"real-time factor {without:.0f}x without the recorder, {with_rec:.0f}x with it "
-        f"(ratio {with_rec / without:.2f})"
+        f"(ratio {with_rec / without:.2f}), {split:.0f}x with it splitting every 100 s of "
+        f"data into {files} files (ratio to one file {split / with_rec:.2f})"
     )
 
 

@@ -59,8 +59,15 @@ def g_np(x, v2, md):
 
 
 def h_np(th, md):
-    c0, th0, cb, a, b = md.meas
-    return a * (c0 * math.exp(-((th / th0) ** 2)) + cb) + b
+    c0, th0, cb, a, b, a2, ct, db = md.meas
+    c = c0 * math.exp(-((th / th0) ** 2)) + cb
+    return a * c + b + db + a2 * (c - ct) ** 2
+
+
+def dh_np(th, md):
+    c0, th0, cb, a, _, a2, ct, _ = md.meas
+    e = math.exp(-((th / th0) ** 2))
+    return (a + 2 * a2 * (c0 * e + cb - ct)) * c0 * (-2 * th / th0**2) * e
 
 
 def ukf_numpy(y, v2, x, P, md, wm, wc, gamma):
@@ -107,7 +114,7 @@ def ekf_numpy(y, v2, x, P, md):
         G = md.Phi + np.outer(md.Gam, [du, 0.5 * md.T * du])
         x = g_np(x, v2[k], md)
         P = G @ P @ G.T + md.Q
-        H = np.array([md.meas[3] * c0 * (-2 * x[0] / th0**2) * math.exp(-((x[0] / th0) ** 2)), 0.0])
+        H = np.array([dh_np(x[0], md), 0.0])
         s = H @ P @ H + md.R
         K = P @ H / s
         x = x + K * (y[k] - h_np(x[0], md))
@@ -223,9 +230,7 @@ def filterpy_runs(y, v2, x0, P0, f):
         ekf.predict(u=v2[k])
         ekf.update(
             np.array([y[k]]),
-            lambda x: np.array(
-                [[md.meas[3] * c0 * (-2 * x[0] / th0**2) * math.exp(-((x[0] / th0) ** 2)), 0.0]]
-            ),
+            lambda x: np.array([[dh_np(x[0], md), 0.0]]),
             lambda x: np.array([h_np(x[0], md)]),
         )
         th_e[k] = ekf.x[0]

@@ -10,6 +10,7 @@ SCENARIOS = {
     "scanner_shared_electrodes": "mems_scenarios.scanner_amdm_shared_electrodes",
     "scanner_threshold": "mems_scenarios.scanner_threshold",
     "accelerometer_snr": "mems_scenarios.accelerometer_snr",
+    "accelerometer_spread": "mems_scenarios.accelerometer_spread",
     "gyro_calibration": "mems_scenarios.stage_gyro_calibration",
 }
 

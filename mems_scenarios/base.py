@@ -36,7 +36,7 @@ from mems_sim.bag.recorder import RecorderNode
 from mems_sim.params import ParameterError, spec_table
 from mems_sim.ros.env import apply_defaults
 from mems_sim.ros.frames import index_to_ns
-from mems_sim.ros.node_base import PacedEmulator
+from mems_sim.ros.node_base import EmulatorNode, PacedEmulator
 from mems_sim.ros.params_file import Override, node_matches
 from mems_sim.table import format_table  # noqa: F401  (scenarios print with it)
 
@@ -68,6 +68,10 @@ class ScenarioOptions:
         overrides: node parameters the user set (``--params-file`` entries, then ``--set``
             ones; later wins): they take precedence over the scenario's own values
             (:meth:`Graph.node`).
+        device_seed: ``device_seed`` of every emulator node (None: the nominal devices,
+            or the scenario's own); a ``--set`` of it wins.
+        temperature_c: ``temperature_c`` of every emulator node [degC] (None: each
+            device's reference temperature, or the scenario's own); a ``--set`` wins.
         applied: filled by the run: (node, parameter) -> (value, origin) of every override
             applied to a node (the run's graphs share it).
     """
@@ -82,6 +86,8 @@ class ScenarioOptions:
     extra: dict = field(default_factory=dict)
     overrides: list[Override] = field(default_factory=list)
     applied: dict = field(default_factory=dict)
+    device_seed: int | None = None
+    temperature_c: float | None = None
 
 
 def default_domain_id() -> int:
@@ -119,6 +125,9 @@ class Graph:
         overrides: node parameters the user set (:class:`ScenarioOptions`), applied by
             :meth:`node` and :meth:`add_device` on top of the scenario's values and checked
             by :meth:`check_overrides`.
+        device_seed, temperature_c: ``device_seed`` and ``temperature_c`` of every emulator
+            node (None: not set; :class:`ScenarioOptions`), applied on top of the scenario's
+            values, under the overrides; a scenario that sets one of them itself refuses it.
     """
 
     def __init__(
@@ -127,9 +136,16 @@ class Graph:
         *,
         cut: dict | None = None,
         overrides: list[Override] | None = None,
+        device_seed: int | None = None,
+        temperature_c: float | None = None,
     ) -> None:
         apply_defaults()
         self.overrides = list(overrides or [])
+        self.variation = {
+            k: v
+            for k, v in (("device_seed", device_seed), ("temperature_c", temperature_c))
+            if v is not None
+        }
         #: (node, parameter) -> (value, origin) of every override applied, in order.
         self.applied: dict[tuple[str, str], tuple[object, str]] = {}
         #: Fully qualified name -> class of every node made by :meth:`node`.
@@ -199,20 +215,50 @@ class Graph:
         if namespace is not None:
             kw["namespace"] = namespace
         values = self.overridden(node_class, namespace, params or {})
+        if issubclass(node_class, EmulatorNode):
+            # the scenario's values are its nominal device; only the user's are fixed
+            fqn = self.fqn(node_class, namespace)
+            kw.setdefault(
+                "fixed_parameters",
+                {name for (node, name), (_, origin) in self.applied.items() if node == fqn}
+                - set(self.variation),
+            )
         node = node_class(context=self.context, parameter_overrides=parameters(values), **kw)
         return self.add(node)
+
+    @staticmethod
+    def fqn(node_class, namespace: str | None) -> str:
+        """Fully qualified name of a node of ``node_class`` in ``namespace`` (None: the
+        class's default namespace)."""
+        ns = getattr(node_class, "DEFAULT_NAMESPACE", "") if namespace is None else namespace
+        return "/" + "/".join(p for p in (ns.strip("/"), node_class.NODE_NAME) if p)
 
     def overridden(self, node_class, namespace: str | None, params: dict) -> dict:
         """``params`` of a node of ``node_class`` in ``namespace`` (None: the class's
         default) with the overrides that match its fully qualified name, as rcl matches a
         parameter file's node names (:mod:`mems_sim.ros.params_file`). Each value is checked
         against the node's parameter table first: a value out of range raises
-        :class:`ScenarioError` naming the node, the parameter, the value and the range."""
-        ns = getattr(node_class, "DEFAULT_NAMESPACE", "") if namespace is None else namespace
-        fqn = "/" + "/".join(p for p in (ns.strip("/"), node_class.NODE_NAME) if p)
+        :class:`ScenarioError` naming the node, the parameter, the value and the range.
+        An emulator node gets the graph's ``device_seed`` / ``temperature_c`` first (a
+        scenario that sets one itself refuses it: the scenario is about that value)."""
+        fqn = self.fqn(node_class, namespace)
         self.node_classes[fqn] = node_class
         specs = spec_table(node_class.SPECS)
         out = dict(params)
+        origin = {"device_seed": "--device-seed", "temperature_c": "--temperature"}
+        for name, value in self.variation.items() if issubclass(node_class, EmulatorNode) else ():
+            if name in params:
+                self.close()
+                raise ScenarioError(
+                    f"{origin[name]}: this scenario sets {name} of node {fqn} itself "
+                    f"({params[name]!r}); {origin[name]} does not apply to it"
+                )
+            try:
+                out[name] = specs[name].validate(value)
+            except (KeyError, ParameterError) as exc:
+                self.close()
+                raise ScenarioError(f"{origin[name]}: node {fqn}: {exc}") from None
+            self.applied[(fqn, name)] = (out[name], origin[name])
         for i, o in enumerate(self.overrides):
             if not node_matches(o.node, fqn) or o.name not in specs:
                 continue
@@ -345,7 +391,13 @@ def graph_for(options: ScenarioOptions) -> Graph:
     """The Graph of a scenario run: its domain (None: a free one, leased), the user's
     parameter overrides (recorded as applied in ``options.applied``) and the fault
     injection of ``options.extra['cut']`` (topic -> messages, tests only)."""
-    graph = Graph(options.domain_id, cut=options.extra.get("cut"), overrides=options.overrides)
+    graph = Graph(
+        options.domain_id,
+        cut=options.extra.get("cut"),
+        overrides=options.overrides,
+        device_seed=options.device_seed,
+        temperature_c=options.temperature_c,
+    )
     graph.applied = options.applied
     if options.extra.get("live_view") is not None:  # run_scenario --live-view [PORT]
         from mems_scenarios.live import LiveView, LiveViewError
@@ -675,7 +727,8 @@ def run_recorded(
     Returns:
         dict with ``table``, ``figures`` (the :class:`~mems_scenarios.figures.Figure`
         records), ``values`` (the figures dict without ``series``), ``mcap``, ``figure`` (first
-        PNG), ``figure_paths``, ``recorder``, ``published``, ``duration_s``.
+        PNG), ``figure_paths``, ``recorder``, ``published``, ``duration_s``,
+        ``device_seed`` and ``temperature_c`` (the options', None: not set).
     """
     duration = default_duration_s if options.duration_s is None else options.duration_s
     check_duration(duration)
@@ -705,4 +758,6 @@ def run_recorded(
         recorder=result["recorder"],
         published=result["published"],
         duration_s=duration,
+        device_seed=options.device_seed,
+        temperature_c=options.temperature_c,
     )

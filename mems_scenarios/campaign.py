@@ -10,8 +10,9 @@ ranges). Each run is one ``run_scenario NAME ... --json`` in a process of its ow
 ROS domain of its own (``run_scenario`` leases a free one of 1..101 without the
 Makefile's, so concurrent runs never share one: the campaign removes ``ROS_DOMAIN_ID`` from
 the run's environment), with localhost-only discovery. Runs are Dask tasks
-(https://distributed.dask.org): ``--workers N`` starts a local cluster of N worker processes
-(one thread each; default: the machine's cores), every service bound to 127.0.0.1;
+(https://distributed.dask.org): ``--workers N`` starts a local cluster of N workers
+(one thread each, in this process: each only waits on its run's process; default: the
+machine's cores), talking over Dask's in-process transport (no socket at all);
 ``--scheduler tcp://HOST:PORT`` uses an existing cluster (its workers need this package
 installed); ``--workers 0`` runs serially in this process without Dask.
 
@@ -486,17 +487,18 @@ def plot_report(out: Path, results: list[RunResult], per_page: int = 24) -> list
 
 
 def _client(args):
-    """A Dask client: an existing cluster (``--scheduler``) or a local one bound to
-    127.0.0.1 with ``--workers`` single-threaded worker processes."""
+    """A Dask client: an existing cluster (``--scheduler``) or a local one of ``--workers``
+    single-threaded workers in this process (Dask's in-process transport, no socket)."""
     from distributed import Client, LocalCluster
 
     if args.scheduler:
         return Client(args.scheduler, timeout=args.connect_timeout), None
+    # the runs are processes of their own: workers in this process (threads) only wait on
+    # them, and start in a fraction of the time worker processes take
     cluster = LocalCluster(
         n_workers=args.workers,
         threads_per_worker=1,
-        processes=True,
-        host="127.0.0.1",
+        processes=False,  # in-process transport: no socket at all
         dashboard_address=None,
         silence_logs=40,
     )

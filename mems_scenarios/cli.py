@@ -2,8 +2,9 @@
 
 Usage:
     run_scenario --list
-    run_scenario NAME [--duration S] [--seed N] [--set NODE.PARAM=VALUE ...]
-                 [--params-file FILE.yaml] [--realtime] [--out FILE.mcap] [--json]
+    run_scenario NAME [--duration S] [--seed N] [--device-seed N] [--temperature C]
+                 [--set NODE.PARAM=VALUE ...] [--params-file FILE.yaml] [--realtime]
+                 [--out FILE.mcap] [--json]
 """
 
 from __future__ import annotations
@@ -33,6 +34,24 @@ def _parser() -> argparse.ArgumentParser:
         help="simulated duration in seconds (default: the scenario's)",
     )
     p.add_argument("--seed", type=int, default=0, metavar="N", help="run seed (default 0)")
+    p.add_argument(
+        "--device-seed",
+        type=int,
+        default=None,
+        metavar="N",
+        help="device seed of every emulator node: one device of the batch, each parameter "
+        "with a manufacturing spread drawn from N (default: the nominal devices); separate "
+        "from the run seed (the noise); a --set of device_seed wins",
+    )
+    p.add_argument(
+        "--temperature",
+        type=float,
+        default=None,
+        metavar="C",
+        help="temperature of every emulator node [degC]: each parameter with a temperature "
+        "coefficient moves from the device's reference temperature (default: the reference, "
+        "e.g. 25 C); a --set of temperature_c wins",
+    )
     p.add_argument(
         "--set",
         dest="set_params",
@@ -120,6 +139,13 @@ def validate(args) -> str | None:
         return f"--duration = {args.duration!r} is invalid: allowed (0, 1e9) s"
     if args.seed < 0 or args.seed > 2**62:
         return f"--seed = {args.seed} is invalid: allowed [0, 2^62]"
+    if args.device_seed is not None and not 0 <= args.device_seed <= 2**62:
+        return (
+            f"--device-seed = {args.device_seed} is invalid: allowed [0, 2^62] "
+            "(leave it out for the nominal devices)"
+        )
+    if args.temperature is not None and not -60.0 <= args.temperature <= 150.0:
+        return f"--temperature = {args.temperature!r} is invalid: allowed [-60, 150] C"
     if args.domain_id is not None and not 0 <= args.domain_id <= 232:
         return f"--domain-id = {args.domain_id} is invalid: allowed [0, 232]"
     if args.live_view is not None and not 0 <= args.live_view <= 65535:
@@ -149,6 +175,18 @@ def overrides(args) -> list[Override]:
     for path in args.params_file:
         out += load_params_file(path)
     return out + [parse_set(text) for text in args.set_params]
+
+
+def device_text(args) -> str:
+    """The devices of the run, e.g. ``device seed 3 at 40 C`` or ``nominal devices at
+    their reference temperatures``."""
+    who = "nominal devices" if args.device_seed is None else f"device seed {args.device_seed}"
+    at = (
+        "at their reference temperatures"
+        if args.temperature is None
+        else f"at {args.temperature:g} C"
+    )
+    return f"{who} {at}"
 
 
 def applied_text(applied: dict) -> str:
@@ -203,6 +241,8 @@ def _main(args) -> int:
         progress=args.progress,
         plots=not args.no_plots,
         overrides=args.overrides,
+        device_seed=args.device_seed,
+        temperature_c=args.temperature,
     )
     if args.cut:
         options.extra["cut"] = {c.rpartition(":")[0]: int(c.rpartition(":")[2]) for c in args.cut}
@@ -218,9 +258,11 @@ def _main(args) -> int:
     except KeyboardInterrupt:
         return _fail("interrupted; the MCAP file was finalised")
     wall = time.monotonic() - start
+    result["device_seed"], result["temperature_c"] = args.device_seed, args.temperature
     print(
-        f"\nscenario {args.name}: seed {args.seed}, {result['duration_s']:g} s simulated in "
-        f"{wall:.1f} s wall ({'real time' if args.realtime else 'as fast as possible'})\n"
+        f"\nscenario {args.name}: seed {args.seed}, {device_text(args)}, "
+        f"{result['duration_s']:g} s simulated in {wall:.1f} s wall "
+        f"({'real time' if args.realtime else 'as fast as possible'})\n"
     )
     if options.applied:
         print("parameters set (they override the scenario's values):")

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from mems_estimation.identification.imu_noise_fit import crb_relative_se
 from mems_estimation.identification.imu_noise_plots import plot_allan
 from mems_estimation.nodes.imu_noise_identifier_node import NoiseIdentifierNode
 from mems_scenarios.base import (
@@ -138,10 +139,13 @@ def configured_values(emu: ImuNoiseNode) -> dict:
 
 
 def results_table(model, configured: dict) -> tuple[str, list[dict]]:
-    """Configured vs identified N, B, K, T per axis with relative errors."""
+    """Configured vs identified N, B, K, T per axis with relative errors and the Cramer-Rao
+    standard error of each for a record of this length (at the identified values)."""
     rows, records = [], []
     for axis in model.axes:
         sensor = "gyro" if axis.axis.startswith("gyro") else "accel"
+        vals = [getattr(axis, FIELD[sym]).value for sym in ("N", "B", "K", "T")]
+        crb = crb_relative_se(*vals, model.sample_rate_hz, model.num_samples)
         for sym, _ in PARAM_NAMES:
             term = getattr(axis, FIELD[sym])
             conf = configured[sensor][sym]
@@ -161,6 +165,7 @@ def results_table(model, configured: dict) -> tuple[str, list[dict]]:
                     cell(term.value, ".4g"),
                     f"[{cell(term.ci_low, '.3g')}, {cell(term.ci_high, '.3g')}]",
                     cell(100 * rel if is_finite(rel) else rel, "+.1f", " %"),
+                    cell(crb[sym] * term.value, ".3g"),
                 ]
             )
             records.append(
@@ -168,7 +173,16 @@ def results_table(model, configured: dict) -> tuple[str, list[dict]]:
                     axis=axis.axis, param=sym, configured=conf, identified=term.value, rel_error=rel
                 )
             )
-    header = ["axis", "param", "unit", "configured", "identified", "95 % CI", "rel. error"]
+    header = [
+        "axis",
+        "param",
+        "unit",
+        "configured",
+        "identified",
+        "95 % CI",
+        "rel. error",
+        "CRB s.e.",
+    ]
     return format_table(header, rows), records
 
 

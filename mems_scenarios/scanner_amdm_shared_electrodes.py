@@ -5,7 +5,8 @@ Chen 2018 chapter 5 (Table 5.3).  Two device instances in one graph:
 ``/scanner_amdm``      Table 5.2 device, unipolar drive 0..150 V (above the parametric
                        threshold, see :mod:`mems_sim.devices.scanner_amdm`) swept 31.32 -> 31.26 kHz,
                        500 kHz carrier on the same electrodes, R = 1.92e-4 V^2 at the AMDM
-                       output; the estimator node runs the EKF and the UKF.
+                       output, Table 5.2's process noise Q_a as torque noise (the noise the
+                       filters assume); the estimator node runs the EKF and the UKF.
 ``/scanner_amdm_off``  same device driven at 25 kHz (far from 2 f_n = 31.13 kHz): the mirror
                        rings down from 0.02 rad and stays at rest; its estimator must report
                        low signal instead of diverging.
@@ -14,6 +15,17 @@ Every figure is computed from the recorded MCAP after the run: Table 5.3 (RMSE o
 per-extremum amplitude and phase shift, eqs. (109)-(110), after ``T_EVAL``), consistency
 (NEES of theta against the sign-aligned truth, covariance positive definite over the whole
 run), and the off-resonance check.  PNGs in the form of Figs. 5.8 and 5.9.
+
+Criteria (restated from a campaign): phase RMSE <= 0.18 deg (eq. (79)) and amplitude RMSE
+<= 0.63 deg for both filters; NEES of theta within 0.5-2 for both (Bar-Shalom, Li &
+Kirubarajan 2001, Sec. 5.4) on the full AMDM chain, which the filters reach by modelling the
+chain's square-law curve (the detector of eq. (100)) in their measurement function, identified
+on a calibration record; the UKF/EKF RMSE ratio within +-1 %: at R = 1.92e-4 V^2 the
+posterior std of theta (~8e-5 rad) is tiny against the 0.2 rad scale of the Gaussian C_s, so
+the unscented transform (Julier & Uhlmann 2004) and the linearisation agree.  Stress case:
+both filters started from the recorded data with the angle wrong by 0.25 theta_0 and by
+0.1 rad, at four phases of the motion, too large and too small; the time until the error
+stays below 1 mrad is reported.
 """
 
 from __future__ import annotations
@@ -24,6 +36,7 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import CubicSpline
 
+from mems_estimation.filters import scanner_amdm_model as sam
 from mems_estimation.filters import scanner_amdm_tracking as su
 from mems_estimation.nodes.scanner_amdm_estimator_node import ScannerAmdmEstimatorNode
 from mems_scenarios.base import (
@@ -49,6 +62,18 @@ DESCRIPTION = (
 DEFAULT_DURATION_S = 0.06
 T_EVAL = 0.02  # motion grown and both filters acquired [s]
 FS = 1.0e6
+
+
+def process_torque_std() -> float:
+    """Table 5.2's process noise Q_a (eq. (84), an angular-acceleration variance per filter
+    step) realised in the device as a white torque held per internal sample: the velocity
+    increments over one output step agree when sigma = J sqrt(Q_a D), D internal samples per
+    output sample [N m]."""
+    p = sa.resolve_amdm()
+    qa = next(s.default for s in sam.ESTIMATOR_SPECS if s.name == "accel_noise_var")
+    return p["inertia"] * math.sqrt(qa * p["output_decimation"])
+
+
 DEVICE = dict(
     drive_voltage_max=150.0,
     sweep_start_hz=31.32e3,
@@ -56,10 +81,20 @@ DEVICE = dict(
     sweep_start_s=0.0,
     sweep_time_s=0.06,
     initial_angle=0.02,
+    torque_noise_std=process_torque_std(),
 )
 OFF = dict(DEVICE, sweep_start_hz=25.0e3, sweep_end_hz=25.0e3)
 PAPER = {"ekf": (5.04, 1.82), "ukf": (0.63, 0.39)}  # Table 5.3: amplitude, phase [deg]
 TARGET_PHASE_DEG = 0.18  # eq. (79)
+TARGET_AMP_DEG = 0.63  # Table 5.3 (the thesis's UKF)
+RATIO_TOL = 0.01  # EKF and UKF within +-1 % of each other (module doc)
+# acquisition study (module doc): starts a quarter motion period apart after the growth
+STRESS_START_S = 0.03
+STRESS_STARTS = 4
+STRESS_SPACING = 16  # samples, ~1/4 of the 64 us motion period
+STRESS_N = 3000  # samples per started run (3 ms, ~47 motion periods)
+STRESS_TOL = 1.0e-3  # rad: acquired once the error stays below (~20x the tracking RMSE)
+STRESS_CASES = {"stress": 0.25 * 0.2, "acquire_0p1rad": 0.1}  # initial error [rad]
 
 
 def cases() -> dict[str, dict]:
@@ -205,19 +240,19 @@ def figures(path: Path, state: dict) -> dict:
         f[f"{k}_phase_bias_deg"] = (
             math.degrees(float(np.mean(dph[t_e >= T_EVAL]))) if np.any(t_e >= T_EVAL) else math.nan
         )
-    # "beats": at least 5 % lower on both (the paper's gap is 3-8x; equal filters differ
-    # by ~1e-4 relative either way, which is not a result)
-    f["ukf_beats_ekf"] = (
-        f["ukf_phase_deg"] <= 0.95 * f["ekf_phase_deg"]
-        and f["ukf_amp_deg"] <= 0.95 * f["ekf_amp_deg"]
+    f["ukf_ekf_within_1pct"] = all(
+        abs(_ratio(f[f"ukf_{q}_deg"], f[f"ekf_{q}_deg"]) - 1.0) <= RATIO_TOL
+        for q in ("amp", "phase")
     )
-    f["amplitude_range_deg"] = (
-        math.degrees(float(ref.amplitude[ref.t >= T_EVAL].min())),
-        math.degrees(float(ref.amplitude[ref.t >= T_EVAL].max())),
-    )
-    f["phase_range_deg"] = (
-        math.degrees(float(ref.phase[ref.t >= T_EVAL].min())),
-        math.degrees(float(ref.phase[ref.t >= T_EVAL].max())),
+    f["stress"] = _stress(y, drive, tr, t, delay)
+    k0 = int(STRESS_START_S * FS)
+    f["stress_motion_rad"] = float(np.max(np.abs(tr[k0 : k0 + STRESS_N + STRESS_SPACING * 4, 0])))
+    late = ref.t >= T_EVAL  # empty if the drive missed the parametric resonance
+    f["amplitude_range_deg"], f["phase_range_deg"] = (
+        (math.degrees(float(a[late].min())), math.degrees(float(a[late].max())))
+        if np.any(late)
+        else (math.nan, math.nan)
+        for a in (ref.amplitude, ref.phase)
     )
     # off resonance
     off_tr = topic_frames(path, "/scanner_amdm_off/truth")["data"][:, 0]
@@ -251,57 +286,99 @@ def _ratio(a: float, b: float) -> float:
     return a / b if b else math.nan
 
 
+def _stress(y, drive, tr, t, delay) -> dict:
+    """Acquisition study on the recorded AMDM samples (module doc): case -> kind -> study."""
+    params = dict(chain_delay_s=delay)
+    vc2 = 0.5 * sam.resolve_estimator(params)["carrier_amplitude"] ** 2  # carrier's <V^2>
+    v2 = su.DriveAligner(delay * FS, vc2).push(0, drive)
+    tq = np.maximum(t - delay, 0.0)
+    th_ref = CubicSpline(t, tr[:, 0])(tq)
+    om_ref = CubicSpline(t, tr[:, 1])(tq)
+    k0 = int(STRESS_START_S * FS)
+    starts = [k0 + j * STRESS_SPACING for j in range(STRESS_STARTS)]
+    return {
+        case: {
+            k: su.acquisition_study(
+                k, params, y, v2, th_ref, om_ref, starts, dth, STRESS_N, STRESS_TOL
+            )
+            for k in ("ekf", "ukf")
+        }
+        for case, dth in STRESS_CASES.items()
+    }
+
+
+def _pooled(rmse: np.ndarray) -> float:
+    """RMSE pooled over runs of equal length [same unit]."""
+    return float(np.sqrt(np.mean(np.asarray(rmse) ** 2))) if np.size(rmse) else math.nan
+
+
+def _stress_records(f: dict) -> list[Figure]:
+    # without motion (the drive missed the parametric resonance) there is nothing to acquire
+    moving = f["stress_motion_rad"] >= 0.03
+    out = [Figure("stress.truth_amplitude", f["stress_motion_rad"], "rad", ">= 0.03 rad", moving)]
+    for case, dth in STRESS_CASES.items():
+        st = f["stress"][case]
+        for k in ("ekf", "ukf"):
+            a = st[k]
+            ok = np.isfinite(a.time)
+            frac = float(np.mean(ok)) if ok.size and moving else math.nan
+            tmax = float(np.max(a.time)) * 1e6 if ok.size and ok.all() else math.nan
+            out += [
+                Figure(f"{case}.{k}.initial_error", dth, "rad"),
+                Figure(f"{case}.{k}.acquired", frac, "1", "== 1", frac == 1.0),
+                Figure(
+                    f"{case}.{k}.acquire_time_median",
+                    float(np.median(a.time)) * 1e6 if ok.all() else math.nan,
+                    "us",
+                ),
+                Figure(f"{case}.{k}.acquire_time_max", tmax, "us"),
+                Figure(f"{case}.{k}.theta_rmse", math.degrees(_pooled(a.rmse)), "deg"),
+            ]
+        out.append(
+            Figure(
+                f"{case}.ukf_ekf.theta_rmse_ratio",
+                _ratio(_pooled(st["ukf"].rmse), _pooled(st["ekf"].rmse)),
+                "1",
+            )
+        )
+    return out
+
+
 def records(f: dict) -> list[Figure]:
     """The scenario's figures as data (angles in deg, as the table prints them)."""
-    ukf_lt_ekf = {q: f[f"ukf_{q}_deg"] < f[f"ekf_{q}_deg"] for q in ("amp", "phase")}
     out = []
     for k in ("ekf", "ukf"):
-        out.append(
-            Figure(f"{k}.amplitude_rmse", f[f"{k}_amp_deg"], "deg", "UKF < EKF", ukf_lt_ekf["amp"])
-        )
-        if k == "ekf":
-            out.append(
-                Figure(
-                    f"{k}.phase_rmse", f[f"{k}_phase_deg"], "deg", "UKF < EKF", ukf_lt_ekf["phase"]
-                )
-            )
-        else:
-            out += [
-                Figure(
-                    f"{k}.phase_rmse",
-                    f[f"{k}_phase_deg"],
-                    "deg",
-                    "<= 0.39 deg",
-                    f[f"{k}_phase_deg"] <= 0.39,
-                ),
-                Figure(
-                    f"{k}.phase_rmse_target",
-                    f[f"{k}_phase_deg"],
-                    "deg",
-                    f"<= {TARGET_PHASE_DEG:g} deg",
-                    f[f"{k}_phase_deg"] <= TARGET_PHASE_DEG,
-                ),
-            ]
+        out += [
+            Figure(
+                f"{k}.amplitude_rmse",
+                f[f"{k}_amp_deg"],
+                "deg",
+                f"<= {TARGET_AMP_DEG:g} deg",
+                f[f"{k}_amp_deg"] <= TARGET_AMP_DEG,
+            ),
+            Figure(
+                f"{k}.phase_rmse",
+                f[f"{k}_phase_deg"],
+                "deg",
+                f"<= {TARGET_PHASE_DEG:g} deg",
+                f[f"{k}_phase_deg"] <= TARGET_PHASE_DEG,
+            ),
+        ]
         out += [
             Figure(f"{k}.phase_bias", f[f"{k}_phase_bias_deg"], "deg"),
             Figure(f"{k}.extrema_pairs", f[f"{k}_pairs"], ""),
         ]
-    out += [
-        Figure(
-            "ukf_ekf.amplitude_rmse_ratio",
-            _ratio(f["ukf_amp_deg"], f["ekf_amp_deg"]),
-            "1",
-            "<= 0.95",
-            f["ukf_amp_deg"] <= 0.95 * f["ekf_amp_deg"],
-        ),
-        Figure(
-            "ukf_ekf.phase_rmse_ratio",
-            _ratio(f["ukf_phase_deg"], f["ekf_phase_deg"]),
-            "1",
-            "<= 0.95",
-            f["ukf_phase_deg"] <= 0.95 * f["ekf_phase_deg"],
-        ),
-    ]
+    for q, name in (("amp", "amplitude"), ("phase", "phase")):
+        r = _ratio(f[f"ukf_{q}_deg"], f[f"ekf_{q}_deg"])
+        out.append(
+            Figure(
+                f"ukf_ekf.{name}_rmse_ratio",
+                r,
+                "1",
+                f"{1 - RATIO_TOL:g}-{1 + RATIO_TOL:g}",
+                abs(r - 1.0) <= RATIO_TOL,
+            )
+        )
     for k in ("ekf", "ukf"):
         nees = f[f"{k}_nees"]
         out += [
@@ -334,7 +411,7 @@ def records(f: dict) -> list[Figure]:
         Figure("off.extrema", f["off_events"], ""),
         Figure("off.finite", f["off_finite"], "", "true", bool(f["off_finite"])),
     ]
-    return out
+    return out + _stress_records(f)
 
 
 def table(f: dict) -> str:
@@ -350,7 +427,7 @@ def table(f: dict) -> str:
             [
                 f"{k.upper()} RMSE amplitude [deg]",
                 f"{PAPER[k][0]:.2f}",
-                "UKF < EKF",
+                f"<= {TARGET_AMP_DEG:g}",
                 c(f"{k}.amplitude_rmse", ".3f"),
                 met_cell(F[f"{k}.amplitude_rmse"]),
             ]
@@ -359,21 +436,18 @@ def table(f: dict) -> str:
             [
                 f"{k.upper()} RMSE phase shift [deg]",
                 f"{PAPER[k][1]:.2f}",
-                "UKF <= 0.39 (0.18 target)" if k == "ukf" else "UKF < EKF",
+                f"<= {TARGET_PHASE_DEG:g} (eq. 79)",
                 f"{c(f'{k}.phase_rmse', '.3f')} (bias {c(f'{k}.phase_bias', '+.3f')}, "
                 f"{f[f'{k}_pairs']} extrema)",
-                met_cell(F["ukf.phase_rmse"]) + ", target " + met_cell(F["ukf.phase_rmse_target"])
-                if k == "ukf"
-                else met_cell(F["ekf.phase_rmse"]),
+                met_cell(F[f"{k}.phase_rmse"]),
             ]
         )
     rows.append(
         [
-            "UKF beats EKF (>= 5 % lower) on amplitude and phase",
-            "yes",
-            "yes",
-            f"ukf/ekf = {c('ukf_ekf.amplitude_rmse_ratio', '.4f')}, "
-            f"{c('ukf_ekf.phase_rmse_ratio', '.4f')}",
+            "UKF/EKF RMSE ratio, amplitude and phase",
+            "0.13, 0.21",
+            f"{1 - RATIO_TOL:g}-{1 + RATIO_TOL:g}",
+            f"{c('ukf_ekf.amplitude_rmse_ratio', '.4f')}, {c('ukf_ekf.phase_rmse_ratio', '.4f')}",
             met_cell(F["ukf_ekf.amplitude_rmse_ratio"], F["ukf_ekf.phase_rmse_ratio"]),
         ]
     )
@@ -415,6 +489,20 @@ def table(f: dict) -> str:
             met_cell(F["off.low_signal_warned"], F["off.tracking"], F["off.finite"]),
         ]
     )
+    for case, dth in STRESS_CASES.items():
+        for k in ("ekf", "ukf"):
+            rows.append(
+                [
+                    f"{k.upper()} started {dth:g} rad off ({dth / 0.2:g} theta_0): "
+                    "time to acquire median / max [us], theta RMSE [deg]",
+                    "-",
+                    f"acquired ({STRESS_STARTS * 2} starts)",
+                    f"{c(f'{case}.{k}.acquire_time_median', '.0f')} / "
+                    f"{c(f'{case}.{k}.acquire_time_max', '.0f')}, "
+                    f"{c(f'{case}.{k}.theta_rmse', '.3f')}",
+                    met_cell(F[f"{case}.{k}.acquired"]),
+                ]
+            )
     return format_table(["figure", "paper", "target", "measured", "met"], rows)
 
 
@@ -442,11 +530,11 @@ def plot(f: dict, path58: Path, path59: Path) -> None:
         )
     ax[1].set(ylabel="theta [deg]")
     ax[1].legend(fontsize=8)
-    p = sa.resolve_amdm()
+    p = sam.resolve_estimator(dict(chain_delay_s=d))
     ax[2].plot(t[k] * 1e3, s["y"][k], "k.", ms=2, label="measured y_cap")
     for name, c in (("ekf", "C0-"), ("ukf", "C1--")):
         ax[2].plot(
-            t[k] * 1e3, sa.measurement_model(s["est"][name][k], p), c, label=f"h({name.upper()})"
+            t[k] * 1e3, sam.filter_measurement(s["est"][name][k], p), c, label=f"h({name.upper()})"
         )
     ax[2].set(xlabel="time [ms]", ylabel="y_cap [V]")
     ax[2].legend(fontsize=8)

@@ -38,6 +38,7 @@ from mems_estimation.filters.scanner_threshold_detector import (
 from mems_estimation.filters.scanner_threshold_ekf import (
     DRIFTED_SENSOR,
     detection_errors,
+    drift_evaluation,
     model_from_device,
     rmse,
     run_ekf,
@@ -59,7 +60,12 @@ from mems_scenarios.base import (
     topic_frames,
 )
 from mems_scenarios.figures import Figure, cell, is_finite
-from mems_sim.devices.scanner import dc_transimpedance_output, resolve_scanner, scanner_params
+from mems_sim.devices.scanner import (
+    SCANNER_SPECS,
+    dc_transimpedance_output,
+    resolve_scanner,
+    scanner_params,
+)
 from mems_sim.nodes.scanner_node import MicroScannerNode
 
 NAME = "scanner_threshold"
@@ -225,9 +231,17 @@ def sampling_rate_study(
     return res
 
 
-def figures(path: Path, duration: float, seed: int) -> dict:
-    """Every result of the scenario from the recorded MCAP (plus the offline studies)."""
-    dp = resolve_scanner(device_overrides(duration))
+def figures(path: Path, duration: float, seed: int, applied: dict | None = None) -> dict:
+    """Every result of the scenario from the recorded MCAP (plus the offline studies).
+
+    ``applied``: the user's overrides as applied (``--set scanner.PARAM=...``); those of the
+    device node move the device the figures are computed for."""
+    dev_over = device_overrides(duration)
+    names = {sp.name for sp in SCANNER_SPECS}
+    for (node, name), (value, _) in (applied or {}).items():
+        if node == f"/{NS}/{NS}" and name in names:
+            dev_over[name] = value
+    dp = resolve_scanner(dev_over)
     sp = scanner_params(dp)
     fs = dp["sample_rate_hz"]
     truth = topic_frames(path, f"/{NS}/truth")["data"]
@@ -309,6 +323,8 @@ def figures(path: Path, duration: float, seed: int) -> dict:
     f["rmse_full_ekf"] = _seg_stats(th, run_ekf(y, v, Pf, frame=1000).theta, allseg)
     f["rmse_full_hyb"] = _seg_stats(th, run_ekf(y, v, Pf, detections=D, frame=1000).theta, allseg)
     f["fs_study"] = sampling_rate_study(seed)
+    f["drift"] = drift_evaluation(th, om, y, v, D, dp, segs)
+    f["drift_setting"] = (dp["sense_gain_drift"], dp["sense_width_drift"])
     f["series"] = dict(
         th=th, th_h=th_h, th_p=th_p, y=y, r=r_off, det=D.index, segs=segs, fs=fs, e_th=e_th, e_t=e_t
     )
@@ -359,6 +375,43 @@ def records(f: dict) -> list[Figure]:
             Figure(f"fs_study.sigma_n_x{fac:g}.fs_{fs:.0f}hz.var_e_theta_th", var, "rad^2"),
             Figure(f"fs_study.sigma_n_x{fac:g}.fs_{fs:.0f}hz.detections", n, ""),
         ]
+    dr = f["drift"]
+    out += [
+        Figure("drift.sense_gain_drift", f["drift_setting"][0], "1"),
+        Figure("drift.sense_width_drift", f["drift_setting"][1], "1"),
+    ]
+    for i, g in enumerate(segs):
+        red = _reduction(dr["hyb"][i], dr["base"][i])
+        out += [
+            Figure(f"{g}.baseline_full_jacobian.theta_rmse", dr["base"][i], "rad"),
+            Figure(f"{g}.hybrid_comb.theta_rmse", dr["hyb"][i], "rad"),
+            Figure(f"{g}.comb_plain.theta_rmse", dr["comb_plain"][i], "rad"),
+            Figure(f"{g}.pcrb_theta", dr["pcrb"][i], "rad"),
+            Figure(f"{g}.hybrid_over_pcrb", dr["hyb"][i] / dr["pcrb"][i], "1"),
+            Figure(f"{g}.hybrid_vs_baseline_reduction", red, "1"),
+            Figure(
+                f"{g}.hybrid_vs_pseudo_jacobian_reduction",
+                _reduction(dr["hyb"][i], dr["paper"][i]),
+                "1",
+            ),
+            Figure(f"{g}.detection_bias", dr["det_bias"][i][0], "rad"),
+            Figure(f"{g}.detection_error_std", dr["det_bias"][i][1], "rad"),
+        ]
+    low = [i for i in (2, 3) if math.isfinite(dr["base"][i])]  # SNR ~5 and ~1 (Table 4.3)
+    if low:
+        hb = math.sqrt(np.nanmean([dr["hyb"][i] ** 2 for i in low]))
+        bb = math.sqrt(np.nanmean([dr["base"][i] ** 2 for i in low]))
+        out.append(Figure("snr_le_5.hybrid_vs_baseline_reduction", _reduction(hb, bb), "1"))
+    if f["drift_setting"] == (0.0, 0.0):
+        out.append(
+            Figure(
+                "nominal.hybrid_degradation",
+                dr["hyb"][-1] / dr["base"][-1] - 1.0,
+                "1",
+                target="<= 0.05",
+                passed=dr["hyb"][-1] / dr["base"][-1] - 1.0 <= 0.05,
+            )
+        )
     out += [
         Figure("detector.latency", f["latency"], "samples"),
         Figure("detector.online_detections", f["n_detections"], ""),
@@ -560,7 +613,9 @@ def run(options: ScenarioOptions) -> dict:
         default_duration_s=DEFAULT_DURATION_S,
         check_duration=_check_duration,
         run_graph=run_graph,
-        figures=lambda out, _res, duration: figures(out, duration, int(options.seed)),
+        figures=lambda out, _res, duration: figures(
+            out, duration, int(options.seed), options.applied
+        ),
         records=records,
         table=table,
         plot=plot,

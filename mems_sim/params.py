@@ -248,3 +248,49 @@ def draw_device(
             v = spec.max
         out[spec.name] = int(round(v)) if isinstance(spec.default, int) else v
     return out
+
+
+# ----------------------------------------------------------------------------- materials
+#: Relative temperature coefficient of the Young's modulus of silicon, about -60 ppm/K near
+#: room temperature (Hopcroft, Nix & Kenny, "What is the Young's modulus of silicon?",
+#: J. Microelectromech. Syst. 19(2), 2010); a flexure's stiffness is proportional to E.
+SILICON_STIFFNESS_TEMPCO = TempCo(
+    -60e-6,
+    source="Young's modulus of silicon about -60 ppm/K (Hopcroft, Nix & Kenny, JMEMS 19(2) "
+    "2010); stiffness proportional to E",
+)
+#: A resonance f = sqrt(k/m)/(2 pi) of a silicon flexure moves half as much: -30 ppm/K.
+SILICON_RESONANCE_TEMPCO = TempCo(
+    -30e-6,
+    source="f proportional to sqrt(E), E of silicon about -60 ppm/K (Hopcroft, Nix & Kenny, "
+    "JMEMS 19(2) 2010): -30 ppm/K",
+)
+#: Linear thermal expansion of silicon, 2.6e-6/K at 300 K (Okada & Tokumaru, J. Appl. Phys.
+#: 56(2), 1984); a length of the structure (a gap, a comb's capacitance at fixed
+#: proportions) scales with it.
+SILICON_EXPANSION_TEMPCO = TempCo(
+    2.6e-6,
+    source="thermal expansion of silicon 2.6e-6/K at 300 K (Okada & Tokumaru, J. Appl. Phys. "
+    "56(2) 1984); assumption: the length scales with the silicon",
+)
+#: Dynamic viscosity of air, Sutherland's law mu ~ T^1.5 / (T + 110.4 K): d ln mu / dT =
+#: 1.5/T - 1/(T + 110.4 K) = +0.26 %/K at 300 K (White, Viscous Fluid Flow, 3rd ed., eq.
+#: 1-36); squeeze-film and viscous damping are proportional to mu.
+AIR_DAMPING_TEMPCO = TempCo(
+    2.6e-3,
+    source="air viscosity, Sutherland's law (White, Viscous Fluid Flow, eq. 1-36): "
+    "+0.26 %/K at 300 K; assumption: the damping is gas damping, proportional to mu",
+)
+#: A quality factor limited by gas damping falls as the viscosity rises.
+AIR_QUALITY_FACTOR_TEMPCO = TempCo(
+    -2.6e-3,
+    source="Q proportional to 1/mu, air viscosity +0.26 %/K at 300 K (Sutherland's law, "
+    "White, Viscous Fluid Flow, eq. 1-36); assumption: gas damping dominates",
+)
+#: The device's own temperature in kelvin follows the temperature input one to one.
+KELVIN_TEMPCO = TempCo(1.0, relative=False, source="the device's temperature: 1 K per K")
+
+
+def batch_spread(width: float, what: str) -> Spread:
+    """Uniform +-``width`` (relative) batch spread, its source the stated assumption ``what``."""
+    return Spread("uniform", width, source=f"assumption: {what}")

@@ -175,7 +175,9 @@ def _stage_identify(out_dir: Path) -> dict:
     from mems_estimation.filters.stage_ekf import save_model
     from mems_estimation.identification.stage_gyro_calibration import Plan, identify_stage
 
-    model, _ = identify_stage(seed=STAGE_ID_SEED, plan=Plan.short())
+    model, _ = identify_stage(
+        seed=STAGE_ID_SEED, plan=Plan.short(), stage_params={"idealised": True}
+    )
     path = out_dir / STAGE_YAML
     save_model(model, str(path))
     return {"params_yaml": str(path)}
@@ -213,7 +215,10 @@ FAMILIES: dict[str, Family] = {
             name="stage",
             namespace="stage",
             device=MicroStageNode,
-            device_params=dict(seed=13, duration_s=0.08, frame_size=10000, gyro_enabled=False),
+            # the drift-free stage of Table 3.3 (nominal damping and registration)
+            device_params=dict(
+                seed=13, duration_s=0.08, frame_size=10000, gyro_enabled=False, idealised=True
+            ),
             estimator=StageEkfNode,
             estimator_params={},
             inputs=("adc", "drive"),

@@ -1,6 +1,8 @@
 """EKF of the shared-electrode micro-scanner (Chen 2018, "High-accuracy Motion Estimation for
 MEMS Devices with Capacitive Sensors", chapter 5, Algorithm 1), in Joseph form, as a numba
-kernel over a block of AMDM samples. Model: :mod:`mems_estimation.filters.scanner_amdm_model`.
+kernel over a block of AMDM samples. Model: :mod:`mems_estimation.filters.scanner_amdm_model`
+(h: eq. (104) plus the AMDM chain's identified square-law curve, meas of 8 entries; numba caches
+this kernel with h inlined, keyed on this file: a change of h must touch this file too).
 """
 
 from __future__ import annotations

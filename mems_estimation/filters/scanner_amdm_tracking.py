@@ -137,6 +137,22 @@ class ScannerFilter:
         self._bv = np.zeros(0)
         self.resets += 1
 
+    def start(self, x, P) -> None:
+        """Start tracking from a given state x (2,) [rad, rad/s] and covariance P (2,2) (e.g. a
+        deliberately wrong start: time to acquire, :func:`time_to_acquire`)."""
+        x = np.asarray(x, dtype=float)
+        P = np.asarray(P, dtype=float)
+        if x.shape != (2,) or P.shape != (2, 2) or not (state_ok(x) and covariance_ok(P)):
+            raise ParameterError(
+                "start state must be finite (2,) with a positive definite (2,2) covariance: "
+                f"{x!r}, {P!r}"
+            )
+        self.x = x.copy()
+        self.P = P.copy()
+        self.tracking = True
+        self._by = np.zeros(0)
+        self._bv = np.zeros(0)
+
     def diverged(self) -> bool:
         """True if the state is not finite or the covariance not positive definite
         (:func:`~mems_sim.kernels.divergence.covariance_ok`)."""
@@ -467,6 +483,84 @@ def event_rmse(est: PeriodEvents, ref: PeriodEvents, max_dt: float, t_min: float
         float(np.sqrt(np.mean(dam[sel] ** 2))),
         int(sel.sum()),
     )
+
+
+def time_to_acquire(err: np.ndarray, tol: float, fs: float) -> float:
+    """Time [s] from the first sample until |err| stays below ``tol`` to the end of the record
+    (0 if it never leaves; nan if it is still above at the last sample)."""
+    a = np.abs(np.asarray(err, dtype=float))
+    if a.size == 0 or not a[-1] < tol:
+        return math.nan
+    out = np.flatnonzero(~(a < tol))
+    return 0.0 if out.size == 0 else (int(out[-1]) + 1) / float(fs)
+
+
+class AcquisitionStudy(NamedTuple):
+    """Filters started with a wrong angle (:func:`acquisition_study`), one entry per start.
+
+    start: sample index of the start. sign: +1 (angle too large) or -1 (too small).
+    time: time to acquire [s] (nan: not acquired in the window). rmse: theta RMSE over the
+    whole window [rad] (sign-invariant error). final_rmse: over its last third [rad].
+    """
+
+    start: np.ndarray
+    sign: np.ndarray
+    time: np.ndarray
+    rmse: np.ndarray
+    final_rmse: np.ndarray
+
+
+def acquisition_study(
+    kind: str,
+    params: Mapping[str, Any] | None,
+    y: np.ndarray,
+    v2: np.ndarray,
+    theta_ref: np.ndarray,
+    omega_ref: np.ndarray,
+    starts,
+    dtheta: float,
+    n: int,
+    tol: float,
+) -> AcquisitionStudy:
+    """Time to acquire from an initial angle error: at each start k the filter begins at
+    theta_ref[k] +- dtheta, omega_ref[k], with the covariance diag(dtheta^2,
+    initial_rate_std^2) (the error is one standard deviation: an honest prior), and runs
+    over y[k+1 : k+1+n].  The error is sign-invariant, min(|x - theta|, |x + theta|) (h is
+    even); acquired once it stays below ``tol`` (:func:`time_to_acquire`).
+
+    Args:
+        y, v2: AMDM samples [V] and <V^2> per step [V^2] (:class:`DriveAligner`).
+        theta_ref, omega_ref: the reference at the instants y describes [rad, rad/s].
+        starts: sample indices. dtheta [rad] > 0. n: samples per run. tol [rad].
+    """
+    if not (dtheta > 0 and tol > 0 and n > 0):
+        raise ParameterError(f"dtheta, tol and n must be > 0: {dtheta!r}, {tol!r}, {n!r}")
+    f = ScannerFilter(kind, params)
+    rows = []
+    for k in starts:
+        k = int(k)
+        if not (0 <= k and k + 1 + n <= y.size):
+            raise ParameterError(f"start {k} + {n} samples exceeds the record ({y.size})")
+        for sg in (1, -1):
+            f.start(
+                (theta_ref[k] + sg * dtheta, omega_ref[k]),
+                np.diag([dtheta * dtheta, f.p["initial_rate_std"] ** 2]),
+            )
+            sl = slice(k + 1, k + 1 + n)
+            x = f.step(y[sl], v2[sl])["x"][:, 0]
+            th = theta_ref[sl]
+            e = np.minimum(np.abs(x - th), np.abs(x + th))
+            rows.append(
+                (
+                    k,
+                    sg,
+                    time_to_acquire(e, tol, f.p["sample_rate_hz"]),
+                    float(np.sqrt(np.mean(e * e))),
+                    float(np.sqrt(np.mean(e[-(n // 3 or 1) :] ** 2))),
+                )
+            )
+    cols = list(zip(*rows)) if rows else [()] * 5
+    return AcquisitionStudy(*(np.asarray(c, dtype=float) for c in cols))
 
 
 def ac_snr(y: np.ndarray, noise_var: float) -> float:

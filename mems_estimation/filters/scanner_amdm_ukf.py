@@ -5,7 +5,9 @@ AMDM samples. Model: :mod:`mems_estimation.filters.scanner_amdm_model`.
 UKF (Algorithm 2, with the misprints corrected): scaled sigma points (2n+1 = 5, additive
 noise), sigma points re-drawn from the a-priori (x-, P-) for the measurement step,
 P_xy = sum W_c dX dy (the thesis adds R: wrong), P = P- - K P_y K^T (the thesis prints +).
-EKF (Algorithm 1) in Joseph form.  Both per-sample recursions are numba kernels.
+EKF (Algorithm 1) in Joseph form.  Both per-sample recursions are numba kernels.  h is eq. (104)
+plus the AMDM chain's identified square-law curve (meas of 8 entries); numba caches this kernel
+with h inlined, keyed on this file: a change of h must touch this file too.
 """
 
 from __future__ import annotations

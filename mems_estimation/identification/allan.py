@@ -26,6 +26,8 @@ local log-log slope of the Allan *variance*, interpolating between the types.
 
 from __future__ import annotations
 
+import functools
+import math
 from dataclasses import dataclass
 
 import numba
@@ -267,25 +269,26 @@ def edf_oadev(n_phase, m, alpha: int):
 
 
 def edf_from_slope(n_phase, m, slope):
-    """edf for a local AVAR log-log slope, interpolated between noise types.
+    """Greenhall-Riley edf for a local AVAR log-log slope, interpolated between noise types.
 
-    Slope -2 (white PM / quantisation), -1 (white FM), 0 (flicker FM), +1
-    (random-walk FM) map to alpha 2, 0, -1, -2 of :func:`edf_oadev`; in between
-    the edf is interpolated linearly in the slope; the result is at least 1.
+    Slope -2 (white PM / quantisation), -1 (white rate noise), 0 (flicker), +1 (random
+    walk) are the power laws alpha = 2, 0, -1, -2 of :func:`edf_greenhall` (d = 2,
+    overlapping); between them ln(edf) is interpolated linearly in the slope (a mixture
+    of two power laws has an edf between theirs); the result is at least 1.
 
     Args:
         n_phase: number of phase points L+1, -.
         m: (k,) averaging factors, -.
         slope: (k,) d ln AVAR / d ln tau, -.
     """
-    m = np.asarray(m, dtype=float)
+    m = np.atleast_1d(np.asarray(m, dtype=np.int64))
     s = np.clip(np.broadcast_to(np.asarray(slope, dtype=float), m.shape), -2.0, 1.0)
     anchors = np.array([-2.0, -1.0, 0.0, 1.0])
-    table = np.stack([edf_oadev(n_phase, m, a) for a in (2, 0, -1, -2)])
+    table = np.log(np.stack([edf_oavar_greenhall(int(n_phase), m, a) for a in (2, 0, -1, -2)]))
     idx = np.clip(np.searchsorted(anchors, s, side="right") - 1, 0, 2)
     frac = s - anchors[idx]
     cols = np.arange(m.shape[0])
-    edf = table[idx, cols] * (1.0 - frac) + table[idx + 1, cols] * frac
+    edf = np.exp(table[idx, cols] * (1.0 - frac) + table[idx + 1, cols] * frac)
     return np.maximum(edf, 1.0)
 
 
@@ -351,3 +354,524 @@ def allan_analysis(
         fs=float(fs),
         n_samples=int(rate.shape[0]),
     )
+
+
+# ---------------------------------------------------------------------------
+# Greenhall's EDF algorithm
+# ---------------------------------------------------------------------------
+
+_J_MAX = 100
+# Greenhall & Riley (2003), Table 1 (modified variances) and Table 2 (unmodified), rows
+# alpha = 2..-4, columns d = 1..3: (a0, a1) of 1/edf ~ (a0 - a1/r)/r; Table 3 for alpha = 1.
+_GR_TABLE1 = {
+    2: ((2 / 3, 1 / 3), (7 / 9, 1 / 2), (22 / 25, 2 / 3)),
+    1: ((0.840, 0.345), (0.997, 0.616), (1.141, 0.843)),
+    0: ((1.079, 0.368), (1.033, 0.607), (1.184, 0.848)),
+    -1: (None, (1.048, 0.534), (1.180, 0.816)),
+    -2: (None, (1.302, 0.535), (1.175, 0.777)),
+    -3: (None, None, (1.194, 0.703)),
+    -4: (None, None, (1.489, 0.702)),
+}
+_GR_TABLE2 = {
+    2: ((3 / 2, 1 / 2), (35 / 18, 1.0), (231 / 100, 3 / 2)),
+    1: ((78.6, 25.2), (790.0, 410.0), (9950.0, 6520.0)),
+    0: ((2 / 3, 1 / 6), (2 / 3, 1 / 3), (7 / 9, 1 / 2)),
+    -1: (None, (0.852, 0.375), (0.997, 0.617)),
+    -2: (None, (1.079, 0.368), (1.033, 0.607)),
+    -3: (None, None, (1.053, 0.553)),
+    -4: (None, None, (1.302, 0.535)),
+}
+_GR_TABLE3 = ((6.0, 4.0), (15.23, 12.0), (47.8, 40.0))
+_BINOM_D = {1: (1, 2, 1), 2: (1, 4, 6, 4, 1), 3: (1, 6, 15, 20, 15, 6, 1)}
+
+
+def _gr_sw(t, alpha: int):
+    """Greenhall & Riley eq. (7): generalised autocovariance of the phase, power law alpha."""
+    t = np.abs(np.asarray(t, dtype=float))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lg = np.where(t > 0, np.log(np.where(t > 0, t, 1.0)), 0.0)
+    if alpha == 2:
+        return -t
+    if alpha == 1:
+        return t**2 * lg
+    if alpha == 0:
+        return t**3
+    if alpha == -1:
+        return t**4 * lg
+    if alpha == -2:
+        return t**5
+    if alpha == -3:
+        return t**6 * lg
+    if alpha == -4:
+        return t**7
+    raise ValueError(f"noise exponent alpha = {alpha!r} is invalid: allowed integers -4..2")
+
+
+def _gr_sx(t, F: float, alpha: int):
+    """Eq. (8): the averaging filter of length 1/F applied to sw (F = inf: the limit)."""
+    if math.isinf(F):
+        return _gr_sw(t, alpha + 2)
+    return F**2 * (2.0 * _gr_sw(t, alpha) - _gr_sw(t - 1.0 / F, alpha) - _gr_sw(t + 1.0 / F, alpha))
+
+
+def _gr_sz(t, F: float, alpha: int, d: int):
+    """Eq. (9): the d-th difference filter applied to sx (binomial weights, alternating)."""
+    t = np.asarray(t, dtype=float)
+    out = np.zeros_like(t)
+    for i, w in enumerate(_BINOM_D[d]):
+        out += (-1) ** (i + d) * w * _gr_sx(t + (i - d), F, alpha)
+    return out
+
+
+def _gr_basic_sum(J: int, M: float, S: float, F: float, alpha: int, d: int) -> float:
+    """Eq. (10): sz(0)^2 + (1 - J/M) sz(J/S)^2 + 2 sum_{j<J} (1 - j/M) sz(j/S)^2."""
+    j = np.arange(1, int(J), dtype=float)
+    first = _gr_sz(np.array([0.0]), F, alpha, d)[0] ** 2
+    second = (1.0 - J / M) * _gr_sz(np.array([J / S]), F, alpha, d)[0] ** 2
+    third = float(np.sum(2.0 * (1.0 - j / M) * _gr_sz(j / S, F, alpha, d) ** 2))
+    return first + second + third
+
+
+def edf_greenhall(
+    alpha: int, d: int, m: int, n_phase: int, overlapping: bool = True, modified: bool = False
+) -> float:
+    """Equivalent degrees of freedom of a finite-difference stability variance.
+
+    C. A. Greenhall and W. J. Riley, "Uncertainty of stability variances based on finite
+    differences", Proc. 35th PTTI (2003), the algorithm Stable32 uses (and NIST SP 1065,
+    Riley 2008, Sec. 5.3 recommends): the variance of the estimator computed from the
+    generalised autocovariance of the power-law phase noise, Eqs. (7)-(10) for J <= 100
+    lags and the fitted asymptotes of Tables 1-3 beyond.
+
+    Args:
+        alpha: exponent of the rate (fractional-frequency) PSD, S ~ f^alpha, -4..2
+            (2 white PM / quantisation, 0 white rate noise, -1 flicker, -2 random walk).
+        d: difference order, 1 (first difference), 2 (Allan), 3 (Hadamard); alpha + 2d > 1.
+        m: averaging factor (tau = m/fs), -.
+        n_phase: number of phase points (rate samples + 1), -.
+        overlapping: overlapping estimator (stride 1) instead of stride m.
+        modified: modified (MVAR-type) variance instead of the unmodified one.
+    Returns:
+        edf, -.
+    """
+    alpha, d, m = int(alpha), int(d), int(m)
+    if alpha + 2 * d <= 1:
+        raise ValueError(
+            f"alpha = {alpha} with d = {d}: Greenhall's algorithm needs alpha + 2d > 1"
+        )
+    F = 1.0 if modified else float(m)
+    S = float(m) if overlapping else 1.0
+    L = m / F + m * d
+    M = 1.0 + math.floor(S * (n_phase - L) / m)
+    if M < 1:
+        raise ValueError(f"m = {m} leaves no term for {n_phase} phase points (d = {d})")
+    J = min(M, (d + 1) * S)
+    r = M / S
+    if modified:
+        if J <= _J_MAX:
+            return (
+                _gr_sz(np.array([0.0]), 1.0, alpha, d)[0] ** 2
+                * M
+                / _gr_basic_sum(J, M, S, 1.0, alpha, d)
+            )
+        if r > d + 1:
+            a0, a1 = _GR_TABLE1[alpha][d - 1]
+            return r / (a0 - a1 / r)
+        mp = _J_MAX / r
+        return (
+            _gr_sz(np.array([0.0]), 1.0, alpha, d)[0] ** 2
+            * _J_MAX
+            / _gr_basic_sum(_J_MAX, _J_MAX, mp, 1.0, alpha, d)
+        )
+    if alpha <= 0:
+        if J <= _J_MAX:
+            Fp = float(m) if m * (d + 1) <= _J_MAX else math.inf
+            return (
+                _gr_sz(np.array([0.0]), Fp, alpha, d)[0] ** 2
+                * M
+                / _gr_basic_sum(J, M, S, Fp, alpha, d)
+            )
+        if r > d + 1:
+            a0, a1 = _GR_TABLE2[alpha][d - 1]
+            return r / (a0 - a1 / r)
+        mp = _J_MAX / r
+        return (
+            _gr_sz(np.array([0.0]), math.inf, alpha, d)[0] ** 2
+            * _J_MAX
+            / _gr_basic_sum(_J_MAX, _J_MAX, mp, math.inf, alpha, d)
+        )
+    if alpha == 1:
+        if J <= _J_MAX:
+            return (
+                _gr_sz(np.array([0.0]), float(m), 1, d)[0] ** 2
+                * M
+                / _gr_basic_sum(J, M, S, float(m), 1, d)
+            )
+        b0, b1 = _GR_TABLE3[d - 1]
+        if r > d + 1:
+            a0, a1 = _GR_TABLE2[alpha][d - 1]
+            return (b0 + b1 * math.log(m)) ** 2 * r / (a0 - a1 / r)
+        mp = _J_MAX / r
+        return (b0 + b1 * math.log(m)) ** 2 * _J_MAX / _gr_basic_sum(_J_MAX, _J_MAX, mp, mp, 1, d)
+    # alpha = 2: the closed form for r > d; below it the basic sum with F = m (allantools
+    # leaves this case open).  White PM filtered by an m-sample average and differenced at
+    # lag m is correlated only at lags within one sample of 0, m, ..., d m: the sum's other
+    # terms are zero, so only those lags are summed (exact, O(d) work for any m).
+    if math.ceil(r) > d:
+        a0 = math.comb(4 * d, 2 * d) / math.comb(2 * d, d) ** 2
+        return M / (a0 - (d / 2.0) / r)
+    return _gr_sz(np.array([0.0]), float(m), 2, d)[0] ** 2 * M / _gr_basic_sum_sparse(J, M, m, d)
+
+
+def _gr_basic_sum_sparse(J: int, M: float, m: int, d: int) -> float:
+    """Eq. (10) for alpha = 2, F = S = m, summing only the lags where sz is non-zero."""
+    F = S = float(m)
+    lags = sorted({k * m + e for k in range(d + 2) for e in (-1, 0, 1)} - {0})
+    j = np.array([v for v in lags if 0 < v < J], dtype=float)
+    first = _gr_sz(np.array([0.0]), F, 2, d)[0] ** 2
+    second = (1.0 - J / M) * _gr_sz(np.array([J / S]), F, 2, d)[0] ** 2
+    third = float(np.sum(2.0 * (1.0 - j / M) * _gr_sz(j / S, F, 2, d) ** 2)) if j.size else 0.0
+    return first + second + third
+
+
+@functools.lru_cache(maxsize=4096)
+def _edf_oavar_cached(alpha: int, m: int, n_phase: int) -> float:
+    return edf_greenhall(alpha, 2, m, n_phase, overlapping=True)
+
+
+def edf_oavar_greenhall(n_phase: int, m, alpha: int) -> np.ndarray:
+    """Greenhall-Riley edf of overlapping AVAR points, one per averaging factor in ``m``."""
+    m = np.atleast_1d(np.asarray(m, dtype=np.int64))
+    return np.array([_edf_oavar_cached(int(alpha), int(k), int(n_phase)) for k in m])
+
+
+# ---------------------------------------------------------------------------
+# Streaming (bounded-memory) overlapping Allan sums
+# ---------------------------------------------------------------------------
+
+#: Averaging factors up to this are summed exactly over every k (fully overlapping).
+EXACT_M_MAX = 2**18
+#: Above EXACT_M_MAX the sum runs over every s-th k, s the smallest divisor of m with
+#: m/s <= THIN_RATIO (ring of 2 m/s + 1 decimated phase points per m).
+THIN_RATIO = 4096
+#: Largest averaging factor the streaming accumulator prepares (2^40 samples).
+STREAM_M_LIMIT = 2**40
+_SUB_BLOCK = 2**18
+_TERM_BLOCK = 4096
+
+
+def stream_ms(kind: str, limit: int = STREAM_M_LIMIT) -> np.ndarray:
+    """Every averaging factor of an allantools keyword grid up to ``limit`` (int64).
+
+    "octave": 2^k; "decade": 1, 2, 4 x 10^k.  (allantools keeps, of these, the m with
+    m < L+1 and L+1-2m > 1 for L samples, which :meth:`StreamingAllan.result` applies.)
+    """
+    if kind == "octave":
+        out = [2**k for k in range(int(math.log2(limit)) + 1)]
+    elif kind == "decade":
+        out = [f * 10**k for k in range(int(math.log10(limit)) + 1) for f in (1, 2, 4)]
+    else:
+        raise ValueError(f"streaming tau grid {kind!r} is invalid: allowed octave, decade")
+    return np.array(sorted(v for v in out if v <= limit), dtype=np.int64)
+
+
+def _thin_stride(m: int, ratio: int = THIN_RATIO) -> int:
+    """Smallest divisor s of m with m/s <= ratio (1 if m <= ratio)."""
+    if m <= ratio:
+        return 1
+    lo = -(-m // ratio)
+    for s in range(lo, m + 1):
+        if m % s == 0:
+            return s
+    return m
+
+
+@numba.njit(cache=True, nogil=True, fastmath={"reassoc"})
+def _block_sum(work, lo, hi, m):
+    """sum_{l=lo}^{hi-1} (work[l] - 2 work[l-m] + work[l-2m])^2 in 4096-term blocks."""
+    total = 0.0
+    k = lo
+    while k < hi:
+        stop = min(k + 4096, hi)
+        part = 0.0
+        for j in range(k, stop):
+            d = work[j] - 2.0 * work[j - m] + work[j - 2 * m]
+            part += d * d
+        total += part
+        k = stop
+    return total
+
+
+@numba.njit(cache=True, nogil=True)
+def _stream_update(
+    y,
+    ref,
+    phase,
+    phase_c,
+    p_last,
+    hist_len,
+    work,
+    ms,
+    sums,
+    comps,
+    committed,
+    tm,
+    ts,
+    tr,
+    ring,
+    tsums,
+    tcomps,
+):
+    """Feed rate samples y (n, C) into the streaming Allan state (see StreamingAllan)."""
+    n, nch = y.shape
+    start = 0
+    while start < n:
+        nb = min(n - start, work.shape[1] - hist_len)
+        p_first = p_last + 1
+        for c in range(nch):
+            w = work[c]
+            # compensated (Kahan) cumulative sum of y - ref: the phase in sample units
+            acc, comp = phase[c], phase_c[c]
+            for i in range(nb):
+                v = (y[start + i, c] - ref[c]) - comp
+                t = acc + v
+                comp = (t - acc) - v
+                acc = t
+                w[hist_len + i] = acc
+            phase[c], phase_c[c] = acc, comp
+            p_end = p_first + nb  # exclusive
+            for j in range(ms.shape[0]):
+                m = ms[j]
+                # terms k (phase points k, k+m, k+2m) in whole blocks of _TERM_BLOCK aligned
+                # on k = 0, so the sums do not depend on how the samples were split into calls
+                k = committed[c, j]
+                while k + _TERM_BLOCK <= p_end - 2 * m:
+                    lo = k + 2 * m - p_first + hist_len
+                    x = _block_sum(w, lo, lo + _TERM_BLOCK, m)
+                    s = sums[c, j]  # Neumaier compensated accumulation of the block sums
+                    t = s + x
+                    if abs(s) >= abs(x):
+                        comps[c, j] += (s - t) + x
+                    else:
+                        comps[c, j] += (x - t) + s
+                    sums[c, j] = t
+                    k += _TERM_BLOCK
+                committed[c, j] = k
+            for j in range(tm.shape[0]):
+                s_, r_ = ts[j], tr[j]
+                q0 = (p_first + s_ - 1) // s_
+                size = 2 * r_ + 1
+                for q in range(q0, (p_end - 1) // s_ + 1):
+                    ring[c, j, q % size] = w[q * s_ - p_first + hist_len]
+                    if q >= 2 * r_:
+                        d = ring[c, j, q % size] - 2.0 * ring[c, j, (q - r_) % size]
+                        d += ring[c, j, (q - 2 * r_) % size]
+                        x = d * d
+                        s = tsums[c, j]
+                        t = s + x
+                        if abs(s) >= abs(x):
+                            tcomps[c, j] += (s - t) + x
+                        else:
+                            tcomps[c, j] += (x - t) + s
+                        tsums[c, j] = t
+            # keep the last hist_len phase points in front of the next block
+            w[:hist_len] = w[nb : nb + hist_len].copy()
+        p_last += nb
+        start += nb
+    return p_last
+
+
+@numba.njit(cache=True, nogil=True)
+def _pending_sums(work, hist_len, p_last, ms, committed):
+    """Sums of the terms not yet in a whole block (fewer than _TERM_BLOCK per m)."""
+    nch = work.shape[0]
+    out = np.zeros((nch, ms.shape[0]))
+    for c in range(nch):
+        for j in range(ms.shape[0]):
+            m = ms[j]
+            k = committed[c, j]
+            end = p_last + 1 - 2 * m
+            if k < end:
+                lo = k + 2 * m - (p_last + 1) + hist_len
+                out[c, j] = _block_sum(work[c], lo, lo + (end - k), m)
+    return out
+
+
+class StreamingAllan:
+    """Overlapping Allan variance accumulated online, memory independent of the record.
+
+    The overlapping estimator (IEEE Std 952-1997 Annex C; NIST SP 1065, Riley 2008,
+    Sec. 5.2.4) at averaging factor m is sum_k (x_{k+2m} - 2 x_{k+m} + x_k)^2 / (2 tau^2
+    (N - 2m)) over the N phase points x (the cumulative sum of the rate).  The sum can be
+    kept running: a new phase point x_p adds the term with k = p - 2m, which needs only
+    the phase points p - m and p - 2m.  So for every m on the grid one running sum, and the
+    last 2 m_max + 1 phase points, are the whole state; nothing else grows with the
+    record:
+
+    - m <= ``exact_m_max`` (default 2^18, i.e. every octave point of a record up to
+      2^20 samples): exactly the batch sum (:func:`oadev`), over every k, from one block
+      buffer of the last 2 exact_m_max phase points plus a sub-block of new ones;
+    - larger m (prepared up to 2^40 from the start, so their sums start at k = 0): the
+      sum over every s-th k, s the smallest divisor of m with m/s <= 4096, from a ring of
+      2 m/s + 1 decimated phase points per m.  This is the overlapping estimator thinned
+      by s <= m/4096 (NIST SP 1065 Sec. 5.2.4: the stride only has to be small compared
+      with m for full overlapping efficiency); its edf is the overlapping one.
+
+    Memory: C channels x (2 exact_m_max + 4096 + 2^18 + 22 x 8193) doubles, about 48 MB for six
+    channels at the defaults, for any record length.  Time: one pass, linear in samples.
+    The phase is a Kahan-compensated cumulative sum of ``rate - ref`` with ``ref`` the
+    first sample; the terms are summed in blocks of 4096 aligned on k = 0 (the last,
+    incomplete block when the result is asked for) and the block sums added with Neumaier's
+    compensation, so the result does not depend on how the record was split into calls
+    (bit for bit) and equals :func:`oadev` on the same data to about 1e-13 relative (the
+    second differences do not depend on the mean that :func:`rate_to_phase` removes).
+
+    Args:
+        n_channels: number of rate channels, -.
+        fs: sample rate, Hz.
+        kind: "octave" or "decade" grid (allantools' keyword lists), or an explicit
+            array of averaging factors m.
+        exact_m_max: largest m summed over every k, -.
+    """
+
+    def __init__(self, n_channels: int, fs: float, kind="octave", exact_m_max: int = EXACT_M_MAX):
+        if fs <= 0:
+            raise ValueError(f"sample rate fs = {fs!r} is invalid: allowed (0, inf) Hz")
+        self.fs = float(fs)
+        self.kind = kind if isinstance(kind, str) else "explicit"
+        ms = stream_ms(kind) if isinstance(kind, str) else np.unique(np.asarray(kind, np.int64))
+        if ms.size == 0 or ms[0] < 1:
+            raise ValueError("averaging factors must be positive integers")
+        self.n_channels = int(n_channels)
+        exact = ms[ms <= exact_m_max]
+        thin = ms[ms > exact_m_max]
+        self.ms_exact = np.ascontiguousarray(exact)
+        self.ms_thin = np.ascontiguousarray(thin)
+        self.thin_stride = np.array([_thin_stride(int(m)) for m in thin], dtype=np.int64)
+        self.thin_ratio = self.ms_thin // self.thin_stride if thin.size else np.zeros(0, np.int64)
+        c = self.n_channels
+        self._hist = int(2 * exact.max()) + _TERM_BLOCK if exact.size else 0
+        self._work = np.zeros((c, self._hist + _SUB_BLOCK))
+        self._sums = np.zeros((c, exact.size))
+        self._comps = np.zeros((c, exact.size))
+        self._committed = np.zeros((c, exact.size), dtype=np.int64)
+        rmax = int(self.thin_ratio.max()) if thin.size else 0
+        self._ring = np.zeros((c, thin.size, 2 * rmax + 1))
+        self._tsums = np.zeros((c, thin.size))
+        self._tcomps = np.zeros((c, thin.size))
+        self._phase = np.zeros(c)
+        self._phase_c = np.zeros(c)
+        self._ref: np.ndarray | None = None
+        self.p_last = 0  # index of the last phase point; phase point 0 is 0
+
+    @property
+    def num_samples(self) -> int:
+        """Rate samples fed so far, -."""
+        return self.p_last
+
+    def add(self, rate: np.ndarray) -> None:
+        """Feed rate samples, shape (n, n_channels) (or (n,) for one channel)."""
+        y = np.asarray(rate, dtype=float)
+        if y.ndim == 1:
+            y = y[:, None]
+        if y.ndim != 2 or y.shape[1] != self.n_channels:
+            raise ValueError(f"rate must have shape (n, {self.n_channels}), got {y.shape}")
+        if y.shape[0] == 0:
+            return
+        if not np.all(np.isfinite(y)):
+            raise ValueError("rate contains NaN or inf samples")
+        if self._ref is None:
+            self._ref = y[0].copy()
+        self.p_last = _stream_update(
+            np.ascontiguousarray(y),
+            self._ref,
+            self._phase,
+            self._phase_c,
+            self.p_last,
+            self._hist,
+            self._work,
+            self.ms_exact,
+            self._sums,
+            self._comps,
+            self._committed,
+            self.ms_thin,
+            self.thin_stride,
+            self.thin_ratio,
+            self._ring,
+            self._tsums,
+            self._tcomps,
+        )
+
+    def mean(self) -> np.ndarray:
+        """Mean of each channel so far, rate units."""
+        if self._ref is None:
+            return np.full(self.n_channels, np.nan)
+        return self._ref + (self._phase - self._phase_c) / self.p_last
+
+    def nbytes(self) -> int:
+        """Bytes held by the state (independent of the record length)."""
+        return sum(a.nbytes for a in (self._work, self._ring, self._sums, self._tsums))
+
+    def sums(self):
+        """(m, n_terms, sums (C, k)) of every m with at least 2 terms so far (allantools' rule)."""
+        n_phase = self.p_last + 1
+        me = self.ms_exact
+        te = n_phase - 2 * me
+        keep = (me < n_phase) & (te > 1)
+        pend = _pending_sums(self._work, self._hist, self.p_last, me, self._committed)
+        total = self._sums + (self._comps + pend)
+        ms, nt, ss = [me[keep]], [te[keep]], [total[:, keep]]
+        if self.ms_thin.size:
+            tt = self.p_last // self.thin_stride - 2 * self.thin_ratio + 1
+            keep_t = (self.ms_thin < n_phase) & (n_phase - 2 * self.ms_thin > 1) & (tt > 1)
+            ms.append(self.ms_thin[keep_t])
+            nt.append(tt[keep_t])
+            ss.append((self._tsums + self._tcomps)[:, keep_t])
+        return np.concatenate(ms), np.concatenate(nt).astype(float), np.concatenate(ss, axis=1)
+
+    def adev(self):
+        """(taus s, adev (C, k) rate units, n_terms (k,)) of the grid points reached so far."""
+        m, nt, s = self.sums()
+        adev = np.sqrt(s / (2.0 * nt)) / m
+        return m / self.fs, adev, nt
+
+
+def allan_result(
+    taus, adev, n_terms, fs: float, n_samples: int, confidence: float = 0.683, slope=None
+) -> AllanResult:
+    """AllanResult of given Allan deviations, with Greenhall-Riley edf and chi-square intervals.
+
+    Args:
+        taus: averaging times, s; adev: Allan deviation, rate units; n_terms: terms per point.
+        fs: sample rate, Hz; n_samples: rate samples L, -.
+        confidence: two-sided level of the intervals, -.
+        slope: AVAR log-log slope per tau for the edf (default -1: white rate noise).
+    """
+    taus = np.asarray(taus, dtype=float)
+    adev = np.asarray(adev, dtype=float)
+    n_terms = np.asarray(n_terms, dtype=float)
+    m = np.round(taus * fs).astype(np.int64)
+    edf = edf_from_slope(int(n_samples) + 1, m, -1.0 if slope is None else slope)
+    lo, hi = chi2_interval(adev**2, edf, confidence)
+    return AllanResult(
+        taus=taus,
+        m=m,
+        adev=adev,
+        adev_error=adev / np.sqrt(n_terms),
+        n_terms=n_terms,
+        edf=edf,
+        ci_low=np.sqrt(lo),
+        ci_high=np.sqrt(hi),
+        confidence=confidence,
+        fs=float(fs),
+        n_samples=int(n_samples),
+    )
+
+
+def stream_results(stream: StreamingAllan, confidence: float = 0.683) -> list[AllanResult]:
+    """One :class:`AllanResult` per channel of a :class:`StreamingAllan`."""
+    taus, adev, nt = stream.adev()
+    return [
+        allan_result(taus, adev[c], nt, stream.fs, stream.num_samples, confidence)
+        for c in range(stream.n_channels)
+    ]

@@ -327,7 +327,7 @@ def identify_stage(
     z = record(
         MicroStage(sp, DriveSchedule([(1700.0, 0.0, plan.zero_periods)]), seed=seed * 100 + 3)
     )
-    limits = MicroStage(sp).limits  # design layout (Table A.1), not an identified quantity
+    limits = MicroStage(sp).design_limits  # design layout (Table A.1), not identified
     model, rep = identify(rs, [s[0] for s in sweep.segments], tr, z, limits, q_method=q_method)
     return model, rep
 

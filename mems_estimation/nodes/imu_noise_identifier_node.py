@@ -1,7 +1,8 @@
 """ROS 2 node: Allan-variance noise identification on a stream of AdcFrames.
 
 Subscribes to ``input_topic`` (mems_msgs/AdcFrame, default ``adc`` in the node's
-namespace, default ``/imu``), accumulates the physical values of every channel, and
+namespace, default ``/imu``), accumulates the overlapping Allan sums of every channel
+online (bounded memory: :class:`NoiseAccumulator`), and
 publishes the identified noise model (mems_msgs/NoiseModel: N, B, K, T, Q per axis with
 confidence intervals, the discrete model and the Allan deviation) on ``output_topic``
 (default ``noise_model``, beside the input) every ``publish_period_s`` of *data* (so replaying a bag
@@ -19,7 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from mems_estimation.identification.imu_noise_fit import identify_axes
+from mems_estimation.identification.allan import StreamingAllan
+from mems_estimation.identification.imu_noise_fit import identify_axes, identify_stream
 from mems_estimation.nodes.frame_input import EstimatorNode, input_specs
 from mems_estimation.nodes.imu_noise_messages import noise_model_msg
 from mems_msgs.msg import AdcFrame, NoiseModel
@@ -80,10 +82,19 @@ IDENTIFIER_SPECS: tuple[ParamSpec, ...] = (
 
 
 class NoiseAccumulator:
-    """ROS-free store of the samples of one stream of AdcFrames (validated, gap-aware)."""
+    """ROS-free accumulation of one stream of AdcFrames (validated, gap-aware).
 
-    def __init__(self) -> None:
+    For the "octave" and "decade" grids the samples are not kept: a
+    :class:`~mems_estimation.identification.allan.StreamingAllan` keeps the overlapping
+    Allan sums and the channel means online, so memory does not grow with the record
+    (about 48 MB for six channels). The "all" grid (every m up to L/2, O(L^2) work) keeps
+    the samples (``chunks``) and computes in one batch.
+    """
+
+    def __init__(self, grid: str = "octave") -> None:
+        self.grid = grid
         self.chunks: list[np.ndarray] = []
+        self.stream: StreamingAllan | None = None
         self.num_samples = 0
         self.first_index: int | None = None
         self.fs: float | None = None
@@ -91,6 +102,22 @@ class NoiseAccumulator:
         self.units: tuple[str, ...] = ()
         self.tracker = IndexTracker()
         self.last_stamp_ns = 0
+
+    def start(self, fs: float, first_index: int, channels, units) -> None:
+        """Fix the stream's rate, first sample index, channel names and units."""
+        self.fs, self.first_index = float(fs), int(first_index)
+        self.channels, self.units = tuple(channels), tuple(units)
+        if self.grid != "all":
+            self.stream = StreamingAllan(len(self.channels), self.fs, self.grid)
+
+    def extend(self, values: np.ndarray) -> None:
+        """Accumulate samples (n, channels) in physical units (after :meth:`start`)."""
+        values = np.asarray(values, dtype=float)
+        if self.stream is not None:
+            self.stream.add(values)
+        else:
+            self.chunks.append(values)
+        self.num_samples += values.shape[0]
 
     def add(self, msg: AdcFrame) -> int:
         """Append a frame; return samples missing before it. Raises FrameError if malformed."""
@@ -100,8 +127,9 @@ class NoiseAccumulator:
         """Append a frame whose physical values (n, channels) are ``values``; return samples
         missing before it. Raises FrameError if its rate or channels differ."""
         if self.fs is None:
-            self.fs, self.first_index = float(msg.sample_rate_hz), int(msg.first_sample_index)
-            self.channels, self.units = tuple(msg.channel_names), tuple(msg.channel_units)
+            self.start(
+                msg.sample_rate_hz, msg.first_sample_index, msg.channel_names, msg.channel_units
+            )
         elif msg.sample_rate_hz != self.fs or tuple(msg.channel_names) != self.channels:
             raise FrameError(
                 f"frame at {msg.first_sample_index}: sample rate or channels changed "
@@ -109,13 +137,15 @@ class NoiseAccumulator:
                 "foreign",
             )
         missing = self.tracker.update(int(msg.first_sample_index), int(msg.num_samples))
-        self.chunks.append(values)
-        self.num_samples += values.shape[0]
+        self.extend(values)
         self.last_stamp_ns = index_to_ns(values.shape[0] - 1, self.fs, time_to_ns(msg.header.stamp))
         return missing
 
     def data(self) -> np.ndarray:
-        """All samples so far, shape (n, channels)."""
+        """All samples so far, shape (n, channels) (the "all" grid only; a streaming
+        accumulator keeps no samples)."""
+        if self.stream is not None:
+            raise ValueError(f"a streaming ({self.grid}) accumulator keeps no samples")
         if len(self.chunks) > 1:
             self.chunks = [np.concatenate(self.chunks)]
         return self.chunks[0] if self.chunks else np.zeros((0, len(self.channels)))
@@ -124,18 +154,27 @@ class NoiseAccumulator:
         """Data accumulated [s]."""
         return self.num_samples / self.fs if self.fs else 0.0
 
+    def results(self):
+        """(fit, AllanResult) per channel and the channel means."""
+        if self.stream is not None:
+            return identify_stream(self.stream), self.stream.mean()
+        data = self.data()
+        return identify_axes(data, self.fs, self.grid), data.mean(axis=0)
+
 
 def identify_message(
     acc: NoiseAccumulator, grid: str, final: bool, frame_id: str = ""
 ) -> NoiseModel:
-    """Identify every channel of ``acc`` and build the NoiseModel message."""
-    data = acc.data()
-    results = identify_axes(data, acc.fs, grid)
+    """Identify every channel of ``acc`` and build the NoiseModel message (``grid`` must be
+    the accumulator's, or "all" with its samples kept)."""
+    if grid != acc.grid:
+        raise ValueError(f"tau grid {grid!r} differs from the accumulator's {acc.grid!r}")
+    results, means = acc.results()
     return noise_model_msg(
         results,
         acc.channels,
         acc.units,
-        data.mean(axis=0),
+        means,
         fs=acc.fs,
         first_index=acc.first_index,
         num_samples=acc.num_samples,
@@ -156,7 +195,7 @@ class NoiseIdentifierNode(EstimatorNode):
 
     def __init__(self, **node_kwargs) -> None:
         super().__init__(**node_kwargs)
-        self.acc = NoiseAccumulator()
+        self.acc = NoiseAccumulator(self.p["tau_grid"])
         self.results: list[NoiseModel] = []
         self.frames_received = 0
         self._next_publish_s = self.p["publish_period_s"]
@@ -193,7 +232,7 @@ class NoiseIdentifierNode(EstimatorNode):
 
     def on_format_change(self, kind: str) -> None:
         """A new stream format: the accumulation (and the periodic schedule) starts again."""
-        self.acc = NoiseAccumulator()
+        self.acc = NoiseAccumulator(self.p["tau_grid"])
         self._next_publish_s = self.p["publish_period_s"]
         self.diag.warn("input format changed: noise identification starts again")
 

@@ -1,28 +1,60 @@
-"""``identify_noise``: Allan-variance noise identification of AdcFrames stored in an MCAP file.
+"""``identify_noise``: Allan-variance noise identification from a bag.
 
-Runs exactly the code of the noise_identifier node (same accumulation, same
-fit) on the frames of one topic, so its result equals the node's final
-result for the same data.
+Reads either the project's ``mems_msgs/AdcFrame`` frames (running exactly the code of the
+identifier node: same accumulation, same fit, so the result equals the node's final
+result for the same data) or ``sensor_msgs/Imu`` messages of any IMU, from rosbag2 bags
+(MCAP or sqlite3, a bag directory with ``metadata.yaml``, or a bare ``.mcap`` file) and ROS 1
+bags (``rosbags`` reads all three; type definitions come from the bag itself or from
+rosbags' typestore, nothing the file names is imported).
+
+For ``sensor_msgs/Imu`` the sample rate comes from the stamps (samples - 1 over the span of
+``header.stamp``; the bag's log times if every stamp is zero) and irregular sampling is
+reported (intervals more than 10 % off the median, the longest interval, samples
+presumably missing); the six channels are ``gyro_x..z`` [rad/s] (``angular_velocity``)
+and ``accel_x..z`` [m/s^2] (``linear_acceleration``), REP-145's raw IMU data.
 
 Usage:
-    identify_noise FILE.mcap [--topic /imu/adc] [--grid octave|decade|all]
-                   [--plot FILE.png] [--json FILE.json]
+    identify_noise BAG [--topic T] [--grid octave|decade|all] [--plot FILE.png]
+                   [--json] [--kalibr FILE.yaml]
+
+``--json`` prints the model as JSON on stdout (the table then goes to stderr); ``--kalibr``
+writes a Kalibr IMU file (``imu.yaml``: ``accelerometer_noise_density`` [m/s^2/sqrt(Hz)],
+``accelerometer_random_walk`` [m/s^3/sqrt(Hz)], ``gyroscope_noise_density``
+[rad/s/sqrt(Hz)], ``gyroscope_random_walk`` [rad/s^2/sqrt(Hz)], ``rostopic``,
+``update_rate`` [Hz]; Kalibr's continuous-time densities are the Allan fit's N and K, and
+Kalibr takes one value per sensor: the largest of the three axes, the conservative choice).
+Exit status: 0, or 2 with one line for a file or topic it cannot use (too little data
+included).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from mems_sim.ros.env import apply_defaults
+
+ADC_TYPES = ("mems_msgs/msg/AdcFrame", "mems_msgs/AdcFrame")
+IMU_TYPES = ("sensor_msgs/msg/Imu", "sensor_msgs/Imu")
+IMU_CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
+IMU_UNITS = ("rad/s",) * 3 + ("m/s^2",) * 3
+#: An interval this far from the median counts as irregular.
+IRREGULAR = 0.10
 
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="identify_noise", description=__doc__.splitlines()[0])
-    p.add_argument("bag", type=Path, help="MCAP file")
-    p.add_argument("--topic", default="/imu/adc", help="AdcFrame topic (default /imu/adc)")
+    p.add_argument("bag", type=Path, help="bag: .mcap, .db3, .bag, or a rosbag2 directory")
+    p.add_argument(
+        "--topic",
+        default=None,
+        help="AdcFrame or sensor_msgs/Imu topic (default: /imu/adc, else the only Imu topic)",
+    )
     p.add_argument(
         "--grid",
         default="octave",
@@ -30,8 +62,127 @@ def _parser() -> argparse.ArgumentParser:
         help="Allan tau grid (default octave)",
     )
     p.add_argument("--plot", type=Path, default=None, help="write the Allan deviation figure")
-    p.add_argument("--json", type=Path, default=None, help="write the model as JSON")
+    p.add_argument("--json", action="store_true", help="print the model as JSON on stdout")
+    p.add_argument("--kalibr", type=Path, default=None, help="write a Kalibr imu.yaml")
     return p
+
+
+def _is_mcap_file(path: Path) -> bool:
+    return path.is_file() and path.suffix == ".mcap"
+
+
+def bag_topics(path: Path) -> dict[str, str]:
+    """Topic -> type name of a bag (any format ``identify_noise`` reads)."""
+    if _is_mcap_file(path):
+        from mems_sim.bag.player import recorded_topics
+
+        return {t: v[0] for t, v in recorded_topics(str(path)).items()}
+    with _any_reader(path) as reader:
+        return {c.topic: c.msgtype for c in reader.connections}
+
+
+def _any_reader(path: Path):
+    """rosbags' reader (opened, closed by the ``with`` block) for a rosbag2 directory, an
+    sqlite3 file's directory or a ROS 1 bag; one-line errors (ValueError) for anything else."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    if not path.exists():
+        raise ValueError(f"{path}: no such file or directory")
+    target = path.parent if path.is_file() and path.suffix == ".db3" else path
+    try:
+        store = get_typestore(Stores.ROS1_NOETIC if path.suffix == ".bag" else Stores.LATEST)
+        reader = AnyReader([target], default_typestore=store)
+        reader.open()
+    except Exception as exc:  # rosbags raises many types: one line for all
+        text = " ".join(str(exc).split())
+        raise ValueError(f"{path}: not a bag rosbags can read ({text})") from None
+    return contextlib.closing(reader)
+
+
+def choose_topic(topics: dict[str, str], topic: str | None, path: Path) -> str:
+    """The topic to identify: the given one, else /imu/adc, else the only Imu topic."""
+    if topic is not None:
+        if topic not in topics:
+            raise ValueError(f"{path}: no topic {topic!r} in the bag")
+        return topic
+    if "/imu/adc" in topics:  # the project's topic (its type is checked when read)
+        return "/imu/adc"
+    imu = [t for t, ty in topics.items() if ty in IMU_TYPES]
+    if len(imu) == 1:
+        return imu[0]
+    raise ValueError(
+        f"{path}: give --topic: "
+        + (f"Imu topics {', '.join(sorted(imu))}" if imu else "no /imu/adc and no Imu topic")
+    )
+
+
+def read_imu(path: Path, topic: str) -> tuple[np.ndarray, np.ndarray]:
+    """Stamps [ns] (n,) and values (n, 6) of the sensor_msgs/Imu messages of ``topic``."""
+    stamps: list[int] = []
+    logs: list[int] = []
+    rows: list[tuple[float, ...]] = []
+
+    def take(msg, log_ns: int) -> None:
+        st = msg.header.stamp
+        w, a = msg.angular_velocity, msg.linear_acceleration
+        stamps.append(int(st.sec) * 10**9 + int(st.nanosec))
+        logs.append(int(log_ns))
+        rows.append((w.x, w.y, w.z, a.x, a.y, a.z))
+
+    if _is_mcap_file(path):
+        from mems_sim.bag.player import read_messages
+
+        for _, _, log_ns, msg in read_messages(str(path), [topic]):
+            take(msg, log_ns)
+    else:
+        with _any_reader(path) as reader:
+            conns = [c for c in reader.connections if c.topic == topic]
+            for conn, log_ns, raw in reader.messages(connections=conns):
+                take(reader.deserialize(raw, conn.msgtype), log_ns)
+    t = np.asarray(stamps if any(stamps) else logs, dtype=np.int64)  # unstamped: log times
+    return t, np.asarray(rows, dtype=float).reshape(-1, 6)
+
+
+def sampling(stamps_ns: np.ndarray) -> dict:
+    """Sample rate from the stamps and how regular they are (module doc)."""
+    n = stamps_ns.size
+    order = np.argsort(stamps_ns, kind="stable")
+    t = stamps_ns[order]
+    dt = np.diff(t).astype(float)
+    span = float(t[-1] - t[0]) if n > 1 else 0.0
+    if n < 3 or span <= 0.0:
+        raise ValueError(f"{n} messages with distinct stamps: too few to identify noise")
+    med = float(np.median(dt))
+    fs = (n - 1) * 1e9 / span
+    irregular = int(np.count_nonzero(np.abs(dt - med) > IRREGULAR * med))
+    missing = int(np.round(np.sum(np.maximum(dt / med - 1.0, 0.0)))) if med > 0 else 0
+    return dict(
+        sample_rate_hz=fs,
+        median_interval_s=med * 1e-9,
+        irregular_intervals=irregular,
+        longest_interval_s=float(dt.max()) * 1e-9,
+        missing_samples_estimate=missing,
+        unordered=bool(np.any(np.diff(stamps_ns) < 0)),
+        order=order,
+    )
+
+
+def identify_imu(path: Path, topic: str, grid: str):
+    """NoiseModel identified from the sensor_msgs/Imu messages of ``topic``; also returns the
+    sampling report."""
+    from mems_estimation.nodes.imu_noise_identifier_node import NoiseAccumulator, identify_message
+
+    stamps, values = read_imu(path, topic)
+    if stamps.size == 0:
+        raise ValueError(f"{path}: no sensor_msgs/Imu messages on topic {topic}")
+    if not np.all(np.isfinite(values)):
+        raise ValueError(f"{path}: topic {topic} holds non-finite values")
+    report = sampling(stamps)
+    acc = NoiseAccumulator(grid)
+    acc.start(report["sample_rate_hz"], 0, IMU_CHANNELS, IMU_UNITS)
+    acc.extend(values[report.pop("order")])
+    return identify_message(acc, grid, final=True), report
 
 
 def identify_bag(path: Path, topic: str, grid: str):
@@ -53,7 +204,7 @@ def identify_bag(path: Path, topic: str, grid: str):
     if topic not in topics:
         raise ValueError(f"{path}: no topic {topic!r} in the file")
     stored_type = topics[topic][0]
-    if stored_type not in ("mems_msgs/msg/AdcFrame", "mems_msgs/AdcFrame"):
+    if stored_type not in ADC_TYPES:
         from mems_sim.bag.schema import interface_problem
 
         problem = interface_problem(stored_type)
@@ -65,7 +216,7 @@ def identify_bag(path: Path, topic: str, grid: str):
     from mems_estimation.nodes.imu_noise_identifier_node import NoiseAccumulator, identify_message
     from mems_sim.ros.frames import FrameError
 
-    acc, rejected, frames = NoiseAccumulator(), 0, 0
+    acc, rejected, frames = NoiseAccumulator(grid), 0, 0
     for _, type_name, _, msg in read_messages(str(path), [topic]):
         if type_name != stored_type:
             raise ValueError(
@@ -79,6 +230,20 @@ def identify_bag(path: Path, topic: str, grid: str):
     if frames == 0:
         raise ValueError(f"{path}: no AdcFrame messages on topic {topic}")
     return identify_message(acc, grid, final=True), frames, rejected, acc
+
+
+def kalibr_dict(model, topic: str) -> dict:
+    """Kalibr's IMU parameters (module doc) from a model with gyro_* and accel_* axes."""
+    out = {}
+    for prefix, sensor in (("accel", "accelerometer"), ("gyro", "gyroscope")):
+        axes = [a for a in model.axes if a.axis.startswith(prefix)]
+        if not axes:
+            raise ValueError(f"no {prefix}_* axes for Kalibr's {sensor} entries")
+        out[f"{sensor}_noise_density"] = max(a.white_noise_density.value for a in axes)
+        out[f"{sensor}_random_walk"] = max(a.random_walk.value for a in axes)
+    out["rostopic"] = topic
+    out["update_rate"] = float(model.sample_rate_hz)
+    return out
 
 
 def model_to_dict(model) -> dict:
@@ -117,11 +282,20 @@ def model_to_dict(model) -> dict:
 
 
 def format_model(model) -> str:
-    """Table of N, B, K, T per axis with 95 % intervals."""
+    """Table of N, B, K, T per axis with 95 % intervals and the Cramer-Rao standard error
+    for a record of this length (mems_estimation.identification.imu_noise_fit.crb_relative_se)."""
+    from mems_estimation.identification.imu_noise_fit import crb_relative_se
     from mems_sim.table import format_table
 
     rows = []
     for a in model.axes:
+        vals = {
+            "N": a.white_noise_density.value,
+            "B": a.bias_instability.value,
+            "K": a.random_walk.value,
+            "T": a.correlation_time.value,
+        }
+        crb = crb_relative_se(*vals.values(), model.sample_rate_hz, model.num_samples)
         for sym, field, unit in (
             ("N", "white_noise_density", f"{a.unit}/sqrt(Hz)"),
             ("B", "bias_instability", a.unit),
@@ -129,8 +303,17 @@ def format_model(model) -> str:
             ("T", "correlation_time", "s"),
         ):
             t = getattr(a, field)
-            rows.append([a.axis, sym, unit, f"{t.value:.4g}", f"[{t.ci_low:.3g}, {t.ci_high:.3g}]"])
-    return format_table(["axis", "param", "unit", "identified", "95 % CI"], rows)
+            rows.append(
+                [
+                    a.axis,
+                    sym,
+                    unit,
+                    f"{t.value:.4g}",
+                    f"[{t.ci_low:.3g}, {t.ci_high:.3g}]",
+                    f"{crb[sym] * t.value:.3g}",
+                ]
+            )
+    return format_table(["axis", "param", "unit", "identified", "95 % CI", "CRB s.e."], rows)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -139,23 +322,49 @@ def main(argv: list[str] | None = None) -> int:
     apply_defaults()
     from mems_sim.bag.player import BagReadError
 
+    out = sys.stderr if args.json else sys.stdout
     try:
-        model, frames, rejected, acc = identify_bag(args.bag, args.topic, args.grid)
+        topics = bag_topics(args.bag)
+        topic = choose_topic(topics, args.topic, args.bag)
+        if topics[topic] in IMU_TYPES:
+            model, rep = identify_imu(args.bag, topic, args.grid)
+            head = (
+                f"{args.bag}: {topic} (sensor_msgs/Imu), {model.num_samples} samples at "
+                f"{model.sample_rate_hz:.6g} Hz from the stamps; {rep['irregular_intervals']} "
+                f"irregular intervals (> {IRREGULAR:.0%} off the median "
+                f"{rep['median_interval_s']:.6g} s), longest {rep['longest_interval_s']:.6g} s, "
+                f"~{rep['missing_samples_estimate']} samples missing"
+                + (", stamps out of order (sorted)" if rep["unordered"] else "")
+            )
+        else:
+            model, frames, rejected, acc = identify_bag(args.bag, topic, args.grid)
+            rep = None
+            head = (
+                f"{args.bag}: {topic}, {frames} frames, {model.num_samples} samples at "
+                f"{model.sample_rate_hz:g} Hz, {rejected} rejected, {acc.tracker.gaps} gaps"
+            )
+        kalibr = kalibr_dict(model, topic) if args.kalibr else None
     except (BagReadError, ValueError) as exc:
         print(f"identify_noise: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
-    print(
-        f"{args.bag}: {args.topic}, {frames} frames, {model.num_samples} samples at "
-        f"{model.sample_rate_hz:g} Hz, {rejected} rejected, {acc.tracker.gaps} gaps\n"
-    )
-    print(format_model(model))
-    if args.json:
-        args.json.write_text(json.dumps(model_to_dict(model), indent=2))
+    print(head + "\n", file=out)
+    print(format_model(model), file=out)
+    if args.kalibr:
+        import yaml
+
+        args.kalibr.write_text(yaml.safe_dump(kalibr, sort_keys=False))
+        print(f"kalibr: {args.kalibr}", file=out)
     if args.plot:
         from mems_estimation.identification.imu_noise_plots import plot_allan
 
         plot_allan(model, args.plot)
-        print(f"figure: {args.plot}")
+        print(f"figure: {args.plot}", file=out)
+    if args.json:
+        d = model_to_dict(model)
+        d["topic"] = topic
+        if rep is not None:
+            d["sampling"] = rep
+        print(json.dumps(d))
     return 0
 
 

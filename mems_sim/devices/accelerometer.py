@@ -49,7 +49,17 @@ from mems_sim.kernels.accelerometer_ekf import (
     is_positive_definite,
     model_vector,
 )
-from mems_sim.params import ParameterError, ParamSpec, resolve
+from mems_sim.params import (
+    AIR_DAMPING_TEMPCO,
+    KELVIN_TEMPCO,
+    SILICON_EXPANSION_TEMPCO,
+    SILICON_STIFFNESS_TEMPCO,
+    ParameterError,
+    ParamSpec,
+    TempCo,
+    batch_spread,
+    resolve,
+)
 
 EPS0 = 8.8541878128e-12  # F/m, vacuum permittivity (CODATA 2018)
 K_BOLTZMANN = 1.380649e-23  # J/K (SI 2019 exact)
@@ -69,6 +79,7 @@ ACCEL_SPECS: tuple[ParamSpec, ...] = (
         min=0.0,
         max=1e-3,
         min_exclusive=True,
+        spread=batch_spread(0.02, "+-2 % proof mass (thickness and etch tolerance)"),
     ),
     ParamSpec(
         "stiffness",
@@ -79,6 +90,8 @@ ACCEL_SPECS: tuple[ParamSpec, ...] = (
         min=0.0,
         max=1e6,
         min_exclusive=True,
+        spread=batch_spread(0.10, "+-10 % spring constant (beam width tolerance, k ~ w^3)"),
+        tempco=SILICON_STIFFNESS_TEMPCO,
     ),
     ParamSpec(
         "damping",
@@ -89,6 +102,8 @@ ACCEL_SPECS: tuple[ParamSpec, ...] = (
         min=0.0,
         max=1e3,
         min_exclusive=True,
+        spread=batch_spread(0.20, "+-20 % damping (gap and perforation tolerance, b ~ d0^-3)"),
+        tempco=AIR_DAMPING_TEMPCO,
     ),
     ParamSpec(
         "plate_area",
@@ -99,6 +114,11 @@ ACCEL_SPECS: tuple[ParamSpec, ...] = (
         min=0.0,
         max=1e-2,
         min_exclusive=True,
+        tempco=TempCo(
+            2 * SILICON_EXPANSION_TEMPCO.coefficient,
+            source="an area: twice the thermal expansion of silicon, 2.6e-6/K at 300 K "
+            "(Okada & Tokumaru, J. Appl. Phys. 56(2) 1984)",
+        ),
     ),
     ParamSpec(
         "gap",
@@ -109,6 +129,8 @@ ACCEL_SPECS: tuple[ParamSpec, ...] = (
         min=0.0,
         max=1e-3,
         min_exclusive=True,
+        spread=batch_spread(0.05, "+-5 % gap (sacrificial layer thickness tolerance)"),
+        tempco=SILICON_EXPANSION_TEMPCO,
     ),
     ParamSpec(
         "rel_permittivity",
@@ -148,6 +170,7 @@ ACCEL_SPECS: tuple[ParamSpec, ...] = (
         min=0.0,
         max=1.0,
         min_exclusive=True,
+        tempco=AIR_DAMPING_TEMPCO,
     ),
     ParamSpec(
         "damping_model",
@@ -246,6 +269,7 @@ ACCEL_SPECS: tuple[ParamSpec, ...] = (
         "Zhang 2010 eq. (3-1)",
         min=1.0,
         max=1000.0,
+        tempco=KELVIN_TEMPCO,
     ),
     ParamSpec(
         "electronic_accel_std",
@@ -345,6 +369,13 @@ ACCEL_SPECS: tuple[ParamSpec, ...] = (
         min_exclusive=True,
     ),
 )
+
+#: The Table III reading (Zhang 2010 Table III): a carrier amplitude of 0.675 V instead of
+#: Table I's 0.6 V. The carrier's softening eps A V1^2 / d0^3 (eq. 2-12 linearised) then
+#: leaves k_eff = 0.53 N/m of Table I's k = 3 N/m, which gives the thesis' open-loop 7e-8 m
+#: at 1 g and a static pull-in at 4.06 g (Table III: the open loop fails at 5 g). With Table I
+#: as printed (0.6 V) k_eff = 1.05 N/m, 1 g gives 3.5e-8 m and the pull-in is at 12.2 g.
+TABLE_III_VARIANT = {"carrier_amplitude": 0.675}
 
 
 def validate_params(values: Mapping[str, Any]) -> dict:
@@ -605,7 +636,9 @@ def run_block(
             v_f = kp * e + integ
         elif mode == 2:
             ekf_update(ekf_x, ekf_p, y_adc, ekf_r, ekf_mv)
-            e = 2.0 * ea * ekf_x[0] * v1 / (c4 * (d0 * d0 - ekf_x[0] * ekf_x[0]))
+            # the estimated readout -h(x_hat) (eq. 2-9) with the designer's constants
+            xh, dm = ekf_x[0], ekf_mv[5]
+            e = 2.0 * ekf_mv[4] * xh * ekf_mv[6] / (ekf_mv[7] * (dm * dm - xh * xh))
             integ += ki * e * dt
             v_f = kp * e + integ
         sat = False
@@ -675,17 +708,27 @@ class ForceRebalanceAccelerometer:
     """The emulated accelerometer with its controller; ``step(n)`` yields the next n samples.
 
     Args:
-        params: values for :data:`ACCEL_SPECS` (validated; defaults filled in).
+        params: values for :data:`ACCEL_SPECS` (validated; defaults filled in): the
+            device as built (one draw of a batch, at its temperature).
         seed: seed of the Brownian and electronic noise.
+        nominal: the designer's values (default: ``params``): the rebalance bias V_B
+            (2-18) and the in-loop EKF's model and noise levels are designed from them,
+            not from the device as built.
     """
 
-    def __init__(self, params: Mapping[str, Any] | None = None, seed: int = 0) -> None:
+    def __init__(
+        self,
+        params: Mapping[str, Any] | None = None,
+        seed: int = 0,
+        nominal: Mapping[str, Any] | None = None,
+    ) -> None:
         self.p = validate_params(params or {})
         p = self.p
+        self.nominal = p if nominal is None else validate_params(nominal)
         self.fs = p["sample_rate_hz"]
         self.dt = 1.0 / self.fs
         self.mode = MODES.index(p["mode"])
-        self.v_b = bias_voltage(p) if self.mode > 0 else 0.0
+        self.v_b = bias_voltage(self.nominal) if self.mode > 0 else 0.0
         self.mv = plant_vector(p, self.v_b)
         self.x_stop = p["stop_fraction"] * p["gap"]
         self.lsb = adc_lsb(p)
@@ -696,8 +739,19 @@ class ForceRebalanceAccelerometer:
         self.rng = np.random.default_rng(seed)
         self.state = np.zeros(3)
         self.next_index = 0
-        self.ekf_config = ekf_config(p, self.v_b)
+        self.ekf_config = ekf_config(self.nominal, self.v_b)
         self.ekf_x, self.ekf_p = ekf_init(self.ekf_config.p0_diag)
+
+    def retune(self, params: Mapping[str, Any]) -> None:
+        """The device's physical parameters moved (a temperature change): the plant, the
+        stop and the noise levels follow ``params`` from the next sample on; the state, the
+        noise streams, the controller, V_B and the EKF (the designer's) are kept."""
+        p = validate_params(params)
+        self.p = p
+        self.mv = plant_vector(p, self.v_b)
+        self.x_stop = p["stop_fraction"] * p["gap"]
+        self.v_noise_std = readout_noise_std(p)
+        self.f_noise_std = brownian_force_std(p)
 
     def input_at(self, t: np.ndarray) -> np.ndarray:
         """Input acceleration [m/s^2] at times t [s]."""

@@ -78,8 +78,13 @@ w = 0.05 (the default 50 ns pulses at 1 MHz), sub-sample.  Default width: short 
 (the paper's premise, Sec. 1) so that the position stays within 0.8 % of the amplitude
 over the whole pulse (pi f0/fs w = 0.008).
 
+Quantiser (``quantizer``): ``one_bit`` (eqs. (10)-(12)) or ``gaussian``, its linear-Gaussian
+stand-in v = q + w with w ~ N(0, quantization_var) white, in the same loop (the observer's
+model of eq. (13) is then exact; the output is real-valued).
+
 Determinism: ``np.random.SeedSequence(seed).spawn(2)`` -> one PCG64 stream for b,
-one for f; drawn frame by frame, so frames concatenate bit-identically.
+one for f (and, with the stand-in, child 2 of the same sequence for w); drawn frame by frame,
+so frames concatenate bit-identically.
 """
 
 from __future__ import annotations
@@ -98,6 +103,7 @@ from mems_sim.devices.resonator_models import (
     resonator_zoh,
     resonator_zoh_dt,
     sd_step,
+    sd_step_standin,
     segment_response,
 )
 from mems_sim.kernels.resonator_observer import (
@@ -109,7 +115,14 @@ from mems_sim.kernels.resonator_observer import (
     ss_step6,
     steady_state_gains,
 )
-from mems_sim.params import ParameterError, ParamSpec, resolve
+from mems_sim.params import (
+    AIR_QUALITY_FACTOR_TEMPCO,
+    SILICON_RESONANCE_TEMPCO,
+    ParameterError,
+    ParamSpec,
+    batch_spread,
+    resolve,
+)
 
 __all__ = [
     "RESONATOR_SPECS",
@@ -169,6 +182,8 @@ RESONATOR_SPECS: tuple[ParamSpec, ...] = (
         min=0.0,
         max=5.0e9,
         min_exclusive=True,
+        spread=batch_spread(0.02, "+-2 % resonance (flexure width tolerance)"),
+        tempco=SILICON_RESONANCE_TEMPCO,
     ),
     ParamSpec(
         "quality_factor",
@@ -179,6 +194,8 @@ RESONATOR_SPECS: tuple[ParamSpec, ...] = (
         min=0.5,
         max=1.0e7,
         min_exclusive=True,
+        spread=batch_spread(0.20, "+-20 % quality factor (damping gap tolerance)"),
+        tempco=AIR_QUALITY_FACTOR_TEMPCO,
     ),
     ParamSpec(
         "pulse_amplitude",
@@ -354,6 +371,17 @@ RESONATOR_SPECS: tuple[ParamSpec, ...] = (
         "steady-state (DARE) gain for the in-loop observer",
         "speed option; the exact time-varying gain otherwise",
     ),
+    ParamSpec(
+        "quantizer",
+        "one_bit",
+        "-",
+        "modulator comparator: the one-bit quantiser of eqs. (10)-(12) (one_bit), or its "
+        "linear-Gaussian stand-in (gaussian): v = q + w, w ~ N(0, quantization_var), in the "
+        "same loop, so that the observer's model of eq. (13) is exact",
+        "Colinet eqs. (10)-(13) (one_bit); gaussian: a test of the Kalman observer in the "
+        "linear-Gaussian case its theory assumes (Anderson & Moore 1979)",
+        choices=("one_bit", "gaussian"),
+    ),
 )
 
 
@@ -398,7 +426,8 @@ def validate_params(p: Mapping[str, Any]) -> None:
 class SdFrame(NamedTuple):
     """One frame of the device.
 
-    bits: (n,) int8 in {-1, +1} modulator output.  pulses: (n,) height u(k) of the pulse
+    bits: (n,) int8 in {-1, +1} modulator output (float64 v = q + w with the
+    ``quantizer: gaussian`` stand-in).  pulses: (n,) height u(k) of the pulse
     fired in [k T, (k+1) T), V (0 or +-pulse_amplitude).  pulse_start: (n,) its firing
     offset after the sample instant, s (0 where no pulse).  pulse_width: (n,) its width, s
     (0 where no pulse).  position: (n,) true y(k), V.  velocity: (n,) true dy/dt(k), V/s.
@@ -600,6 +629,7 @@ def _device_run(
     c_ff,
     out_noise,
     force_noise,
+    quant_noise,
     st,
     zoh,
     sd,
@@ -665,7 +695,10 @@ def _device_run(
         y = st[0]
         yd = st[1]
         x_in = y + out_noise[i]
-        v, q = sd_step(x_in, sd, c_ff)
+        if quant_noise.shape[0]:
+            v, q = sd_step_standin(x_in, sd, c_ff, quant_noise[i])
+        else:
+            v, q = sd_step(x_in, sd, c_ff)
         # position signal used by the controller
         xf1 = 0.0
         if obs_mode:
@@ -753,20 +786,33 @@ class SdResonatorDevice:
 
     Args:
         params: overrides of :data:`RESONATOR_SPECS`; validated (ParameterError names
-            the parameter, value and range; cross checks by :func:`validate_params`).
+            the parameter, value and range; cross checks by :func:`validate_params`):
+            the device as built (one draw of a batch, at its temperature).
         seed: run seed for ``np.random.SeedSequence``.
+        nominal: the designer's values (default: ``params``): the in-loop observer's
+            model (f0, Q) is designed from them, not from the device as built.
     """
 
-    def __init__(self, params: Mapping[str, Any] | None = None, seed: int = 0) -> None:
+    def __init__(
+        self,
+        params: Mapping[str, Any] | None = None,
+        seed: int = 0,
+        nominal: Mapping[str, Any] | None = None,
+    ) -> None:
         p = resolve(RESONATOR_SPECS, params)
         validate_params(p)
         self.params = p
+        nom = p if nominal is None else resolve(RESONATOR_SPECS, nominal)
         self.seed = int(seed)
         gens = [
             np.random.Generator(np.random.PCG64(s))
             for s in np.random.SeedSequence(self.seed).spawn(2)
         ]
         self._gen_b, self._gen_f = gens
+        # third child of the same seed sequence: the stand-in quantiser's noise
+        self._gen_w = np.random.Generator(
+            np.random.PCG64(np.random.SeedSequence(self.seed, spawn_key=(2,)))
+        )
         fs, f0, Q = p["sample_rate_hz"], p["f0_hz"], p["quality_factor"]
         self._zoh = np.empty(6)
         resonator_zoh(f0, Q, fs, self._zoh)
@@ -776,8 +822,8 @@ class SdResonatorDevice:
         self._sd = np.zeros(2)
         self.observer_mode = p["mode"] == "observer"
         self.model = observer_model(
-            f0 * (1.0 + p["observer_f0_error"]),
-            Q,
+            nom["f0_hz"] * (1.0 + p["observer_f0_error"]),
+            nom["quality_factor"],
             fs,
             p["output_noise_std"],
             p["observer_state_noise_std"],
@@ -812,6 +858,19 @@ class SdResonatorDevice:
         self._zeros = np.zeros(0)
         self._next = 0
 
+    def retune(self, params: Mapping[str, Any]) -> None:
+        """The device's physical parameters moved (a temperature change): the resonator
+        (f0, Q) follows ``params`` from the next sample on, re-discretised; the state, the
+        modulator, the in-loop observer (the designer's model) and the noise streams are
+        kept."""
+        p = resolve(RESONATOR_SPECS, params)
+        validate_params(p)
+        self.params = p
+        resonator_zoh(p["f0_hz"], p["quality_factor"], p["sample_rate_hz"], self._zoh)
+        self._st[3] = p["f0_hz"]
+        if p["f0_drift_ppm_per_s"] != 0.0 or p["f0_step_fraction"] != 0.0:
+            self._st[3] = np.nan  # a varying f0: re-discretised at the next sample
+
     @property
     def next_index(self) -> int:
         """Index of the next sample to be produced."""
@@ -836,6 +895,12 @@ class SdResonatorDevice:
             if self._zeros.shape[0] < n:
                 self._zeros = np.zeros(n)
             f = self._zeros[:n]
+        standin = p["quantizer"] == "gaussian"
+        wq = (
+            self._gen_w.standard_normal(n) * math.sqrt(p["quantization_var"])
+            if standin
+            else np.zeros(0)
+        )
         bits, pulses, starts, widths, pos, vel, f0o, est, estv, xs, xc = np.empty((11, n))
         m = self.model
         fs = p["sample_rate_hz"]
@@ -854,6 +919,7 @@ class SdResonatorDevice:
             p["sd_feedforward"],
             b,
             f,
+            wq,
             self._st,
             self._zoh,
             self._sd,
@@ -890,5 +956,15 @@ class SdResonatorDevice:
         )
         self._next += n
         return SdFrame(
-            bits.astype(np.int8), pulses, starts, widths, pos, vel, f0o, est, estv, xs, xc
+            bits if standin else bits.astype(np.int8),
+            pulses,
+            starts,
+            widths,
+            pos,
+            vel,
+            f0o,
+            est,
+            estv,
+            xs,
+            xc,
         )

@@ -76,6 +76,7 @@ __all__ = [
     "next_spill",
     "next_crossing",
     "sd_step",
+    "sd_step_standin",
     "modulate",
 ]
 
@@ -263,6 +264,27 @@ def sd_step(x, s, c):
     """
     q = s[1]
     v = 1.0 if q >= 0.0 else -1.0
+    s1 = s[0]
+    s[0] = s1 + 0.5 * (x - v)
+    s[1] = q + s1 + c * x - v
+    return v, q
+
+
+@numba.njit(cache=True)
+def sd_step_standin(x, s, c, w):
+    """One sample of the modulator of eqs. (10)-(12) with the one-bit comparator replaced by
+    its linear-Gaussian stand-in v = q + w (w: a draw of the additive quantisation noise of
+    the observer's model, eq. (13)): then v = STF x + NTF w holds exactly with a white
+    Gaussian w, the linear-Gaussian case in which Kalman theory applies as stated.
+
+    Args:
+        x: modulator input, V. s: (2,) integrator states, updated in place.
+        c: STF feed-in gain. w: the stand-in's quantisation noise for this sample, V.
+    Returns:
+        (output v = q + w (real-valued), comparator input q), V.
+    """
+    q = s[1]
+    v = q + w
     s1 = s[0]
     s[0] = s1 + 0.5 * (x - v)
     s[1] = q + s1 + c * x - v

@@ -39,7 +39,15 @@ from typing import Any, NamedTuple
 import numba
 import numpy as np
 
-from mems_sim.params import ParameterError, ParamSpec, resolve
+from mems_sim.params import (
+    AIR_DAMPING_TEMPCO,
+    SILICON_EXPANSION_TEMPCO,
+    SILICON_RESONANCE_TEMPCO,
+    ParameterError,
+    ParamSpec,
+    batch_spread,
+    resolve,
+)
 
 __all__ = [
     "SCANNER_SPECS",
@@ -83,6 +91,8 @@ SCANNER_SPECS: tuple[ParamSpec, ...] = (
         "Chen 2018 Sec. 4.4.2 (identified 624.6 Hz)",
         min=1.0,
         max=1.0e6,
+        spread=batch_spread(0.05, "+-5 % (torsion bar stiffness +-10 %, f ~ sqrt(k))"),
+        tempco=SILICON_RESONANCE_TEMPCO,
     ),
     ParamSpec(
         "damping_ratio",
@@ -93,6 +103,8 @@ SCANNER_SPECS: tuple[ParamSpec, ...] = (
         min=0.0,
         max=1.0,
         min_exclusive=True,
+        spread=batch_spread(0.20, "+-20 % damping (gap tolerance of the air films)"),
+        tempco=AIR_DAMPING_TEMPCO,
     ),
     ParamSpec(
         "inertia",
@@ -103,6 +115,7 @@ SCANNER_SPECS: tuple[ParamSpec, ...] = (
         min=0.0,
         max=1.0e-6,
         min_exclusive=True,
+        spread=batch_spread(0.02, "+-2 % mirror inertia (thickness tolerance)"),
     ),
     ParamSpec(
         "threshold_angle",
@@ -123,6 +136,12 @@ SCANNER_SPECS: tuple[ParamSpec, ...] = (
         min=0.0,
         max=1.0e-9,
         min_exclusive=True,
+        spread=batch_spread(
+            0.20,
+            "+-20 % sensing comb gain (finger gap and overlap tolerance; Chen 2018 Sec. "
+            "4.2.1 names the comb's gain drift, no value)",
+        ),
+        tempco=SILICON_EXPANSION_TEMPCO,
     ),
     ParamSpec(
         "sense_theta0",
@@ -132,6 +151,7 @@ SCANNER_SPECS: tuple[ParamSpec, ...] = (
         "chosen (eq. (105) form; Table 5.2 has 0.2 rad for the chapter-5 device)",
         min=1.0e-4,
         max=1.0,
+        spread=batch_spread(0.10, "+-10 % sensing comb width (finger length tolerance)"),
     ),
     ParamSpec(
         "sense_cb",
@@ -301,6 +321,25 @@ SCANNER_SPECS: tuple[ParamSpec, ...] = (
         max=1.0,
     ),
     ParamSpec("substeps", 1, "-", "RK4 steps per sample interval", "numerics", min=1, max=1000),
+    # --- drift of the sensing comb away from its identified analog map (Sec. 4.2.1)
+    ParamSpec(
+        "sense_gain_drift",
+        0.0,
+        "-",
+        "relative drift of the sensing comb's gain: C0 x (1 + drift)",
+        "Chen 2018 Sec. 4.2.1 (temperature drift of the analog map); grid +-0.2",
+        min=-0.9,
+        max=10.0,
+    ),
+    ParamSpec(
+        "sense_width_drift",
+        0.0,
+        "-",
+        "relative drift of the sensing comb's width: theta0 x (1 + drift)",
+        "Chen 2018 Sec. 4.2.1 (temperature drift of the analog map); grid +-0.1",
+        min=-0.9,
+        max=10.0,
+    ),
 )
 
 
@@ -398,8 +437,8 @@ def scanner_params(p: Mapping[str, Any] | None = None) -> ScannerParams:
         k,
         b,
         p["threshold_angle"],
-        p["sense_c0"],
-        p["sense_theta0"],
+        p["sense_c0"] * (1.0 + p["sense_gain_drift"]),
+        p["sense_theta0"] * (1.0 + p["sense_width_drift"]),
         p["sense_cb"],
         p["drive_c0"],
         p["drive_theta0"],
@@ -711,6 +750,13 @@ class MicroScannerDevice:
         self._state = (self.p["initial_angle"], 0.0)
         self._hist = np.zeros(self.psd_delay_samples)
         self.next_index = 0
+
+    def retune(self, overrides: Mapping[str, Any]) -> None:
+        """The device's physical parameters moved (a temperature change): mechanics and
+        combs follow ``overrides`` from the next sample on; the state, the drive programme
+        and the noise streams are kept."""
+        self.p = resolve_scanner(overrides)
+        self.params = scanner_params(self.p)
 
     def drive(self, first: int, n: int) -> np.ndarray:
         """Drive samples first..first+n-1 [V] (0 after the programme ends)."""

@@ -53,7 +53,15 @@ import numpy as np
 import scipy.signal
 
 from mems_sim.devices.scanner import ScannerParams, capacitance, dcap_dtheta, simulate_mechanics
-from mems_sim.params import ParameterError, ParamSpec, resolve
+from mems_sim.params import (
+    AIR_DAMPING_TEMPCO,
+    SILICON_EXPANSION_TEMPCO,
+    SILICON_STIFFNESS_TEMPCO,
+    ParameterError,
+    ParamSpec,
+    batch_spread,
+    resolve,
+)
 
 __all__ = [
     "DEVICE_SPECS",
@@ -85,6 +93,7 @@ DEVICE_SPECS: tuple[ParamSpec, ...] = (
         min=0.0,
         max=1.0e-6,
         min_exclusive=True,
+        spread=batch_spread(0.02, "+-2 % mirror inertia (thickness tolerance)"),
     ),
     ParamSpec(
         "spring_constant",
@@ -95,6 +104,8 @@ DEVICE_SPECS: tuple[ParamSpec, ...] = (
         min=0.0,
         max=1.0e3,
         min_exclusive=True,
+        spread=batch_spread(0.10, "+-10 % spring constant (torsion bar width tolerance)"),
+        tempco=SILICON_STIFFNESS_TEMPCO,
     ),
     ParamSpec(
         "damping",
@@ -105,6 +116,8 @@ DEVICE_SPECS: tuple[ParamSpec, ...] = (
         min=0.0,
         max=1.0,
         min_exclusive=True,
+        spread=batch_spread(0.20, "+-20 % damping (gap tolerance of the air films)"),
+        tempco=AIR_DAMPING_TEMPCO,
     ),
     ParamSpec(
         "cap_theta0",
@@ -115,6 +128,7 @@ DEVICE_SPECS: tuple[ParamSpec, ...] = (
         min=1.0e-3,
         max=2.0,
         min_exclusive=False,
+        spread=batch_spread(0.10, "+-10 % comb width (finger length tolerance)"),
     ),
     ParamSpec(
         "cap_c0",
@@ -125,6 +139,8 @@ DEVICE_SPECS: tuple[ParamSpec, ...] = (
         min=0.0,
         max=1.0e-9,
         min_exclusive=True,
+        spread=batch_spread(0.20, "+-20 % comb gain (finger gap and overlap tolerance)"),
+        tempco=SILICON_EXPANSION_TEMPCO,
     ),
     ParamSpec(
         "cap_cb", 9.79e-12, "F", "capacitance bias C_b of C_s, eq. (105)", _T52, min=0.0, max=1.0e-9
@@ -560,6 +576,14 @@ class AmdmScannerDevice:
         _, self._zi_l = scipy.signal.sosfilt(self.chain.lpf, vo3, zi=self._zi_l)
         self.lsb = 2.0 * p["adc_full_scale"] / 2 ** p["adc_bits"]
         self.next_index = 0
+
+    def retune(self, overrides: Mapping[str, Any]) -> None:
+        """The device's physical parameters moved (a temperature change): mechanics and
+        comb follow ``overrides`` from the next sample on; the state, the filters' states,
+        the chain's calibration (identified once, Sec. 5.5.1) and the noise streams are
+        kept."""
+        self.p = resolve_amdm(overrides)
+        self.mech = device_params(self.p)
 
     @property
     def delay(self) -> float:

@@ -51,20 +51,22 @@ anti-alias filter, no averaging across periods):
 plus the ADC's own quantisation (codes are rounded).  The transimpedance bandwidth is
 assumed >> fs, so no signal phase lag is modelled.
 
-Temperature: D_n(T) = D_n0 (1 + gap_tempco (T - T_ref)) (the paper re-identifies D_n at
-35.7 C, sec. 3.5.3/3.6.3, but gives no coefficient: the default is an assumption). The
-thesis names no temperature effect on the stage's tilt mode: chapter 3 only says capacitive
-sensing is "susceptible to gain and bias drift due to ... temperature" (sec. 1, ch. 4.2.1:
-geometry between electrodes) and re-identifies D_n and eta; Table 3.3 gives wn, zeta, b_c
-at room temperature only. wn and b_c therefore do NOT drift by default
-(``freq_tempco_per_k = b_c_tempco_per_k = 0``); both coefficients stay available as
-parameters (source 'assumption') for robustness studies of the estimator, which is
-never re-identified for them.
+Temperature (on by default; linear in T - T_ref): D_n(T) = D_n0 (1 + gap_tempco (T -
+T_ref)) (the paper re-identifies D_n at 35.7 C, sec. 3.5.3/3.6.3, but gives no
+coefficient: the default is an assumption); wn -30 ppm/K (silicon's Young's modulus about
+-60 ppm/K, Hopcroft, Nix & Kenny, JMEMS 19(2) 2010, and wn ~ sqrt(E)); actuator gain b_c
++0.1 %/K (soft PZT d31, order +0.1 %/K near room temperature, Zhang, Wang, Kim & Cross,
+J. Appl. Phys. 75(1) 1994); R_s, so eta, +25 ppm/K (thin-film resistor class, Vishay
+TNPW). Table 3.3 gives wn, zeta, b_c at room temperature only. Manufacturing spread drawn
+from ``device_seed`` (:func:`draw_spread`): zeta +-10 %, stator Y registration +-0.5 um,
+channel gain mismatch. ``idealised`` restores the drift-free stage of Table 3.3 (no
+coefficient on wn, b_c, eta; nominal zeta and registration; D_n still moves).
 """
 
 from __future__ import annotations
 
 import math
+import zlib
 from collections.abc import Mapping, Sequence
 from typing import Any, NamedTuple
 
@@ -85,7 +87,7 @@ from mems_sim.devices.stage_capacitance import (
     dual_axis_gradient,
     single_axis_dcdtheta,
 )
-from mems_sim.params import ParameterError, ParamSpec, resolve
+from mems_sim.params import ParameterError, ParamSpec, Spread, resolve, spec_table
 
 __all__ = [
     "STAGE_SPECS",
@@ -108,6 +110,9 @@ __all__ = [
     "validate_params",
     "LdvReference",
     "gap_at",
+    "draw_spread",
+    "off_axis_rejection_worst",
+    "leakage_slope",
     "record",
 ]
 
@@ -138,11 +143,14 @@ STAGE_SPECS: tuple[ParamSpec, ...] = (
         "damping_ratio",
         0.005,
         "-",
-        "tilt-mode damping ratio zeta",
-        "Table 3.3",
+        "tilt-mode damping ratio zeta (nominal; one device of the batch is drawn +-10 % "
+        "around it from device_seed unless idealised or set explicitly)",
+        "Table 3.3; spread: assumption +-10 % (uniform): air/squeeze-film damping follows "
+        "gap and viscosity, which vary from device to device",
         min=0.0,
         max=0.7,
         min_exclusive=True,
+        spread=Spread("uniform", 0.10, source="assumption: +-10 % batch spread of zeta"),
     ),
     ParamSpec(
         "b_c",
@@ -183,24 +191,57 @@ STAGE_SPECS: tuple[ParamSpec, ...] = (
     ),
     ParamSpec(
         "freq_tempco_per_k",
-        0.0,
+        -30e-6,
         "1/K",
-        "relative change of wn per kelvin",
-        "assumption: Chen 2018 gives no stage temperature effect (Table 3.3 at room "
-        "temperature only), so 0; study knob (e.g. -30e-6: f ~ sqrt(E) of Si)",
+        "relative change of wn per kelvin (0 when idealised)",
+        "silicon: Young's modulus about -60 ppm/K near room temperature (Hopcroft, Nix & "
+        "Kenny, J. Microelectromech. Syst. 19(2) 2010), wn ~ sqrt(E): -30 ppm/K. Chen 2018 "
+        "gives wn at room temperature only (Table 3.3)",
         min=-1e-2,
         max=1e-2,
     ),
     ParamSpec(
         "b_c_tempco_per_k",
-        0.0,
+        1.0e-3,
         "1/K",
-        "relative change of the actuator gain b_c per kelvin",
-        "assumption: Chen 2018 gives no value, so 0; study knob (PZT d31 "
-        "drifts ~0.1 %/K); the estimator is not re-identified for it (only D_n, eta are, "
-        "sec. 3.5.3)",
+        "relative change of the actuator gain b_c per kelvin (0 when idealised)",
+        "soft PZT: d31 rises with temperature near room temperature, order +0.1 %/K "
+        "(domain-wall contribution; Zhang, Wang, Kim & Cross, J. Appl. Phys. 75(1) 454, "
+        "1994); the exact value is an assumption. Chen 2018 gives b_c at room temperature "
+        "only (Table 3.3) and re-identifies only D_n, eta (sec. 3.5.3)",
         min=-1e-1,
         max=1e-1,
+    ),
+    ParamSpec(
+        "readout_gain_tempco_per_k",
+        25e-6,
+        "1/K",
+        "relative change of the transimpedance R_s (so of eta = -V_bias R_s, eq. 44) per "
+        "kelvin (0 when idealised)",
+        "thin-film feedback resistor, TCR +-25 ppm/K class (Vishay TNPW e3 datasheet); the "
+        "sign is an assumption. Chen 2018 re-identifies eta at 35.7 C (sec. 3.6.3)",
+        min=-1e-2,
+        max=1e-2,
+    ),
+    ParamSpec(
+        "stator_offset_y_m",
+        0.0,
+        "m",
+        "misregistration of the stator layer against the rotor along Y (nominal 0; one "
+        "device of the batch is drawn +-0.5 um around it from device_seed unless idealised "
+        "or set explicitly): makes the off-axis leakage first order (eqs. 56-57)",
+        "assumption: +-0.5 um (uniform) lithographic/bonding overlay; Table A.2 is symmetric in Y",
+        min=-20e-6,
+        max=20e-6,
+        spread=Spread("uniform", 0.5e-6, relative=False, source="assumption: +-0.5 um overlay"),
+    ),
+    ParamSpec(
+        "idealised",
+        False,
+        "-",
+        "true: the drift-free stage (no temperature coefficient on wn, b_c, eta; nominal "
+        "zeta and stator registration, nothing drawn); D_n still moves with gap_tempco",
+        "study switch: the stage of Chen 2018 Table 3.3 at every temperature",
     ),
     ParamSpec(
         "ref_temperature_c",
@@ -433,6 +474,26 @@ def gap_at(p: Mapping[str, Any], temperature_c: float | None = None) -> float:
     return p["neutral_gap_m"] * (1.0 + p["gap_tempco_per_k"] * (t - p["ref_temperature_c"]))
 
 
+def draw_spread(p: Mapping[str, Any], fixed: set[str] | frozenset[str] = frozenset()) -> dict:
+    """One device of the batch: every parameter of :data:`STAGE_SPECS` with a
+    :class:`~mems_sim.params.Spread` (``damping_ratio`` +-10 %, ``stator_offset_y_m``
+    +-0.5 um) drawn around its value in ``p`` from ``device_seed`` and the parameter's
+    name (``np.random.default_rng([device_seed, crc32(name)])``: adding a parameter does
+    not change the others' draws), names in ``fixed`` left as given; clipped into range."""
+    out = dict(p)
+    for spec in spec_table(STAGE_SPECS).values():
+        if spec.spread is None or spec.name in fixed:
+            continue
+        rng = np.random.default_rng([int(p["device_seed"]), zlib.crc32(spec.name.encode())])
+        v = spec.spread.draw(float(p[spec.name]), rng)
+        lo = -math.inf if spec.min is None else spec.min
+        hi = math.inf if spec.max is None else spec.max
+        if spec.min_exclusive and v <= lo:
+            v = float(p[spec.name])
+        out[spec.name] = min(max(v, lo), hi)
+    return out
+
+
 def stage_matrices(wn: float, zeta: float, b_c: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """Exact ZOH discretisation (A_d, B_d) of eqs. (31)-(33) over dt (eq. 34), closed form.
 
@@ -541,23 +602,104 @@ def off_axis_rejection(
     gap_m: float,
     limits: np.ndarray,
     eta: float = 1.0,
+    theta_off: np.ndarray | None = None,
+    omega_off: np.ndarray | None = None,
 ) -> float:
-    """R_off of eqs. (56)-(57) for off-axis motion = ratio x main-axis motion (in phase).
+    """R_off of eqs. (56)-(57): 1 - E_y / ratio for off-axis motion ``ratio`` times the
+    main-axis motion (in phase), or the given ``theta_off``/``omega_off`` (whose amplitude
+    ratio to the main axis is ``ratio``).
 
-    E_y = RMS(y_single - y_dual) normalised by RMS(y_single) (see module doc, eq. 56 units).
-    y_single from eq. (46)-(47), y_dual from eqs. (41)-(45); all channels pooled.
+    E_y = RMS(y_single - y_dual) / RMS(y_single), all channels pooled: the leaked signal
+    as a fraction of the single-axis signal (module doc, eq. 56 units). Under this reading
+    a sensor equally sensitive to both axes leaks E_y = ratio and rejects nothing (R_off =
+    0); a perfect one leaks nothing (R_off = 1). y_single from eqs. (46)-(47) (theta_X =
+    0), y_dual from eqs. (40)-(45).
     """
-    tx, wx = ratio * theta_main, ratio * omega_main
-    g = dual_axis_gradient(tx, theta_main, gap_m, limits)
-    y_dual = eta * (g[:, :, 0] * wx[:, None] + g[:, :, 1] * omega_main[:, None])
-    eps = EPS0
-    y_single = np.empty_like(y_dual)
+    tx = ratio * theta_main if theta_off is None else np.asarray(theta_off, float)
+    wx = ratio * omega_main if omega_off is None else np.asarray(omega_off, float)
+    y_single = _single_axis_signal(theta_main, omega_main, gap_m, limits, eta)
+    return _rejection(y_single, theta_main, omega_main, tx, wx, ratio, gap_m, limits, eta)
+
+
+def _single_axis_signal(theta_main, omega_main, gap_m, limits, eta) -> np.ndarray:
+    """eta dC/dtheta omega of the single-axis model eqs. (46)-(47), (n, nch)."""
+    y_single = np.empty((np.size(theta_main), limits.shape[0]))
     for c in range(limits.shape[0]):
         w1, w2, w3, w4 = limits[c]
-        hs = np.array([dcdtheta_single(t, gap_m, w1, w2, w4 - w3, eps) for t in theta_main])
+        hs = np.array([dcdtheta_single(t, gap_m, w1, w2, w4 - w3, EPS0) for t in theta_main])
         y_single[:, c] = eta * hs * omega_main
+    return y_single
+
+
+def _rejection(y_single, theta_main, omega_main, tx, wx, ratio, gap_m, limits, eta) -> float:
+    """1 - E_y / ratio with the dual-axis signal of eqs. (40)-(45) (module doc)."""
+    g = dual_axis_gradient(tx, theta_main, gap_m, limits)
+    y_dual = eta * (g[:, :, 0] * wx[:, None] + g[:, :, 1] * omega_main[:, None])
     e_y = np.sqrt(np.mean((y_single - y_dual) ** 2)) / np.sqrt(np.mean(y_single**2))
-    return 1.0 - e_y / ratio
+    return float(1.0 - e_y / ratio)
+
+
+def off_axis_rejection_worst(
+    amplitude_rad: float,
+    freq_hz: float,
+    ratio: float,
+    gap_m: float,
+    limits: np.ndarray,
+    phases_deg: Sequence[float] = tuple(range(0, 181, 5)),
+    samples: int = 2000,
+) -> tuple[float, float]:
+    """Worst R_off (:func:`off_axis_rejection`) over the off-axis phase: main axis
+    ``amplitude sin(2 pi f t)``, off axis ``ratio amplitude sin(2 pi f t + phi)`` for phi
+    in ``phases_deg`` (0-180 deg covers every case: phi + 180 is the mirrored motion).
+    Returns (R_off, phi [deg] where it is worst)."""
+    ph = 2 * np.pi * np.arange(samples) / samples
+    w = 2 * np.pi * freq_hz
+    th, om = amplitude_rad * np.sin(ph), amplitude_rad * w * np.cos(ph)
+    ys = _single_axis_signal(th, om, gap_m, limits, 1.0)
+    worst = (math.inf, 0.0)
+    for phi in phases_deg:
+        a = math.radians(phi)
+        tx = ratio * amplitude_rad * np.sin(ph + a)
+        wx = ratio * amplitude_rad * w * np.cos(ph + a)
+        worst = min(worst, (_rejection(ys, th, om, tx, wx, ratio, gap_m, limits, 1.0), float(phi)))
+    return worst
+
+
+def leakage_slope(
+    amplitude_rad: float,
+    freq_hz: float,
+    gap_m: float,
+    limits: np.ndarray,
+    ratios: Sequence[float] = (0.01, 0.03, 0.1, 0.3),
+    phase_deg: float = 0.0,
+) -> float:
+    """Log-log slope of the leaked signal E_y = ratio (1 - R_off) against the off-axis
+    ratio (least squares): 2 for the symmetric layout of Table A.2 (second order), 1 with
+    a stator misregistration in Y that dominates (first order)."""
+    ph = 2 * np.pi * np.arange(2000) / 2000
+    w = 2 * np.pi * freq_hz
+    th, om = amplitude_rad * np.sin(ph), amplitude_rad * w * np.cos(ph)
+    a = math.radians(phase_deg)
+    ys = _single_axis_signal(th, om, gap_m, limits, 1.0)
+    e = [
+        r
+        * (
+            1.0
+            - _rejection(
+                ys,
+                th,
+                om,
+                r * amplitude_rad * np.sin(ph + a),
+                r * amplitude_rad * w * np.cos(ph + a),
+                r,
+                gap_m,
+                limits,
+                1.0,
+            )
+        )
+        for r in ratios
+    ]
+    return float(np.polyfit(np.log(ratios), np.log(e), 1)[0])
 
 
 def steady_amplitude(p: Mapping[str, Any], freq_hz: float, amp_v: float) -> float:
@@ -691,6 +833,10 @@ class MicroStage:
         params: overrides of :data:`STAGE_SPECS` (validated).
         schedule: :class:`DriveSchedule` (checked against ``safe_tilt_rad``).
         seed: run seed (np.random.SeedSequence -> noise streams).
+        fixed: names of parameters set explicitly, never drawn from ``device_seed``
+            (default: the keys of ``params``). The parameters with a spread
+            (``damping_ratio``, ``stator_offset_y_m``) are drawn around their value from
+            ``device_seed`` unless ``idealised`` (:func:`draw_spread`).
     """
 
     def __init__(
@@ -698,10 +844,16 @@ class MicroStage:
         params: Mapping[str, Any] | None = None,
         schedule: DriveSchedule | None = None,
         seed: int = 0,
+        fixed: Sequence[str] | None = None,
     ) -> None:
         p = resolve(STAGE_SPECS, params)
         validate_params(p)
+        self.nominal = dict(p)
+        if not p["idealised"]:
+            p = draw_spread(p, set(params or {}) if fixed is None else set(fixed))
         self.params = p
+        #: tilt-mode damping ratio of this device (drawn, Table 3.3 nominal)
+        self.zeta = p["damping_ratio"]
         self.fs = p["sample_rate_hz"]
         self.schedule = schedule or DriveSchedule.amplitude_sweep()
         self.schedule.check_safe(p)
@@ -709,11 +861,11 @@ class MicroStage:
         gn, gw, gl = [np.random.Generator(np.random.PCG64(s)) for s in ss.spawn(3)]
         gmis = np.random.Generator(np.random.PCG64(p["device_seed"]))
         self._gen_noise, self._gen_w, self._gen_ldv = gn, gw, gl
-        self.limits = channel_limits(p)
+        self.limits = channel_limits(p)  # as built (stator misregistration included)
+        #: the electrode layout as designed (Table A.1/A.2), what an estimator knows
+        self.design_limits = channel_limits(p, design=True)
         self.gain = 1.0 + p["channel_gain_mismatch"] * gmis.standard_normal(4)
-        self.eta_true = -p["v_bias"] * p["r_s_ohm"] * self.gain
         self.c_ft = p["feedthrough_cap_f"] * np.array([0.8, 1.1, 0.9, 1.2])
-        self._gain_rs = p["r_s_ohm"] * self.gain
         self._ft_rs = p["r_s_ohm"] * self.c_ft
         self.temperature_c = p["temperature_c"]
         self._update_dynamics()
@@ -730,20 +882,29 @@ class MicroStage:
         d = p["ldv_delay_s"] * self.fs
         self._ldv_m = int(math.ceil(d))
         self._ldv_hist = np.zeros((3, self._ldv_m))
-        self._ldv_AB = stage_matrices(wn, p["damping_ratio"], self.b_c, (self._ldv_m - d) / self.fs)
+        self._ldv_AB = stage_matrices(wn, self.zeta, self.b_c, (self._ldv_m - d) / self.fs)
+
+    def tempcos(self) -> tuple[float, float, float]:
+        """(wn, b_c, R_s) temperature coefficients in effect [1/K]: the parameters, or 0
+        when ``idealised``."""
+        p = self.params
+        if p["idealised"]:
+            return 0.0, 0.0, 0.0
+        return p["freq_tempco_per_k"], p["b_c_tempco_per_k"], p["readout_gain_tempco_per_k"]
 
     def _update_dynamics(self) -> None:
-        """wn(T), b_c(T) (linear tempcos) and the ZOH matrices (eq. 34) at fs."""
+        """wn(T), b_c(T), R_s(T) (linear tempcos) and the ZOH matrices (eq. 34) at fs."""
         p = self.params
         dt_k = self.temperature_c - p["ref_temperature_c"]
-        self.wn = 2 * math.pi * p["natural_freq_hz"] * (1.0 + p["freq_tempco_per_k"] * dt_k)
-        self.b_c = p["b_c"] * (1.0 + p["b_c_tempco_per_k"] * dt_k)
-        self.A, self.B = stage_matrices(self.wn, p["damping_ratio"], self.b_c, 1.0 / self.fs)
+        c_f, c_b, c_r = self.tempcos()
+        self.wn = 2 * math.pi * p["natural_freq_hz"] * (1.0 + c_f * dt_k)
+        self.b_c = p["b_c"] * (1.0 + c_b * dt_k)
+        self._gain_rs = p["r_s_ohm"] * (1.0 + c_r * dt_k) * self.gain
+        self.eta_true = -p["v_bias"] * self._gain_rs
+        self.A, self.B = stage_matrices(self.wn, self.zeta, self.b_c, 1.0 / self.fs)
         if hasattr(self, "_ldv_m"):
             d = p["ldv_delay_s"] * self.fs
-            self._ldv_AB = stage_matrices(
-                self.wn, p["damping_ratio"], self.b_c, (self._ldv_m - d) / self.fs
-            )
+            self._ldv_AB = stage_matrices(self.wn, self.zeta, self.b_c, (self._ldv_m - d) / self.fs)
 
     @property
     def next_index(self) -> int:
@@ -760,7 +921,8 @@ class MicroStage:
         return int(math.ceil(self.schedule.duration_s() * self.fs))
 
     def set_temperature(self, temperature_c: float) -> None:
-        """Temperature input (moves D_n; wn, b_c only with non-zero tempcos; module doc)."""
+        """Temperature input (moves D_n; wn, b_c, R_s with their tempcos unless idealised;
+        module doc)."""
         spec = {s.name: s for s in STAGE_SPECS}["temperature_c"]
         self.temperature_c = spec.validate(float(temperature_c))
         self._update_dynamics()
@@ -903,7 +1065,7 @@ def record(stage: MicroStage, gyro=None, frame: int = 65536, n: int | None = Non
                 f.omega[:, 0],
                 stage.last_applied,
                 stage.wn,
-                stage.params["damping_ratio"],
+                stage.zeta,
                 stage.b_c,
             )
             g_parts.setdefault("gyro_t", []).append(g.t)

@@ -25,18 +25,25 @@ EPS0 = 8.8541878128e-12  # F/m, electric constant (eq. 35: 8.8542e-12)
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(5)
 
 
-def channel_limits(p: Mapping[str, Any]) -> np.ndarray:
+def channel_limits(p: Mapping[str, Any], design: bool = False) -> np.ndarray:
     """Integration limits (w1, w2, w3, w4) per channel 1A, 1B, 2A, 2B [m] (Table A.1).
 
     2A corrected (misprint, see module doc): outer right stator [0.5W - W_SA, 0.5W].
+    ``stator_offset_y_m`` (if in ``p``; 0 when ``design``) shifts every stator along Y
+    (w3, w4): a misregistration of the stator layer against the rotor. With the
+    symmetric layout of Table A.2 the off-axis leakage is second order in the off-axis
+    angle; the offset makes it first order (the rotor's dC/dtheta_X no longer vanishes
+    at theta_X = 0).
     """
     W, sa, sb, dw = p["w_m"], p["w_sa_m"], p["w_sb_m"], p["d_w_m"]
+    dy = 0.0 if design else float(p.get("stator_offset_y_m", 0.0))
+    lo, hi = -0.5 * sa + dy, 0.5 * sa + dy
     return np.array(
         [
-            [-0.5 * W, -0.5 * W + sa, -0.5 * sa, 0.5 * sa],
-            [0.5 * W - sa - dw - sb, 0.5 * W - sa - dw, -0.5 * sa, 0.5 * sa],
-            [0.5 * W - sa, 0.5 * W, -0.5 * sa, 0.5 * sa],
-            [-0.5 * W + sa + dw, -0.5 * W + sa + dw + sb, -0.5 * sa, 0.5 * sa],
+            [-0.5 * W, -0.5 * W + sa, lo, hi],
+            [0.5 * W - sa - dw - sb, 0.5 * W - sa - dw, lo, hi],
+            [0.5 * W - sa, 0.5 * W, lo, hi],
+            [-0.5 * W + sa + dw, -0.5 * W + sa + dw + sb, lo, hi],
         ]
     )
 

@@ -68,6 +68,8 @@ __all__ = [
     "observer_model",
     "KalmanObserver",
     "check_bits",
+    "check_outputs",
+    "predicted_error_acf",
     "check_pulse_timing",
     "add_pulse_input",
     "steady_state_gains",
@@ -253,6 +255,25 @@ def check_bits(bits, pulses) -> tuple[np.ndarray, np.ndarray]:
     if not np.all(np.isfinite(u)):
         raise ValueError("pulses must be finite (V)")
     return np.ascontiguousarray(bf), np.ascontiguousarray(u)
+
+
+def check_outputs(outputs, pulses) -> tuple[np.ndarray, np.ndarray]:
+    """Validate a frame of a real-valued modulator output (the linear-Gaussian stand-in of the
+    quantiser, v = q + w): finite values, pulses finite, same length.
+
+    Raises:
+        ValueError: shape or non-finite values.
+    """
+    v = np.asarray(outputs, dtype=float)
+    u = np.asarray(pulses, dtype=float)
+    if v.ndim != 1 or u.ndim != 1 or v.shape != u.shape:
+        raise ValueError(
+            f"outputs and pulses must be 1-D arrays of equal length; got shapes "
+            f"{v.shape} and {u.shape}"
+        )
+    if not (np.all(np.isfinite(v)) and np.all(np.isfinite(u))):
+        raise ValueError("modulator outputs and pulses must be finite (V)")
+    return np.ascontiguousarray(v), np.ascontiguousarray(u)
 
 
 def check_pulse_timing(
@@ -458,6 +479,42 @@ def _ss_run_innov(
 
 
 @numba.njit(cache=True)
+def _ss_run_states(
+    bits, pulses, starts, widths, xp, A, B, C, L, K, sqrtS, res, gam, spill, xf, innov
+):
+    # steady-state filter keeping the whole a-posteriori state X(k|k) (rows of xf)
+    n = xp.shape[0]
+    eff = np.empty(2)
+    z = np.empty(6)
+    wc = np.full(3, -1.0)
+    for k in range(bits.shape[0]):
+        yhat = 0.0
+        for i in range(n):
+            yhat += C[i] * xp[i]
+        nu = bits[k] - yhat
+        innov[k] = nu / sqrtS
+        for i in range(n):
+            xf[k, i] = xp[i] + K[i] * nu
+        ss_step6(xp, A, B, C, L, 0.0, bits[k], 0.0)
+        if pulses[k] != 0.0 or spill[0] != 0.0:  # (call guarded: array-argument
+            add_pulse_input(
+                xp,
+                res[0],
+                res[1],
+                res[2],
+                res[3],
+                gam,
+                spill,
+                pulses[k],  # refcounts
+                starts[k],
+                widths[k],
+                eff,
+                z,
+                wc,
+            )
+
+
+@numba.njit(cache=True)
 def ss_step(xp, A, B, C, L, cpk, v, u, tmp):
     """Steady-state step: returns position estimate Cp X(k|k); advances xp with u."""
     n = xp.shape[0]
@@ -541,6 +598,46 @@ def steady_state_gains(model: ObserverModel) -> dict:
     return {"P": P, "S": S, "K": K, "L": L, "pos_var": max(pos_var, 0.0), "method": method}
 
 
+def predicted_error_acf(model: ObserverModel, lags: int, component: int = 0) -> np.ndarray:
+    """Autocorrelation of the steady-state a-posteriori error the filter predicts, lags 1..lags.
+
+    The error e(k) = X(k) - X(k|k) of a steady-state Kalman filter is not white: it is the
+    output of the filter's closed loop driven by the noises (Anderson & Moore 1979, Ch. 4;
+    Simon 2006, Sec. 7.1).  With a-priori error eps(k) = X(k) - X(k|k-1), innovation
+    nu(k) = C eps(k) + w(k), a-posteriori covariance P+ = (I - K C) P and the predictor form
+    of the filter with correlated noises (Colinet et al. eq. 2 with the cross covariance M:
+    X(k+1|k) = A X(k|k) + B u(k) + (M/S) nu(k), L = A K + M/S):
+
+        eps(k+1) = (A - L C) eps(k) + Gn n(k) - L w(k)       (noise independent of eps(k))
+        e(k)     = (I - K C) eps(k) - K w(k)
+        E[eps(k+1) e(k)^T] = A P+ - M K^T        (E[nu e^T] = 0, E[Gn n w] = M)
+        E[e(k+m) e(k)^T]   = (I - K C) (A - L C)^(m-1) (A P+ - M K^T),   m >= 1.
+
+    Without the cross term (M = 0, L = A K) this is ((I - K C) A)^m P+, the recursion
+    e(k) = (I - K C) A e(k-1) + (I - K C) w - K v.  Returns the ``component``-th diagonal
+    entry of E[e(k+m) e(k)^T] divided by that of P+ (component 0: the position).
+
+    Args:
+        model: the filter's model. lags: largest lag m (>= 1). component: state index.
+    Returns:
+        (lags,) predicted autocorrelation at lags 1..lags.
+    """
+    ss = steady_state_gains(model)
+    A, C, M = model.A, model.C, model.M
+    n = A.shape[0]
+    K, L = ss["K"], ss["L"]
+    ikc = np.eye(n) - np.outer(K, C)
+    p_post = ikc @ ss["P"]
+    p_post = 0.5 * (p_post + p_post.T)
+    closed = A - np.outer(L, C)
+    col = (A @ p_post - np.outer(M, K))[:, component]
+    out = np.empty(int(lags))
+    for m in range(int(lags)):
+        out[m] = (ikc @ col)[component]
+        col = closed @ col
+    return out / p_post[component, component]
+
+
 class KalmanObserver:
     """Sixth-order Kalman observer of eq. (13) (paper Sec. 2 and 5), carried state.
 
@@ -557,6 +654,8 @@ class KalmanObserver:
         initial_state: (6,) X(0|-1) (None: zeros = resonator and modulator at rest).
         initial_cov: (6,6) P(0|-1) (None: identity, V^2: resonator and modulator states
             unknown to ~1 V, so the observer may join a running stream).
+        linear_output: accept a real-valued modulator output (the device's
+            ``quantizer: gaussian`` stand-in, v = q + w) instead of the one-bit +-1 stream.
     """
 
     def __init__(
@@ -573,6 +672,7 @@ class KalmanObserver:
         quantizer_gain: float = 1.0,
         initial_state=None,
         initial_cov=None,
+        linear_output: bool = False,
     ) -> None:
         for name, val in (
             ("output_noise_std", output_noise_std),
@@ -591,6 +691,7 @@ class KalmanObserver:
             quantizer_gain=quantizer_gain,
         )
         self.steady_state = bool(steady_state)
+        self.linear_output = bool(linear_output)
         self.x0 = np.zeros(6) if initial_state is None else np.array(initial_state, float)
         self.P0 = np.eye(6) if initial_cov is None else np.array(initial_cov, float)
         if self.steady_state:
@@ -599,6 +700,8 @@ class KalmanObserver:
             self.L = np.ascontiguousarray(ss["L"])
             self.cpk = float(self.model.C_pos @ ss["K"])
             self.P0 = ss["P"].copy()
+            ikc = np.eye(6) - np.outer(ss["K"], self.model.C)
+            ss["P_post"] = 0.5 * (ikc @ ss["P"] + (ikc @ ss["P"]).T)
         self.x = self.x0.copy()
         self.P = self.P0.copy()
         self._res = np.array([self.model.f0, self.model.Q, self.model.fs, self.model.w0])
@@ -651,7 +754,7 @@ class KalmanObserver:
             ValueError: bits not in {+1, -1} (message names the convention), bad shape or
                 bad pulse timing.
         """
-        b, u = check_bits(bits, pulses)
+        b, u = (check_outputs if self.linear_output else check_bits)(bits, pulses)
         s, w = check_pulse_timing(u, starts, widths, self.model.fs)
         n = b.shape[0]
         pos = np.empty(n)
@@ -703,3 +806,45 @@ class KalmanObserver:
         self.last_innovations = innov
         self.next_index += n
         return pos, var
+
+    def step_states(self, bits, pulses, starts=None, widths=None) -> np.ndarray:
+        """:meth:`step` on the steady-state path, returning the whole a-posteriori state.
+
+        Same recursion and carried state as :meth:`step` (the two may be mixed); the
+        normalised innovations go to :attr:`last_innovations`, the steady a-posteriori
+        covariance is ``(I - K C) P`` of :attr:`ss` (``P_post``).
+
+        Returns:
+            (n, 6) X(k|k), V (resonator position, velocity / w0, STF and NTF states).
+        Raises:
+            ValueError: not built with ``steady_state=True``, or the checks of :meth:`step`.
+        """
+        if not self.steady_state:
+            raise ValueError("step_states needs steady_state=True (fixed gain, fixed P)")
+        b, u = (check_outputs if self.linear_output else check_bits)(bits, pulses)
+        s, w = check_pulse_timing(u, starts, widths, self.model.fs)
+        n = b.shape[0]
+        m = self.model
+        xf = np.empty((n, 6))
+        innov = np.empty(n)
+        _ss_run_states(
+            b,
+            u,
+            s,
+            w,
+            self.x,
+            m.A,
+            m.B,
+            m.C,
+            self.L,
+            np.ascontiguousarray(self.ss["K"]),
+            math.sqrt(self.ss["S"]),
+            self._res,
+            m.gam,
+            self._spill,
+            xf,
+            innov,
+        )
+        self.last_innovations = innov
+        self.next_index += n
+        return xf

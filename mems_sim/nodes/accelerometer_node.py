@@ -10,7 +10,11 @@ Topics (relative to the namespace, default ``/accelerometer``):
                                                variances (``ekf_rebalance`` only)
     ``/diagnostics``   contact with the stop, feedback saturation, input beyond the dynamic
                        range, ADC saturation, non-positive-definite covariance: WARN.
-Parameters: :data:`mems_sim.devices.accelerometer.ACCEL_SPECS` and ``EMULATOR_SPECS``.
+Input: ``temperature`` sensor_msgs/Temperature: the device's temperature (``temperature_c``).
+Parameters: :data:`mems_sim.devices.accelerometer.ACCEL_SPECS`, ``device_seed`` and
+``temperature_c`` (reference 26.85 C = the 300 K of Zhang 2010 eq. (3-1)) and
+``EMULATOR_SPECS``. The plant is the device drawn for ``device_seed`` at ``temperature_c``;
+V_B and the in-loop EKF are designed from the nominal device (the parameters as given).
 """
 
 from __future__ import annotations
@@ -21,9 +25,11 @@ from mems_sim.devices import accelerometer as fra
 from mems_sim.kernels.accelerometer_ekf import STATE_NAMES, STATE_UNITS
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import make_adc_frame, make_state_estimate
-from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node
+from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node, variation_specs
 
 NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=10000, frame_id="accelerometer")
+#: Reference temperature of the table [degC]: the 300 K of Zhang 2010 eq. (3-1).
+REFERENCE_TEMPERATURE_C = 26.85
 
 TRUTH_CHANNELS = ("acceleration", "displacement", "velocity", "contact", "saturated")
 TRUTH_UNITS = ("m/s^2", "m", "m/s", "1", "1")
@@ -37,12 +43,14 @@ class FrAccelerometerNode(EmulatorNode):
 
     NODE_NAME = "accelerometer"
     DEFAULT_NAMESPACE = "accelerometer"
-    SPECS = fra.ACCEL_SPECS + NODE_SPECS
+    SPECS = fra.ACCEL_SPECS + variation_specs(REFERENCE_TEMPERATURE_C) + NODE_SPECS
+    DEVICE_SPECS = fra.ACCEL_SPECS
     DIAGNOSTICS_TITLE = "force-rebalance accelerometer"
 
     def make_device(self) -> float:
-        device = self.values_of(fra.ACCEL_SPECS)
-        self.device = fra.ForceRebalanceAccelerometer(device, seed=self.p["seed"])
+        self.device = fra.ForceRebalanceAccelerometer(
+            self.device_values(), seed=self.p["seed"], nominal=self.values_of(fra.ACCEL_SPECS)
+        )
         self.ekf_mode = self.p["mode"] == "ekf_rebalance"
         self.pub_adc, self.pub_drive, self.pub_truth = self.create_frame_publishers(
             "adc", "drive", "truth"

@@ -8,7 +8,10 @@ Topics (relative to the node namespace, default ``/imu``):
                                    driver converts them, model covariances, no orientation
                                    (REP-145 raw IMU data: remap to ``data_raw`` for imu_tools)
     ``/diagnostics``               frames, saturated samples
+Input: ``temperature`` sensor_msgs/Temperature: the device's temperature (``temperature_c``).
 Parameters: the table ``mems_sim.devices.imu.IMU_SPECS`` (units, ranges, sources),
+``device_seed`` and ``temperature_c`` (the device drawn from the table's spreads at a
+temperature, reference 25 C; the published covariances stay the nominal ones, a datasheet's),
 ``EMULATOR_SPECS`` and the motion parameters below.
 """
 
@@ -22,7 +25,7 @@ from mems_sim.devices import imu as imu_noise
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.frames import index_to_ns, make_adc_frame
 from mems_sim.ros.imu_msg import ImuSerializer
-from mems_sim.ros.node_base import EMULATOR_SPECS, EmulatorNode, run_node
+from mems_sim.ros.node_base import EMULATOR_SPECS, EmulatorNode, run_node, variation_specs
 from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS
 
 MOTION_SPECS: tuple[ParamSpec, ...] = (
@@ -60,7 +63,8 @@ class ImuNoiseNode(EmulatorNode):
 
     NODE_NAME = "imu"
     DEFAULT_NAMESPACE = "imu"
-    SPECS = imu_noise.IMU_SPECS + EMULATOR_SPECS + MOTION_SPECS
+    SPECS = imu_noise.IMU_SPECS + variation_specs() + EMULATOR_SPECS + MOTION_SPECS
+    DEVICE_SPECS = imu_noise.IMU_SPECS
     DIAGNOSTICS_TITLE = "IMU emulator"
 
     def make_device(self) -> float:
@@ -70,9 +74,8 @@ class ImuNoiseNode(EmulatorNode):
                 f"parameter 'motion_frequency' = {self.p['motion_frequency']!r} is out of range: "
                 f"allowed [0.0, {fs / 2!r}) Hz (below Nyquist of sample_rate_hz)"
             )
-        device = self.values_of(imu_noise.IMU_SPECS)
-        self.model = imu_noise.ImuNoiseModel(device, seed=self.p["seed"])
-        gyro_var, accel_var = imu_noise.imu_covariances(device)
+        self.model = imu_noise.ImuNoiseModel(self.device_values(), seed=self.p["seed"])
+        gyro_var, accel_var = imu_noise.imu_covariances(self.values_of(imu_noise.IMU_SPECS))
         self._gyro_cov = imu_noise.covariance9(gyro_var)
         self._accel_cov = imu_noise.covariance9(accel_var)
         bits = self.p["bits"]
@@ -98,6 +101,14 @@ class ImuNoiseNode(EmulatorNode):
             self.pub_imu = self.create_publisher(Imu, "data", qos)
             self._imu_cdr = ImuSerializer(self.p["frame_id"], self._gyro_cov, self._accel_cov)
         return fs
+
+    def retune_device(self, values: dict) -> None:
+        """The noise model at a new temperature (its ``retune``, where it has one)."""
+        retune = getattr(self.model, "retune", None)
+        if retune is None:
+            self.diag.warn("temperature change not applied: the IMU noise model has no retune")
+            return
+        retune(values)
 
     def _truth(self, first: int, n: int) -> tuple[np.ndarray, np.ndarray]:
         p = self.p

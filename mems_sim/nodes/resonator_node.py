@@ -3,6 +3,8 @@
 
 Topics (relative to the namespace, default ``/resonator``):
     ``adc``           mems_msgs/AdcFrame     the one-bit stream: codes -1/+1, bits = 1, lsb 1 V
+                      (``quantizer: gaussian`` stand-in: its real-valued output as 24-bit
+                      codes, lsb 2^-20 V)
     ``drive``         mems_msgs/SignalFrame  the pulses applied to the actuator: height of the
                       pulse fired in each sample interval [V], its firing offset after the
                       sample instant [s] and its width [s] (0 where no pulse)
@@ -11,7 +13,10 @@ Topics (relative to the namespace, default ``/resonator``):
                       a pulse centred in the interval [V] (0 where none)
     ``loop_estimate`` mems_msgs/StateEstimate the in-loop Kalman observer's position (observer mode)
     ``/diagnostics``
-Parameters: ``mems_sim.devices.resonator.RESONATOR_SPECS`` and ``EMULATOR_SPECS``.
+Input: ``temperature`` sensor_msgs/Temperature: the device's temperature (``temperature_c``).
+Parameters: ``mems_sim.devices.resonator.RESONATOR_SPECS``, ``device_seed`` and
+``temperature_c`` (the resonator drawn from the table's spreads at a temperature, reference
+25 C; the in-loop observer keeps the nominal model) and ``EMULATOR_SPECS``.
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ import numpy as np
 from mems_sim.devices import resonator as sd_resonator
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import make_adc_frame, make_state_estimate
-from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node
+from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node, variation_specs
 
 NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=1000, frame_id="resonator")
 
@@ -34,6 +39,9 @@ TRUTH_CHANNELS = (
 )
 TRUTH_UNITS = ("V", "V/s", "Hz", "V", "V")
 DRIVE_CHANNELS = ("pulse", "pulse_start", "pulse_width")
+#: Code step of the ``quantizer: gaussian`` stand-in's output (24-bit codes, +-8 V), V: its
+#: rounding variance (2^-40/12 V^2) is negligible against the model's 1/3 V^2.
+STANDIN_LSB = 2.0**-20
 DRIVE_UNITS = ("V", "s", "s")
 
 
@@ -45,13 +53,16 @@ class SdResonatorNode(EmulatorNode):
 
     NODE_NAME = "resonator"
     DEFAULT_NAMESPACE = "resonator"
-    SPECS = sd_resonator.RESONATOR_SPECS + NODE_SPECS
+    SPECS = sd_resonator.RESONATOR_SPECS + variation_specs() + NODE_SPECS
+    DEVICE_SPECS = sd_resonator.RESONATOR_SPECS
     DIAGNOSTICS_TITLE = "sigma-delta resonator"
 
     def make_device(self) -> float:
-        device = self.values_of(sd_resonator.RESONATOR_SPECS)
-        sd_resonator.validate_params(device)
-        self.device = sd_resonator.SdResonatorDevice(device, seed=self.p["seed"])
+        nominal = self.values_of(sd_resonator.RESONATOR_SPECS)
+        sd_resonator.validate_params(nominal)
+        self.device = sd_resonator.SdResonatorDevice(
+            self.device_values(), seed=self.p["seed"], nominal=nominal
+        )
         self.observer_mode = self.p["mode"] == "observer"
         self.pub_adc, self.pub_drive, self.pub_truth = self.create_frame_publishers(
             "adc", "drive", "truth"
@@ -64,16 +75,20 @@ class SdResonatorNode(EmulatorNode):
     def publish_frame(self, first: int, n: int) -> None:
         f = self.device.step(n)
         common = self.frame_kwargs
+        if self.p["quantizer"] == "gaussian":
+            # the linear-Gaussian stand-in's real-valued output v = q + w as 24-bit codes
+            codes = np.clip(np.rint(f.bits / STANDIN_LSB), -(2**23), 2**23 - 1).astype(np.int32)
+            adc = dict(bits=24, lsb=(STANDIN_LSB,), full_scale=(2**23 * STANDIN_LSB,))
+        else:
+            codes, adc = f.bits, dict(bits=1, lsb=(1.0,), full_scale=(1.0,))
         self.pub_adc.publish(
             make_adc_frame(
-                f.bits.reshape(n, 1),
+                codes.reshape(n, 1),
                 first,
                 self.fs,
-                bits=1,
                 channel_names=("sd_bit",),
                 channel_units=("V",),
-                lsb=(1.0,),
-                full_scale=(1.0,),
+                **adc,
                 **common,
             )
         )

@@ -7,7 +7,10 @@ Topics (relative to the namespace, default ``/scanner_amdm``):
                                       f_drive [Hz]
     ``truth``  mems_msgs/SignalFrame  theta [rad], omega [rad/s] at the output instants
     ``/diagnostics``
-Parameters: ``mems_sim.devices.scanner_amdm.AMDM_SPECS`` and ``EMULATOR_SPECS``; the envelope delay of
+Input: ``temperature`` sensor_msgs/Temperature: the device's temperature (``temperature_c``).
+Parameters: ``mems_sim.devices.scanner_amdm.AMDM_SPECS``, ``device_seed`` and ``temperature_c``
+(the device drawn from the table's spreads at a temperature, reference 25 C) and
+``EMULATOR_SPECS``; the envelope delay of
 the chain (``chain_delay_s`` of the estimator) is logged at start and published on /diagnostics.
 """
 
@@ -18,7 +21,7 @@ import numpy as np
 from mems_sim.devices import scanner_amdm
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import make_adc_frame
-from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node
+from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node, variation_specs
 
 NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=1000, frame_id="scanner")
 
@@ -37,12 +40,12 @@ class ScannerAmdmNode(EmulatorNode):
 
     NODE_NAME = "scanner_amdm"
     DEFAULT_NAMESPACE = "scanner_amdm"
-    SPECS = scanner_amdm.AMDM_SPECS + NODE_SPECS
+    SPECS = scanner_amdm.AMDM_SPECS + variation_specs() + NODE_SPECS
+    DEVICE_SPECS = scanner_amdm.AMDM_SPECS
     DIAGNOSTICS_TITLE = "shared-electrode scanner (AMDM)"
 
     def make_device(self) -> float:
-        device = self.values_of(scanner_amdm.AMDM_SPECS)
-        self.device = scanner_amdm.AmdmScannerDevice(device, seed=self.p["seed"])
+        self.device = scanner_amdm.AmdmScannerDevice(self.device_values(), seed=self.p["seed"])
         self.pub_adc, self.pub_drive, self.pub_truth = self.create_frame_publishers(
             "adc", "drive", "truth"
         )

@@ -16,7 +16,11 @@ Topics (relative to the namespace, default ``/scanner``):
     ``psd``    mems_msgs/SignalFrame  theta_psd [rad]: PSD-like reference delayed by
                                       ``psd_delay_s`` (dc_transimpedance only)
     ``/diagnostics``                   frames, saturated samples, psd delay
-Parameters: ``SCANNER_SPECS`` + ``front_end`` + ``drive_frequency_hz`` + ``EMULATOR_SPECS``
+Input: ``temperature`` sensor_msgs/Temperature: the device's temperature (``temperature_c``).
+Parameters: ``SCANNER_SPECS`` + ``device_seed`` and ``temperature_c`` (the device drawn from the
+table's spreads at a temperature, reference 25 C; ``dc_transimpedance`` only: the
+``shared_amdm`` front end here is the nominal Table 5.2 device, ``scanner_amdm_node`` draws
+it) + ``front_end`` + ``drive_frequency_hz`` + ``EMULATOR_SPECS``
 (default ``frame_size`` 10000 samples = 20 ms: with the estimator and the recorder in one
 process the graph keeps up with 500 kHz only with frames of ~10^4 samples, as measured by make bench).
 """
@@ -28,7 +32,7 @@ import numpy as np
 from mems_sim.devices import scanner as micro_scanner
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import make_adc_frame
-from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node
+from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node, variation_specs
 
 NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=10000, frame_id="scanner") + (
     ParamSpec(
@@ -86,7 +90,8 @@ class MicroScannerNode(EmulatorNode):
 
     NODE_NAME = "scanner"
     DEFAULT_NAMESPACE = "scanner"
-    SPECS = micro_scanner.SCANNER_SPECS + NODE_SPECS
+    SPECS = micro_scanner.SCANNER_SPECS + variation_specs() + NODE_SPECS
+    DEVICE_SPECS = micro_scanner.SCANNER_SPECS
     DIAGNOSTICS_TITLE = staticmethod(lambda p: f"micro-scanner ({p['front_end']})")
 
     def make_device(self) -> float:
@@ -94,7 +99,7 @@ class MicroScannerNode(EmulatorNode):
         self.front_end = p["front_end"]
         fdrive = p["drive_frequency_hz"] or None
         if self.front_end == "dc_transimpedance":
-            dev = self.values_of(micro_scanner.SCANNER_SPECS)
+            dev = self.device_values()
             self.device = micro_scanner.MicroScannerDevice(
                 dev, seed=p["seed"], drive_frequency_hz=fdrive
             )

@@ -15,7 +15,10 @@ Topics (relative to the namespace, default ``/stage``):
     ``gyro/imu``     sensor_msgs/Imu        the same samples (angular_velocity.y = main axis),
                                            with publish_imu and while subscribed
     ``/diagnostics``
-Parameters: STAGE_SPECS, GYRO_SPECS, SCHEDULE_SPECS and EMULATOR_SPECS.
+Input: ``temperature_input`` sensor_msgs/Temperature: the stage's temperature follows it
+(``temperature_c``, from the next frame; ``temperature`` is the node's output).
+Parameters: STAGE_SPECS (its own ``device_seed``: the channel gain mismatch; its own
+``temperature_c`` with ``ref_temperature_c``), GYRO_SPECS, SCHEDULE_SPECS and EMULATOR_SPECS.
 """
 
 from __future__ import annotations
@@ -149,13 +152,18 @@ class MicroStageNode(EmulatorNode):
     NODE_NAME = "stage"
     DEFAULT_NAMESPACE = "stage"
     SPECS = micro_stage.STAGE_SPECS + GYRO_SPECS + SCHEDULE_SPECS + NODE_SPECS
+    DEVICE_SPECS = micro_stage.STAGE_SPECS
     DIAGNOSTICS_TITLE = "piezo tilt micro-stage"
+    #: ``temperature`` is the stage's output (its temperature as emulated).
+    TEMPERATURE_INPUT = "temperature_input"
 
     def make_device(self) -> float:
         dev = self.values_of(micro_stage.STAGE_SPECS)
         micro_stage.validate_params(dev)
         schedule = make_schedule(self.p)
-        self.device = micro_stage.MicroStage(dev, schedule, seed=self.p["seed"])
+        self.device = micro_stage.MicroStage(
+            dev, schedule, seed=self.p["seed"], fixed=getattr(self, "fixed_parameters", ())
+        )
         # load the compiled (numba) kernels now: at the first frame a paced node would
         # publish ~1 s late (a throwaway device: the node's own device is untouched)
         micro_stage.MicroStage(dev, schedule, seed=0).step(2)
@@ -184,6 +192,10 @@ class MicroStageNode(EmulatorNode):
     def schedule_samples(self) -> int:
         """Samples of the drive schedule: the node stops after them."""
         return self.device.total_samples()
+
+    def temperature_changed(self) -> None:
+        """``temperature_c`` changed (parameter or input topic): :meth:`set_temperature`."""
+        self.set_temperature(self.p["temperature_c"])
 
     def set_temperature(self, temperature_c: float) -> None:
         """Temperature input: moves D_n of the stage (wn, b_c only if their tempcos are set)
@@ -260,7 +272,7 @@ class MicroStageNode(EmulatorNode):
                 f.omega[:, 0],
                 self.device.last_applied,
                 self.device.wn,
-                self.p["damping_ratio"],
+                self.device.zeta,
                 self.device.b_c,
             )
             if g.index.size:

@@ -4,7 +4,8 @@ estimator nodes.
 * :class:`MemsNode`: every node (default namespace, ParamSpec parameters, diagnostics);
 * :class:`PacedEmulator`: sensor time (epoch), pacing (wall clock or /clock), /clock and
   duration of an emulator;
-* :class:`EmulatorNode`: every emulator node (device, frame publishers, ``step``);
+* :class:`EmulatorNode`: every emulator node (device, frame publishers, ``step``; one device
+  of a batch at a temperature: ``device_seed``, ``temperature_c``, :func:`variation_specs`);
 * :func:`run_node`: the ``main()`` of every node executable (exit code 2 on a bad parameter).
 
 The estimator nodes' base, ``EstimatorNode``, is in ``mems_estimation.nodes.frame_input``.
@@ -14,14 +15,16 @@ from __future__ import annotations
 
 import dataclasses
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
+from sensor_msgs.msg import Temperature
 
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
-from mems_sim.params import ParameterError, ParamSpec
+from mems_sim.params import ParameterError, ParamSpec, draw_device, spec_table
 from mems_sim.ros.diagnostics import DiagnosticsReporter
 from mems_sim.ros.end_of_stream import (
     END_OF_STREAM,
@@ -98,6 +101,47 @@ EMULATOR_SPECS: tuple[ParamSpec, ...] = (
     ),
     ParamSpec("frame_id", "imu_link", "-", "frame_id of published headers", "REP-103/105"),
 )
+
+
+#: Reference temperature [degC] of a device table whose source gives none (assumption:
+#: the values were identified at room temperature).
+ROOM_TEMPERATURE_C = 25.0
+
+
+def variation_specs(
+    reference_c: float = ROOM_TEMPERATURE_C, device_specs: Iterable[ParamSpec] = ()
+) -> tuple[ParamSpec, ...]:
+    """``device_seed`` and ``temperature_c`` of an emulator node (:class:`EmulatorNode`):
+    which device of a batch it emulates and at which temperature, ``reference_c`` [degC]
+    being the temperature of the device table's values. A name the device's own table
+    ``device_specs`` already has (the stage's) is left out: the device keeps its meaning."""
+    have = {s.name for s in device_specs}
+    specs = (
+        ParamSpec(
+            "device_seed",
+            -1,
+            "-",
+            "which device of the batch: every parameter of the device table with a "
+            "manufacturing spread is drawn from this seed and its name; -1: the nominal "
+            "device (nothing drawn). A parameter set explicitly is not drawn",
+            "deterministic: independent of the run seed (the noise); one seed, one device",
+            min=-1,
+            max=2**62,
+        ),
+        ParamSpec(
+            "temperature_c",
+            float(reference_c),
+            "degC",
+            "device temperature: every parameter of the device table with a temperature "
+            f"coefficient moves linearly from its value at {reference_c:g} C (the table's "
+            "reference); can be changed while the node runs, and follows "
+            "sensor_msgs/Temperature on the node's temperature input (from the next frame)",
+            f"reference {reference_c:g} C: the temperature of the device table's values",
+            min=-60.0,
+            max=150.0,
+        ),
+    )
+    return tuple(s for s in specs if s.name not in have)
 
 
 def emulator_specs(**defaults) -> tuple[ParamSpec, ...]:
@@ -429,22 +473,59 @@ class EmulatorNode(PacedEmulator, MemsNode):
     :class:`PacedEmulator`; a node that paces itself from start (``stamp_origin`` 'auto')
     stamps from the graph's time at start, one its owner drives or starts from 0.
 
+    One device of a batch at a temperature: :attr:`DEVICE_SPECS` is the device's table;
+    :meth:`device_values` gives its values for the node's ``device_seed`` (every parameter
+    with a :class:`~mems_sim.params.Spread` drawn, -1: the nominal device) at its
+    ``temperature_c`` (every parameter with a :class:`~mems_sim.params.TempCo` moved from
+    the reference temperature, the default of ``temperature_c``), a parameter set
+    explicitly (``fixed_parameters``) left as given; the subclass builds its device from
+    them. ``temperature_c`` can be changed while the node runs and follows the
+    sensor_msgs/Temperature messages on :attr:`TEMPERATURE_INPUT` (relative to the
+    namespace): the next frame generated after the change is at the new temperature
+    (:meth:`retune_device`; frames already published are not touched). A temperature
+    outside the parameter's range is ignored with a warning on /diagnostics.
+
     Args:
         drive_externally: if True no timer is created; the owner calls :meth:`step`
             (the scenario runner does this to run faster than real time without loss).
         autostart: start the pacing timer at once; if False the owner calls
             :meth:`start` once its subscribers are matched (no frame is lost to discovery).
+        fixed_parameters: names of the device parameters the user set explicitly (never
+            drawn nor moved by the temperature); None: every parameter given at
+            construction (``parameter_overrides``, ``--ros-args -p``, ``--params-file``).
+            The scenario runner passes the ones of ``--set`` / ``--params-file`` only.
         **node_kwargs: passed to rclpy's Node (context, namespace, parameter_overrides).
     """
 
-    RUNTIME_PARAMETERS = ("realtime_factor",)
+    RUNTIME_PARAMETERS = ("realtime_factor", "temperature_c")
     DIAGNOSTICS_HARDWARE_ID = True
+    #: The device's parameter table (drawn by ``device_seed``, moved by ``temperature_c``).
+    DEVICE_SPECS: tuple[ParamSpec, ...] = ()
+    #: Topic (relative) of the sensor_msgs/Temperature input.
+    TEMPERATURE_INPUT = "temperature"
 
     def __init__(
-        self, *, drive_externally: bool = False, autostart: bool = True, **node_kwargs
+        self,
+        *,
+        drive_externally: bool = False,
+        autostart: bool = True,
+        fixed_parameters: Iterable[str] | None = None,
+        **node_kwargs,
     ) -> None:
+        #: The device's values as last drawn (:meth:`device_values`); None until then.
+        self.drawn: dict | None = None
+        self._fixed_given = None if fixed_parameters is None else frozenset(fixed_parameters)
         super().__init__(**node_kwargs)
+        given = self._fixed_given
+        if given is None:
+            given = frozenset(self._parameter_overrides)
+        #: Device parameters set explicitly: never drawn nor moved by the temperature.
+        self.fixed_parameters = given & {s.name for s in self.DEVICE_SPECS}
+        self.reference_temperature_c = float(spec_table(self.SPECS)["temperature_c"].default)
         fs = self.make_device()
+        self.sub_temperature = self.create_subscription(
+            Temperature, self.TEMPERATURE_INPUT, self._on_temperature, 10
+        )
         self.init_emulator(
             fs, self.schedule_samples(), self_paced=not drive_externally and autostart
         )
@@ -460,6 +541,48 @@ class EmulatorNode(PacedEmulator, MemsNode):
     def make_device(self) -> float:
         """Build the device and the publishers from ``self.p``; return the sample rate [Hz]."""
         raise NotImplementedError
+
+    def device_values(self) -> dict:
+        """The values of :attr:`DEVICE_SPECS` of the device this node emulates: the node's
+        parameters (the nominal device) drawn for ``device_seed`` and moved to
+        ``temperature_c`` (:func:`~mems_sim.params.draw_device`); kept in :attr:`drawn`."""
+        self.drawn = draw_device(
+            self.DEVICE_SPECS,
+            self.values_of(self.DEVICE_SPECS),
+            self.p["device_seed"],
+            self.p["temperature_c"] - self.reference_temperature_c,
+            fixed=self.fixed_parameters,
+        )
+        return dict(self.drawn)
+
+    def temperature_changed(self) -> None:
+        """``temperature_c`` changed: the device's values at the new temperature go to
+        :meth:`retune_device` (nothing to do when no parameter has a coefficient)."""
+        before = self.drawn
+        if before is None:
+            return
+        values = self.device_values()
+        if values != before:
+            self.retune_device(values)
+        self.diag.counters["temperature_c"] = self.p["temperature_c"]
+
+    def retune_device(self, values: dict) -> None:
+        """Hand the device's values at a new temperature to the device (its ``retune``:
+        derived quantities rebuilt, state and noise streams kept)."""
+        self.device.retune(values)
+
+    def _on_temperature(self, msg: Temperature) -> None:
+        """sensor_msgs/Temperature input: ``temperature_c`` follows the message."""
+        t = float(msg.temperature)
+        spec = spec_table(self.SPECS)["temperature_c"]
+        try:
+            t = spec.validate(t)
+        except ParameterError as exc:
+            self.diag.count("temperature_ignored")
+            self.diag.warn(f"temperature input ignored: {exc}")
+            return
+        if t != self.p["temperature_c"]:
+            self.set_parameters([Parameter("temperature_c", value=t)])
 
     def schedule_samples(self) -> int | None:
         """Samples of the device's own schedule (the node stops after them); None: endless."""
@@ -531,9 +654,12 @@ class EmulatorNode(PacedEmulator, MemsNode):
             self.publish_end_of_stream()
 
     def parameter_changed(self, name: str, value) -> None:
-        """``realtime_factor``: the pacing continues from the current index at the new rate."""
+        """``realtime_factor``: the pacing continues from the current index at the new rate;
+        ``temperature_c``: the device moves (:meth:`temperature_changed`)."""
         if name == "realtime_factor":
             self.repace()
+        elif name == "temperature_c":
+            self.temperature_changed()
 
 
 def _raise_interrupt(signum, frame):

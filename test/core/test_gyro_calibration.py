@@ -35,9 +35,10 @@ def test_least_squares_eq27_standard_errors():
 @pytest.fixture(scope="module")
 def runs():
     plan = Plan.short()
-    model, _ = identify_stage(seed=4, plan=plan)
-    models = {T1: model, T2: retrain_at(model, T2, 4, plan)}
-    return {T: calibration_run(models[T], T, 4, plan) for T in (T1, T2)}
+    sp = {"idealised": True}  # the thesis' procedure on the drift-free stage
+    model, _ = identify_stage(seed=4, plan=plan, stage_params=sp)
+    models = {T1: model, T2: retrain_at(model, T2, 4, plan, sp)}
+    return {T: calibration_run(models[T], T, 4, plan, sp) for T in (T1, T2)}
 
 
 def test_pairing_with_true_reference(runs):

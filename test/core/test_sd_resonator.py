@@ -291,3 +291,24 @@ def test_f0_step_and_drift_in_truth():
     fr = d.step(2000)
     assert fr.f0[999] == pytest.approx(5e4 * (1 + 100e-6 * 999e-6))
     assert fr.f0[1000] == pytest.approx(5e4 * (1 + 100e-6 * 1e-3) * 1.02)
+
+
+def test_standin_quantizer_is_linear_gaussian():
+    """The ``quantizer: gaussian`` stand-in (v = q + w, Colinet eqs. 10-13 with the one-bit
+    comparator replaced by additive Gaussian noise of the model's variance): real-valued
+    output, v = STF x + NTF w exactly; the default stays the one-bit stream."""
+    from mems_sim.devices.resonator import SdResonatorDevice
+    from mems_sim.devices.resonator_models import sd_step_standin
+
+    p = {"output_noise_std": 0.25, "state_noise_std": 5e-4, "observer_state_noise_std": 5e-4}
+    one = SdResonatorDevice(p, seed=2).step(20_000)
+    explicit = SdResonatorDevice(dict(p, quantizer="one_bit"), seed=2).step(20_000)
+    assert one.bits.dtype == np.int8 and np.array_equal(one.bits, explicit.bits)
+    fr = SdResonatorDevice(dict(p, quantizer="gaussian"), seed=2).step(20_000)
+    assert fr.bits.dtype == np.float64 and np.unique(fr.bits).size > 1000
+    # the stand-in step alone: v - q is exactly the injected noise
+    s = np.zeros(2)
+    w = np.random.default_rng(0).standard_normal(1000) / np.sqrt(3.0)
+    e = np.array([np.subtract(*sd_step_standin(0.3, s, 0.5, wi)) for wi in w])
+    assert np.allclose(e, w, atol=1e-12)
+    print(f"\nstand-in output std {fr.bits[5000:].std():.3f} V")

@@ -1,10 +1,13 @@
 """End-to-end: the imu_noise scenario through the node graph, its MCAP, replay, CLI errors."""
 
+import contextlib
+import json
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 from rclpy.executors import SingleThreadedExecutor
@@ -18,6 +21,7 @@ from mems_scenarios import imu_noise
 from mems_scenarios.base import ScenarioOptions
 from mems_sim.bag.info import bag_info
 from mems_sim.bag.player import Player, iter_messages, read_messages
+from mems_sim.ros.frames import time_to_ns
 
 BIN = Path(sys.executable).parent
 DATA_TOPICS = ("/imu/adc", "/imu/truth", "/imu/noise_model")
@@ -129,7 +133,7 @@ def test_replayed_bag_through_topics_gives_live_output(two_runs, ros_context):
 
 
 def test_realtime_run_reads_back_everywhere(tmp_path, subprocess_env):
-    """20 s at the wall clock's pace (the identifier told to identify from 15 s on: the
+    """10 s at the wall clock's pace (the identifier told to identify from 8 s on: the
     model is not judged here, the recording is)."""
     out = tmp_path / "rt.mcap"
     run = subprocess.run(
@@ -138,11 +142,11 @@ def test_realtime_run_reads_back_everywhere(tmp_path, subprocess_env):
             "imu_noise",
             "--realtime",
             "--duration",
-            "20",
+            "10",
             "--seed",
             "2",
             "--set",
-            "imu_noise_identifier.min_duration_s=15",
+            "imu_noise_identifier.min_duration_s=8",
             "--out",
             str(out),
             "--no-plots",
@@ -153,7 +157,7 @@ def test_realtime_run_reads_back_everywhere(tmp_path, subprocess_env):
         timeout=240,
     )
     assert run.returncode == 0, run.stderr[-2000:]
-    published = {"/imu/adc": 200, "/imu/truth": 200, "/imu/data": 2000, "/imu/noise_model": 1}
+    published = {"/imu/adc": 100, "/imu/truth": 100, "/imu/data": 1000, "/imu/noise_model": 1}
     # Statistics of the Summary equal the published counts
     with open(out, "rb") as f:
         summary = make_reader(f).get_summary()
@@ -183,7 +187,7 @@ def test_realtime_run_reads_back_everywhere(tmp_path, subprocess_env):
         adc = [c for c in reader.connections if c.topic == "/imu/adc"][0]
         frames = [reader.deserialize(raw, adc.msgtype) for _, _, raw in reader.messages([adc])]
     assert n == decoded
-    assert [f.first_sample_index for f in frames] == list(range(0, 2000, 10))
+    assert [f.first_sample_index for f in frames] == list(range(0, 1000, 10))
     info = bag_info(str(out))
     assert all(t.get("gaps", 0) == 0 for t in info["topics"].values())
 
@@ -220,3 +224,102 @@ def test_list(subprocess_env):
         timeout=60,
     )
     assert run.returncode == 0 and run.stdout.startswith("imu_noise")
+
+
+def _imu_bags(frames, tmp_path) -> dict:
+    """The recorded AdcFrames as sensor_msgs/Imu (values = codes x lsb, stamps = sensor
+    time) in bags written by rosbags, not by this project: rosbag2 MCAP and sqlite3
+    directories and a ROS 1 bag."""
+    from rosbags.rosbag1 import Writer as Writer1
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from mems_sim.ros.frames import adc_physical, index_to_ns
+
+    rows, stamps = [], []
+    for f in frames:
+        v = adc_physical(f)
+        t0 = time_to_ns(f.header.stamp)
+        for k in range(v.shape[0]):
+            rows.append(v[k])
+            stamps.append(index_to_ns(k, f.sample_rate_hz, t0))
+    bags = {}
+    for label, store_name in (("mcap", Stores.LATEST), ("sqlite3", Stores.LATEST)):
+        bags[label] = (tmp_path / f"imu_{label}", get_typestore(store_name))
+    bags["ros1"] = (tmp_path / "imu.bag", get_typestore(Stores.ROS1_NOETIC))
+    for label, (path, store) in bags.items():
+        T = store.types
+        imu_type = "sensor_msgs/msg/Imu"
+        if label == "ros1":
+            writer = Writer1(path)
+        else:
+            plugin = StoragePlugin.MCAP if label == "mcap" else StoragePlugin.SQLITE3
+            writer = Writer(path, version=9, storage_plugin=plugin)
+        with writer:
+            conn = writer.add_connection("/imu/data_raw", imu_type, typestore=store)
+            for t, v in zip(stamps, rows):
+                sec, nsec = divmod(t, 10**9)
+                header_fields = dict(stamp=T["builtin_interfaces/msg/Time"](sec, nsec))
+                if label == "ros1":
+                    header_fields = dict(seq=0, **header_fields)
+                msg = T[imu_type](
+                    header=T["std_msgs/msg/Header"](**header_fields, frame_id="imu"),
+                    orientation=T["geometry_msgs/msg/Quaternion"](0.0, 0.0, 0.0, 1.0),
+                    orientation_covariance=np.array([-1.0] + [0.0] * 8),
+                    angular_velocity=T["geometry_msgs/msg/Vector3"](*v[:3]),
+                    angular_velocity_covariance=np.zeros(9),
+                    linear_acceleration=T["geometry_msgs/msg/Vector3"](*v[3:]),
+                    linear_acceleration_covariance=np.zeros(9),
+                )
+                raw = (
+                    store.serialize_ros1(msg, imu_type)
+                    if label == "ros1"
+                    else store.serialize_cdr(msg, imu_type)
+                )
+                writer.write(conn, max(t, 1), raw)
+    return {label: path for label, (path, _) in bags.items()}
+
+
+def test_identify_noise_reads_imu_bags_of_any_format(two_runs, tmp_path):
+    """sensor_msgs/Imu written by rosbags in rosbag2 MCAP and sqlite3 and in a ROS 1 bag:
+    the same N, B, K, T as from the project's own frames of the same data (relative 1e-9),
+    the rate from the stamps, and a Kalibr imu.yaml in Kalibr's names and units."""
+    import yaml
+
+    from mems_estimation.nodes.imu_noise_identifier_node import NoiseAccumulator, identify_message
+    from mems_estimation.tools.identify_noise import main as identify_main
+
+    path = two_runs[0]["mcap"]
+    # the first 150 s: the frames' result by the code identify_bag runs on a file
+    frames = [m for _, _, _, m in read_messages(str(path), ["/imu/adc"])][:150]
+    acc = NoiseAccumulator()
+    for f in frames:
+        acc.add(f)
+    ref = identify_message(acc, "octave", final=True)
+    for label, bag in _imu_bags(frames, tmp_path).items():
+        kalibr = tmp_path / f"{label}-imu.yaml"
+        out = tmp_path / f"{label}.json"
+        with open(out, "w") as f, contextlib.redirect_stdout(f):
+            assert identify_main([str(bag), "--json", "--kalibr", str(kalibr)]) == 0, label
+        got = json.loads(out.read_text())
+        assert got["topic"] == "/imu/data_raw" and got["sampling"]["irregular_intervals"] == 0
+        assert got["sample_rate_hz"] == pytest.approx(100.0, rel=1e-12)
+        for a, b in zip(ref.axes, got["axes"]):
+            for field in ("white_noise_density", "bias_instability", "random_walk"):
+                assert b[field]["value"] == pytest.approx(
+                    getattr(a, field).value, rel=1e-9, abs=1e-300
+                ), (label, a.axis, field)
+        k = yaml.safe_load(kalibr.read_text())
+        gyro = [a for a in ref.axes if a.axis.startswith("gyro")]
+        assert k["gyroscope_noise_density"] == pytest.approx(
+            max(a.white_noise_density.value for a in gyro), rel=1e-9
+        )
+        assert set(k) == {
+            "accelerometer_noise_density",
+            "accelerometer_random_walk",
+            "gyroscope_noise_density",
+            "gyroscope_random_walk",
+            "rostopic",
+            "update_rate",
+        }
+        assert k["update_rate"] == pytest.approx(100.0) and k["rostopic"] == "/imu/data_raw"

@@ -62,3 +62,32 @@ def test_figures_as_data_and_every_miss_flagged(result):
     )
     assert met_of(table, "+2 % f0 step") == verdict(figs["tracking.settle_periods"])
     assert figs["pulse.count"]["value"] == result["values"]["pulses"]
+
+
+def test_restated_consistency_figures(result):
+    """The restated criteria per run (Colinet Sec. 7 restated with Anderson & Moore 1979):
+    (i) stand-in quantiser: innovations white (Ljung-Box, lags 1-50; Ljung & Box 1978), NIS
+    1 +- 0.02, NEES near 1; (ii) one-bit in range: NEES 0.8-1.2, error lag-1 autocorrelation
+    at the filter's prediction (0.951), |corr(error, estimate)| <= 0.2; (iii) 5 % f0 error
+    strongly correlated with the position; (iv) 0.5 V + 0.5 V reported as overload.  The
+    >= 10-seed versions are acceptance tests."""
+    f = result["values"]
+    figs = assert_figures(result)
+    print(
+        f"\nstand-in: LB p {f['standin_lb_p']:.3f}, NIS {f['standin_nis']:.4f}, NEES "
+        f"{f['standin_nees']:.3f}; one-bit: NEES {f['one_bit_nees']:.3f}, error acf(1) "
+        f"{f['error_acf1']:.4f} (predicted {f['error_acf1_pred']:.4f}), max dev "
+        f"{f['error_acf_max_dev']:.3f}, corr(err, est) {f['corr_err_est']:+.3f}, innovation "
+        f"acf(1) {f['innov_acf1']:+.3f}; overload {f['overload_q']:.1%}, NEES "
+        f"{f['overload_nees']:.2f}"
+    )
+    assert f["standin_lb_p"] > 0.01
+    assert abs(f["standin_nis"] - 1.0) <= 0.02
+    assert abs(f["standin_nees"] - 1.0) <= 0.15
+    assert 0.8 <= f["one_bit_nees"] <= 1.2
+    assert abs(f["error_acf1"] - f["error_acf1_pred"]) <= 0.02
+    assert abs(f["corr_err_est"]) <= 0.2
+    assert abs(f["f0_error_corr_x"]) >= 0.9
+    assert f["overload_q"] > 0.05 and f["one_bit_q_overload"] < 0.05
+    assert figs["overload.nees"]["pass"] is None  # reported, not judged
+    assert met_of(result["table"], "0.5 V + 0.5 V") == "overload"
