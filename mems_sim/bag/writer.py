@@ -106,6 +106,20 @@ def _describe(path: str, exc: OSError) -> str:
     return f"{path}: {reason}"
 
 
+def _lstat_output(path: str) -> tuple[os.stat_result | None, str | None]:
+    """``(lstat of path or None if absent, problem)``: a symbolic link (never followed) or
+    an unreadable path is a problem (one line naming the path)."""
+    try:
+        info = os.lstat(path)
+    except FileNotFoundError:
+        return None, None
+    except OSError as exc:
+        return None, _describe(path, exc)
+    if stat.S_ISLNK(info.st_mode):
+        return info, f"{path}: is a symbolic link; refusing to write through it"
+    return info, None
+
+
 def output_problem(path: str, overwrite: bool = False, probe: bool = True) -> str | None:
     """Why ``path`` cannot be used as a bag output, or None (one line naming the path).
 
@@ -116,15 +130,10 @@ def output_problem(path: str, overwrite: bool = False, probe: bool = True) -> st
     ``access()`` grants everything, e.g. in ``/proc``); nothing else is modified.
     """
     path = str(path)
-    try:
-        info = os.lstat(path)
-    except FileNotFoundError:
-        info = None
-    except OSError as exc:
-        return _describe(path, exc)
+    info, problem = _lstat_output(path)
+    if problem is not None:
+        return problem
     if info is not None:
-        if stat.S_ISLNK(info.st_mode):
-            return f"{path}: is a symbolic link; refusing to write through it"
         if stat.S_ISDIR(info.st_mode):
             return f"{path}: is a directory"
         if stat.S_ISCHR(info.st_mode):
@@ -191,15 +200,10 @@ def bag_directory_problem(path: str, overwrite: bool = False, probe: bool = True
     that is missing or not writable. With ``probe`` a new directory is created and removed.
     """
     path = str(path)
-    try:
-        info = os.lstat(path)
-    except FileNotFoundError:
-        info = None
-    except OSError as exc:
-        return _describe(path, exc)
+    info, problem = _lstat_output(path)
+    if problem is not None:
+        return problem
     if info is not None:
-        if stat.S_ISLNK(info.st_mode):
-            return f"{path}: is a symbolic link; refusing to write through it"
         if not stat.S_ISDIR(info.st_mode):
             return f"{path}: exists and is not a directory (a split recording is a directory)"
         if not overwrite:
