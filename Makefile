@@ -59,7 +59,7 @@ lint: setup
 	$(VENV)/bin/ruff format --check .
 
 test: lint
-	ROS_DOMAIN_ID=$(TEST_DOMAIN) $(PY) -m pytest test -m "not slow"
+	ROS_DOMAIN_ID=$(TEST_DOMAIN) $(PY) -m pytest test -m "not slow" -n 2 --dist loadfile
 
 acceptance: setup
 	ROS_DOMAIN_ID=$(ACCEPTANCE_DOMAIN) $(PY) -m pytest test -m slow -rA

@@ -2,12 +2,13 @@
 memory and time, and the IMU emulator rate.
 
 Run:  .venv/bin/python bench/bench_allan.py [n_samples] [--stream-seconds S]
-Prints both oadev times on 1e7 samples (octave taus, same data, one run), the ratio and the
-max relative difference; then streams S seconds (default 1e6 s) of the 6-axis IMU model at
-100 Hz into the identifier's accumulator (StreamingAllan, as imu_noise_identifier_node and
-identify_noise run it) and identifies, printing the peak RSS (target < 500 MB) and the time
-per sample at 1/10 of the record and at the whole record (linear: equal per-sample times);
-then the emulator's 6-axis samples/s for 1e6 samples.  Numba compile warm-up precedes timing.
+Streams S seconds (default 1e6 s) of the 6-axis IMU model at 100 Hz into the identifier's
+accumulator (StreamingAllan, as imu_noise_identifier_node and identify_noise run it) and
+identifies, printing the peak RSS (target < 500 MB) and the time per sample at 1/10 of the
+record and at the whole record (linear: equal per-sample times); then both oadev times on
+1e7 samples (octave taus, same data, one run) and on 1e5 samples (the "all" grid: every
+averaging factor), the ratios and the max relative differences; then the emulator's 6-axis
+samples/s for 1e6 samples.  Numba compile warm-up precedes timing.
 """
 
 import os
@@ -26,11 +27,12 @@ from mems_estimation.identification.imu_noise_fit import identify_stream
 from mems_sim.devices.imu import ImuNoiseModel
 
 
-def bench_oadev(n: int, fs: float = 100.0) -> None:
-    """Time mems_estimation.identification.allan.oadev and allantools.oadev on n white+RW samples."""
+def bench_oadev(n: int, fs: float = 100.0, kind: str = "octave") -> None:
+    """Time mems_estimation.identification.allan.oadev and allantools.oadev on n white+RW
+    samples, on the tau grid ``kind`` ("octave" or "all")."""
     rng = np.random.default_rng(0)
     y = rng.standard_normal(n) + np.cumsum(rng.standard_normal(n)) * 1e-3
-    taus = tau_grid(n, fs, "octave")
+    taus = tau_grid(n, fs, kind)
     oadev(y[:1000], fs, taus[:3])  # numba compile / cache load
     t0 = time.perf_counter()
     ours = oadev(y, fs, taus)
@@ -40,7 +42,7 @@ def bench_oadev(n: int, fs: float = 100.0) -> None:
     t_ref = time.perf_counter() - t0
     assert np.array_equal(ours[0], ref[0]) and np.array_equal(ours[3], ref[3])
     rel = np.max(np.abs(ours[1] / ref[1] - 1.0))
-    print(f"oadev on {n:.0e} samples, {taus.size} octave taus:")
+    print(f"oadev on {n:.0e} samples, {taus.size} {kind} taus:")
     print(f"  mems_estimation.identification.allan.oadev: {t_ours:.3f} s")
     print(f"  allantools.oadev:            {t_ref:.3f} s")
     print(f"  speed-up: {t_ref / t_ours:.2f}x   max relative difference: {rel:.3e}")
@@ -119,4 +121,5 @@ if __name__ == "__main__":
         del args[i : i + 2]
     bench_stream(seconds)
     bench_oadev(int(float(args[0])) if args else 10_000_000)
+    bench_oadev(100_000, kind="all")
     bench_emulator()

@@ -6,32 +6,30 @@ from pathlib import Path
 
 HERE = Path(__file__).parent
 
-# options per benchmark: the stage graph as separate processes (~90 s: the one-process
-# figures, zstd as recorded by default and the cheapest configuration)
-ARGS = {
-    "bench_stage_ekf.py": ["--graph-processes=zstd,none,none:10000"],
+# (benchmark, options), in order; the stage graph as separate processes (~90 s: the
+# one-process figures, zstd as recorded by default and the cheapest configuration)
+BENCHES = [
+    ("bench_allan.py", []),
+    ("bench_recorder.py", []),
+    ("bench_recorder_split.py", []),
+    ("bench_sd_resonator.py", []),
+    ("bench_accelerometer.py", []),
+    ("bench_scanner.py", []),
+    ("bench_scanner_ukf.py", []),
+    ("bench_stage_ekf.py", ["--graph-processes=zstd,none,none:10000"]),
+    ("bench_imu_fast.py", []),
     # 120 s of data: pacing at rates 1 and 10 and the lossless replay in ~3 min
     # (bench_replay.py alone defaults to the 600 s of the data-path figures)
-    "bench_replay.py": ["--duration", "120"],
-    # 40 runs of 600 s on 1 and 2 workers, 10 alone (~6 min)
-    "bench_campaign.py": ["--runs", "40", "--duration", "600"],
-}
+    ("bench_replay.py", ["--duration", "120"]),
+    ("bench_live_view.py", []),
+    # 40 imu_noise runs of 600 s on 1 and 2 workers, 10 alone (~6 min)
+    ("bench_campaign.py", ["--runs", "40", "--duration", "600"]),
+    # 8 gyro_calibration runs (its own duration, ~25 s each) on 1 and 2 workers, 4 alone
+    ("bench_campaign.py", ["--scenario", "gyro_calibration", "--runs", "8", "--duration", "0"]),
+]
 
-for name in (
-    "bench_allan.py",
-    "bench_recorder.py",
-    "bench_recorder_split.py",
-    "bench_sd_resonator.py",
-    "bench_accelerometer.py",
-    "bench_scanner.py",
-    "bench_scanner_ukf.py",
-    "bench_stage_ekf.py",
-    "bench_imu_fast.py",
-    "bench_replay.py",
-    "bench_live_view.py",
-    "bench_campaign.py",
-):
-    print(f"== {name}")
-    sys.argv = [str(HERE / name)] + ARGS.get(name, [])
+for name, args in BENCHES:
+    print(f"== {name} {' '.join(args)}".rstrip())
+    sys.argv = [str(HERE / name)] + args
     runpy.run_path(str(HERE / name), run_name="__main__")
     print()

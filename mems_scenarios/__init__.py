@@ -12,6 +12,8 @@ SCENARIOS = {
     "accelerometer_snr": "mems_scenarios.accelerometer_snr",
     "accelerometer_spread": "mems_scenarios.accelerometer_spread",
     "gyro_calibration": "mems_scenarios.stage_gyro_calibration",
+    "imu_calibration": "mems_scenarios.imu_calibration",
+    "imu_thermal_calibration": "mems_scenarios.imu_thermal_calibration",
 }
 
 

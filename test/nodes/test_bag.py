@@ -45,29 +45,17 @@ from mems_sim.bag.writer import McapBagWriter
 from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
 
 BIN = Path(sys.executable).parent
-DOMAIN_BASE = 40 + (os.getpid() % 50) * 2  # distinct from parallel runs of this file
 
 
 @pytest.fixture
-def ctx(request):
+def ctx(domain_id):
     """A fresh rclpy context on a domain of its own per test."""
     context = rclpy.context.Context()
-    domain = DOMAIN_BASE + _DOMAINS[request.node.name]
+    domain = domain_id
     rclpy.init(context=context, domain_id=domain)
     context.test_domain_id = domain
     yield context
     rclpy.shutdown(context=context)
-
-
-_DOMAINS = {
-    "test_record_and_read_back": 1,
-    "test_gap_detected": 2,
-    "test_player_round_trip": 3,
-    "test_sigkill_leaves_complete_chunks": 4,
-    "test_sigint_finalises": 5,
-    "test_transient_local_and_best_effort": 6,
-    "test_cli_play_round_trip": 7,
-}
 
 
 def make_frame(index: int, num: int = 100, channels: int = 3, frame_id: str = "imu0") -> AdcFrame:
@@ -434,13 +422,13 @@ def test_player_round_trip(ctx, tmp_path):
 # ---------------------------------------------------------------- CLI
 
 
-def test_cli_bad_input(tmp_path):
+def test_cli_bad_input(tmp_path, domain_id):
     bad = tmp_path / "bad.mcap"
     bad.write_text("this is not an mcap file\n")
     missing = tmp_path / "missing.mcap"
     for tool in ("mcap_info", "mcap_play"):
         for path, words in ((bad, "not an MCAP file"), (missing, "no such file")):
-            res = run_cli([tool, str(path)], DOMAIN_BASE + 9)
+            res = run_cli([tool, str(path)], domain_id)
             assert res.returncode != 0
             err = res.stderr.strip()
             assert len(err.splitlines()) == 1 and words in err and str(path) in err, (tool, err)

@@ -171,3 +171,94 @@ def test_identifier_rejects_malformed_frames_and_counts_gaps(graph):
     status = [s for d in diags for s in d.status if s.name.startswith("imu_noise_identifier")][-1]
     values = {kv.key: kv.value for kv in status.values}
     assert values["rejected_frames"] == "2" and values["gaps"] == "1"
+
+
+def test_profile_run_publishes_truth_temperature_and_truth_calibration(graph, tmp_path):
+    """motion 'profile': truth motion and temperature follow the profile, the stream ends at
+    the profile's end, temperature_sensor carries T per sample and truth_calibration the
+    model's realised error terms (transient local, method 'truth')."""
+    from mems_msgs.msg import CalibrationResult
+    from mems_sim.devices.imu_profiles import (
+        ImuProfile,
+        Segment,
+        dump_profile,
+        profile_truth,
+    )
+
+    prof = ImuProfile(
+        "short",
+        (
+            Segment(0.3, (1, 0, 0), rate_rad_s=1.5, temperature_start_c=30.0),
+            Segment(0.25, (0, 0, -1), temperature_start_c=30.0, temperature_end_c=40.0),
+        ),
+        settle_s=0.0,
+    )
+    path = tmp_path / "short.yaml"
+    dump_profile(prof, path)
+    ctx, ex, probe = graph
+    emu = ImuNoiseNode(
+        context=ctx,
+        drive_externally=True,
+        parameter_overrides=params(
+            seed=5,
+            frame_size=20,
+            publish_imu=False,
+            motion="profile",
+            motion_profile=str(path),
+            preset="adis16350",
+            device_seed=3,
+        ),
+    )
+    ex.add_node(emu)
+    got = {"adc": [], "truth": [], "temp": [], "cal": []}
+    probe.create_subscription(AdcFrame, "/imu/adc", got["adc"].append, FRAME_QOS)
+    probe.create_subscription(SignalFrame, "/imu/truth", got["truth"].append, FRAME_QOS)
+    probe.create_subscription(SignalFrame, "/imu/temperature_sensor", got["temp"].append, FRAME_QOS)
+    assert spin_until(
+        ex,
+        lambda: (
+            emu.pub_adc.get_subscription_count() == 1
+            and emu.pub_temperature.get_subscription_count() == 1
+        ),
+    )
+    while emu.step():
+        pass
+    assert emu.next_index == 55 and emu.finished  # round(0.55 s * 100 Hz)
+    # a late joiner still gets the truth calibration (transient local)
+    probe.create_subscription(
+        CalibrationResult, "/imu/truth_calibration", got["cal"].append, RESULT_QOS
+    )
+    assert spin_until(ex, lambda: len(got["temp"]) == 3 and len(got["cal"]) == 1)
+    truth = np.concatenate([np.asarray(m.data).reshape(-1, 6) for m in got["truth"]])
+    temp = np.concatenate([np.asarray(m.data) for m in got["temp"]])
+    expect = profile_truth(prof, 0, 55, 100.0)
+    np.testing.assert_allclose(truth[:, :3], expect.gyro)
+    np.testing.assert_allclose(truth[:, 3:], expect.accel)
+    np.testing.assert_allclose(temp, expect.temperature_c)
+    assert list(got["temp"][0].channel_names) == ["temperature"]
+    assert list(got["temp"][0].channel_units) == ["degC"]
+    cal = got["cal"][0]
+    assert cal.method == "truth" and cal.device == "imu"
+    values = dict(zip(cal.names, cal.values))
+    expected = {name: value for name, value, _ in emu.model.calibration_truth()}
+    assert values == expected
+    assert values["gyro_sf_tempco_x"] != 0.0 and list(cal.standard_errors) == [0.0] * len(values)
+    # the drawn device differs from the preset's nominal one, within its tolerance
+    assert (
+        values["gyro_matrix_xy"]
+        != imu_noise.imu_values({"preset": "adis16350"})["gyro_misalignment_xy"]
+    )
+    assert abs(values["gyro_matrix_xy"]) <= 0.05 * imu_noise.DEG
+
+
+def test_profile_parameter_errors(ros_context, tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("segments:\n  - {duration_s: 0, up_body: [0, 0, 1]}\n")
+    for value, field in (("nope", "nope"), (str(bad), "segments[0].duration_s")):
+        with pytest.raises(ParameterError) as err:
+            ImuNoiseNode(
+                context=ros_context,
+                drive_externally=True,
+                parameter_overrides=params(motion="profile", motion_profile=value),
+            )
+        assert "motion_profile" in str(err.value) and field in str(err.value)

@@ -108,7 +108,7 @@ def test_foxglove_client_decodes_the_estimate_during_a_scenario(tmp_path, subpro
             str(BIN / "run_scenario"),
             "scanner_threshold",
             "--duration",
-            "1.5",
+            "2",  # the longest this scenario allows: the view closes with the scenario
             "--realtime",
             "--live-view",
             "0",
