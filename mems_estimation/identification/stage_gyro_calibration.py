@@ -48,6 +48,7 @@ __all__ = [
     "calibration_run",
     "off_axis_table",
     "StreamingCalibrator",
+    "insitu_calibration",
 ]
 
 
@@ -383,6 +384,69 @@ def calibration_run(
         "ppm": (cal["scale_factor"] / k_true - 1.0) * 1e6,
         "se_ppm": cal["scale_factor_se"] / k_true * 1e6,
     }
+
+
+def insitu_calibration(
+    models: dict,
+    temperature_c: float,
+    seed: int,
+    plan: Plan,
+    stage_params: dict | None = None,
+    gyro_params: dict | None = None,
+    cancel: bool = True,
+) -> dict:
+    """One calibration sweep with the gyro (step 2, same seeds as :func:`calibration_run`),
+    evaluated by several estimators: ``models`` maps a label to (identified model, mode).
+
+    Modes: ``'insitu'``: the stage model is first corrected from the sweep's own
+    capacitive channels (:func:`mems_estimation.identification.stage_insitu.insitu_correct`:
+    wn and b_c such that the model's response at the drive frequency equals the one the
+    sensor measures, pooled over the trials) and the EKF (eqs. 48-53, the model's Q) runs
+    on the corrected model without the output correction (alpha = 1, beta = 0: the scale
+    is the sensor's); ``'plain'``: the EKF on the identified model with its output
+    correction (the thesis' procedure); ``'no_channels'``: the ablation, every measurement
+    removed (time updates only): the estimate is the identified model's. ``cancel`` False
+    feeds the channels without the bias on/off feedthrough cancellation (sec. 3.5.4).
+    Returns dict(label -> dict(eval, cal, ppm, se_ppm, model, insitu report, x)), plus
+    ``rec`` and ``k_true``."""
+    from mems_estimation.identification.stage_insitu import insitu_correct
+
+    sp = dict(stage_params or {}, temperature_c=temperature_c)
+    stage = MicroStage(
+        sp,
+        DriveSchedule.amplitude_sweep(n_trials=plan.cal_trials, periods=plan.cal_periods),
+        seed=seed * 100 + 50 + int(temperature_c),
+    )
+    gyro = MemsGyro(
+        gyro_params, seed=seed * 100 + 60 + int(temperature_c), temperature_c=temperature_c
+    )
+    rec = record(stage, gyro)
+    yc = cancelled(rec, enabled=cancel)
+    k_true = gyro.scale_factor()
+    out: dict = {"rec": rec, "k_true": k_true}
+    for label, (model, mode) in models.items():
+        if mode not in ("insitu", "plain", "no_channels"):
+            raise ValueError(f"mode {mode!r}: 'insitu', 'plain' or 'no_channels'")
+        rep = None
+        m = model
+        y = np.full_like(yc, np.nan) if mode == "no_channels" else yc
+        if mode == "insitu":
+            m, rep = insitu_correct(
+                model, yc, rec["u"], rec["phase"], rec["segment"], rec["f_drive"]
+            )
+        x, _ = StageEkf(m).step(y, rec["u"], corrected=mode != "insitu")
+        ev = evaluate(x[:, 1], rec["omega"][:, 0], rec["phase"], rec["segment"])
+        cal = calibrate(rec, x[:, 1])
+        out[label] = {
+            "eval": ev,
+            "cal": cal,
+            "ppm": (cal["scale_factor"] / k_true - 1.0) * 1e6,
+            "se_ppm": cal["scale_factor_se"] / k_true * 1e6,
+            "model": m,
+            "insitu": rep,
+            "x": x,
+        }
+    return out
 
 
 def off_axis_table(gap: float, limits: np.ndarray, ratios=(0.01, 0.1, 0.5)) -> list:
