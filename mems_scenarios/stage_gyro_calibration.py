@@ -40,6 +40,7 @@ import numpy as np
 
 from mems_estimation.filters.stage_ekf import save_model
 from mems_estimation.identification.stage_gyro_calibration import (
+    INSITU_PERIODS,
     T1,
     T2,
     Plan,
@@ -195,10 +196,6 @@ OFF_AXIS_WORST_TARGETS = {0.01: 0.9998, 0.1: 0.9997, 0.5: 0.9985}
 OFF_AXIS_MISREG_TARGET = 0.999
 #: scale-factor error target of the drifting device [ppm RMS over T1/T2] (thesis 286 ppm)
 DRIFT_SF_TARGET_PPM = 300.0
-#: drive periods per calibration trial of the drifting device's in-situ design (at least):
-#: the per-trial phasor of the channels scatters by ~+-400 ppm (readout noise) at 400
-#: periods and ~+-150 ppm at 1200 (measured, seed 1); pooled over 7 trials 400 suffice
-INSITU_PERIODS = 400
 
 INSTANCES = {"stage_t1": T1, "stage_t2": T2}
 RECORDED = ("adc", "drive", "truth", "estimate", "gyro/adc", "gyro_scale_factor", "temperature")

@@ -48,6 +48,8 @@ from mems_sim.devices.stage import stage_matrices
 from mems_sim.devices.stage_capacitance import EPS0
 
 __all__ = [
+    "trial_harmonics",
+    "phasors_from_harmonics",
     "sensor_phasors",
     "pooled_response",
     "model_response",
@@ -116,6 +118,57 @@ def _fit_theta(yh: np.ndarray, f: float, model: StageModel, p0, weights) -> tupl
     return float(p[0]), float(p[1]), float(math.sqrt(np.mean(r * r)))
 
 
+def trial_harmonics(
+    y_cancel: np.ndarray,
+    u: np.ndarray,
+    phase: np.ndarray,
+    segment: np.ndarray,
+    f_drive: np.ndarray,
+    settle_fraction: float = 0.5,
+) -> list[dict]:
+    """Per trial (segment) of a constant sinusoidal drive: the drive's complex amplitude U
+    [V] (relative to e^{j 2 pi phase}) and the harmonics 1..6 of the cancelled channels
+    (least squares over the settled, bias-on samples; module doc, step 1, first half).
+    Independent of the sensor parameters, so computed once per sweep. Returns dicts
+    (segment, f [Hz], U, yh (2 n_harm, n_ch) [V])."""
+    out = []
+    for s in np.unique(segment):
+        idx = np.flatnonzero(segment == s)
+        idx = idx[int(settle_fraction * idx.size) :]
+        f = float(np.median(f_drive[idx]))
+        cu = harmonic_fit(u[idx], phase[idx], 1)
+        U = complex(cu[1], -cu[2])
+        if not (f > 0) or abs(U) <= 0:
+            continue
+        yy = y_cancel[idx]
+        on = np.all(np.isfinite(yy), axis=1)
+        if on.sum() < 100:
+            continue
+        yh = harmonic_fit(yy[on], phase[idx][on])[1:]
+        out.append({"segment": int(s), "f": f, "U": U, "yh": yh})
+    return out
+
+
+def phasors_from_harmonics(harmonics: list[dict], model: StageModel) -> list[dict]:
+    """Theta [rad] of each trial fitted through the sensor model (eqs. 44, 46-47) with the
+    sensor parameters (eta_c, D_n,c) of ``model`` to the harmonics of
+    :func:`trial_harmonics` (module doc, step 1, second half; weights 1/R_cc). Returns
+    dicts (segment, f [Hz], U, Theta, residual)."""
+    Rd = np.diag(np.atleast_2d(model.R))
+    weights = 1.0 / (Rd * np.mean(1.0 / Rd))
+    A, B = model.matrices()
+    out = []
+    for h in harmonics:
+        f, U = h["f"], h["U"]
+        z = complex(math.cos(2 * math.pi * f / model.fs), math.sin(2 * math.pi * f / model.fs))
+        X = np.linalg.solve(z * np.eye(2) - A, np.asarray(B, float).reshape(2) * U)
+        a, b, res = _fit_theta(h["yh"], f, model, (X[0].real, -X[0].imag), weights)
+        out.append(
+            {"segment": h["segment"], "f": f, "U": U, "Theta": complex(a, -b), "residual": res}
+        )
+    return out
+
+
 def sensor_phasors(
     y_cancel: np.ndarray,
     u: np.ndarray,
@@ -130,28 +183,9 @@ def sensor_phasors(
     both relative to e^{j 2 pi phase}. Only the settled part (after ``settle_fraction``
     of the trial) and bias-on samples with a cancelled value are used. Returns dicts
     (segment, f [Hz], U, Theta, residual)."""
-    out = []
-    Rd = np.diag(np.atleast_2d(model.R))
-    weights = 1.0 / (Rd * np.mean(1.0 / Rd))
-    A, B = model.matrices()
-    for s in np.unique(segment):
-        idx = np.flatnonzero(segment == s)
-        idx = idx[int(settle_fraction * idx.size) :]
-        f = float(np.median(f_drive[idx]))
-        cu = harmonic_fit(u[idx], phase[idx], 1)
-        U = complex(cu[1], -cu[2])
-        if not (f > 0) or abs(U) <= 0:
-            continue
-        yy = y_cancel[idx]
-        on = np.all(np.isfinite(yy), axis=1)
-        if on.sum() < 100:
-            continue
-        yh = harmonic_fit(yy[on], phase[idx][on])[1:]
-        z = complex(math.cos(2 * math.pi * f / model.fs), math.sin(2 * math.pi * f / model.fs))
-        X = np.linalg.solve(z * np.eye(2) - A, np.asarray(B, float).reshape(2) * U)
-        a, b, res = _fit_theta(yh, f, model, (X[0].real, -X[0].imag), weights)
-        out.append({"segment": int(s), "f": f, "U": U, "Theta": complex(a, -b), "residual": res})
-    return out
+    return phasors_from_harmonics(
+        trial_harmonics(y_cancel, u, phase, segment, f_drive, settle_fraction), model
+    )
 
 
 def pooled_response(phasors: list[dict]) -> complex:
@@ -200,13 +234,15 @@ def insitu_correct(
     settle_fraction: float = 0.5,
 ) -> tuple[StageModel, dict]:
     """Steps 1-3 of the module doc on one calibration sweep: (corrected model, report with
-    the per-trial phasors, the pooled response G and the relative scatter of the trials'
-    Theta/U about it)."""
-    ph = sensor_phasors(y_cancel, u, phase, segment, f_drive, model, settle_fraction)
+    the per-trial phasors, the pooled response G, the relative scatter of the trials'
+    Theta/U about it and the trials' harmonics, reusable by :func:`phasors_from_harmonics`
+    for other sensor parameters)."""
+    harm = trial_harmonics(y_cancel, u, phase, segment, f_drive, settle_fraction)
+    ph = phasors_from_harmonics(harm, model)
     if len(ph) < 1:
         raise ValueError("in-situ correction: no trial with a settled drive")
     G = pooled_response(ph)
     scatter = np.array([abs(p["Theta"] / p["U"] / G) - 1 for p in ph])
     f = float(np.median([p["f"] for p in ph]))
     m = correct_model(model, G, f)
-    return m, {"phasors": ph, "G": G, "scatter": scatter, "f": f}
+    return m, {"phasors": ph, "G": G, "scatter": scatter, "f": f, "harmonics": harm}

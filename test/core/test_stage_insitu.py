@@ -67,3 +67,74 @@ def test_insitu_recovers_drifted_stage_noise_free():
     assert abs(model_response(cold.wn, cold.zeta, cold.b_c, 1700.0, stage.fs) / G_true - 1) > 1e-2
     c = copy.deepcopy(model)
     assert c.wn == cold.wn  # the input model is not modified
+
+
+# --- scale-factor curve SF(T) (stage_sf_curve) ---------------------------------------
+
+
+def test_sensor_bootstrap_table_matches_identification():
+    """The tabulated re-identification (eq. 55) equals identify_sensor on the full trials and
+    on a resample within 5e-5 (D_n) / 1e-4 (eta)."""
+    from mems_estimation.identification.stage_identification import identify_sensor, trial_fits
+    from mems_estimation.identification.stage_sf_curve import SensorBootstrap
+
+    stage = MicroStage(
+        {"temperature_c": 30.0}, DriveSchedule.amplitude_sweep(n_trials=4, periods=120), seed=11
+    )
+    rec = record(stage)
+    fits = trial_fits(cancelled(rec), rec["ldv"], rec["phase"], rec["segment"], rec["f_drive"], 0.0)
+    limits = stage.design_limits
+    gaps, etas, _ = identify_sensor(fits, limits)
+    sb = SensorBootstrap(fits, limits, gaps)
+    for counts in (np.ones(4), np.array([2, 0, 1, 1])):
+        g, e = sb.identify(counts)
+        sub = [f for f, c in zip(fits, counts) for _ in range(int(c))]
+        g0, e0, _ = identify_sensor(sub, limits)
+        assert np.max(np.abs(g / g0 - 1)) < 5e-5
+        assert np.max(np.abs(e / e0 - 1)) < 1e-4
+
+
+def test_sf_curve_fit_band_covers_on_synthetic_points():
+    """Linear SF(T) through 6 points with known scatter, bootstrap replicates of that
+    scatter: the 95 % band holds the truth at ~95 % of temperatures over 300 draws."""
+    from mems_estimation.identification.stage_sf_curve import fit_sf_curve
+
+    rng = np.random.default_rng(0)
+    T = np.arange(20.0, 46.0, 5.0)
+    truth = 1.0 * (1 - 0.0543 / 12.8 * (T - 22.9))
+    tg = np.linspace(20, 45, 26)
+    tg_true = 1.0 * (1 - 0.0543 / 12.8 * (tg - 22.9))
+    inside = []
+    for _ in range(300):
+        sd = 2e-4
+        y = truth + rng.normal(0, sd, T.size)
+        boot = y + rng.normal(0, sd, (100, T.size))
+        c = fit_sf_curve(T, y, boot)
+        lo, hi = c.band(tg)
+        inside.append((tg_true >= lo) & (tg_true <= hi))
+        assert c.birge >= 1.0
+    cover = float(np.mean(inside))
+    assert 0.93 <= cover <= 0.995
+    assert c.sf_tempco == pytest.approx(c.coef[1] / c.coef[0])
+
+
+def test_sf_curve_yaml_round_trip(tmp_path):
+    """The calibration YAML (format mems_emulator/gyro_sf_curve) loads back to the same curve,
+    band and correction; a file of another format is refused."""
+    from mems_estimation.identification.stage_sf_curve import fit_sf_curve, load_yaml, save_yaml
+
+    T = np.arange(20.0, 46.0, 5.0)
+    y = 1 - 4e-3 * (T - 22.9)
+    boot = y + np.random.default_rng(1).normal(0, 1e-4, (50, T.size))
+    c = fit_sf_curve(T, y, boot)
+    p = tmp_path / "sf.yaml"
+    save_yaml(c, p, info={"seed": 3})
+    d = load_yaml(p)
+    tg = np.array([21.0, 33.3, 44.0])
+    assert np.allclose(d(tg), c(tg), rtol=0, atol=1e-15)
+    assert np.allclose(d.band(tg), c.band(tg), rtol=1e-12)
+    assert d.correct(2.0, 30.0) == pytest.approx(2.0 / c(30.0))
+    assert d.valid_range_c == (20.0, 45.0)
+    (tmp_path / "bad.yaml").write_text("format: other\n")
+    with pytest.raises(ValueError, match="format"):
+        load_yaml(tmp_path / "bad.yaml")

@@ -94,3 +94,31 @@ def test_drifting_device_reported_honestly(tmp_path):
     assert figs["drifting.ablation_no_channels_35.7C"]["pass"] is True
     row1 = figs["drifting.scale_factor_error_rms.ref_t1_only"]
     assert row1["pass"] == (row1["value"] <= 300)
+
+
+def test_stage_sf_curve_scenario_short(tmp_path):
+    """Scenario stage_sf_curve on the short plan (3 temperatures, 20 replicates): figures as
+    records with targets, the calibration YAML loads back to the printed curve, the figure is
+    written; a --set on the stage's tempco reaches the device; --temperature is refused."""
+    from mems_estimation.identification.stage_sf_curve import load_yaml
+    from mems_scenarios import stage_sf_curve
+    from mems_sim.ros.params_file import parse_set
+
+    opts = ScenarioOptions(
+        seed=1,
+        out=tmp_path / "stage_sf_curve-1.mcap",
+        progress=False,
+        extra={"short": True},
+        overrides=[parse_set("stage.b_c_tempco_per_k=0.002")],
+    )
+    res = stage_sf_curve.run(opts)
+    figs = assert_figures(res)
+    assert figs["curve.max_deviation"]["target"] == "<= 600 ppm"
+    assert met_of(res["table"], "SF(T) fit") == verdict(figs["curve.max_deviation"])
+    assert opts.applied[("/stage/stage", "b_c_tempco_per_k")][0] == 0.002
+    c = load_yaml(res["yaml"])
+    assert c(30.0) == pytest.approx(res["curve"](30.0), abs=1e-15)
+    assert figs["curve.sf_tempco"]["value"] == pytest.approx(-0.0543 / 12.8, rel=0.2)
+    assert Path(res["figure"]).stat().st_size > 10_000
+    with pytest.raises(ScenarioError, match="temperature"):
+        stage_sf_curve.run(ScenarioOptions(temperature_c=30.0))

@@ -1,0 +1,348 @@
+"""Study ``stage_sf_curve``: the on-stage gyro's scale-factor curve SF(T) over 20-45 C from
+in-situ calibrations on the drifting micro-stage (Chen 2018 ch. 3, sec. 3.3.1 eqs. 20-27 and
+sec. 3.6.3, at more temperatures than the thesis' two).
+
+Steps (all seeded; nothing reads the emulator's truth except the evaluation figures):
+
+1. identification of the stage at 22.9 C (:func:`identify_stage`: frequency sweep, LDV
+   training sweep, zero drive);
+2. per calibration temperature (default 20, 25, ..., 45 C): (D_n, eta) re-identified there
+   with the LDV-like reference (the thesis' procedure at its second temperature: labelled
+   "D_n, eta re-identified at each temperature"), a calibration sweep with the gyro, the
+   in-situ corrected EKF and eq. (27)
+   (:func:`mems_estimation.identification.stage_sf_curve.calibrate_point`), with a bootstrap
+   over the training trials (the re-identification) and over the calibration trials;
+3. SF(T) fitted linearly in T (the emulated MPU-6500-like gyro's scale factor is linear in
+   T) with its 95 % band; written as a calibration YAML (format
+   ``mems_emulator/gyro_sf_curve``, docs/stage.md) and plotted against the gyro's true
+   curve.
+
+The study runs the ROS-free cores (no node graph: 6 temperatures x 2 sweeps), so it is not a
+``run_scenario`` scenario (those run and record a node graph): run it with ``python -m
+mems_scenarios.stage_sf_curve [--seed N] [--device-seed N] [--set stage.PARAM=VALUE ...]
+[--out DIR] [--json] [--no-plots]``; it writes the calibration YAML and the figure. Stage and gyro parameters: ``--set
+stage.PARAM=VALUE`` (any of the stage node's device and gyro parameters, e.g.
+``stage.freq_tempco_per_k``, ``stage.b_c_tempco_per_k``, ``stage.damping_ratio``,
+``stage.gyro_sf_tempco_per_k``), ``--device-seed``; ``--temperature`` is refused (the
+scenario sets the temperatures). ``options.extra``: ``short`` (test plan, 3 temperatures,
+20 replicates), ``temperatures``, ``n_boot``, ``order``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from mems_estimation.identification.stage_gyro_calibration import T1, Plan
+from mems_estimation.identification.stage_sf_curve import (
+    COVER_TARGET,
+    DEFAULT_TEMPERATURES,
+    MAX_DEV_TARGET_PPM,
+    RANGE_C,
+    save_yaml,
+    sf_curve_study,
+)
+from mems_scenarios.figures import Figure, cell, met_cell
+from mems_sim.devices.stage import STAGE_SPECS
+from mems_sim.devices.stage_gyro import GYRO_SPECS, MemsGyro
+
+NAME = "stage_sf_curve"
+DESCRIPTION = (
+    "drifting piezo micro-stage (Chen 2018 ch. 3): in-situ gyro scale-factor calibration at "
+    "6 temperatures over 20-45 C, SF(T) fit with a bootstrap 95 % band -> calibration YAML"
+)
+#: simulated time per temperature (training 7 x 200 + calibration 7 x 400 periods at
+#: 1700 Hz) times the 6 temperatures
+DEFAULT_DURATION_S = round(6 * 7 * 600 / 1700.0, 3)
+#: bootstrap replicates per temperature
+N_BOOT = 100
+STAGE_FQN = "/stage/stage"
+
+
+def stage_and_gyro_params(options) -> tuple[dict, dict]:
+    """Stage and gyro parameters from ``--set stage.PARAM=VALUE`` (matching the stage node
+    ``/stage/stage``) and ``--device-seed``; ScenarioError for anything else."""
+    from mems_scenarios.base import ScenarioError
+    from mems_sim.ros.params_file import node_matches
+
+    stage_names = {s.name: s for s in STAGE_SPECS}
+    gyro_names = {s.name: s for s in GYRO_SPECS}
+    sp, gp = {}, {}
+    if options.temperature_c is not None:
+        raise ScenarioError(
+            f"{NAME}: --temperature does not apply: the scenario calibrates at "
+            f"{', '.join(f'{t:g}' for t in DEFAULT_TEMPERATURES)} C"
+        )
+    if options.device_seed is not None:
+        sp["device_seed"] = int(options.device_seed)
+    for o in options.overrides:
+        if not node_matches(o.node, STAGE_FQN):
+            raise ScenarioError(f"{o.where()}: {NAME} has one node, {STAGE_FQN}")
+        if o.name in ("temperature_c", "idealised"):
+            raise ScenarioError(f"{o.where()}: {NAME} sets {o.name} itself")
+        specs = stage_names if o.name in stage_names else gyro_names
+        if o.name not in specs:
+            raise ScenarioError(f"{o.where()}: {STAGE_FQN} has no device parameter {o.name!r}")
+        try:
+            value = specs[o.name].validate(o.value)
+        except Exception as exc:  # ParameterError: one line naming the range
+            raise ScenarioError(f"{o.where()}: {exc}") from None
+        (sp if specs is stage_names else gp)[o.name] = value
+        options.applied[(STAGE_FQN, o.name)] = (value, o.origin)
+    return sp, gp
+
+
+def write_plot(path: Path, res: dict, ev: dict) -> Path:
+    """SF(T): calibration points (bootstrap 95 % bars), fitted curve, band and the true
+    curve; lower panel: deviation from the true curve [ppm] with the band."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    curve, pts = res["curve"], res["points"]
+    T = ev["temperatures"]
+    lo, hi = curve.band(T)
+    fig, (ax, ad) = plt.subplots(
+        2, 1, figsize=(6.5, 6), sharex=True, gridspec_kw={"height_ratios": [2, 1]}
+    )
+    ax.fill_between(T, lo, hi, color="tab:blue", alpha=0.25, label="95 % band")
+    ax.plot(T, curve(T), "b-", label=f"fit (order {curve.order})")
+    ax.plot(T, ev["true"], "k--", label="true k_I(T) (emulator)")
+    tp = np.array([p.temperature_c for p in pts])
+    sf = np.array([p.scale_factor for p in pts])
+    sd = np.array([np.std(p.boot, ddof=1) for p in pts])
+    ax.errorbar(tp, sf, yerr=curve.t_quantile * sd, fmt="o", color="tab:red", label="eq. 27")
+    ax.set_ylabel("gyro scale factor k_I [-]")
+    ax.set_title("gyro SF(T) by in-situ stage calibration (D_n, eta re-id. per T)")
+    ax.legend(fontsize=8)
+    ad.fill_between(
+        T, (lo / ev["true"] - 1) * 1e6, (hi / ev["true"] - 1) * 1e6, color="tab:blue", alpha=0.25
+    )
+    ad.plot(T, ev["deviation_ppm"], "b-")
+    ptrue = np.array([MemsGyro(res.get("gyro_params")).scale_factor(t) for t in tp])
+    ad.errorbar(
+        tp,
+        (sf / ptrue - 1) * 1e6,
+        yerr=curve.t_quantile * sd / ptrue * 1e6,
+        fmt="o",
+        color="tab:red",
+    )
+    ad.axhline(0.0, color="k", lw=0.5)
+    for s in (-1, 1):
+        ad.axhline(s * MAX_DEV_TARGET_PPM, color="gray", lw=0.5, ls=":")
+    ad.set_xlabel("temperature [C]")
+    ad.set_ylabel("SF / true - 1 [ppm]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def figure_records(res: dict, ev: dict) -> list[Figure]:
+    """Figures: per temperature the SF error [ppm] against the true k_I(T), the bootstrap
+    standard deviation [ppm], the in-situ EKF's omega RMSE [rad/s] and alpha (targets of
+    the thesis' Table 3.5: <= 0.114 rad/s, |alpha - 1| <= 8e-4); the curve's max deviation
+    from the true curve [ppm] (<= 600), the share of test temperatures with the true curve
+    inside the 95 % band (>= 0.85; the acceptance pools it over seeds), the fitted and true
+    sf_tempco [1/K], the Birge ratio and the band's largest half width [ppm]."""
+    figs = []
+    for p in res["points"]:
+        key = f"T{p.temperature_c:g}C"
+        figs += [
+            Figure(f"{key}.scale_factor", p.scale_factor, "1"),
+            Figure(f"{key}.scale_factor_true", p.k_true, "1"),
+            Figure(f"{key}.scale_factor_error", p.ppm, "ppm"),
+            Figure(f"{key}.bootstrap_sd", p.boot_sd_ppm, "ppm"),
+            Figure(
+                f"{key}.omega_rmse", p.omega_rmse, "rad/s", "<= 0.114 rad/s", p.omega_rmse <= 0.114
+            ),
+            Figure(f"{key}.alpha", p.alpha, "1", "|alpha - 1| <= 8e-4", abs(p.alpha - 1) <= 8e-4),
+        ]
+    c = res["curve"]
+    cover = float(np.mean(ev["inside"]))
+    figs += [
+        Figure(
+            "curve.max_deviation",
+            ev["max_dev_ppm"],
+            "ppm",
+            f"<= {MAX_DEV_TARGET_PPM:g} ppm",
+            ev["max_dev_ppm"] <= MAX_DEV_TARGET_PPM,
+        ),
+        Figure("curve.band_coverage", cover, "1", f">= {COVER_TARGET:g}", cover >= COVER_TARGET),
+        Figure("curve.band_half_width_max", float(np.max(ev["half_width_ppm"])), "ppm"),
+        Figure("curve.birge_ratio", c.birge, "1"),
+        Figure("curve.sf_tempco", c.sf_tempco, "1/K"),
+        Figure("curve.sf_tempco_true", ev["sf_tempco_true"], "1/K"),
+        Figure("curve.scale_factor_t_ref", float(c.coef[0]), "1"),
+    ]
+    return figs
+
+
+def run_pipeline(
+    seed: int,
+    plan: Plan | None = None,
+    stage_params: dict | None = None,
+    gyro_params: dict | None = None,
+    temperatures=DEFAULT_TEMPERATURES,
+    n_boot: int = N_BOOT,
+    order: int = 1,
+) -> dict:
+    """Steps 1-3 on the cores (:func:`sf_curve_study`) and the figure records."""
+    res = sf_curve_study(seed, plan, stage_params, gyro_params, temperatures, n_boot, order)
+    res["figures"] = figure_records(res, res["evaluation"])
+    return res
+
+
+def table_rows(res: dict) -> list[list[str]]:
+    """The scenario's table: one row per temperature and the curve's rows."""
+    F = {f.name: f for f in res["figures"]}
+    ev, c = res["evaluation"], res["curve"]
+    rows = []
+    for p in res["points"]:
+        key = f"T{p.temperature_c:g}C"
+        rows.append(
+            [
+                f"SF_IMU (true {cell(p.k_true, '.5f')})",
+                f"{p.temperature_c:g} C",
+                f"{cell(p.scale_factor, '.5f')} ({cell(p.ppm, '+.0f')} ppm, boot. sd "
+                f"{cell(p.boot_sd_ppm, '.0f')})",
+                f"RMSE {cell(p.omega_rmse, '.4f')} rad/s, alpha {cell(p.alpha, '.5f')}",
+                met_cell(F[f"{key}.omega_rmse"], F[f"{key}.alpha"]),
+            ]
+        )
+    rows += [
+        [
+            f"SF(T) fit, order {c.order}: max |dev.|",
+            f"{RANGE_C[0]:g}-{RANGE_C[1]:g} C",
+            f"{cell(ev['max_dev_ppm'], '.0f')} ppm",
+            f"<= {MAX_DEV_TARGET_PPM:g} ppm",
+            met_cell(F["curve.max_deviation"]),
+        ],
+        [
+            "true curve inside the 95 % band",
+            f"{ev['inside'].size} temps, 1 K apart",
+            f"{cell(100 * F['curve.band_coverage'].value, '.0f')} %, half width <= "
+            f"{cell(F['curve.band_half_width_max'].value, '.0f')} ppm",
+            f">= {100 * COVER_TARGET:g} % (pooled over seeds)",
+            met_cell(F["curve.band_coverage"]),
+        ],
+        [
+            "sf_tempco (fit / true)",
+            f"t_ref {c.t_ref_c:g} C",
+            f"{cell(1e6 * c.sf_tempco, '.1f')} / {cell(1e6 * ev['sf_tempco_true'], '.1f')} ppm/K",
+            f"Birge ratio {cell(c.birge, '.2f')}",
+            "-",
+        ],
+    ]
+    return rows
+
+
+def run(options) -> dict:
+    """The study ``stage_sf_curve``: identification, calibration at every temperature,
+    SF(T) fit, YAML and figure."""
+    from mems_scenarios.base import ScenarioError, format_table, output_path
+
+    if options.duration_s not in (None, 0.0):
+        raise ScenarioError(f"{NAME}: the duration follows from the drive schedules; omit it")
+    sp, gp = stage_and_gyro_params(options)
+    short = bool(options.extra.get("short"))
+    plan = Plan.short() if short else Plan()
+    temps = tuple(
+        options.extra.get("temperatures") or ((20.0, 32.5, 45.0) if short else DEFAULT_TEMPERATURES)
+    )
+    n_boot = int(options.extra.get("n_boot") or (20 if short else N_BOOT))
+    order = int(options.extra.get("order") or 1)
+    if len(temps) < order + 2 or min(temps) < -60 or max(temps) > 150:
+        raise ScenarioError(f"{NAME}: needs >= {order + 2} temperatures in [-60, 150] C")
+    seed = int(options.seed)
+    res = run_pipeline(seed, plan, sp, gp, temps, n_boot, order)
+    out = Path(options.out or Path("runs") / f"{NAME}-{seed}.mcap")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    yaml_path = output_path(out, seed, "-sf_curve.yaml")
+    save_yaml(
+        res["curve"],
+        yaml_path,
+        info={
+            "seed": seed,
+            "stage_params": {k: (float(v) if isinstance(v, float) else v) for k, v in sp.items()},
+            "gyro_params": {k: float(v) for k, v in gp.items()},
+            "training_temperature_c": T1,
+            "sensor_parameters": "D_n, eta re-identified at each temperature (LDV-like reference)",
+            "bootstrap_replicates": n_boot,
+            "calibration_trials": plan.cal_trials,
+            "periods_per_trial": plan.cal_periods,
+        },
+    )
+    plots = []
+    if options.plots:
+        plots.append(write_plot(output_path(out, seed, "-sf_curve.png"), res, res["evaluation"]))
+    table = format_table(
+        ["quantity", "condition", "value", "target / note", "met"], table_rows(res)
+    )
+    table += (
+        "\nSF(T) from D_n, eta re-identified at each temperature with the LDV-like "
+        f"reference; calibration YAML: {yaml_path}"
+    )
+    return {
+        "table": table,
+        "figures": res["figures"],
+        "duration_s": len(temps)
+        * (plan.train_trials * plan.train_periods + plan.cal_trials * plan.cal_periods)
+        / 1700.0,
+        "mcap": str(yaml_path),
+        "recorder": {},
+        "figure": ", ".join(str(p) for p in plots),
+        "curve": res["curve"],
+        "points": res["points"],
+        "evaluation": res["evaluation"],
+        "yaml": str(yaml_path),
+        "sf_max_dev_ppm": res["evaluation"]["max_dev_ppm"],
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m mems_scenarios.stage_sf_curve``: the study for one seed (module docstring).
+    Exit status 0, or 2 with one line on bad input."""
+    import argparse
+    import sys
+
+    from mems_scenarios.base import ScenarioError, ScenarioOptions
+    from mems_scenarios.figures import to_json
+    from mems_sim.params import ParameterError
+    from mems_sim.ros.params_file import ParamsFileError, parse_set
+
+    p = argparse.ArgumentParser(prog="python -m mems_scenarios.stage_sf_curve")
+    p.add_argument("--seed", type=int, default=1, metavar="N", help="run seed (default 1)")
+    p.add_argument("--device-seed", type=int, default=None, metavar="N")
+    p.add_argument("--set", dest="set_params", action="append", default=[], metavar="stage.P=V")
+    p.add_argument("--out", type=Path, default=Path("runs"), metavar="DIR")
+    p.add_argument("--json", action="store_true", help="print the figures as JSON records")
+    p.add_argument("--no-plots", action="store_true")
+    args = p.parse_args(argv)
+    try:
+        if args.seed < 0 or (args.device_seed is not None and args.device_seed < 0):
+            raise ScenarioError("--seed and --device-seed must be >= 0")
+        args.out.mkdir(parents=True, exist_ok=True)
+        options = ScenarioOptions(
+            seed=args.seed,
+            out=args.out / f"{NAME}-{args.seed}.mcap",
+            progress=False,
+            plots=not args.no_plots,
+            overrides=[parse_set(text) for text in args.set_params],
+            device_seed=args.device_seed,
+        )
+        result = run(options)
+    except (ScenarioError, ParameterError, ParamsFileError, OSError, ValueError) as exc:
+        print(f"stage_sf_curve: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(to_json(result["figures"]))
+    else:
+        print(result["table"])
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
