@@ -6,8 +6,9 @@ from pathlib import Path
 
 HERE = Path(__file__).parent
 
-# (benchmark, options), in order; the stage graph as separate processes (~90 s: the
-# one-process figures, zstd as recorded by default and the cheapest configuration)
+# (benchmark, options), in order; the stage graph as separate processes (~2 min: the
+# one-process figures, zstd as recorded by default, the cheapest configuration, and zstd
+# with the stage paced at 1.5 x its sample rate: the headroom asked for)
 BENCHES = [
     ("bench_allan.py", []),
     ("bench_recorder.py", []),
@@ -16,7 +17,9 @@ BENCHES = [
     ("bench_accelerometer.py", []),
     ("bench_scanner.py", []),
     ("bench_scanner_ukf.py", []),
-    ("bench_stage_ekf.py", ["--graph-processes=zstd,none,none:10000"]),
+    ("bench_stage_ekf.py", ["--graph-processes=zstd,none,none:10000,zstd@1.5"]),
+    # every scenario's fast-mode summary line (first frame to last), ~2 min
+    ("bench_scenarios_fast.py", []),
     ("bench_imu_fast.py", []),
     # 120 s of data: pacing at rates 1 and 10 and the lossless replay in ~3 min
     # (bench_replay.py alone defaults to the 600 s of the data-path figures)

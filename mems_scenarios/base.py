@@ -443,6 +443,71 @@ class Progress:
             self._bar.close()
 
 
+class Throughput:
+    """Samples the devices emulated per wall second from their first frame to the last one
+    their consumers took, for the summary line of ``run_scenario``; start-up is excluded:
+    building the graph, discovery, the figures, and the first frame (in fast runs the clock
+    starts once every consumer took it: the numba kernels are loaded from their cache at
+    their first call, which can take longer than the whole run). :func:`drive_fast` and
+    :func:`publish_all` call :meth:`begin` and :meth:`end` once the last frame is
+    delivered; :data:`THROUGHPUT` holds the runs of the current scenario."""
+
+    def __init__(self) -> None:
+        self.runs: list[dict] = []
+
+    def reset(self) -> None:
+        self.runs = []
+
+    def begin(self, devices: list) -> None:
+        """The clock starts: the samples the devices published so far do not count."""
+        self.runs.append(
+            dict(
+                devices=devices,
+                t_first=time.monotonic(),
+                t_last=None,
+                start=sum(int(d.next_index) for d in devices),
+            )
+        )
+
+    def end(self, devices: list) -> None:
+        """Every frame of ``devices`` published so far is delivered (a later call moves
+        the end: the drain after the last frame counts)."""
+        for run in reversed(self.runs):
+            if run["devices"] is devices:
+                run["t_last"] = time.monotonic()
+                run["samples"] = sum(int(d.next_index) for d in devices) - run["start"]
+                run["rates"] = [float(d.fs) for d in devices]
+                return
+
+    def summary(self) -> str | None:
+        """One line: a single device's real-time factor, or several devices' samples
+        emulated per wall second against the sum of their sample rates; None if no graph
+        ran. Several graphs one after the other add up (samples, wall time, and the sum
+        of the rates weighted by each graph's wall time)."""
+        runs = [r for r in self.runs if r["t_last"] is not None and r["t_last"] > r["t_first"]]
+        if not runs:
+            return None
+        wall = sum(r["t_last"] - r["t_first"] for r in runs)
+        samples = sum(r["samples"] for r in runs)
+        rate = sum(sum(r["rates"]) * (r["t_last"] - r["t_first"]) for r in runs) / wall
+        devices = max(len(r["rates"]) for r in runs)
+        if devices == 1:
+            return (
+                f"graph from its first frame to its last: {samples / rate:.4g} s simulated in "
+                f"{wall:.2f} s wall = {samples / wall / rate:.3g} x real time"
+            )
+        return (
+            f"graph from its first frame to its last ({devices} devices): "
+            f"{samples / wall:.4g} samples emulated per wall second against {rate:.4g} "
+            f"samples/s summed over their sample rates = {samples / wall / rate:.3g} x, "
+            f"{wall:.2f} s wall"
+        )
+
+
+#: The graphs of the scenario being run (``run_scenario`` resets it and prints its summary).
+THROUGHPUT = Throughput()
+
+
 def recorded_streams(graph: Graph, devices: list, window: int = 1) -> list[tuple]:
     """``(recorder, account, window)`` for every data topic of ``devices`` that a recorder
     of the graph records; ``window`` is at most half the publisher's history depth (a
@@ -580,6 +645,16 @@ def finish_delivery(graph: Graph, devices: list, delivered=None, timeout_s: floa
     check_delivery(graph, devices)
 
 
+def _all_taken(devices: list, delivered, streams: list) -> bool:
+    """Every frame the devices published is taken by every consumer and recorder."""
+    if delivered is not None:
+        for d in devices:
+            n = delivered(d)
+            if n is not None and n < d.frames_published:
+                return False
+    return all(rec.received(acc.topic) >= acc.sent for rec, acc, _ in streams)
+
+
 def drive_fast(
     graph: Graph,
     devices: list,
@@ -603,6 +678,7 @@ def drive_fast(
     """
     prepare_delivery(graph, devices)
     streams = recorded_streams(graph, devices, window)
+    first = True
 
     def caught_up() -> bool:
         if delivered is not None:
@@ -623,8 +699,16 @@ def drive_fast(
                 graph, caught_up, devices, delivered, streams, 60.0, "consumers to take frames"
             )
         graph.executor.spin_once(timeout_sec=0)
+        if first:  # the throughput's clock starts once every consumer took the first
+            # frame (at most 10 s: a consumer that holds a frame back starts it then)
+            deadline = time.monotonic() + 10.0
+            while not _all_taken(devices, delivered, streams) and time.monotonic() < deadline:
+                graph.executor.spin_once(timeout_sec=0.01)
+            THROUGHPUT.begin(devices)
+            first = False
         if progress is not None:
             progress.update_to(min(d.next_index / d.fs for d in devices))
+    THROUGHPUT.end(devices)
 
 
 def publish_all(
@@ -649,6 +733,7 @@ def publish_all(
     """
     prepare_delivery(graph, devices)
     if realtime:
+        THROUGHPUT.begin(devices)
         for d in devices:
             d.start()
 
@@ -661,6 +746,7 @@ def publish_all(
     else:
         drive_fast(graph, devices, delivered, progress, window)
     finish_delivery(graph, devices, delivered, drain_timeout_s)
+    THROUGHPUT.end(devices)
 
 
 def topic_frames(path, topic: str) -> dict:

@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 from mems_scenarios import SCENARIOS, load
-from mems_scenarios.base import ScenarioError, ScenarioOptions
+from mems_scenarios.base import THROUGHPUT, ScenarioError, ScenarioOptions
 from mems_sim.params import ParameterError
 from mems_sim.ros.end_of_stream import is_end_of_stream_topic
 from mems_sim.ros.env import apply_defaults
@@ -248,6 +248,7 @@ def _main(args) -> int:
         options.extra["cut"] = {c.rpartition(":")[0]: int(c.rpartition(":")[2]) for c in args.cut}
     if args.live_view is not None:
         options.extra["live_view"] = args.live_view
+    THROUGHPUT.reset()
     start = time.monotonic()
     try:
         result = args.result = module.run(options)
@@ -262,8 +263,12 @@ def _main(args) -> int:
     print(
         f"\nscenario {args.name}: seed {args.seed}, {device_text(args)}, "
         f"{result['duration_s']:g} s simulated in {wall:.1f} s wall "
-        f"({'real time' if args.realtime else 'as fast as possible'})\n"
+        f"({'real time' if args.realtime else 'as fast as possible'})"
     )
+    throughput = THROUGHPUT.summary()  # first frame to last: start-up excluded
+    if throughput:
+        print(throughput)
+    print()
     if options.applied:
         print("parameters set (they override the scenario's values):")
         print(applied_text(options.applied) + "\n")

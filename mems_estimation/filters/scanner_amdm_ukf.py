@@ -17,7 +17,7 @@ import math
 import numba
 import numpy as np
 
-from mems_estimation.filters.scanner_amdm_model import _h, _store_posterior, _torque_u
+from mems_estimation.filters.scanner_amdm_model import _h, _torque_u
 from mems_sim.params import ParameterError
 
 
@@ -63,6 +63,20 @@ def _sigma(x, P, gamma, S):
     return True
 
 
+@numba.njit(cache=True, inline="always")
+def _chol(p00, p01, p11):
+    """(ok, l00, l10, l11): Cholesky factor of [[p00, p01], [p01, p11]] as :func:`_sigma`
+    computes it; ok False if not positive definite (then the factor is not to be used)."""
+    if not p00 > 0.0:
+        return False, 0.0, 0.0, 0.0
+    l00 = math.sqrt(p00)
+    l10 = p01 / l00
+    d = p11 - l10 * l10
+    if not d > 0.0:
+        return False, 0.0, 0.0, 0.0
+    return True, l00, l10, math.sqrt(d)
+
+
 @numba.njit(cache=True)
 def ukf_run(
     y, v2, x, P, Phi, Gam, Q, m, J, R, T, wm, wc, gamma, predict_first, out_x, out_p, out_nis
@@ -71,72 +85,123 @@ def ukf_run(
 
     Arguments and outputs as :func:`ekf_run`; wm, wc (5,) weights, gamma = sqrt(n + lambda).
 
+    The arithmetic of :func:`_sigma` and the loops over the five sigma points, written out
+    on scalars (state, covariance and sigma points stay in registers: 2x faster than on
+    arrays, results bit for bit the same). A covariance that is not positive definite even
+    after the repair leaves the sigma points as they were, as :func:`_sigma` does.
+
     Returns:
         number of steps whose covariance was not positive definite (repaired).
     """
-    S = np.empty((5, 2))
-    Xp = np.empty((5, 2))
-    Y = np.empty(5)
+    x0, x1 = x[0], x[1]
+    p00, p01, p11 = P[0, 0], P[0, 1], P[1, 1]
+    f00, f01, f10, f11, g0, g1 = Phi[0, 0], Phi[0, 1], Phi[1, 0], Phi[1, 1], Gam[0], Gam[1]
+    q00, q01, q11 = Q[0, 0], Q[0, 1], Q[1, 1]
+    wm0, wm1, wm2, wm3, wm4 = wm[0], wm[1], wm[2], wm[3], wm[4]
+    wc0, wc1, wc2, wc3, wc4 = wc[0], wc[1], wc[2], wc[3], wc[4]
+    # sigma points (rows 0..4 of _sigma's S), kept between steps like S
+    s00 = s01 = s10 = s11 = s20 = s21 = s30 = s31 = s40 = s41 = 0.0
     bad = 0
     for k in range(y.shape[0]):
         if k > 0 or predict_first:
-            if not _sigma(x, P, gamma, S):
+            ok, l00, l10, l11 = _chol(p00, p01, p11)
+            if not ok:
                 bad += 1
-                P[0, 1] = 0.0
-                P[1, 0] = 0.0
-                P[0, 0] = max(P[0, 0], Q[0, 0])
-                P[1, 1] = max(P[1, 1], Q[1, 1])
-                _sigma(x, P, gamma, S)
-            m0 = 0.0
-            m1 = 0.0
-            for i in range(5):
-                u = _torque_u(S[i, 0] + 0.5 * T * S[i, 1], v2[k], m, J)
-                Xp[i, 0] = Phi[0, 0] * S[i, 0] + Phi[0, 1] * S[i, 1] + Gam[0] * u
-                Xp[i, 1] = Phi[1, 0] * S[i, 0] + Phi[1, 1] * S[i, 1] + Gam[1] * u
-                m0 += wm[i] * Xp[i, 0]
-                m1 += wm[i] * Xp[i, 1]
-            p00 = Q[0, 0]
-            p01 = Q[0, 1]
-            p11 = Q[1, 1]
-            for i in range(5):
-                d0 = Xp[i, 0] - m0
-                d1 = Xp[i, 1] - m1
-                p00 += wc[i] * d0 * d0
-                p01 += wc[i] * d0 * d1
-                p11 += wc[i] * d1 * d1
-            x[0] = m0
-            x[1] = m1
-            P[0, 0] = p00
-            P[0, 1] = p01
-            P[1, 0] = p01
-            P[1, 1] = p11
-        if not _sigma(x, P, gamma, S):
+                p01 = 0.0
+                p00 = max(p00, q00)
+                p11 = max(p11, q11)
+                ok, l00, l10, l11 = _chol(p00, p01, p11)
+            if ok:
+                s00, s01 = x0, x1
+                s10, s11 = x0 + gamma * l00, x1 + gamma * l10
+                s20, s21 = x0 - gamma * l00, x1 - gamma * l10
+                s30, s31 = x0, x1 + gamma * l11
+                s40, s41 = x0, x1 - gamma * l11
+            vk = v2[k]
+            u = _torque_u(s00 + 0.5 * T * s01, vk, m, J)
+            a0, a1 = f00 * s00 + f01 * s01 + g0 * u, f10 * s00 + f11 * s01 + g1 * u
+            u = _torque_u(s10 + 0.5 * T * s11, vk, m, J)
+            b0, b1 = f00 * s10 + f01 * s11 + g0 * u, f10 * s10 + f11 * s11 + g1 * u
+            u = _torque_u(s20 + 0.5 * T * s21, vk, m, J)
+            c0, c1 = f00 * s20 + f01 * s21 + g0 * u, f10 * s20 + f11 * s21 + g1 * u
+            u = _torque_u(s30 + 0.5 * T * s31, vk, m, J)
+            d0, d1 = f00 * s30 + f01 * s31 + g0 * u, f10 * s30 + f11 * s31 + g1 * u
+            u = _torque_u(s40 + 0.5 * T * s41, vk, m, J)
+            e0, e1 = f00 * s40 + f01 * s41 + g0 * u, f10 * s40 + f11 * s41 + g1 * u
+            m0 = 0.0 + wm0 * a0 + wm1 * b0 + wm2 * c0 + wm3 * d0 + wm4 * e0
+            m1 = 0.0 + wm0 * a1 + wm1 * b1 + wm2 * c1 + wm3 * d1 + wm4 * e1
+            p00, p01, p11 = q00, q01, q11
+            dd0, dd1 = a0 - m0, a1 - m1
+            p00 += wc0 * dd0 * dd0
+            p01 += wc0 * dd0 * dd1
+            p11 += wc0 * dd1 * dd1
+            dd0, dd1 = b0 - m0, b1 - m1
+            p00 += wc1 * dd0 * dd0
+            p01 += wc1 * dd0 * dd1
+            p11 += wc1 * dd1 * dd1
+            dd0, dd1 = c0 - m0, c1 - m1
+            p00 += wc2 * dd0 * dd0
+            p01 += wc2 * dd0 * dd1
+            p11 += wc2 * dd1 * dd1
+            dd0, dd1 = d0 - m0, d1 - m1
+            p00 += wc3 * dd0 * dd0
+            p01 += wc3 * dd0 * dd1
+            p11 += wc3 * dd1 * dd1
+            dd0, dd1 = e0 - m0, e1 - m1
+            p00 += wc4 * dd0 * dd0
+            p01 += wc4 * dd0 * dd1
+            p11 += wc4 * dd1 * dd1
+            x0, x1 = m0, m1
+        ok, l00, l10, l11 = _chol(p00, p01, p11)
+        if not ok:
             bad += 1
-            P[0, 1] = 0.0
-            P[1, 0] = 0.0
-            P[0, 0] = max(P[0, 0], Q[0, 0])
-            P[1, 1] = max(P[1, 1], Q[1, 1])
-            _sigma(x, P, gamma, S)
-        ym = 0.0
-        for i in range(5):
-            Y[i] = _h(S[i, 0], m)
-            ym += wm[i] * Y[i]
-        py = R
-        c0 = 0.0
-        c1 = 0.0
-        for i in range(5):
-            dy = Y[i] - ym
-            py += wc[i] * dy * dy
-            c0 += wc[i] * (S[i, 0] - x[0]) * dy
-            c1 += wc[i] * (S[i, 1] - x[1]) * dy
-        k0 = c0 / py
-        k1 = c1 / py
+            p01 = 0.0
+            p00 = max(p00, q00)
+            p11 = max(p11, q11)
+            ok, l00, l10, l11 = _chol(p00, p01, p11)
+        if ok:
+            s00, s01 = x0, x1
+            s10, s11 = x0 + gamma * l00, x1 + gamma * l10
+            s20, s21 = x0 - gamma * l00, x1 - gamma * l10
+            s30, s31 = x0, x1 + gamma * l11
+            s40, s41 = x0, x1 - gamma * l11
+        h0 = _h(s00, m)
+        h1 = _h(s10, m)
+        h2 = _h(s20, m)
+        h3 = _h(s30, m)
+        h4 = _h(s40, m)
+        ym = 0.0 + wm0 * h0 + wm1 * h1 + wm2 * h2 + wm3 * h3 + wm4 * h4
+        dy0, dy1, dy2, dy3, dy4 = h0 - ym, h1 - ym, h2 - ym, h3 - ym, h4 - ym
+        py = R + wc0 * dy0 * dy0 + wc1 * dy1 * dy1 + wc2 * dy2 * dy2
+        py = py + wc3 * dy3 * dy3 + wc4 * dy4 * dy4
+        cx = 0.0 + wc0 * (s00 - x0) * dy0 + wc1 * (s10 - x0) * dy1 + wc2 * (s20 - x0) * dy2
+        cx = cx + wc3 * (s30 - x0) * dy3 + wc4 * (s40 - x0) * dy4
+        cw = 0.0 + wc0 * (s01 - x1) * dy0 + wc1 * (s11 - x1) * dy1 + wc2 * (s21 - x1) * dy2
+        cw = cw + wc3 * (s31 - x1) * dy3 + wc4 * (s41 - x1) * dy4
+        k0 = cx / py
+        k1 = cw / py
         nu = y[k] - ym
-        x[0] += k0 * nu
-        x[1] += k1 * nu
-        p00 = P[0, 0] - k0 * k0 * py
-        p01 = P[0, 1] - k0 * k1 * py
-        p11 = P[1, 1] - k1 * k1 * py
-        bad += _store_posterior(P, Q, p00, p01, p11, x, k, out_x, out_p)
+        x0 += k0 * nu
+        x1 += k1 * nu
+        p00 = p00 - k0 * k0 * py
+        p01 = p01 - k0 * k1 * py
+        p11 = p11 - k1 * k1 * py
+        # a posteriori covariance (_store_posterior): repaired if not positive definite
+        if not (p00 > 0.0 and p11 > 0.0 and p00 * p11 - p01 * p01 > 0.0):
+            bad += 1
+            p01 = 0.0
+            p00 = max(p00, q00)
+            p11 = max(p11, q11)
+        out_x[k, 0] = x0
+        out_x[k, 1] = x1
+        out_p[k, 0] = p00
+        out_p[k, 1] = p11
+        out_p[k, 2] = p01
         out_nis[k] = nu * nu / py
+    x[0] = x0
+    x[1] = x1
+    P[0, 0] = p00
+    P[0, 1] = p01
+    P[1, 0] = p01
+    P[1, 1] = p11
     return bad

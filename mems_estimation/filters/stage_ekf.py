@@ -38,7 +38,12 @@ import numba
 import numpy as np
 
 from mems_sim.devices.stage import stage_matrices
-from mems_sim.devices.stage_capacitance import EPS0, dcdtheta_single_tan
+from mems_sim.devices.stage_capacitance import (
+    EPS0,
+    GL8_NODES,
+    GL8_WEIGHTS,
+    dcdtheta_single_tan,
+)
 from mems_sim.kernels.divergence import covariance_ok, state_ok
 
 __all__ = [
@@ -115,34 +120,62 @@ def output_h(theta, eta, gap, lim, eps, out):
 @numba.njit(cache=True)
 def ekf_run(y, u, A, B, Q, Rinv, eta, gap, lim, eps, x, P, uprev, out_x, out_var):
     """Run eqs. (48)-(53) over n samples (module doc). State carried in x (2,), P (2,2),
-    uprev (1,) [V]. y: (n, n_y) V (NaN row -> no update); u: (n,) V; outputs (n, 2)."""
+    uprev (1,) [V]. y: (n, n_y) V (NaN row -> no update); u: (n,) V; outputs (n, 2).
+
+    Same arithmetic as :func:`output_h` and the inline update, arranged for speed: x, P,
+    the held input and A_d, B_d live in scalars inside the loop (read once, written back
+    once per call); the quadrature of h_c(theta) (eq. 46) is tabulated per channel once
+    per call (nodes w, weights w0 w, factor eps L h) and tan(theta), 1 + tan^2(theta) are
+    computed once per sample, so every h_c is the one of :func:`output_h` bit for bit."""
     n = y.shape[0]
     ny = y.shape[1]
-    h = np.empty(ny)
-    r = np.empty(ny)
+    a00, a01, a10, a11 = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
+    b0, b1 = B[0], B[1]
     BQ0 = B[0] * B[0] * Q
     BQ1 = B[0] * B[1] * Q
     BQ2 = B[1] * B[1] * Q
+    # eq. (46) quadrature tables of dcdtheta_single_tan per channel
+    nodes = np.empty((ny, 8))
+    weights = np.empty((ny, 8))
+    scale = np.empty(ny)
+    for c in range(ny):
+        hw = 0.5 * (lim[c, 1] - lim[c, 0])
+        mw = 0.5 * (lim[c, 1] + lim[c, 0])
+        for a in range(8):
+            nodes[c, a] = mw + hw * GL8_NODES[a]
+            weights[c, a] = GL8_WEIGHTS[a] * nodes[c, a]
+        scale[c] = eps * (lim[c, 3] - lim[c, 2]) * hw
+    h = np.empty(ny)
+    r = np.empty(ny)
+    x0, x1, up = x[0], x[1], uprev[0]
+    q00, q01, q11 = P[0, 0], P[0, 1], P[1, 1]
     for k in range(n):
         # (48)
-        t = A[0, 0] * x[0] + A[0, 1] * x[1] + B[0] * uprev[0]
-        w = A[1, 0] * x[0] + A[1, 1] * x[1] + B[1] * uprev[0]
+        t = a00 * x0 + a01 * x1 + b0 * up
+        w = a10 * x0 + a11 * x1 + b1 * up
         # (49)
-        p00, p01, p11 = P[0, 0], P[0, 1], P[1, 1]
-        a00 = A[0, 0] * p00 + A[0, 1] * p01
-        a01 = A[0, 0] * p01 + A[0, 1] * p11
-        a10 = A[1, 0] * p00 + A[1, 1] * p01
-        a11 = A[1, 0] * p01 + A[1, 1] * p11
-        q00 = a00 * A[0, 0] + a01 * A[0, 1] + BQ0
-        q01 = a00 * A[1, 0] + a01 * A[1, 1] + BQ1
-        q11 = a10 * A[1, 0] + a11 * A[1, 1] + BQ2
+        c00 = a00 * q00 + a01 * q01
+        c01 = a00 * q01 + a01 * q11
+        c10 = a10 * q00 + a11 * q01
+        c11 = a10 * q01 + a11 * q11
+        q00 = c00 * a00 + c01 * a01 + BQ0
+        q01 = c00 * a10 + c01 * a11 + BQ1
+        q11 = c10 * a10 + c11 * a11 + BQ2
         ok = True
         for c in range(ny):
             if not math.isfinite(y[k, c]):
                 ok = False
         if ok:
-            # (50)
-            output_h(t, eta, gap, lim, eps, h)
+            # (50): h_c = eta_c dC_c/dtheta (eqs. 44, 46), as output_h
+            tt = math.tan(t)
+            sec2 = 1.0 + tt * tt
+            for c in range(ny):
+                acc = 0.0
+                dn = gap[c]
+                for a in range(8):
+                    d = dn - nodes[c, a] * tt
+                    acc += weights[c, a] / (d * d)
+                h[c] = eta[c] * (scale[c] * acc * sec2)
             for c in range(ny):
                 acc = 0.0
                 for d in range(ny):
@@ -159,21 +192,21 @@ def ekf_run(y, u, A, B, Q, Rinv, eta, gap, lim, eps, x, P, uprev, out_x, out_var
             w += q11 * s / den
             # (53)
             f = g / den
-            n00 = q00 - q01 * q01 * f
-            n01 = q01 - q01 * q11 * f
-            n11 = q11 - q11 * q11 * f
-            q00, q01, q11 = n00, n01, n11
-        x[0] = t
-        x[1] = w
-        P[0, 0] = q00
-        P[0, 1] = q01
-        P[1, 0] = q01
-        P[1, 1] = q11
-        uprev[0] = u[k]
+            q00, q01, q11 = q00 - q01 * q01 * f, q01 - q01 * q11 * f, q11 - q11 * q11 * f
+        x0 = t
+        x1 = w
+        up = u[k]
         out_x[k, 0] = t
         out_x[k, 1] = w
         out_var[k, 0] = q00
         out_var[k, 1] = q11
+    x[0] = x0
+    x[1] = x1
+    P[0, 0] = q00
+    P[0, 1] = q01
+    P[1, 0] = q01
+    P[1, 1] = q11
+    uprev[0] = up
 
 
 def _output_correction(x: np.ndarray, var: np.ndarray, alpha: float, beta: float) -> None:

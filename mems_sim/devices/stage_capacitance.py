@@ -225,6 +225,30 @@ def dcdtheta_single(theta, dn, w1, w2, length, eps):
     return dcdtheta_single_tan(math.tan(theta), dn, w1, w2, length, eps)
 
 
+#: Nodes and weights of the 8-point Gauss-Legendre quadrature on [-1, 1] of
+#: :func:`dcdtheta_single_tan` (an estimator that tabulates the same integrand uses them too).
+GL8_NODES = (
+    -0.9602898564975363,
+    -0.7966664774136267,
+    -0.5255324099163290,
+    -0.1834346424956498,
+    0.1834346424956498,
+    0.5255324099163290,
+    0.7966664774136267,
+    0.9602898564975363,
+)
+GL8_WEIGHTS = (
+    0.1012285362903763,
+    0.2223810344533745,
+    0.3137066458778873,
+    0.3626837833783620,
+    0.3626837833783620,
+    0.3137066458778873,
+    0.2223810344533745,
+    0.1012285362903763,
+)
+
+
 @numba.njit(cache=True)
 def dcdtheta_single_tan(t, dn, w1, w2, length, eps):
     """:func:`dcdtheta_single` from t = tan(theta) (callers with several channels at one
@@ -232,30 +256,10 @@ def dcdtheta_single_tan(t, dn, w1, w2, length, eps):
     h = 0.5 * (w2 - w1)
     m = 0.5 * (w2 + w1)
     acc = 0.0
-    x0 = (
-        -0.9602898564975363,
-        -0.7966664774136267,
-        -0.5255324099163290,
-        -0.1834346424956498,
-        0.1834346424956498,
-        0.5255324099163290,
-        0.7966664774136267,
-        0.9602898564975363,
-    )
-    w0 = (
-        0.1012285362903763,
-        0.2223810344533745,
-        0.3137066458778873,
-        0.3626837833783620,
-        0.3626837833783620,
-        0.3137066458778873,
-        0.2223810344533745,
-        0.1012285362903763,
-    )
     for a in range(8):
-        w = m + h * x0[a]
+        w = m + h * GL8_NODES[a]
         d = dn - w * t
-        acc += w0[a] * w / (d * d)
+        acc += GL8_WEIGHTS[a] * w / (d * d)
     return eps * length * h * acc * (1.0 + t * t)
 
 

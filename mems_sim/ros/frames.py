@@ -11,6 +11,7 @@ from __future__ import annotations
 import array
 from collections.abc import Sequence
 from fractions import Fraction
+from functools import lru_cache
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -59,8 +60,16 @@ def index_to_ns(index: int, sample_rate_hz: float, t0_ns: int = 0) -> int:
         t0_ns: time of sample 0 [ns]: the run's epoch (0 in fast simulated runs, the
             graph's time at start in live ones).
     """
-    rate = Fraction(repr(float(sample_rate_hz)))
-    return t0_ns + (int(index) * 10**9 * rate.denominator) // rate.numerator
+    num, den = _rate_fraction(float(sample_rate_hz))
+    return t0_ns + (int(index) * 10**9 * den) // num
+
+
+@lru_cache(maxsize=256)
+def _rate_fraction(sample_rate_hz: float) -> tuple[int, int]:
+    """(numerator, denominator) of the sample rate as written (its repr), e.g. 625e3 ->
+    (625000, 1); cached: a graph has a few rates and stamps every frame with one."""
+    rate = Fraction(repr(sample_rate_hz))
+    return rate.numerator, rate.denominator
 
 
 def ns_to_time(ns: int) -> Time:
@@ -73,16 +82,22 @@ def time_to_ns(stamp: Time) -> int:
     return int(stamp.sec) * 10**9 + int(stamp.nanosec)
 
 
-def _int32_array(values: np.ndarray) -> array.array:
-    out = array.array("i")
-    out.frombytes(np.ascontiguousarray(values, dtype=np.int32).tobytes())
+def _typed_array(values, dtype, typecode: str) -> array.array:
+    """``array.array`` of the values (what the message fields take without a per-element
+    check), copied once from the contiguous numpy buffer."""
+    out = array.array(typecode)
+    values = np.ascontiguousarray(values, dtype=dtype)
+    if values.size:
+        out.frombytes(memoryview(values).cast("B"))
     return out
+
+
+def _int32_array(values: np.ndarray) -> array.array:
+    return _typed_array(values, np.int32, "i")
 
 
 def _float64_array(values: np.ndarray) -> array.array:
-    out = array.array("d")
-    out.frombytes(np.ascontiguousarray(values, dtype=np.float64).tobytes())
-    return out
+    return _typed_array(values, np.float64, "d")
 
 
 def _fill_frame(

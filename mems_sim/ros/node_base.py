@@ -682,7 +682,7 @@ def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> in
     import signal
 
     import rclpy
-    from rclpy.executors import ExternalShutdownException
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
     apply_defaults()
@@ -694,12 +694,17 @@ def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> in
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, _raise_interrupt)
     node = None
+    executor = None
     try:
         node = factory()
+        # one executor for the node's life: rclpy.spin_once(node) adds and removes the node
+        # on every call, which wakes and rebuilds the wait set once per callback
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
         # short waits: SIGINT/SIGTERM are handled within 0.1 s even when no timer of the
         # node fires (e.g. under use_sim_time while nobody publishes /clock)
         while rclpy.ok():
-            rclpy.spin_once(node, timeout_sec=0.1)
+            executor.spin_once(timeout_sec=0.1)
     except ParameterError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -710,7 +715,11 @@ def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> in
             close = getattr(node, "close", None)
             if close is not None:
                 close()
+            if executor is not None:
+                executor.remove_node(node)
             node.destroy_node()
+        if executor is not None:
+            executor.shutdown(timeout_sec=1.0)
         if rclpy.ok():
             rclpy.shutdown()
     return 0
