@@ -42,6 +42,16 @@ from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
 
 CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 
+
+def imu_values(msg: AdcFrame) -> np.ndarray:
+    """(n, 6) physical values of an IMU frame in :data:`CHANNELS` order (rad/s, m/s^2),
+    whatever the frame's channel order; a frame without these channels is foreign."""
+    names = list(msg.channel_names)
+    if not all(c in names for c in CHANNELS):
+        raise FrameError(f"frame at {msg.first_sample_index}: channels {names}", "foreign")
+    return adc_physical(msg)[:, [names.index(c) for c in CHANNELS]]
+
+
 CAL_SPECS: tuple[ParamSpec, ...] = (
     DEVICE_NAMESPACE,
     ParamSpec(
@@ -168,10 +178,7 @@ class ImuCalibrationNode(EstimatorNode):
 
     def _decode(self, msg: AdcFrame) -> np.ndarray:
         self._pair_rate = float(msg.sample_rate_hz)
-        names = list(msg.channel_names)
-        if not all(c in names for c in CHANNELS):
-            raise FrameError(f"frame at {msg.first_sample_index}: channels {names}", "foreign")
-        return adc_physical(msg)[:, [names.index(c) for c in CHANNELS]]
+        return imu_values(msg)
 
     def on_frame(self, msg: AdcFrame) -> None:
         """Validate and keep one frame; calibrate at the profile's end."""

@@ -34,10 +34,10 @@ from sensor_msgs.msg import Imu, Temperature
 
 from mems_estimation.identification import imu_calibration as ic
 from mems_estimation.nodes.frame_input import DEVICE_NAMESPACE, EstimatorNode, input_specs
-from mems_estimation.nodes.imu_calibration_node import CHANNELS, _temperature
+from mems_estimation.nodes.imu_calibration_node import _temperature, imu_values
 from mems_msgs.msg import AdcFrame, SignalFrame
 from mems_sim.params import ParameterError, ParamSpec
-from mems_sim.ros.frames import FrameError, adc_physical, index_to_ns, time_to_ns
+from mems_sim.ros.frames import index_to_ns, time_to_ns
 from mems_sim.ros.imu_msg import ImuSerializer
 from mems_sim.ros.node_base import run_node
 from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS
@@ -166,10 +166,7 @@ class ImuCorrectorNode(EstimatorNode):
 
     def _decode(self, msg: AdcFrame) -> np.ndarray:
         self._rate = float(msg.sample_rate_hz)
-        names = list(msg.channel_names)
-        if not all(c in names for c in CHANNELS):
-            raise FrameError(f"frame at {msg.first_sample_index}: channels {names}", "foreign")
-        return adc_physical(msg)[:, [names.index(c) for c in CHANNELS]]
+        return imu_values(msg)
 
     def on_frame(self, msg: AdcFrame) -> None:
         """Correct one frame and publish its samples."""
