@@ -45,6 +45,7 @@ __all__ = [
     "training_record",
     "identify_stage",
     "retrain_at",
+    "calibration_record",
     "calibration_run",
     "off_axis_table",
     "StreamingCalibrator",
@@ -351,6 +352,28 @@ def retrain_at(
     return reidentify_gap(model, tr)
 
 
+def calibration_record(
+    temperature_c: float,
+    seed: int,
+    plan: Plan,
+    stage_params: dict | None = None,
+    gyro_params: dict | None = None,
+) -> tuple[dict, MemsGyro]:
+    """The calibration sweep with the gyro on the stage (step 2: Chen 2018 sec. 3.3.1, the
+    amplitude sweep of :class:`Plan`) at ``temperature_c`` [degC], seeded from the run
+    ``seed``: (the record of :func:`mems_sim.devices.stage.record`, the gyro)."""
+    sp = dict(stage_params or {}, temperature_c=temperature_c)
+    stage = MicroStage(
+        sp,
+        DriveSchedule.amplitude_sweep(n_trials=plan.cal_trials, periods=plan.cal_periods),
+        seed=seed * 100 + 50 + int(temperature_c),
+    )
+    gyro = MemsGyro(
+        gyro_params, seed=seed * 100 + 60 + int(temperature_c), temperature_c=temperature_c
+    )
+    return record(stage, gyro), gyro
+
+
 def calibration_run(
     model,
     temperature_c: float,
@@ -363,16 +386,7 @@ def calibration_run(
 ) -> dict:
     """Calibration sweep with the gyro (step 2): EKF figures and eq. (27) result.
     ``estimator``: object with ``step(y, u) -> (x, var)`` (default ``StageEkf(model)``)."""
-    sp = dict(stage_params or {}, temperature_c=temperature_c)
-    stage = MicroStage(
-        sp,
-        DriveSchedule.amplitude_sweep(n_trials=plan.cal_trials, periods=plan.cal_periods),
-        seed=seed * 100 + 50 + int(temperature_c),
-    )
-    gyro = MemsGyro(
-        gyro_params, seed=seed * 100 + 60 + int(temperature_c), temperature_c=temperature_c
-    )
-    rec = record(stage, gyro)
+    rec, gyro = calibration_record(temperature_c, seed, plan, stage_params, gyro_params)
     x, var = (estimator or StageEkf(model)).step(cancelled(rec, enabled=cancel), rec["u"])
     ev = evaluate(x[:, 1], rec["omega"][:, 0], rec["phase"], rec["segment"])
     cal = calibrate(rec, x[:, 1])
@@ -414,16 +428,7 @@ def insitu_calibration(
     ``rec`` and ``k_true``."""
     from mems_estimation.identification.stage_insitu import insitu_correct
 
-    sp = dict(stage_params or {}, temperature_c=temperature_c)
-    stage = MicroStage(
-        sp,
-        DriveSchedule.amplitude_sweep(n_trials=plan.cal_trials, periods=plan.cal_periods),
-        seed=seed * 100 + 50 + int(temperature_c),
-    )
-    gyro = MemsGyro(
-        gyro_params, seed=seed * 100 + 60 + int(temperature_c), temperature_c=temperature_c
-    )
-    rec = record(stage, gyro)
+    rec, gyro = calibration_record(temperature_c, seed, plan, stage_params, gyro_params)
     yc = cancelled(rec, enabled=cancel)
     k_true = gyro.scale_factor()
     out: dict = {"rec": rec, "k_true": k_true}
