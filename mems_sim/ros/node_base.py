@@ -690,7 +690,8 @@ def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> in
     # before the context shuts down.
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     # SIGINT explicitly too: a process started in the background of a script inherits it
-    # ignored, and would not stop on the SIGINT that launch tools send
+    # ignored, and would not stop on the SIGINT that launch tools send. While the node is
+    # built a signal interrupts it (e.g. a wait for /clock); once it spins, see below.
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, _raise_interrupt)
     node = None
@@ -701,9 +702,15 @@ def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> in
         # on every call, which wakes and rebuilds the wait set once per callback
         executor = SingleThreadedExecutor()
         executor.add_node(node)
+        # while spinning, a stop signal only sets a flag that the loop reads between
+        # callbacks: raised inside rclpy's C++ take of a message it surfaced as a RuntimeError
+        # ("Unable to convert call argument") and the node died with a traceback
+        stop: list[int] = []
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda signum, frame: stop.append(signum))
         # short waits: SIGINT/SIGTERM are handled within 0.1 s even when no timer of the
         # node fires (e.g. under use_sim_time while nobody publishes /clock)
-        while rclpy.ok():
+        while rclpy.ok() and not stop:
             executor.spin_once(timeout_sec=0.1)
     except ParameterError as exc:
         print(f"error: {exc}", file=sys.stderr)
