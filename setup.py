@@ -105,6 +105,7 @@ setup(
             "accelerometer_ekf_node = mems_estimation.nodes.accelerometer_ekf_node:main",
             "stage_node = mems_sim.nodes.stage_node:main",
             "stage_ekf_node = mems_estimation.nodes.stage_ekf_node:main",
+            "stage_average_node = mems_estimation.nodes.stage_average_node:main",
             "stage_gyro_calibration_node = mems_estimation.nodes.stage_gyro_calibration_node:main",
             "scanner_node = mems_sim.nodes.scanner_node:main",
             "scanner_threshold_ekf_node = mems_estimation.nodes.scanner_threshold_ekf_node:main",

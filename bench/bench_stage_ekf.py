@@ -1,6 +1,7 @@
 """Benchmark and sensitivity study of the micro-stage EKF (Chen 2018 ch. 3).
 
 Run:  .venv/bin/python bench/bench_stage_ekf.py [--graph] [--graph-processes[=ROWS]]
+                                                [--graph-periods=N] [--keep-bags=DIR]
                                                 [--sensitivity] [--drift]
 
 1. samples/s of the numba EKF kernel (eqs. 48-53, 4 channels), of the feedthrough
@@ -14,7 +15,11 @@ Run:  .venv/bin/python bench/bench_stage_ekf.py [--graph] [--graph-processes[=RO
 4. ``--graph-processes[=zstd,lz4,none,lz4-noimu,none:10000,zstd@1.5]``: the same graph (one
    stage, 22.9 C; ``:N`` frames of N samples, ``@R`` the stage paced at R x real time) the
    way ROS users run it, one process per node (stage_node paced by its own
-   wall-clock timer, stage_ekf_node, stage_gyro_calibration_node, mcap_record --compression C),
+   wall-clock timer, stage_ekf_node, stage_gyro_calibration_node, mcap_record --compression C;
+   a row named zstd_fast, zstd_small or fastwrite records with that rosbag2 storage preset,
+   ``mcap_record --storage-preset-profile P``; ``--keep-bags=DIR`` keeps each recording;
+   ``--graph-periods=N``: drive periods per calibration trial, default 1600: 6.6 s of data,
+   2400: 9.8 s, i.e. 6.5 s of wall time at 1.5 x),
    localhost discovery, ROS_DOMAIN_ID from the environment (77 if unset): the stage's
    real-time factor (first to last frame), frames published vs recorded, frame-index gaps
    in the MCAP, CPU per process; "DOES NOT KEEP UP" when the factor is below 0.99 or a
@@ -505,6 +510,10 @@ def _reap(proc, timeout_s: float) -> float | None:
 #: frames of N samples instead of the scenario's 20000 (e.g. ``none:10000``)
 GRAPH_PROCESS_ROWS = "zstd,lz4,none,lz4-noimu"
 
+#: row names that are rosbag2 storage presets of the recorder (``mcap_record
+#: --storage-preset-profile``) instead of a ``--compression`` value
+PRESET_ROWS = ("zstd_fast", "zstd_small", "fastwrite")
+
 
 def graph_processes(
     model,
@@ -515,6 +524,7 @@ def graph_processes(
     extra_env: dict | None = None,
     frame_size: int | None = None,
     pace: float = 1.0,
+    keep_bag: str | None = None,
 ) -> dict:
     """The scenario's graph for one stage instance (22.9 C) the way ROS users run it: one
     process per node -- ``stage_node`` paced by its own wall-clock timer
@@ -529,7 +539,8 @@ def graph_processes(
     of the run) and how many frames were delayed > 0.2 s, and CPU seconds per process.
     ``frame_size``: samples per stage frame (default the scenario's ``FRAME``); ``pace``:
     the stage's ``realtime_factor`` (1.5: paced at 1.5 x its sample rate, the headroom
-    asked for)."""
+    asked for); ``compression``: a ``--compression`` value or a storage preset
+    (:data:`PRESET_ROWS`); ``keep_bag``: copy the recording there."""
     import json
     import signal
     import subprocess
@@ -573,8 +584,11 @@ def graph_processes(
                 "mems_sim.bag.recorder",
                 "-o",
                 str(out),
-                "--compression",
-                compression,
+                *(
+                    ["--storage-preset-profile", compression]
+                    if compression in PRESET_ROWS
+                    else ["--compression", compression]
+                ),
                 *topics,
                 "--ros-args",
                 "--log-level",
@@ -687,6 +701,10 @@ def graph_processes(
         if procs["recorder"].returncode or not out.exists():
             raise RuntimeError("recorder failed:\n" + texts["recorder"][-3000:])
         info = bag_info(str(out))
+        if keep_bag:
+            import shutil
+
+            shutil.copyfile(out, keep_bag)
         times = {}  # topic -> [(log time = the frame's stamp, publish time = DDS source time)]
         with open(out, "rb") as f:
             for _, ch, m in make_reader(f).iter_messages(
@@ -841,7 +859,14 @@ def main() -> None:
                     + _latency(r, rt)
                     + f", frame-index gaps {r['gaps']}"
                 )
-        for row in rows:
+        keep = [a.split("=", 1)[1] for a in sys.argv if a.startswith("--keep-bags=")]
+        periods = [int(a.split("=", 1)[1]) for a in sys.argv if a.startswith("--graph-periods=")]
+        gplan = Plan(cal_periods=periods[-1]) if periods else BENCH_PLAN
+        for i, row in enumerate(rows):
+            kept = None
+            if keep:
+                os.makedirs(keep[-1], exist_ok=True)
+                kept = os.path.join(keep[-1], f"{i}_{row.replace(':', '_')}.mcap")
             row, _, pace = row.partition("@")
             row, _, frame = row.partition(":")
             comp, _, imu = row.partition("-")
@@ -853,6 +878,8 @@ def main() -> None:
                     publish_imu=imu != "noimu",
                     frame_size=int(frame) if frame else None,
                     pace=float(pace) if pace else 1.0,
+                    keep_bag=kept,
+                    plan=gplan,
                 )
             )
     if "--drift" in sys.argv:

@@ -2,7 +2,7 @@
 recorder, per-frame Python.
 
 Run:  .venv/bin/python bench/profile_graph.py scenario NAME [--duration S] [--perf]
-      .venv/bin/python bench/profile_graph.py stage-processes [--compression C] [--perf]
+      .venv/bin/python bench/profile_graph.py stage-processes [--compression C|PRESET] [--perf]
 
 ``scenario NAME``: the scenario in fast mode (``run_scenario NAME --no-plots``) three
 times in one process: twice without a profiler for the wall time per phase (first to

@@ -6,9 +6,10 @@ from pathlib import Path
 
 HERE = Path(__file__).parent
 
-# (benchmark, options), in order; the stage graph as separate processes (~2 min: the
-# one-process figures, zstd as recorded by default, the cheapest configuration, and zstd
-# with the stage paced at 1.5 x its sample rate: the headroom asked for)
+# (benchmark, options), in order; the stage graph as separate processes (~2.5 min: the
+# one-process figures, zstd as recorded by default, the recorder with rosbag2's zstd_fast
+# preset, the cheapest configuration, and zstd_fast with the stage paced at 1.5 x its
+# sample rate: the headroom asked for; 9.8 s of data, 6.5 s of wall time at 1.5 x)
 BENCHES = [
     ("bench_allan.py", []),
     ("bench_recorder.py", []),
@@ -17,10 +18,18 @@ BENCHES = [
     ("bench_accelerometer.py", []),
     ("bench_scanner.py", []),
     ("bench_scanner_ukf.py", []),
-    ("bench_stage_ekf.py", ["--graph-processes=zstd,none,none:10000,zstd@1.5"]),
+    (
+        "bench_stage_ekf.py",
+        ["--graph-processes=zstd,zstd_fast,none:10000,zstd_fast@1.5", "--graph-periods=2400"],
+    ),
+    # the recorder's CPU and file size per storage preset and zstd level (~30 s)
+    ("bench_recorder_presets.py", ["--repeat", "10", "--rounds", "2"]),
     # every scenario's fast-mode summary line (first frame to last), ~2 min
     ("bench_scenarios_fast.py", []),
     ("bench_imu_fast.py", []),
+    # one device per graph (each family: device, its estimators, recorder), first frame to
+    # last against 1x real time, ~15 s
+    ("bench_single_device_fast.py", ["--repeat", "2"]),
     # 120 s of data: pacing at rates 1 and 10 and the lossless replay in ~3 min
     # (bench_replay.py alone defaults to the 600 s of the data-path figures)
     ("bench_replay.py", ["--duration", "120"]),

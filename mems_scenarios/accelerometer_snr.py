@@ -42,7 +42,7 @@ from mems_scenarios.base import (
     graph_for,
     publish_all,
     run_recorded,
-    topic_frames,
+    topics_frames,
 )
 from mems_scenarios.figures import Figure, cell
 from mems_sim.devices import accelerometer as fra
@@ -241,14 +241,21 @@ def run_graph(
     )
 
 
-def _device_figures(path: Path, ns: str, mode: str) -> dict:
-    """SNR, displacement, contact, saturation (and EKF errors) of one device from the MCAP."""
-    truth = topic_frames(path, f"/{ns}/truth")["data"]
-    out = (
-        topic_frames(path, f"/{ns}/adc")["data"][:, 0]
-        if mode == "open_loop"
-        else topic_frames(path, f"/{ns}/drive")["data"][:, 0]
-    )
+#: devices whose streams one pass over the MCAP reads (bounds the memory of a pass)
+DEVICES_PER_PASS = 8
+
+
+def _device_topics(ns: str, mode: str) -> list[str]:
+    """The topics :func:`_device_figures` reads for device ``ns`` in ``mode``."""
+    topics = [f"/{ns}/truth", f"/{ns}/adc" if mode == "open_loop" else f"/{ns}/drive"]
+    return topics + ([f"/{ns}/loop_estimate"] if mode == "ekf_rebalance" else [])
+
+
+def _device_figures(frames: dict, ns: str, mode: str) -> dict:
+    """SNR, displacement, contact, saturation (and EKF errors) of one device from the MCAP;
+    ``frames``: topic -> frames (:func:`topics_frames` of :func:`_device_topics`)."""
+    truth = frames[f"/{ns}/truth"]["data"]
+    out = frames[_device_topics(ns, mode)[1]]["data"][:, 0]
     k0 = int(SKIP_S * FS)
     t = np.arange(truth.shape[0]) / FS
     contact = truth[:, 3] > 0.5
@@ -264,7 +271,7 @@ def _device_figures(path: Path, ns: str, mode: str) -> dict:
         series=dict(t=t, a=truth[:, 0], x=truth[:, 1], out=out),
     )
     if mode == "ekf_rebalance":
-        est = topic_frames(path, f"/{ns}/loop_estimate")
+        est = frames[f"/{ns}/loop_estimate"]
         err = est["data"][k0:, 0] - truth[k0:, 1]
         f.update(
             accel_snr=coherent_snr_db(est["data"][k0:, 2], t[k0:], F_IN),
@@ -296,8 +303,14 @@ def figures(path: Path, res: dict, cases=None) -> dict:
     cases = device_cases() if cases is None else cases
     diagnostics = res["diagnostics"]
     f: dict = {"devices": {}}
-    for ns, params in cases.items():
-        f["devices"][ns] = _device_figures(path, ns, params["mode"])
+    names = list(cases)
+    for i in range(0, len(names), DEVICES_PER_PASS):
+        group = {ns: cases[ns]["mode"] for ns in names[i : i + DEVICES_PER_PASS]}
+        frames = topics_frames(path, [t for ns, m in group.items() for t in _device_topics(ns, m)])
+        for ns, mode in group.items():
+            f["devices"][ns] = _device_figures(frames, ns, mode)
+        del frames
+    for ns in cases:
         f["devices"][ns]["not_pd"] = int(
             diagnostics.get(ns, {}).get("covariance_not_pd_samples", 0)
         )
@@ -311,8 +324,9 @@ def figures(path: Path, res: dict, cases=None) -> dict:
     f["full"] = len(cases) > len(spread_cases())
     if f["full"]:
         k0 = int(SKIP_S * FS)
-        truth = topic_frames(path, "/acc_pi_1g/truth")["data"]
-        est = topic_frames(path, "/acc_pi_1g/hybrid_ekf/estimate")
+        fr = topics_frames(path, ["/acc_pi_1g/truth", "/acc_pi_1g/hybrid_ekf/estimate"])
+        truth = fr["/acc_pi_1g/truth"]["data"]
+        est = fr["/acc_pi_1g/hybrid_ekf/estimate"]
         f["downstream"] = consistency(est["data"][k0:, 0] - truth[k0:, 1], est["variances"][k0:, 0])
         t = np.arange(truth.shape[0]) / FS
         f["downstream"]["accel_snr"] = coherent_snr_db(est["data"][k0:, 2], t[k0:], F_IN)

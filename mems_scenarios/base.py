@@ -199,22 +199,45 @@ class Graph:
         self.executor.add_node(node)
         return node
 
-    def add_device(self, node_class, params: dict, *, realtime: bool, namespace: str | None = None):
+    def add_device(
+        self,
+        node_class,
+        params: dict,
+        *,
+        realtime: bool,
+        namespace: str | None = None,
+        shielded: frozenset[str] = frozenset(),
+    ):
         """Add an emulator node of ``node_class`` with parameters ``params``: driven by the
         runner in fast runs, paced by its own timer in real-time runs (started by
-        :func:`publish_all` once every consumer is matched, so no frame is lost to discovery)."""
+        :func:`publish_all` once every consumer is matched, so no frame is lost to discovery).
+        ``shielded``: parameters no override reaches on this node (:meth:`overridden`)."""
         return self.node(
-            node_class, params, namespace=namespace, drive_externally=not realtime, autostart=False
+            node_class,
+            params,
+            namespace=namespace,
+            shielded=shielded,
+            drive_externally=not realtime,
+            autostart=False,
         )
 
-    def node(self, node_class, params: dict | None = None, *, namespace: str | None = None, **kw):
+    def node(
+        self,
+        node_class,
+        params: dict | None = None,
+        *,
+        namespace: str | None = None,
+        shielded: frozenset[str] = frozenset(),
+        **kw,
+    ):
         """Create a node of ``node_class`` (a :class:`~mems_sim.ros.node_base.MemsNode`) in
         the graph's context with the scenario's parameters ``params`` and, on top of them, the
-        user's overrides whose node name matches it (:meth:`overridden`); add it and return it.
-        ``kw`` go to the node's constructor."""
+        user's overrides whose node name matches it (:meth:`overridden`; none of the
+        parameters in ``shielded``); add it and return it. ``kw`` go to the node's
+        constructor."""
         if namespace is not None:
             kw["namespace"] = namespace
-        values = self.overridden(node_class, namespace, params or {})
+        values = self.overridden(node_class, namespace, params or {}, shielded)
         if issubclass(node_class, EmulatorNode):
             # the scenario's values are its nominal device; only the user's are fixed
             fqn = self.fqn(node_class, namespace)
@@ -233,10 +256,18 @@ class Graph:
         ns = getattr(node_class, "DEFAULT_NAMESPACE", "") if namespace is None else namespace
         return "/" + "/".join(p for p in (ns.strip("/"), node_class.NODE_NAME) if p)
 
-    def overridden(self, node_class, namespace: str | None, params: dict) -> dict:
+    def overridden(
+        self,
+        node_class,
+        namespace: str | None,
+        params: dict,
+        shielded: frozenset[str] = frozenset(),
+    ) -> dict:
         """``params`` of a node of ``node_class`` in ``namespace`` (None: the class's
         default) with the overrides that match its fully qualified name, as rcl matches a
-        parameter file's node names (:mod:`mems_sim.ros.params_file`). Each value is checked
+        parameter file's node names (:mod:`mems_sim.ros.params_file`), except those of the
+        parameters in ``shielded`` (a scenario's reference instance that must stay as it is:
+        such an override counts as used only if another node takes it). Each value is checked
         against the node's parameter table first: a value out of range raises
         :class:`ScenarioError` naming the node, the parameter, the value and the range.
         An emulator node gets the graph's ``device_seed`` / ``temperature_c`` first (a
@@ -260,7 +291,7 @@ class Graph:
                 raise ScenarioError(f"{origin[name]}: node {fqn}: {exc}") from None
             self.applied[(fqn, name)] = (out[name], origin[name])
         for i, o in enumerate(self.overrides):
-            if not node_matches(o.node, fqn) or o.name not in specs:
+            if not node_matches(o.node, fqn) or o.name not in specs or o.name in shielded:
                 continue
             try:
                 value = specs[o.name].validate(o.value)
@@ -749,40 +780,61 @@ def publish_all(
     THROUGHPUT.end(devices)
 
 
-def topic_frames(path, topic: str) -> dict:
-    """Concatenate the frames of one topic of an MCAP file into arrays.
+def topics_frames(path, topics, missing_ok: bool = False) -> dict[str, dict]:
+    """Concatenate the frames of several topics of an MCAP file into arrays, in one pass
+    over the file (its chunks hold every topic, so reading topic by topic would
+    decompress the whole file once per topic).
 
     Returns:
-        dict with ``first_index`` (first sample index), ``names``, ``units``,
-        ``data`` (n, channels) — SignalFrame data, StateEstimate states or AdcFrame
-        physical values — and, for StateEstimate, ``variances`` (n, channels).
+        dict topic -> dict with ``first_index`` (first sample index), ``names``,
+        ``units``, ``data`` (n, channels) — SignalFrame data, StateEstimate states or
+        AdcFrame physical values — and, for StateEstimate, ``variances`` (n, channels).
+        A topic without frames raises :class:`ScenarioError` (``missing_ok``: it is
+        left out of the dict).
     """
     import numpy as np
 
     from mems_sim.bag.player import read_messages
     from mems_sim.ros.frames import adc_physical, signal_data
 
-    chunks, variances, first, names, units = [], [], None, (), ()
-    for _, type_name, _, msg in read_messages(str(path), [topic]):
-        if first is None:
-            first = int(msg.first_sample_index)
+    topics = list(dict.fromkeys(topics))
+    acc = {t: dict(chunks=[], variances=[], first=None, names=(), units=()) for t in topics}
+    for topic, type_name, _, msg in read_messages(str(path), topics):
+        a = acc[topic]
+        if a["first"] is None:
+            a["first"] = int(msg.first_sample_index)
         if type_name.endswith("/StateEstimate"):
             k = len(msg.state_names)
-            names, units = tuple(msg.state_names), tuple(msg.state_units)
-            chunks.append(np.asarray(msg.states).reshape(-1, k))
-            variances.append(np.asarray(msg.variances).reshape(-1, k))
+            a["names"], a["units"] = tuple(msg.state_names), tuple(msg.state_units)
+            a["chunks"].append(np.asarray(msg.states).reshape(-1, k))
+            a["variances"].append(np.asarray(msg.variances).reshape(-1, k))
         elif type_name.endswith("/AdcFrame"):
-            names, units = tuple(msg.channel_names), tuple(msg.channel_units)
-            chunks.append(adc_physical(msg))
+            a["names"], a["units"] = tuple(msg.channel_names), tuple(msg.channel_units)
+            a["chunks"].append(adc_physical(msg))
         else:
-            names, units = tuple(msg.channel_names), tuple(msg.channel_units)
-            chunks.append(signal_data(msg))
-    if not chunks:
-        raise ScenarioError(f"{path}: no frames on {topic}")
-    out = dict(first_index=first, names=names, units=units, data=np.concatenate(chunks))
-    if variances:
-        out["variances"] = np.concatenate(variances)
+            a["names"], a["units"] = tuple(msg.channel_names), tuple(msg.channel_units)
+            a["chunks"].append(signal_data(msg))
+    out = {}
+    for t, a in acc.items():
+        if not a["chunks"]:
+            if missing_ok:
+                continue
+            raise ScenarioError(f"{path}: no frames on {t}")
+        out[t] = dict(
+            first_index=a["first"],
+            names=a["names"],
+            units=a["units"],
+            data=np.concatenate(a["chunks"]),
+        )
+        if a["variances"]:
+            out[t]["variances"] = np.concatenate(a["variances"])
     return out
+
+
+def topic_frames(path, topic: str) -> dict:
+    """The frames of one topic of an MCAP file as arrays (:func:`topics_frames` of one
+    topic; for several topics of one file call that once)."""
+    return topics_frames(path, [topic])[topic]
 
 
 def run_recorded(

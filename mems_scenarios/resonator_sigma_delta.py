@@ -45,7 +45,7 @@ from mems_scenarios.base import (
     graph_for,
     publish_all,
     run_recorded,
-    topic_frames,
+    topics_frames,
 )
 from mems_scenarios.figures import Figure, cell, is_finite, met_cell
 from mems_sim.devices.resonator import default_pulse_amplitude
@@ -207,11 +207,16 @@ def _settling(rel: np.ndarray, k0: int, tol: float) -> int | None:
     return int(bad[-1] + 1) if bad.size else 0
 
 
-def _stream(path: Path, ns: str, noise: float, state: float, seed: int, **kw):
-    """Consistency statistics of one recorded device stream (exact-model observer re-run)."""
-    bits = topic_frames(path, f"/{ns}/adc")["data"][:, 0]
-    drive = topic_frames(path, f"/{ns}/drive")["data"]
-    tr = topic_frames(path, f"/{ns}/truth")["data"]
+#: devices whose recorded streams the consistency figures re-run the observer on
+CONSISTENCY_STREAMS = ("sd_standin", "sd_noisy", "sd_overload")
+
+
+def _stream(frames: dict, ns: str, noise: float, state: float, seed: int, **kw):
+    """Consistency statistics of one recorded device stream (exact-model observer re-run);
+    ``frames``: topic -> frames of the recording (:func:`topics_frames`)."""
+    bits = frames[f"/{ns}/adc"]["data"][:, 0]
+    drive = frames[f"/{ns}/drive"]["data"]
+    tr = frames[f"/{ns}/truth"]["data"]
     return analyse_stream(
         bits,
         drive[:, 0],
@@ -227,14 +232,14 @@ def _stream(path: Path, ns: str, noise: float, state: float, seed: int, **kw):
     )
 
 
-def consistency_figures(path: Path, duration: float, seed: int) -> dict:
+def consistency_figures(frames: dict, duration: float, seed: int) -> dict:
     """Restated consistency figures: (i) stand-in quantiser: white innovations (Ljung-Box,
     lags 1-50), NIS, NEES; (ii) one-bit in range: NEES, error autocorrelation against the
     filter's prediction, corr(error, estimate), innovation autocorrelation; (iv) overload."""
     ks = {ns: k for k, ns in enumerate(device_cases(duration))}
     f: dict = {}
     st = _stream(
-        path,
+        frames,
         "sd_standin",
         NOISE_NOISY,
         STATE_NOISE,
@@ -243,7 +248,7 @@ def consistency_figures(path: Path, duration: float, seed: int) -> dict:
     )
     q, p_lb, _ = ljung_box_pooled([st.innov], 50)
     f.update(standin_lb_q=q, standin_lb_p=p_lb, standin_nis=st.nis, standin_nees=st.nees)
-    ob = _stream(path, "sd_noisy", NOISE_NOISY, STATE_NOISE, device_seed(seed, ks["sd_noisy"]))
+    ob = _stream(frames, "sd_noisy", NOISE_NOISY, STATE_NOISE, device_seed(seed, ks["sd_noisy"]))
     r_err, _ = pooled_acf([ob.err], ACF_LAGS)
     pred = predicted_error_acf(observer_model(F0, Q, FS, NOISE_NOISY, STATE_NOISE), ACF_LAGS)
     r_inn, _ = pooled_acf([ob.innov], 3)
@@ -258,7 +263,7 @@ def consistency_figures(path: Path, duration: float, seed: int) -> dict:
         one_bit_q_overload=ob.q_overload,
     )
     ov = _stream(
-        path, "sd_overload", NOISE_OVER, STATE_NOISE_OVER, device_seed(seed, ks["sd_overload"])
+        frames, "sd_overload", NOISE_OVER, STATE_NOISE_OVER, device_seed(seed, ks["sd_overload"])
     )
     f.update(overload_q=ov.q_overload, overload_q_std=ov.q_std, overload_nees=ov.nees)
     return f
@@ -267,14 +272,18 @@ def consistency_figures(path: Path, duration: float, seed: int) -> dict:
 def figures(path: Path, duration: float, seed: int = 1) -> dict:
     """Every acceptance figure of the scenario, from the recorded MCAP."""
     skip = int(SKIP_S * FS)
-    tr = {ns: topic_frames(path, f"/{ns}/truth")["data"] for ns in device_cases(duration)}
-    drive = topic_frames(path, "/sd_observer/drive")["data"]
+    est_topics = {name: f"/{ns}/{name}/estimate" for name, (ns, _) in observer_cases().items()}
+    frames = topics_frames(
+        path,
+        [f"/{ns}/truth" for ns in device_cases(duration)]
+        + ["/sd_observer/drive", "/sd_observer/loop_estimate", *est_topics.values()]
+        + [f"/{ns}/{t}" for ns in CONSISTENCY_STREAMS for t in ("adc", "drive", "truth")],
+    )
+    tr = {ns: frames[f"/{ns}/truth"]["data"] for ns in device_cases(duration)}
+    drive = frames["/sd_observer/drive"]["data"]
     pulses = {"sd_observer": drive[:, 0]}
-    loop = topic_frames(path, "/sd_observer/loop_estimate")["data"][:, 0]
-    est = {
-        name: topic_frames(path, f"/{ns}/{name}/estimate")
-        for name, (ns, _) in observer_cases().items()
-    }
+    loop = frames["/sd_observer/loop_estimate"]["data"][:, 0]
+    est = {name: frames[t] for name, t in est_topics.items()}
     f: dict = {}
     x_obs = tr["sd_observer"][:, 0]
     a_obs = _amp(x_obs[skip:])
@@ -303,7 +312,7 @@ def figures(path: Path, duration: float, seed: int = 1) -> dict:
         np.var(err["exact"][skip:]) / np.mean(est["exact"]["variances"][skip:, 0])
     )
     f["exact_noisy_rel"] = float(np.std(err["exact"][half:]) / a_noisy)
-    f.update(consistency_figures(path, duration, seed))
+    f.update(consistency_figures(frames, duration, seed))
     f["error_corr_x"] = float(np.corrcoef(err["exact"][skip:], x_noisy[skip:])[0, 1])
     f["f0_error_corr_x"] = float(np.corrcoef(err["f0_error"][skip:], x_noisy[skip:])[0, 1])
     f["f0_error_ratio"] = float(np.std(err["f0_error"][half:]) / np.std(err["exact"][half:]))

@@ -48,7 +48,7 @@ from mems_scenarios.base import (
     graph_for,
     publish_all,
     run_recorded,
-    topic_frames,
+    topics_frames,
 )
 from mems_scenarios.figures import Figure, cell, met_cell
 from mems_sim.devices import scanner_amdm as sa
@@ -191,11 +191,25 @@ def _evt_msgs(est, kind) -> int:
     return est.event_msgs[kind]
 
 
-def _events(path: Path, topic: str) -> su.PeriodEvents:
-    try:
-        d = topic_frames(path, topic)
-    except ScenarioError:
+def _required_topics() -> list[str]:
+    """Topics the figures need frames on (the phase/amplitude events may be empty)."""
+    return (
+        ["/scanner_amdm/truth", "/scanner_amdm/drive", "/scanner_amdm/adc"]
+        + [
+            f"/{ns}/{k}/estimate"
+            for ns in ("scanner_amdm", "scanner_amdm_off")
+            for k in ("ekf", "ukf")
+        ]
+        + ["/scanner_amdm_off/truth"]
+    )
+
+
+def _events(frames: dict, topic: str) -> su.PeriodEvents:
+    """Phase/amplitude events of ``topic`` in ``frames`` (topic -> frames of the recording,
+    :func:`topics_frames`; none recorded: no events)."""
+    if topic not in frames:
         return su.concat_events([])
+    d = frames[topic]
     s, v = d["data"], d["variances"]
     return su.PeriodEvents(s[:, 0], s[:, 1], s[:, 2], v[:, 0], v[:, 1], v[:, 2])
 
@@ -203,9 +217,18 @@ def _events(path: Path, topic: str) -> su.PeriodEvents:
 def figures(path: Path, state: dict) -> dict:
     """Every acceptance figure of the scenario, from the recorded MCAP (+ node end state)."""
     f: dict = {}
-    tr = topic_frames(path, "/scanner_amdm/truth")["data"]
-    drive = topic_frames(path, "/scanner_amdm/drive")["data"][:, 0]
-    y = topic_frames(path, "/scanner_amdm/adc")["data"][:, 0]
+    events = [
+        f"/{ns}/{k}/phase_amplitude"
+        for ns in ("scanner_amdm", "scanner_amdm_off")
+        for k in ("ekf", "ukf")
+    ]
+    fr = topics_frames(path, _required_topics() + events, missing_ok=True)
+    absent = [t for t in _required_topics() if t not in fr]
+    if absent:
+        raise ScenarioError(f"{path}: no frames on {', '.join(absent)}")
+    tr = fr["/scanner_amdm/truth"]["data"]
+    drive = fr["/scanner_amdm/drive"]["data"][:, 0]
+    y = fr["/scanner_amdm/adc"]["data"][:, 0]
     tk = su.PhaseAmplitudeTracker(0.03, FS)
     tk.push_drive(0, drive)
     ref = tk.push_theta(0, tr[:, 0])
@@ -214,9 +237,9 @@ def figures(path: Path, state: dict) -> dict:
     k_eval = int(T_EVAL * FS)
     est, ev = {}, {}
     for k in ("ekf", "ukf"):
-        e = topic_frames(path, f"/scanner_amdm/{k}/estimate")
+        e = fr[f"/scanner_amdm/{k}/estimate"]
         est[k] = e
-        ev[k] = _events(path, f"/scanner_amdm/{k}/phase_amplitude")
+        ev[k] = _events(fr, f"/scanner_amdm/{k}/phase_amplitude")
         rp, ra, n = su.event_rmse(ev[k], ref, 0.25 / 31.3e3, T_EVAL)
         f[f"{k}_phase_deg"], f[f"{k}_amp_deg"], f[f"{k}_pairs"] = (
             math.degrees(rp),
@@ -255,16 +278,16 @@ def figures(path: Path, state: dict) -> dict:
         for a in (ref.amplitude, ref.phase)
     )
     # off resonance
-    off_tr = topic_frames(path, "/scanner_amdm_off/truth")["data"][:, 0]
+    off_tr = fr["/scanner_amdm_off/truth"]["data"][:, 0]
     f["off_final_amplitude"] = float(np.max(np.abs(off_tr[-5000:])))
     f["off_events"] = sum(
-        _events(path, f"/scanner_amdm_off/{k}/phase_amplitude").t.size for k in ("ekf", "ukf")
+        _events(fr, f"/scanner_amdm_off/{k}/phase_amplitude").t.size for k in ("ekf", "ukf")
     )
     st = state["scanner_amdm_off"]
     f["off_tracking"] = any(st["tracking"].values())
     f["off_low_signal_warned"] = any("low signal" in w for w in st["warnings"])
     f["off_pd_failures"] = sum(st["pd_failures"].values())
-    off_est = [topic_frames(path, f"/scanner_amdm_off/{k}/estimate") for k in ("ekf", "ukf")]
+    off_est = [fr[f"/scanner_amdm_off/{k}/estimate"] for k in ("ekf", "ukf")]
     f["off_finite"] = all(
         np.all(np.isfinite(e["data"])) and np.all(np.isfinite(e["variances"])) for e in off_est
     )

@@ -57,7 +57,7 @@ from mems_scenarios.base import (
     graph_for,
     publish_all,
     run_recorded,
-    topic_frames,
+    topics_frames,
 )
 from mems_scenarios.figures import Figure, cell, is_finite
 from mems_sim.devices.scanner import (
@@ -244,18 +244,25 @@ def figures(path: Path, duration: float, seed: int, applied: dict | None = None)
     dp = resolve_scanner(dev_over)
     sp = scanner_params(dp)
     fs = dp["sample_rate_hz"]
-    truth = topic_frames(path, f"/{NS}/truth")["data"]
+    fr = topics_frames(
+        path,
+        [
+            f"/{NS}/{t}"
+            for t in ("truth", "adc", "drive", "estimate", "estimate_plain", "threshold_detections")
+        ],
+    )
+    truth = fr[f"/{NS}/truth"]["data"]
     th, om = truth[:, 0], truth[:, 1]
-    y = topic_frames(path, f"/{NS}/adc")["data"][:, 0]
-    v = topic_frames(path, f"/{NS}/drive")["data"][:, 0]
-    hyb = topic_frames(path, f"/{NS}/estimate")
-    pla = topic_frames(path, f"/{NS}/estimate_plain")
+    y = fr[f"/{NS}/adc"]["data"][:, 0]
+    v = fr[f"/{NS}/drive"]["data"][:, 0]
+    hyb = fr[f"/{NS}/estimate"]
+    pla = fr[f"/{NS}/estimate_plain"]
     n = th.size
     if hyb["data"].shape[0] != n or pla["data"].shape[0] != n or hyb["first_index"] != 0:
         raise ScenarioError(
             f"estimates cover {hyb['data'].shape[0]} / {pla['data'].shape[0]} of {n} samples"
         )
-    dt = topic_frames(path, f"/{NS}/threshold_detections")
+    dt = fr[f"/{NS}/threshold_detections"]
     D = detections_from_rows(dt["data"], dt["first_index"])
     y_clean = dc_transimpedance_output(th, om, sp, dp["sense_resistance"], dp["bias_voltage"])
     cutoff = int(round((dp["sweep_time_s"] + dp["hold_time_s"]) * fs))

@@ -17,18 +17,26 @@ gain +0.1 %/K, readout gain; damping and stator registration drawn from the devi
 re-identifies only D_n and eta at 35.7 C. Steps 1-3 run on the ``idealised`` (drift-free)
 stage, whose figures are those this scenario always printed; unless the scenario is run
 ``idealised`` (``options.extra['idealised']``, or ``--set stage.idealised=true``), the same
-procedure then runs on the default drifting device (ROS-free cores, same seeds) and its
-rows follow, marked against the targets of the drifting case (scale-factor error <= 300
-ppm RMS, the thesis 286 ppm; off-axis rejection read as the RMS leakage, worst over the
-off-axis phase, on the design layout and on the device with its stator misregistration).
+procedure then runs on the default drifting device (same seeds) with the in-situ
+correction of the stage model (Chen 2018 eqs. 44-47) and its rows follow, marked against
+the targets of the drifting case (scale-factor error <= 300 ppm RMS, the thesis 286 ppm;
+off-axis rejection read as the RMS leakage, worst over the off-axis phase, on the design
+layout and on the device with its stator misregistration).
 
 Identification (step 1) runs the ROS-free cores on emulator records (drive, cancelled ADC
 channels, LDV); the calibration (step 2) runs through the node graph: per temperature a
 ``stage_node`` (namespaces ``/stage_t1`` = 22.9 C, ``/stage_t2`` = 35.7 C) with its
 gyro, a ``stage_ekf_node`` loading the identified parameter YAML and a
-``stage_gyro_calibration_node`` publishing ``/<stage>/gyro_scale_factor``; everything recorded
-to MCAP and the table computed from the recording and the published results.
-:func:`run_pipeline` is the same scenario on the cores only (no ROS).
+``stage_gyro_calibration_node`` publishing ``/<stage>/gyro_scale_factor``. The drifting
+device's calibration joins the same graph (:data:`DRIFTING`: ``/stage_d1`` at 22.9 C,
+``/stage_d2`` at 35.7 C with the model of 22.9 C, ``/stage_d2r`` at 35.7 C with D_n, eta
+re-identified there; each stage seeded as the cores' calibration sweep, its EKF in the
+in-situ mode, which processes the sweep once the stage announced its end, as the thesis
+processes a sweep after its acquisition). Everything is recorded to one MCAP file and the
+tables are computed from the recording and the published results; only the drifting
+table's context row (the thesis' procedure without the in-situ correction) and ablation
+row run on the cores, labelled so. :func:`run_pipeline` is the drift-free scenario on the
+cores only (no ROS).
 """
 
 from __future__ import annotations
@@ -45,6 +53,7 @@ from mems_estimation.identification.stage_gyro_calibration import (
     T2,
     Plan,
     calibration_run,
+    calibration_seeds,
     identify_stage,
     insitu_calibration,
     off_axis_table,
@@ -52,7 +61,8 @@ from mems_estimation.identification.stage_gyro_calibration import (
 )
 from mems_estimation.identification.stage_identification import evaluate, fold_period
 from mems_scenarios.figures import Figure, cell, is_finite, met_cell
-from mems_sim.devices.stage import MicroStage, off_axis_rejection_worst
+from mems_sim.devices.stage import STAGE_SPECS, MicroStage, off_axis_rejection_worst
+from mems_sim.devices.stage_gyro import GYRO_SPECS
 
 NAME = "gyro_calibration"
 DESCRIPTION = (
@@ -198,15 +208,124 @@ OFF_AXIS_MISREG_TARGET = 0.999
 DRIFT_SF_TARGET_PPM = 300.0
 
 INSTANCES = {"stage_t1": T1, "stage_t2": T2}
+#: the drifting device's instances: namespace -> (temperature of use [C], temperature whose
+#: identified model the in-situ EKF loads [C]): at T1 the model of T1; at T2 the model of T1
+#: (row 1) and the one with D_n, eta re-identified at T2 (row 2); the two at T2 emulate the
+#: same sweep (same seeds)
+DRIFTING = {"stage_d1": (T1, T1), "stage_d2": (T2, T1), "stage_d2r": (T2, T2)}
+#: row of the drifting device's table each instance gives
+DRIFTING_ROW = {"stage_d1": "ref_t1", "stage_d2": "ref_t1", "stage_d2r": "ref_t2"}
 RECORDED = ("adc", "drive", "truth", "estimate", "gyro/adc", "gyro_scale_factor", "temperature")
 FRAME = 20000
+#: the stage node's parameters that describe the device: the stage's physics, spreads and
+#: temperature coefficients (``freq_tempco_per_k`` of wn, ``b_c_tempco_per_k`` of the
+#: actuator gain b_c of eq. 33, ``damping_ratio`` zeta, ...) and its gyro's. A ``--set
+#: stage.PARAM=V`` of one describes the drifting device and reaches its three stage nodes,
+#: its identification and its context and ablation rows on the cores alike
+#: (:func:`device_parameters`); the drift-free stage (:data:`INSTANCES`) is the historical
+#: reference and takes none of them
+DEVICE_PARAMETERS = frozenset(s.name for s in STAGE_SPECS + GYRO_SPECS) - {
+    "idealised",
+    "temperature_c",
+}
+#: the name under which ``options.applied`` records the overrides the cores took
+CORES = "(cores) drifting device: identification, context and ablation rows"
 
 
-def run_graph(options, plan: Plan, models: dict, out: Path, instances: dict | None = None) -> dict:
+def drifting_models(seed: int, plan: Plan, stage_params: dict | None = None) -> dict:
+    """The drifting device's identification (ROS-free cores, step 1): the model identified
+    at T1 and the one with D_n, eta re-identified at T2 with the LDV-like reference, by
+    temperature."""
+    sp = dict(stage_params or {})
+    model, _ = identify_stage(seed, plan, sp)
+    return {T1: model, T2: retrain_at(model, T2, seed, plan, sp)}
+
+
+def drifting_plan(plan: Plan) -> Plan:
+    """The calibration sweep of the drifting device (at least :data:`INSITU_PERIODS` periods
+    per trial)."""
+    import dataclasses
+
+    return dataclasses.replace(plan, cal_periods=max(plan.cal_periods, INSITU_PERIODS))
+
+
+def device_parameters(options, drifting: bool = True) -> tuple[dict, dict]:
+    """The drifting device's stage and gyro parameters as its stage nodes take them: the
+    user's overrides of :data:`DEVICE_PARAMETERS` that match its stage nodes (validated
+    against the node's table, later wins) on top of ``--device-seed``; (stage_params,
+    gyro_params) for the cores (:func:`drifting_models`, :func:`drifting_device`), recorded
+    in ``options.applied`` under :data:`CORES`. ``drifting`` False (the ``idealised`` run):
+    none is accepted. Refused (:class:`ScenarioError`): ``temperature_c`` on a stage node
+    (the scenario's temperatures are its subject), a device parameter that would reach
+    only the drift-free stage or only some of the drifting stage nodes (the device is
+    identified once: graph and cores must see the same one)."""
+    from mems_scenarios.base import ScenarioError
+    from mems_sim.params import ParameterError, spec_table
+    from mems_sim.ros.params_file import node_matches
+
+    specs = spec_table(STAGE_SPECS + GYRO_SPECS)
+    stage_names = {s.name for s in STAGE_SPECS}
+    sp: dict = {}
+    gp: dict = {}
+    if drifting and options.device_seed is not None:
+        sp["device_seed"] = int(options.device_seed)
+        options.applied[(CORES, "device_seed")] = (sp["device_seed"], "--device-seed")
+    drift_fqns = [f"/{ns}/stage" for ns in DRIFTING]
+    ideal_fqns = [f"/{ns}/stage" for ns in INSTANCES]
+    for o in options.overrides:
+        hits = [f for f in drift_fqns if node_matches(o.node, f)]
+        ideal = [f for f in ideal_fqns if node_matches(o.node, f)]
+        if o.name == "temperature_c" and (hits or ideal):
+            raise ScenarioError(
+                f"{o.where()}: {NAME} sets temperature_c of its stages itself ({T1:g} and {T2:g} C)"
+            )
+        if o.name not in DEVICE_PARAMETERS or not (hits or ideal):
+            continue
+        if not drifting:
+            raise ScenarioError(
+                f"{o.where()}: the drift-free (idealised) stage is the scenario's historical "
+                "stage and takes no device parameter; without idealised the drifting device "
+                "takes it"
+            )
+        if not hits:
+            raise ScenarioError(
+                f"{o.where()}: reaches only the drift-free stage, the scenario's historical "
+                f"stage, which takes no device parameter: set stage.{o.name} for the "
+                "drifting device"
+            )
+        if len(hits) < len(drift_fqns):
+            raise ScenarioError(
+                f"{o.where()}: reaches {', '.join(hits)} only: the drifting device is "
+                "identified once, so a device parameter applies to all of its stage nodes "
+                f"({', '.join(drift_fqns)}): set stage.{o.name}"
+            )
+        try:
+            value = specs[o.name].validate(o.value)
+        except ParameterError as exc:
+            raise ScenarioError(f"{o.where()}: {exc}") from None
+        (sp if o.name in stage_names else gp)[o.name] = value
+        options.applied.pop((CORES, o.name), None)
+        options.applied[(CORES, o.name)] = (value, o.origin)
+    return sp, gp
+
+
+def run_graph(
+    options,
+    plan: Plan,
+    models: dict,
+    out: Path,
+    instances: dict | None = None,
+    drifting: dict | None = None,
+) -> dict:
     """Calibration phase through the node graph: per temperature one stage_node
     (+ gyro), stage_ekf_node (identified YAML) and stage_gyro_calibration_node; one recorder.
     ``instances``: namespace -> temperature (default :data:`INSTANCES`, both temperatures
-    at once; the benchmark runs one)."""
+    at once; the benchmark runs one). ``drifting``: the drifting device's models by
+    temperature (:func:`drifting_models`; None: not run): its instances :data:`DRIFTING`
+    join the same graph and recording, each a drifting stage_node seeded as the cores'
+    calibration sweep, a stage_ekf_node in its in-situ mode (Chen 2018 eqs. 44-47: the
+    sweep processed once complete) and a calibration node. The drift-free stage nodes take
+    none of the user's overrides of :data:`DEVICE_PARAMETERS` (the drifting ones do)."""
     INSTANCES = instances or globals()["INSTANCES"]
 
     from mems_estimation.nodes.stage_ekf_node import StageEkfNode
@@ -214,38 +333,64 @@ def run_graph(options, plan: Plan, models: dict, out: Path, instances: dict | No
     from mems_scenarios.base import Progress, graph_for, output_path, publish_all
     from mems_sim.nodes.stage_node import MicroStageNode
 
+    seed = int(options.seed)
+    # namespace -> (stage node parameters, parameter YAML of its EKF, EKF parameters)
+    layout: dict[str, tuple[dict, Path, dict]] = {}
+    for k, (ns, T) in enumerate(INSTANCES.items()):
+        yaml_path = output_path(out, options.seed, f"-stage_params_{T}C.yaml")
+        save_model(models[T], str(yaml_path))
+        stage = dict(
+            seed=seed * 100 + 50 + k,
+            idealised=True,
+            temperature_c=T,
+            n_trials=plan.cal_trials,
+            periods_per_trial=plan.cal_periods,
+        )
+        layout[ns] = (stage, yaml_path, {})
+    shielded = {ns: DEVICE_PARAMETERS for ns in layout}  # the drift-free stage: historical
+    if drifting is not None:
+        dplan = drifting_plan(plan)
+        for ns, (T, T_model) in DRIFTING.items():
+            yaml_path = output_path(out, options.seed, f"-drifting_stage_params_{T_model}C.yaml")
+            save_model(drifting[T_model], str(yaml_path))
+            stage_seed, gyro_seed = calibration_seeds(T, seed)
+            stage = dict(
+                seed=stage_seed,
+                gyro_seed=gyro_seed,
+                idealised=False,
+                temperature_c=T,
+                n_trials=dplan.cal_trials,
+                periods_per_trial=dplan.cal_periods,
+            )
+            layout[ns] = (stage, yaml_path, {"insitu": True})
+
     graph = graph_for(options)
     devs, ekfs, cals = {}, {}, {}
-    topics = [f"/{ns}/{t}" for ns in INSTANCES for t in (*RECORDED, "end_of_stream")]
+    topics = [f"/{ns}/{t}" for ns in layout for t in (*RECORDED, "end_of_stream")]
     topics.append("/diagnostics")
     rec = None
     try:
-        for k, (ns, T) in enumerate(INSTANCES.items()):
-            yaml_path = output_path(out, options.seed, f"-stage_params_{T}C.yaml")
-            save_model(models[T], str(yaml_path))
+        for ns, (stage, yaml_path, ekf_params) in layout.items():
             devs[ns] = graph.add_device(
                 MicroStageNode,
                 dict(
-                    seed=int(options.seed) * 100 + 50 + k,
-                    idealised=True,
-                    temperature_c=T,
-                    n_trials=plan.cal_trials,
-                    periods_per_trial=plan.cal_periods,
+                    stage,
                     frame_size=FRAME,
                     frame_id=ns,
                     publish_imu=bool(options.realtime),
                 ),
                 realtime=options.realtime,
                 namespace=ns,
+                shielded=shielded.get(ns, frozenset()),
             )
             ekfs[ns] = graph.node(
                 StageEkfNode,
-                dict(device_namespace=f"/{ns}", params_yaml=str(yaml_path)),
+                dict(device_namespace=f"/{ns}", params_yaml=str(yaml_path), **ekf_params),
                 namespace=ns,
             )
             cals[ns] = graph.node(
                 GyroCalibrationNode,
-                dict(device_namespace=f"/{ns}", n_trials=plan.cal_trials),
+                dict(device_namespace=f"/{ns}", n_trials=stage["n_trials"]),
                 namespace=ns,
             )
         rec = graph.recorder(str(out), topics=topics)
@@ -259,7 +404,10 @@ def run_graph(options, plan: Plan, models: dict, out: Path, instances: dict | No
                 all(
                     d.pub_adc.get_subscription_count() >= 2
                     and d.pub_gyro.get_subscription_count() >= 2
-                    for d in devs.values()
+                    # the in-situ EKF learns the sweep's end from the end-of-stream record
+                    and d.pub_end_of_stream.get_subscription_count()
+                    >= (2 if ekfs[ns].insitu else 1)
+                    for ns, d in devs.items()
                 )
                 and all(e.pub.get_subscription_count() >= 2 for e in ekfs.values())
             ),
@@ -283,33 +431,41 @@ def run_graph(options, plan: Plan, models: dict, out: Path, instances: dict | No
         )
         wall = _time.monotonic() - wall0
         progress.close()
+        # every estimate published (in-situ: once the sweep is processed) and taken
         graph.spin_until(
             lambda: all(
-                cals[ns].estimates_received >= ekfs[ns].frames_done
+                ekfs[ns].estimates_published >= ekfs[ns].frames_done
+                and cals[ns].estimates_received >= ekfs[ns].estimates_published
                 and cals[ns].gyro_frames_received >= rec.received(f"/{ns}/gyro/adc")
-                for ns in INSTANCES
+                for ns in layout
             ),
-            60.0,
+            120.0,
             "the calibration nodes to receive the last estimates and gyro frames",
         )
         for ns, c in cals.items():
             c.close()
         graph.spin_until(
-            lambda: all(rec.received(f"/{ns}/gyro_scale_factor") >= 1 for ns in INSTANCES),
+            lambda: all(rec.received(f"/{ns}/gyro_scale_factor") >= 1 for ns in layout),
             30.0,
             "the calibration results",
         )
         graph.spin_until(
-            lambda: all(
-                rec.received(f"/{ns}/estimate") >= ekfs[ns].frames_done for ns in INSTANCES
-            ),
+            lambda: all(rec.received(f"/{ns}/estimate") >= ekfs[ns].frames_done for ns in layout),
             60.0,
             "the last estimates",
         )
-        k_true = {ns: devs[ns].gyro.scale_factor() for ns in INSTANCES}
-        results = {ns: cals[ns].results[-1] for ns in INSTANCES}
-        rejected = {ns: ekfs[ns].diag.counters.get("rejected_frames", 0) for ns in INSTANCES}
+        k_true = {ns: devs[ns].gyro.scale_factor() for ns in layout}
+        results = {ns: cals[ns].results[-1] for ns in layout}
+        rejected = {ns: ekfs[ns].diag.counters.get("rejected_frames", 0) for ns in layout}
         published = {ns: d.frames_published for ns, d in devs.items()}
+        insitu = {
+            ns: {
+                k: ekfs[ns].diag.counters[k]
+                for k in ("insitu_wn_ratio", "insitu_b_c_ratio", "insitu_sweeps")
+            }
+            for ns in layout
+            if ekfs[ns].insitu
+        }
     finally:
         summary = None
         if rec is not None:  # None when building the graph failed
@@ -322,35 +478,40 @@ def run_graph(options, plan: Plan, models: dict, out: Path, instances: dict | No
         recorder=summary,
         published=published,
         rejected=rejected,
+        insitu=insitu,
         wall_s=wall,
         simulated_s=total,
     )
 
 
-def graph_figures(out: Path, g: dict) -> dict:
-    """RMSE/alpha/beta per temperature from the recorded MCAP and the calibration results."""
+def _recorded_run(out: Path, g: dict, ns: str) -> dict:
+    """One instance's figures from the recorded MCAP (estimate, truth, drive: omega RMSE,
+    alpha, beta over one averaged period) and its published calibration result (eq. 27),
+    with the true gyro scale factor and the error [ppm]."""
     from mems_scenarios.base import topic_frames
 
-    figs = {}
-    for ns, T in INSTANCES.items():
-        est = topic_frames(out, f"/{ns}/estimate")["data"]
-        tru = topic_frames(out, f"/{ns}/truth")["data"]
-        drv = topic_frames(out, f"/{ns}/drive")["data"]
-        n = min(len(est), len(tru), len(drv))
-        ev = evaluate(est[:n, 1], tru[:n, 1], drv[:n, 3], drv[:n, 4].astype(int))
-        r = g["results"][ns]
-        k = g["k_true"][ns]
-        figs[T] = dict(
-            eval=ev,
-            cal=r,
-            k_true=k,
-            ppm=(r["scale_factor"] / k - 1) * 1e6,
-            se_ppm=r["scale_factor_se"] / k * 1e6,
-            est=est[:n],
-            truth=tru[:n],
-            drive=drv[:n],
-        )
-    return figs
+    est = topic_frames(out, f"/{ns}/estimate")["data"]
+    tru = topic_frames(out, f"/{ns}/truth")["data"]
+    drv = topic_frames(out, f"/{ns}/drive")["data"]
+    n = min(len(est), len(tru), len(drv))
+    ev = evaluate(est[:n, 1], tru[:n, 1], drv[:n, 3], drv[:n, 4].astype(int))
+    r = g["results"][ns]
+    k = g["k_true"][ns]
+    return dict(
+        eval=ev,
+        cal=r,
+        k_true=k,
+        ppm=(r["scale_factor"] / k - 1) * 1e6,
+        se_ppm=r["scale_factor_se"] / k * 1e6,
+        est=est[:n],
+        truth=tru[:n],
+        drive=drv[:n],
+    )
+
+
+def graph_figures(out: Path, g: dict) -> dict:
+    """RMSE/alpha/beta per temperature from the recorded MCAP and the calibration results."""
+    return {T: _recorded_run(out, g, ns) for ns, T in INSTANCES.items()}
 
 
 def figure_records(off_axis: list, figs: dict, rms: float, g: dict) -> list[Figure]:
@@ -406,9 +567,18 @@ def run(options) -> dict:
     out = Path(options.out or Path("runs") / f"{NAME}-{options.seed}.mcap")
     out.parent.mkdir(parents=True, exist_ok=True)
     seed = int(options.seed)
-    model, rep = identify_stage(seed, plan, IDEALISED)
-    models = {T1: model, T2: retrain_at(model, T2, seed, plan, IDEALISED)}
-    g = run_graph(options, plan, models, out)
+    # the drift-free stage: as its graph nodes, with --device-seed only (no device override)
+    ideal = dict(IDEALISED)
+    if options.device_seed is not None:
+        ideal["device_seed"] = int(options.device_seed)
+    drifting = not idealised_only(options)
+    # the drifting device as its stage nodes take it (the user's device parameters)
+    sp, gp = device_parameters(options, drifting)
+    model, rep = identify_stage(seed, plan, ideal)
+    models = {T1: model, T2: retrain_at(model, T2, seed, plan, ideal)}
+    # the drifting device's identification (cores); its calibration joins the graph
+    drift_models = drifting_models(seed, plan, sp) if drifting else None
+    g = run_graph(options, plan, models, out, drifting=drift_models)
     figs = graph_figures(out, g)
     off_axis = off_axis_table(float(np.mean(model.gap)), model.limits)
     rms = math.sqrt(np.mean([figs[T]["ppm"] ** 2 for T in (T1, T2)]))
@@ -473,12 +643,26 @@ def run(options) -> dict:
     )
     table = format_table(["quantity", "condition", "value", "target / note", "met"], rows)
     drift = None
-    if not idealised_only(options):
+    if drift_models is not None:
         # the drifting device in a table of its own: the table above stays as it always was
-        drift = drifting_device(seed, plan)
+        graph_runs = {ns: dict(_recorded_run(out, g, ns), **g["insitu"][ns]) for ns in DRIFTING}
+        drift = drifting_device(
+            seed,
+            plan,
+            stage_params=sp,
+            gyro_params=gp,
+            models=drift_models,
+            graph_runs=graph_runs,
+        )
         figures += drift["figures"]
         table += "\n\n" + format_table(
-            ["drifting device (default physics)", "condition", "value", "target / note", "met"],
+            [
+                "drifting device (" + ("parameters set" if sp or gp else "default physics") + ")",
+                "condition",
+                "value",
+                "target / note",
+                "met",
+            ],
             drift["rows"],
         )
     plots = []
@@ -529,45 +713,52 @@ def idealised_only(options) -> bool:
     return any(o.name == "idealised" and o.value is True for o in options.overrides)
 
 
-def drifting_device(seed: int, plan: Plan, stage_params: dict | None = None) -> dict:
-    """Steps 1-3 on the default (drifting) stage on the ROS-free cores, same seeds.
+def drifting_device(
+    seed: int,
+    plan: Plan,
+    stage_params: dict | None = None,
+    models: dict | None = None,
+    graph_runs: dict | None = None,
+    gyro_params: dict | None = None,
+) -> dict:
+    """Steps 1-3 on the default (drifting) stage, same seeds.
 
-    Identification at T1 (reference Q, LDV training sweep), then per temperature one
+    Identification at T1 (reference Q, LDV training sweep) on the ROS-free cores
+    (:func:`drifting_models`, or ``models`` as it returned them), then per temperature one
     calibration sweep (:data:`INSITU_PERIODS` periods per trial) evaluated by the in-situ
     corrected EKF (:mod:`mems_estimation.identification.stage_insitu`: the stage model's
     response at the drive frequency re-measured by the capacitive channels of the sweep
     itself) with two sets of sensor parameters (D_n, eta): those of the training
     temperature (reference at T1 only) and, at T2, those re-identified there with the
-    LDV-like reference (the thesis' procedure; a separate, labelled row). For context the
-    thesis' procedure without the in-situ correction (model-driven EKF, output correction
-    of T1) and the ablation (every capacitive channel removed at T2). Off-axis rejection
-    in the RMS reading, worst over the off-axis phase 0-180 deg (design layout and the
-    as-built stator misregistration). Returns dict(figures, rows, runs, rms_ppm, off_axis)."""
-    import dataclasses
-
+    LDV-like reference (the thesis' procedure; a separate, labelled row). ``graph_runs``:
+    those rows from the node graph (namespace of :data:`DRIFTING` -> the figures of
+    :func:`_recorded_run`: the recording and the published ``gyro_scale_factor``); None:
+    from the cores. For context, on the cores (labelled so), the thesis' procedure
+    without the in-situ correction (model-driven EKF, output correction of T1) and the
+    ablation (every capacitive channel removed at T2). Off-axis rejection in the RMS
+    reading, worst over the off-axis phase 0-180 deg (design layout and the as-built
+    stator misregistration). ``stage_params`` / ``gyro_params``: the device (the scenario's
+    :func:`device_parameters`; None: the default drifting device). Returns dict(figures,
+    rows, runs, rms_ppm, off_axis)."""
     sp = dict(stage_params or {})
-    model, _ = identify_stage(seed, plan, sp)
-    models = {T1: model, T2: retrain_at(model, T2, seed, plan, sp)}
-    cal_plan = dataclasses.replace(plan, cal_periods=max(plan.cal_periods, INSITU_PERIODS))
+    models = models or drifting_models(seed, plan, sp)
+    model = models[T1]
+    cal_plan = drifting_plan(plan)
+    on_cores = {
+        T1: {"thesis": (model, "plain")},
+        T2: {"thesis": (models[T2], "plain"), "no_channels": (models[T2], "no_channels")},
+    }
+    if graph_runs is None:
+        on_cores[T1]["ref_t1"] = (model, "insitu")
+        on_cores[T2].update(ref_t1=(model, "insitu"), ref_t2=(models[T2], "insitu"))
     runs = {
-        T1: insitu_calibration(
-            {"ref_t1": (model, "insitu"), "thesis": (model, "plain")}, T1, seed, cal_plan, sp
-        ),
-        T2: insitu_calibration(
-            {
-                "ref_t1": (model, "insitu"),
-                "ref_t2": (models[T2], "insitu"),
-                "thesis": (models[T2], "plain"),
-                "no_channels": (models[T2], "no_channels"),
-            },
-            T2,
-            seed,
-            cal_plan,
-            sp,
-        ),
+        T: insitu_calibration(on_cores[T], T, seed, cal_plan, sp, gyro_params) for T in (T1, T2)
     }
     for r in runs.values():
         r.pop("rec")  # the raw record is not kept (memory)
+    for ns, (T, _) in DRIFTING.items() if graph_runs is not None else ():
+        r = {k: v for k, v in graph_runs[ns].items() if k not in ("est", "truth", "drive")}
+        runs[T][DRIFTING_ROW[ns]] = dict(r, namespace=ns)
 
     def rms_of(label_t2):
         return math.sqrt(np.mean([runs[T1]["ref_t1"]["ppm"] ** 2, runs[T2][label_t2]["ppm"] ** 2]))
@@ -646,6 +837,11 @@ def drifting_device(seed: int, plan: Plan, stage_params: dict | None = None) -> 
                 Figure(f"{key}.scale_factor_true", runs[T]["k_true"], "1"),
                 Figure(f"{key}.scale_factor_error", r["ppm"], "ppm"),
             ]
+            if "insitu_wn_ratio" in r:  # the graph's in-situ EKF (its /diagnostics)
+                figures += [
+                    Figure(f"{key}.insitu_wn_ratio", r["insitu_wn_ratio"], "1"),
+                    Figure(f"{key}.insitu_b_c_ratio", r["insitu_b_c_ratio"], "1"),
+                ]
             cond = f"{T} C" + (f", {labels[label]}" if T == T2 else "")
             rows += [
                 [
@@ -699,14 +895,14 @@ def drifting_device(seed: int, plan: Plan, stage_params: dict | None = None) -> 
             met_cell(f1),
         ],
         [
-            "context: thesis proc. w/o in-situ, RMS",
+            "context (cores): thesis w/o in-situ, RMS",
             f"{T1}/{T2} C",
             f"{cell(rms_thesis, '.0f')} ppm",
             "model-driven EKF (context)",
             "-",
         ],
         [
-            "ablation: channels removed",
+            "ablation (cores): channels removed",
             f"{T2} C",
             f"SF moves {cell(ablation, '+.0f')} ppm",
             ">= 3000 ppm (sensor carries it)",

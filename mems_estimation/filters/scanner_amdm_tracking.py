@@ -10,6 +10,7 @@ drive peak to the next extremum of theta, in [0, pi) of the motion period) and t
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Mapping
 from typing import Any, NamedTuple
@@ -310,6 +311,15 @@ def _parabola(xm, x0, xp):
     return d, x0 - 0.25 * (xm - xp) * d
 
 
+def _parabola_1(xm: float, x0: float, xp: float) -> tuple[float, float]:
+    """:func:`_parabola` of one triple in Python floats (the same operations, equal bit for
+    bit; a tenth of the time of the array version on scalars)."""
+    den = xm - 2.0 * x0 + xp
+    d = 0.5 * (xm - xp) / den if den != 0 else 0.0
+    d = -0.5 if d < -0.5 else (0.5 if d > 0.5 else d)  # np.clip: NaN stays NaN
+    return d, x0 - 0.25 * (xm - xp) * d
+
+
 class PhaseAmplitudeTracker:
     """Streaming per-period phase shift and amplitude (Sec. 5.5.3, eqs. (109)-(110)).
 
@@ -389,8 +399,10 @@ class PhaseAmplitudeTracker:
                 if seg.size:
                     i = start + int(np.argmax(seg))
                     if 0 < i < x.size - 1:
-                        d, val = _parabola(
-                            x[i - 1] * seg_sign, x[i] * seg_sign, x[i + 1] * seg_sign
+                        d, val = _parabola_1(
+                            float(x[i - 1] * seg_sign),
+                            float(x[i] * seg_sign),
+                            float(x[i + 1] * seg_sign),
                         )
                     else:
                         d, val = 0.0, x[i] * seg_sign
@@ -424,9 +436,9 @@ class PhaseAmplitudeTracker:
 
     def _events(self, ev) -> PeriodEvents:
         t, ph, am, vt, vp, va = [], [], [], [], [], []
-        dp = np.asarray(self.drive_peaks)
+        dp = self.drive_peaks  # ascending (peaks are >= 1 sample apart)
         for te, amp, ptt, pww, kidx in ev:
-            j = np.searchsorted(dp, te, side="right") - 1
+            j = bisect.bisect_right(dp, te) - 1  # np.searchsorted(dp, te, side="right") - 1
             if j < 1:
                 continue
             td, T = dp[j], dp[j] - dp[j - 1]

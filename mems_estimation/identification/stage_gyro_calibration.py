@@ -45,6 +45,7 @@ __all__ = [
     "training_record",
     "identify_stage",
     "retrain_at",
+    "calibration_seeds",
     "calibration_record",
     "calibration_run",
     "off_axis_table",
@@ -352,6 +353,13 @@ def retrain_at(
     return reidentify_gap(model, tr)
 
 
+def calibration_seeds(temperature_c: float, seed: int) -> tuple[int, int]:
+    """Noise seeds (stage, gyro) of the calibration sweep at ``temperature_c`` [degC] of the
+    run ``seed`` (:func:`calibration_record`; a node graph that emulates the same sweep
+    seeds its stage and gyro with them)."""
+    return seed * 100 + 50 + int(temperature_c), seed * 100 + 60 + int(temperature_c)
+
+
 def calibration_record(
     temperature_c: float,
     seed: int,
@@ -363,14 +371,13 @@ def calibration_record(
     amplitude sweep of :class:`Plan`) at ``temperature_c`` [degC], seeded from the run
     ``seed``: (the record of :func:`mems_sim.devices.stage.record`, the gyro)."""
     sp = dict(stage_params or {}, temperature_c=temperature_c)
+    stage_seed, gyro_seed = calibration_seeds(temperature_c, seed)
     stage = MicroStage(
         sp,
         DriveSchedule.amplitude_sweep(n_trials=plan.cal_trials, periods=plan.cal_periods),
-        seed=seed * 100 + 50 + int(temperature_c),
+        seed=stage_seed,
     )
-    gyro = MemsGyro(
-        gyro_params, seed=seed * 100 + 60 + int(temperature_c), temperature_c=temperature_c
-    )
+    gyro = MemsGyro(gyro_params, seed=gyro_seed, temperature_c=temperature_c)
     return record(stage, gyro), gyro
 
 

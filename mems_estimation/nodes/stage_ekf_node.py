@@ -16,13 +16,34 @@ again or a divergence (non-finite state, covariance not positive definite,
 |theta| >= pi/2; counted ``divergences``, that frame's estimates not published) it starts
 again from its prior;
 the feedthrough cancellation history starts again in every case.
+
+In-situ mode (``insitu``; Chen 2018 eqs. 44-47 applied to the calibration sweep, the
+in-situ correction of the stage model): the thesis processes a calibration sweep after its
+acquisition, and so does the node. It keeps the sweep it receives (feedthrough-cancelled
+channels [V], drive u [V], phase [cycle], trial, f_drive [Hz], each frame's first sample
+index and stamp) and, once the sweep is complete, corrects the identified model's wn
+[rad/s] and b_c [rad/(V s^2)] from the sweep's own channels (per trial the harmonics of the
+cancelled channels, the tilt phasor through the sensor model of eqs. 44, 46-47, the
+response pooled over the trials, the discrete response of eq. 34 matched to it), then runs
+the EKF (eqs. 48-53) on the corrected model over the whole sweep without the output
+correction (alpha = 1, beta = 0: the scale is the sensor's) and publishes the estimates as
+frames with the first sample indices and stamps of the input frames. The sweep is complete
+when the device's end-of-stream record (``end_of_stream``, latched) announces the end
+sample index of its ``adc`` stream and the node has finished with the input up to it
+(processed, rejected or dropped); a gap, a stream reset, ``insitu_max_samples`` samples
+held or the node's shutdown end it too (the part held is processed as a sweep of its own).
+The ratios corrected/identified of wn and b_c of the last sweep are on /diagnostics
+(``insitu_wn_ratio``, ``insitu_b_c_ratio``); a sweep the correction cannot use is counted
+(``insitu_failures``) and its estimates are not published.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
 
 from mems_estimation.filters.stage_ekf import FeedthroughCanceller, StageEkf, load_model
+from mems_estimation.identification.stage_insitu import insitu_correct
 from mems_estimation.nodes.frame_input import (
     DEVICE_NAMESPACE,
     Diverged,
@@ -33,6 +54,7 @@ from mems_estimation.nodes.frame_input import (
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.kernels.divergence import state_ok
 from mems_sim.params import ParameterError, ParamSpec
+from mems_sim.ros.end_of_stream import END_OF_STREAM, END_OF_STREAM_QOS, parse_end_of_stream
 from mems_sim.ros.frames import FrameError, adc_physical, make_state_estimate, signal_data
 from mems_sim.ros.node_base import run_node
 from mems_sim.ros.qos import FRAME_QOS
@@ -53,6 +75,25 @@ EKF_SPECS: tuple[ParamSpec, ...] = (
         "apply the identified alpha/beta correction",
         "sec. 3.5.4 (last step)",
     ),
+    ParamSpec(
+        "insitu",
+        False,
+        "-",
+        "in-situ mode: keep the calibration sweep, correct wn and b_c of the model from its "
+        "channels once it is complete, then run the EKF on the corrected model without the "
+        "output correction (alpha = 1, beta = 0)",
+        "Chen 2018 eqs. 44-47 (in-situ correction)",
+    ),
+    ParamSpec(
+        "insitu_max_samples",
+        4_000_000,
+        "samples",
+        "longest sweep kept in in-situ mode (about 72 bytes per sample with 4 channels); "
+        "beyond it the part held is processed as a sweep of its own",
+        "chosen: bounds the memory (a 7 x 400 period sweep at 625 kHz is 1.03e6 samples)",
+        min=1,
+        max=2**31 - 1,
+    ),
 )
 
 
@@ -66,6 +107,28 @@ def drive_columns(msg: SignalFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]
                 f"drive frame at {msg.first_sample_index}: no '{c}' channel", "foreign"
             )
     return tuple(np.ascontiguousarray(data[:, names.index(c)]) for c in ("u", "v_bias", "f_drive"))
+
+
+#: Drive channels the in-situ mode keeps: the sweep's schedule besides the drive itself.
+INSITU_DRIVE = ("u", "v_bias", "f_drive", "phase", "trial")
+
+
+def drive_sweep_columns(msg: SignalFrame) -> tuple[np.ndarray, ...]:
+    """(u [V], v_bias [V], f_drive [Hz], phase [cycle], trial [-]) of a drive frame (in-situ
+    mode); FrameError when absent or non-finite."""
+    data = signal_data(msg)
+    names = list(msg.channel_names)
+    for c in INSITU_DRIVE:
+        if c not in names:
+            raise FrameError(
+                f"drive frame at {msg.first_sample_index}: no '{c}' channel", "foreign"
+            )
+    cols = data[:, [names.index(c) for c in INSITU_DRIVE]]
+    if not np.all(np.isfinite(cols)):
+        raise FrameError(
+            f"drive frame at {msg.first_sample_index}: non-finite values", "non_finite"
+        )
+    return tuple(np.ascontiguousarray(cols[:, i]) for i in range(len(INSITU_DRIVE)))
 
 
 class StageEkfNode(EstimatorNode):
@@ -114,9 +177,26 @@ class StageEkfNode(EstimatorNode):
         StageEkf(self.model).step(np.zeros((1, nch)), np.zeros(1))
         FeedthroughCanceller(nch, self.model.fs).step(np.zeros((1, nch)), np.ones(1), np.ones(1))
         self.pub = self.create_publisher(StateEstimate, self.device_topic("estimate"), FRAME_QOS)
+        #: in-situ mode: the sweep held (one tuple per frame), its samples, the end sample
+        #: index the device announced, estimate frames published, sweeps processed
+        self.insitu = bool(p["insitu"])
+        self.sweep: list[tuple] = []
+        self.sweep_samples = 0
+        self.announced_end: int | None = None
+        self.estimates_published = 0
+        self.insitu_models: list = []
         self.subscribe_pair(
-            ("adc", AdcFrame, self._decode_adc), ("drive", SignalFrame, drive_columns)
+            ("adc", AdcFrame, self._decode_adc),
+            ("drive", SignalFrame, drive_sweep_columns if self.insitu else drive_columns),
         )
+        if self.insitu:
+            self.adc_topic = self.resolve_topic_name(self.device_topic("adc"))
+            self.create_subscription(
+                DiagnosticArray,
+                self.device_topic(END_OF_STREAM),
+                self._on_end_of_stream,
+                END_OF_STREAM_QOS,
+            )
 
     def _decode_adc(self, msg: AdcFrame) -> np.ndarray:
         """The selected channels of an ADC frame [V]; FrameError when absent or non-finite."""
@@ -139,6 +219,10 @@ class StageEkfNode(EstimatorNode):
         :attr:`BRIDGE_TIME_CONSTANTS` time constants; after a longer one it starts again at
         the forced steady state under the next frame's drive); the feedthrough
         cancellation starts again."""
+        if self.insitu:
+            self.process_sweep()
+            self.canceller.reset()
+            return
         m = self.model
         bridge = self.BRIDGE_TIME_CONSTANTS * m.fs / (m.zeta * m.wn)
         if gap <= bridge:
@@ -151,7 +235,9 @@ class StageEkfNode(EstimatorNode):
         """A jump ahead (the stage ran on unseen, longer than any bridged gap) starts the
         EKF again at the forced steady state under the next frame's drive
         (:meth:`StageEkf.start_forced`); a stream that started again (a stage that starts at
-        rest), from its prior."""
+        rest), from its prior. In-situ mode: the sweep held is processed first."""
+        if self.insitu:
+            self.process_sweep()
         if ahead:
             self.on_gap(2**63)
         else:
@@ -165,7 +251,20 @@ class StageEkfNode(EstimatorNode):
         self._start_forced = False
 
     def process_pair(self, first: int, stamp_ns: int, y: np.ndarray, drive) -> None:
-        """Cancel the feedthrough, run the EKF on one frame and publish theta, omega."""
+        """Cancel the feedthrough, run the EKF on one frame and publish theta, omega
+        (in-situ mode: keep the cancelled frame and its drive for the sweep)."""
+        if self.insitu:
+            u, vb, fd, phase, trial = drive
+            yc = self.canceller.step(y, vb, fd)
+            if self.sweep_samples + u.size > self.p["insitu_max_samples"]:
+                self.diag.warn(
+                    f"in-situ sweep longer than insitu_max_samples = "
+                    f"{self.p['insitu_max_samples']}: processed at index {first}"
+                )
+                self.process_sweep()
+            self.sweep.append((first, stamp_ns, yc, u, phase, trial.astype(np.int64), fd))
+            self.sweep_samples += u.size
+            return
         u, vb, fd = drive
         if self._start_forced:
             self.ekf.start_forced(u, fd)
@@ -175,6 +274,63 @@ class StageEkfNode(EstimatorNode):
         if self.ekf.diverged() or not state_ok(x, v):
             self.reset_estimator()
             raise Diverged("stage EKF")
+        self._publish_estimate(first, stamp_ns, x, v)
+
+    # ------------------------------------------------------------------ in-situ mode
+
+    def _on_end_of_stream(self, msg: DiagnosticArray) -> None:
+        """The device's end-of-stream record: the end sample index of its ``adc`` stream
+        (the sweep is complete once the node has finished with the input up to it)."""
+        entry = parse_end_of_stream(msg).get(self.adc_topic, {})
+        if "end_sample_index" not in entry:
+            return
+        self.announced_end = int(entry["end_sample_index"])
+        self._check_complete()
+
+    def report_progress(self, end: int, follow: bool = False) -> None:
+        """Progress as every estimator node; in-situ mode: then a sweep whose announced
+        end is reached is processed."""
+        super().report_progress(end, follow)
+        if self.insitu:
+            self._check_complete()
+
+    def _check_complete(self) -> None:
+        end = self.announced_end
+        if end is not None and self.progress is not None and self.progress >= end:
+            self.announced_end = None
+            self.process_sweep()
+
+    def process_sweep(self) -> None:
+        """In-situ mode: correct the model from the sweep held (wn, b_c: eqs. 44-47 and
+        34), run the EKF (eqs. 48-53) on the corrected model over the whole sweep with
+        alpha = 1, beta = 0 and publish the estimates frame by frame (module doc)."""
+        sweep, self.sweep, self.sweep_samples = self.sweep, [], 0
+        if not sweep:
+            return
+        yc, u, phase, trial, fd = (np.concatenate([f[k] for f in sweep]) for k in (2, 3, 4, 5, 6))
+        try:
+            m, _ = insitu_correct(self.model, yc, u, phase, trial, fd)
+        except ValueError as exc:
+            self.diag.count("insitu_failures")
+            self.diag.warn(f"in-situ sweep at index {sweep[0][0]} not used: {exc}")
+            return
+        ekf = StageEkf(m)
+        x, v = ekf.step(yc, u, corrected=False)
+        if ekf.diverged() or not state_ok(x, v):
+            self.note_divergence("stage EKF (in-situ sweep)", sweep[0][0])
+            return
+        self.insitu_models.append(m)
+        self.diag.count("insitu_sweeps")
+        self.diag.counters["insitu_wn_ratio"] = float(m.extra["insitu_wn_ratio"])
+        self.diag.counters["insitu_b_c_ratio"] = float(m.extra["insitu_b_c_ratio"])
+        self.diag.publish()  # the corrected model on /diagnostics now, not a period later
+        k = 0
+        for first, stamp_ns, _, uf, *_ in sweep:
+            n = uf.size
+            self._publish_estimate(first, stamp_ns, x[k : k + n], v[k : k + n])
+            k += n
+
+    def _publish_estimate(self, first: int, stamp_ns: int, x, v) -> None:
         msg = output_frame(
             make_state_estimate,
             x,
@@ -188,6 +344,12 @@ class StageEkfNode(EstimatorNode):
             frame_id="stage",
         )
         self.pub.publish(msg)
+        self.estimates_published += 1
+
+    def close(self) -> None:
+        """At shutdown (in-situ mode): the sweep held is processed."""
+        if self.insitu:
+            self.process_sweep()
 
 
 def main(argv: list[str] | None = None) -> int:

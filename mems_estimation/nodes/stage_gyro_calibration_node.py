@@ -9,10 +9,16 @@ and publishes the stage's ``gyro_scale_factor`` (mems_msgs/CalibrationResult: sc
 bias with standard errors) once ``n_trials`` trials are paired (and again at shutdown if
 more arrived). Malformed / non-finite frames are rejected and counted on /diagnostics
 (input path: :class:`EstimatorNode`; the gyro stream is validated and sequenced alike).
-A gap or stream reset of the stage streams drops the trials in progress and the gyro
-samples waiting for them (``trials_dropped``) and places the gyro samples on the stage
-index again from the next frame's stamp; the gyro samples waiting for stage data are
-bounded to ``max_unpaired_samples`` (``gyro_overflow_samples``). A pair of peak-to-peak
+Gyro sample j of a frame is placed on the stage's sample index k = (t_j - t0) fs, t_j its
+stamp and t0 the time of stage sample 0, taken from the first stage frame (drive or
+estimate: t0 = stamp - first_sample_index / fs; the drive arrives live, an in-situ EKF's
+estimates only after the sweep); gyro frames that arrive before any stage frame are held
+until t0 is known (``gyro_frames_held``), so an epoch from the wall clock (real-time runs)
+places them as one from 0. A gap or stream reset of the stage streams drops the trials in
+progress and the gyro samples waiting for them (``trials_dropped``) and places the gyro
+samples on the stage index again from the next frame's stamp; the gyro samples waiting for
+stage data (held ones included) are bounded to ``max_unpaired_samples``
+(``gyro_overflow_samples``). A pair of peak-to-peak
 rates whose ratio gyro/stage is outside [:data:`MIN_RATIO`, :data:`MAX_RATIO`] (no
 gyro's scale factor) or not finite is discarded (``implausible_pairs``): one absurd frame
 does not spoil eq. (27).
@@ -127,6 +133,9 @@ class GyroCalibrationNode(EstimatorNode):
             CalibrationResult, self.device_topic("gyro_scale_factor"), RESULT_QOS
         )
         self.t0_ns = None
+        #: gyro frames taken before the stage's time origin is known: (stamp [ns], rate
+        #: [Hz], values [rad/s]), placed once it is (:meth:`_set_origin`)
+        self._held: list[tuple[int, float, np.ndarray]] = []
         self._rebase = False
         self._base: int | None = None
         self._screened = 0
@@ -135,33 +144,77 @@ class GyroCalibrationNode(EstimatorNode):
         self.estimates_received = 0
         self.subscribe_pair(
             ("estimate", StateEstimate, self._decode_estimate),
-            ("drive", SignalFrame, _drive_trials),
+            ("drive", SignalFrame, self._decode_drive),
             check_rate=False,
         )
         self.create_subscription(AdcFrame, self.device_topic("gyro/adc"), self.on_gyro, FRAME_QOS)
 
     def _decode_estimate(self, msg: StateEstimate) -> np.ndarray:
-        """omega of an estimate frame; the first one sets the time origin of the stage."""
+        """omega of an estimate frame; the first stage frame sets the time origin."""
         om = _estimate_omega(msg)
-        if self.t0_ns is None:
-            self.t0_ns = time_to_ns(msg.header.stamp) - round(
-                msg.first_sample_index * 1e9 / self.p["sample_rate_hz"]
-            )
+        self._set_origin(msg)
         self.last_stamp = time_to_ns(msg.header.stamp)
         self.estimates_received += 1
         return om
 
+    def _decode_drive(self, msg: SignalFrame) -> tuple:
+        """(phase, f_drive, trial) of a drive frame; the first stage frame sets the time
+        origin (the drive arrives live, before the estimates of an in-situ EKF)."""
+        drive = _drive_trials(msg)
+        self._set_origin(msg)
+        return drive
+
+    def _set_origin(self, msg) -> None:
+        """t0 [ns], the time of stage sample 0 (of the stream's base, :meth:`process_pair`),
+        from a stage frame if not known yet: t0 = stamp - (first_sample_index - base) / fs;
+        then the gyro frames held for it are placed."""
+        if self.t0_ns is not None:
+            return
+        first = int(msg.first_sample_index)
+        base = first if first >= self.BASE_INDEX else 0
+        self.t0_ns = time_to_ns(msg.header.stamp) - round(
+            (first - base) * 1e9 / self.p["sample_rate_hz"]
+        )
+        held, self._held = self._held, []
+        for stamp_ns, rate, v in held:
+            self._place_gyro(stamp_ns, rate, v)
+
     def on_gyro(self, msg: AdcFrame) -> None:
-        """Gyro samples, placed on the stage's sample index through their stamps."""
+        """Gyro samples, placed on the stage's sample index through their stamps; held
+        while the stage's time origin is not known (bounded, module doc)."""
         self.gyro_frames_received += 1
         v = self.take_frame("gyro", msg, _gyro_rate, check_rate=False)
         if v is None or not self.sequence(
             "gyro", msg.first_sample_index, msg.num_samples, hooks=False
         ):
             return
-        t0 = self.t0_ns if self.t0_ns is not None else 0
-        t_first = (time_to_ns(msg.header.stamp) - t0) / 1e9
-        k = (t_first + np.arange(v.size) / msg.sample_rate_hz) * self.p["sample_rate_hz"]
+        stamp_ns = time_to_ns(msg.header.stamp)
+        if self.t0_ns is None:
+            self._hold_gyro(stamp_ns, float(msg.sample_rate_hz), v)
+            return
+        self._place_gyro(stamp_ns, float(msg.sample_rate_hz), v)
+
+    def _hold_gyro(self, stamp_ns: int, rate: float, v: np.ndarray) -> None:
+        """Keep a gyro frame until the time origin is known; at most
+        ``max_unpaired_samples`` samples (the oldest dropped, ``gyro_overflow_samples``)."""
+        self.diag.count("gyro_frames_held")
+        self._held.append((stamp_ns, rate, v))
+        limit = int(self.p["max_unpaired_samples"])
+        waiting = sum(h[2].size for h in self._held)
+        while waiting > limit:
+            stamp_ns, rate, old = self._held[0]
+            drop = min(old.size, waiting - limit)
+            if drop == old.size:
+                self._held.pop(0)
+            else:  # the frame's first samples: its stamp moves to its new first sample
+                self._held[0] = (stamp_ns + round(drop * 1e9 / rate), rate, old[drop:])
+            self.diag.count("gyro_overflow_samples", drop)
+            waiting -= drop
+
+    def _place_gyro(self, stamp_ns: int, rate: float, v: np.ndarray) -> None:
+        """Gyro samples at stage index k = (t_j - t0) fs, t_j = stamp + j / rate."""
+        t_first = (stamp_ns - self.t0_ns) / 1e9
+        k = (t_first + np.arange(v.size) / rate) * self.p["sample_rate_hz"]
         self.cal.add_gyro(k, v)
         self._bound_gyro()
         self._check_done()

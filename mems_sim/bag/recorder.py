@@ -3,7 +3,9 @@
 The command line follows ``ros2 bag record`` (rosbag2, Jazzy/Rolling) where an option
 exists there: ``-s/--storage`` (``mcap`` only), ``--topics``, ``-a/--all``, ``-e/--regex``,
 ``-x/--exclude-regex``, ``--include-hidden-topics``, ``-b/--max-bag-size``,
-``-d/--max-bag-duration``, ``--qos-profile-overrides-path``, ``--compression-format``.
+``-d/--max-bag-duration``, ``--qos-profile-overrides-path``, ``--compression-format``,
+``--storage-preset-profile`` (``none``, ``fastwrite``, ``zstd_fast``, ``zstd_small``:
+:data:`~mems_sim.bag.writer.STORAGE_PRESETS`).
 ``--duration`` (rosbag2 has no such option) ends recording after that much wall-clock
 time. With ``-b`` or ``-d`` the output is a rosbag2 bag directory of split MCAP files and a
 ``metadata.yaml`` (:class:`~mems_sim.bag.writer.McapBagWriter`); without them ``-o`` names
@@ -37,7 +39,11 @@ run, whose stamps start at 0, gives a bag that starts at 0 and lasts as long as
 its data, and a live graph stamped from the wall clock gives wall-clock log times.
 
 In-process users (the scenario runner) create a RecorderNode with their own
-context and executor and use :meth:`RecorderNode.received` to throttle.
+context and executor and use :meth:`RecorderNode.received` to throttle. An executor
+takes one message per subscription per wait; each recorder callback takes up to
+:data:`TAKE_BATCH` more of its topic, so that a topic many publishers feed
+(``/diagnostics``) does not queue up behind a busy graph, and :meth:`RecorderNode.close`
+first takes what the middleware already delivered (:meth:`RecorderNode.take_pending`).
 
 Stopping (``mcap_record``): a stop request (SIGINT or SIGTERM, as ``ros2 launch``
 and ``docker stop`` send before a SIGKILL) ends recording in bounded time, live
@@ -64,6 +70,7 @@ from functools import partial
 
 from rclpy.clock import Clock as RclpyClock
 from rclpy.clock import ClockType
+from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
@@ -79,12 +86,14 @@ from mems_sim.bag.schema import (
     type_hash,
 )
 from mems_sim.bag.writer import (
+    STORAGE_PRESETS,
     BagWriteError,
     McapBagWriter,
     bag_directory_path,
     bag_directory_problem,
     gap_summary,
     output_problem,
+    storage_preset,
 )
 from mems_sim.ros.end_of_stream import (
     describe_tail,
@@ -110,6 +119,16 @@ STOP_FINALISE_S = 1.0
 #: After ``--duration`` the writer queue is drained for at most this long before the
 #: Summary is written [s] (what is still queued then is dropped and counted).
 DURATION_FINALISE_S = 0.3
+
+#: Messages a recorder callback takes from its subscription after the one the executor
+#: handed it (:meth:`RecorderNode._take_waiting`): an executor takes one message per
+#: subscription per wait, so a topic many publishers feed (``/diagnostics``: one status a
+#: second from every node) would otherwise queue up in the reader behind the graph's work.
+TAKE_BATCH = 100
+
+#: :meth:`RecorderNode.close` takes what the middleware already delivered to the
+#: subscriptions for at most this long [s] (publishers of other processes may go on).
+CLOSE_TAKE_S = 5.0
 
 
 def is_hidden_topic(topic: str) -> bool:
@@ -240,6 +259,12 @@ class RecorderNode(Node):
     :param discovery_period_s: period of the topic discovery timer [s].
     :param compression: chunk compression ``'zstd'``, ``'lz4'`` or ``'none'``.
     :param chunk_size: uncompressed chunk size [bytes].
+    :param storage_preset_profile: rosbag2's MCAP storage preset (``none``, ``fastwrite``,
+        ``zstd_fast``, ``zstd_small``; :func:`~mems_sim.bag.writer.storage_preset`): its
+        compression, zstd level, chunk size and CRC setting replace ``compression`` and
+        ``chunk_size`` (``mcap_record`` lets explicit options override the preset).
+    :param writer_options: more :class:`~mems_sim.bag.writer.McapBagWriter` options
+        (``compression_level``, ``crcs``), applied last.
     :param node_name: ROS node name.
     :param overwrite: replace an existing output file (the ``mcap_record`` CLI passes
         ``--overwrite``; a symbolic link is refused either way).
@@ -267,6 +292,8 @@ class RecorderNode(Node):
         compression: str = "zstd",
         chunk_size: int = 1 << 20,
         node_name: str = "mcap_recorder",
+        storage_preset_profile: str | None = None,
+        writer_options: dict | None = None,
         overwrite: bool = True,
         max_bag_size: int = 0,
         max_bag_duration: float = 0.0,
@@ -288,10 +315,12 @@ class RecorderNode(Node):
         self._exclude = re.compile(exclude) if exclude else None
         self._hidden = bool(include_hidden_topics)
         self._qos_overrides = dict(qos_overrides or {})
+        options = {"chunk_size": chunk_size, "compression": compression}
+        options.update(storage_preset(storage_preset_profile))
+        options.update(writer_options or {})
         self._bag = McapBagWriter(
             output,
-            chunk_size=chunk_size,
-            compression=compression,
+            **options,
             on_gap=self._log_gap,
             overwrite=overwrite,
             max_bag_size=max_bag_size,
@@ -395,6 +424,44 @@ class RecorderNode(Node):
         # number, publisher, source timestamp) only to a callback that requires it
         if self._rec_closed:
             return
+        self._record(topic, data, info)
+        self._take_waiting(topic, TAKE_BATCH)
+
+    def _take_waiting(self, topic: str, limit: int | None, deadline: float | None = None) -> int:
+        """Take and record what the middleware already holds for ``topic``'s subscription:
+        at most ``limit`` messages (None: all), until ``deadline`` (monotonic) if given.
+        Returns the number taken."""
+        sub = self._topic_subs.get(topic)
+        taken = 0
+        if sub is None:
+            return 0
+        while limit is None or taken < limit:
+            if deadline is not None and time.monotonic() >= deadline:
+                break
+            try:
+                with sub.handle:
+                    got = sub.handle.take_message(sub.msg_type, sub.raw)
+            except InvalidHandle:  # destroyed meanwhile
+                break
+            if got is None:
+                break
+            self._record(topic, got[0], got[1])
+            taken += 1
+        return taken
+
+    def take_pending(self, timeout_s: float | None = CLOSE_TAKE_S) -> int:
+        """Take and record every message the middleware already delivered to the
+        subscriptions but the executor has not taken yet (for at most ``timeout_s``
+        seconds; None: no limit). Returns the number taken. :meth:`close` calls it, so
+        that an in-process recorder closed right after the graph's last publish (or while
+        its executor lags behind a busy topic) loses nothing already delivered."""
+        if self._rec_closed:
+            return 0
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        return sum(self._take_waiting(t, None, deadline) for t in list(self._topic_subs))
+
+    def _record(self, topic: str, data: bytes, info) -> None:
+        """Write one message taken from ``topic``'s subscription."""
         stamp = peek_header_stamp_ns(data) if self._stamped[topic] else None
         log_time = self.graph_time_ns() if stamp is None else stamp
         sent = info.get("source_timestamp") if info else None
@@ -534,6 +601,11 @@ class RecorderNode(Node):
     def close(self, timeout_s: float | None = None, abort=None) -> None:
         """Stop recording and finalise the file (Summary, Statistics). Idempotent.
 
+        First the messages the middleware already delivered to the subscriptions but the
+        executor has not taken are taken and written (:meth:`take_pending`, at most
+        :data:`CLOSE_TAKE_S`): an in-process recorder closed right after the graph's last
+        publish, or behind a busy topic, keeps them.
+
         :param timeout_s: drain the writer queue for at most this long [s] (None: all);
             what is still queued then is dropped and counted (:meth:`dropped`).
         :param abort: callable; True ends the drain at once (e.g. a second signal).
@@ -541,6 +613,15 @@ class RecorderNode(Node):
         """
         if self._bag.closed:
             return
+        if self._bag.error is None:
+            # what the executor has not taken yet (stop_taking already destroyed the
+            # subscriptions of the command line's recorder: nothing then)
+            try:
+                self.take_pending(
+                    CLOSE_TAKE_S if timeout_s is None else min(timeout_s, CLOSE_TAKE_S)
+                )
+            except BagWriteError:
+                pass  # raised again by the writer's close below
         self._rec_closed = True
         self._discovery_timer.cancel()
         self._bag.close(timeout_s=timeout_s, abort=abort)
@@ -725,13 +806,35 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
         "--compression",
         dest="compression",
         choices=["zstd", "lz4", "none"],
-        default="zstd",
-        help="MCAP chunk compression (default zstd; --compression: old name)",
+        default=None,
+        help="MCAP chunk compression (default zstd, or the preset's; --compression: old name)",
     )
     parser.add_argument(
-        "--chunk-size", type=_byte_count, default=1 << 20, help="MCAP chunk size [bytes]"
+        "--chunk-size",
+        type=_byte_count,
+        default=None,
+        help="MCAP chunk size [bytes] (default 1 MiB, or the preset's)",
+    )
+    parser.add_argument(
+        "--storage-preset-profile",
+        choices=list(STORAGE_PRESETS),
+        default="none",
+        metavar="PROFILE",
+        help="rosbag2's MCAP writer presets: none (default: zstd level 3, 1 MiB chunks, "
+        "CRCs), fastwrite (no compression, no CRCs), zstd_fast (zstd level -5, no CRCs), "
+        "zstd_small (zstd level 19, 4 MiB chunks); --compression-format and --chunk-size "
+        "override the preset's",
     )
     args = parser.parse_args(argv)
+    args.writer_options = storage_preset(args.storage_preset_profile)
+    if args.compression is not None:
+        args.writer_options["compression"] = args.compression
+        if args.compression != "zstd":
+            args.writer_options.pop("compression_level", None)
+    if args.chunk_size is not None:
+        args.writer_options["chunk_size"] = args.chunk_size
+    args.compression = args.writer_options.get("compression", "zstd")
+    args.chunk_size = args.writer_options.get("chunk_size", 1 << 20)
     args.topics = list(args.topics) + list(args.more_topics)
     if not (args.topics or args.all or args.regex):
         parser.error("give topics, -a/--all or -e/--regex")
@@ -845,6 +948,11 @@ def _run(argv: list[str] | None, stop: _StopRequest) -> int:
                 exclude=args.exclude,
                 compression=args.compression,
                 chunk_size=args.chunk_size,
+                writer_options={
+                    k: v
+                    for k, v in args.writer_options.items()
+                    if k in ("compression_level", "crcs")
+                },
                 overwrite=args.overwrite,
                 max_bag_size=args.max_bag_size,
                 max_bag_duration=args.max_bag_duration,

@@ -49,10 +49,11 @@ import math
 from collections.abc import Mapping
 from typing import Any, NamedTuple
 
+import numba
 import numpy as np
 import scipy.signal
 
-from mems_sim.devices.scanner import ScannerParams, capacitance, dcap_dtheta, simulate_mechanics
+from mems_sim.devices.scanner import ScannerParams, _accel, capacitance
 from mems_sim.params import (
     AIR_DAMPING_TEMPCO,
     SILICON_EXPANSION_TEMPCO,
@@ -574,6 +575,8 @@ class AmdmScannerDevice:
         vo2, self._zi_h = scipy.signal.sosfilt(self.chain.hpf, vo1, zi=self._zi_h)
         vo3 = p["detector_linear_gain"] * vo2 + p["detector_square_gain"] * vo2 * vo2
         _, self._zi_l = scipy.signal.sosfilt(self.chain.lpf, vo3, zi=self._zi_l)
+        self._zi_h = np.ascontiguousarray(self._zi_h, dtype=np.float64)
+        self._zi_l = np.ascontiguousarray(self._zi_l, dtype=np.float64)
         self.lsb = 2.0 * p["adc_full_scale"] / 2 ** p["adc_bits"]
         self.next_index = 0
 
@@ -591,51 +594,197 @@ class AmdmScannerDevice:
         return self.chain.delay
 
     def step(self, n: int) -> AmdmFrame:
-        """Simulate and return the next ``n`` output samples."""
+        """Simulate and return the next ``n`` output samples.
+
+        The per-sample work runs in two numba kernels (:func:`_drive_mechanics`,
+        :func:`_chain`) around one numpy ``exp`` (the comb's Gaussian): the same operations
+        in the same order as the array formulas of the module doc (:func:`drive_voltage`,
+        :func:`~mems_sim.devices.scanner.simulate_mechanics`,
+        :func:`~mems_sim.devices.scanner.capacitance`,
+        :func:`~mems_sim.devices.scanner.dcap_dtheta`, ``scipy.signal.sosfilt``), so the
+        frames are equal bit for bit to theirs; ``exp`` stays numpy's (its SIMD ``exp``
+        differs from the C library's in the last bit on some inputs).
+        """
         n = int(n)
         if n < 0:
             raise ValueError(f"n = {n} must be >= 0")
-        p, D, ch = self.p, self.decimation, self.chain
+        p, D, ch, mech = self.p, self.decimation, self.chain, self.mech
         k0 = self.next_index
-        j = k0 * D + np.arange(n * D)
-        t = j / self.f_int
-        vdr, dvdr = drive_voltage(t, p)
+        nd = n * D
+        f0, f1, ts, tw = (
+            p["sweep_start_hz"],
+            p["sweep_end_hz"],
+            p["sweep_start_s"],
+            p["sweep_time_s"],
+        )
         wc = 2.0 * math.pi * p["carrier_freq_hz"]
         vc0 = p["carrier_amplitude"]
-        v = vdr + vc0 * np.sin(wc * t)
-        dv = dvdr + vc0 * wc * np.cos(wc * t)
-        tau = (
-            self._rng_tau.standard_normal(n * D) * p["torque_noise_std"]
-            if p["torque_noise_std"] > 0
-            else None
+        std = p["torque_noise_std"]
+        tau = self._rng_tau.standard_normal(nd) * std if std > 0 else np.zeros(0)
+        v, dv, om, u, w = (np.empty(nd) for _ in range(5))
+        drive, freq, theta, omega = (np.empty(n) for _ in range(4))
+        fin = _drive_mechanics(
+            k0 * D,
+            D,
+            float(self.f_int),
+            float(f0),
+            float(f1),
+            float(ts),
+            float(tw),
+            float(ts + tw),
+            float((f1 - f0) / tw if tw > 0 else 0.0),
+            float(p["drive_voltage_max"]),
+            float(wc),
+            float(vc0),
+            float(0.5 / self.f_int),
+            self._state[0],
+            self._state[1],
+            tau,
+            float(mech.J),
+            float(mech.k),
+            float(mech.b),
+            float(mech.drive_c0),
+            float(mech.drive_theta0),
+            float(mech.theta_th),
+            float(mech.sense_theta0),
+            v,
+            dv,
+            om,
+            u,
+            w,
+            drive,
+            freq,
+            theta,
+            omega,
         )
-        # simulate_mechanics holds each sample over [t_j, t_j+1); the voltage at the middle of
-        # the interval makes the hold second-order accurate (a hold of V(t_j) would delay the
-        # drive by half an internal sample, 0.3 deg of motion phase at 10 MHz).
-        tm = t + 0.5 / self.f_int
-        vm = drive_voltage(tm, p)[0] + vc0 * np.sin(wc * tm)
-        th, om, fin = simulate_mechanics(
-            vm,
-            self.f_int,
-            self.mech,
-            theta0=self._state[0],
-            omega0=self._state[1],
-            torque_noise=tau,
-            return_final=True,
+        self._state = (float(fin[0]), float(fin[1]))
+        np.exp(w, out=w)  # numpy's exp, as capacitance() and dcap_dtheta() take it
+        vlp = np.empty(n)
+        _chain(
+            v,
+            dv,
+            om,
+            u,
+            w,
+            D,
+            float(mech.sense_c0),
+            float(mech.sense_theta0),
+            float(mech.sense_cb),
+            float(p["parasitic_capacitance"]),
+            float(p["feedback_resistance"]),
+            float(p["detector_linear_gain"]),
+            float(p["detector_square_gain"]),
+            ch.hpf,
+            ch.lpf,
+            self._zi_h,
+            self._zi_l,
+            vlp,
         )
-        self._state = fin
-        ct = capacitance(th, self.mech) + p["parasitic_capacitance"]
-        vo1 = -p["feedback_resistance"] * (dv * ct + v * dcap_dtheta(th, self.mech) * om)
-        vo2, self._zi_h = scipy.signal.sosfilt(ch.hpf, vo1, zi=self._zi_h)
-        vo3 = p["detector_linear_gain"] * vo2 + p["detector_square_gain"] * vo2 * vo2
-        vlp, self._zi_l = scipy.signal.sosfilt(ch.lpf, vo3, zi=self._zi_l)
-        y_clean = ch.out_gain * vlp[::D] + ch.out_offset
+        y_clean = ch.out_gain * vlp + ch.out_offset
         noise = self._rng_y.standard_normal(n) * math.sqrt(p["output_noise_var"])
         y = y_clean + noise
         half = 2 ** (p["adc_bits"] - 1)
         raw = np.round(y / self.lsb)
         sat = int(np.count_nonzero((raw < -half) | (raw > half - 1)))
         codes = np.clip(raw, -half, half - 1).astype(np.int32)
-        _, f = drive_phase(t[::D], p)
         self.next_index += n
-        return AmdmFrame(k0, codes, y, y_clean, vdr[::D], f, th[::D], om[::D], sat)
+        return AmdmFrame(k0, codes, y, y_clean, drive, freq, theta, omega, sat)
+
+
+# ----------------------------------------------------------------------------- kernels
+@numba.njit(cache=True, inline="always")
+def _phase(t, f0, f1, ts, tw, te, rate):
+    """phi_dr(t) and f_dr(t) of :func:`drive_phase` for one instant (same operations)."""
+    s = t - ts
+    s = s if s > 0.0 else 0.0  # np.clip(t - ts, 0, tw): min(max(x, 0), tw) as numpy's
+    s = s if s < tw else tw
+    mn = t if t < ts else ts  # np.minimum(t, ts)
+    mx = t - te
+    mx = mx if mx > 0.0 else 0.0  # np.maximum(t - te, 0)
+    cyc = f0 * mn + f0 * s + 0.5 * rate * s * s + f1 * mx
+    f = f0 if t < ts else (f0 + rate * s if t < te else f1)
+    return 2.0 * math.pi * cyc, f
+
+
+@numba.njit(cache=True)
+def _drive_mechanics(
+    j0, D, f_int, f0, f1, ts, tw, te, rate, vmax, wc, vc0, half_dt, th, om, tau,
+    J, k, b, dc0, dth0, thth, sth0, v, dv, om_out, u, w, drive, freq, theta, omega,
+):  # fmt: skip
+    """Drive, carrier and mechanics of :meth:`AmdmScannerDevice.step` per internal sample.
+
+    For internal sample i (t = (j0 + i)/f_int): V (v) and dV/dt (dv) at t, the RK4 step of
+    :func:`~mems_sim.devices.scanner.simulate_mechanics` (one substep, V held at the middle
+    of the interval, torque ``tau[i]`` if ``tau`` is not empty), omega at t (om_out), and
+    u = (theta - theta_th)/theta_0 and w = -u^2 of the sense comb (exp(w) is taken by the
+    caller); at every D-th sample the output's drive, frequency, theta and omega.
+    Returns the state at the end."""
+    hv = 0.5 * vmax
+    vcw = vc0 * wc
+    hs = (1.0 / f_int) / 1
+    noisy = tau.shape[0] > 0
+    for i in range(v.shape[0]):
+        t = (j0 + i) / f_int
+        phi, f = _phase(t, f0, f1, ts, tw, te, rate)
+        vdr = hv * (1.0 - math.cos(phi))
+        dvdr = hv * math.sin(phi) * 2.0 * math.pi * f
+        v[i] = vdr + vc0 * math.sin(wc * t)
+        dv[i] = dvdr + vcw * math.cos(wc * t)
+        tm = t + half_dt
+        phm, _ = _phase(tm, f0, f1, ts, tw, te, rate)
+        vm = hv * (1.0 - math.cos(phm)) + vc0 * math.sin(wc * tm)
+        om_out[i] = om
+        x = (th - thth) / sth0
+        u[i] = x
+        w[i] = -x * x
+        if i % D == 0:
+            kk = i // D
+            drive[kk] = vdr
+            freq[kk] = f
+            theta[kk] = th
+            omega[kk] = om
+        v2 = vm * vm
+        tn = tau[i] if noisy else 0.0
+        a1 = _accel(th, om, v2, tn, J, k, b, dc0, dth0, thth)
+        t2 = th + 0.5 * hs * om
+        o2 = om + 0.5 * hs * a1
+        a2 = _accel(t2, o2, v2, tn, J, k, b, dc0, dth0, thth)
+        t3 = th + 0.5 * hs * o2
+        o3 = om + 0.5 * hs * a2
+        a3 = _accel(t3, o3, v2, tn, J, k, b, dc0, dth0, thth)
+        t4 = th + hs * o3
+        o4 = om + hs * a3
+        a4 = _accel(t4, o4, v2, tn, J, k, b, dc0, dth0, thth)
+        th = th + hs / 6.0 * (om + 2.0 * o2 + 2.0 * o3 + o4)
+        om = om + hs / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+    return th, om
+
+
+@numba.njit(cache=True)
+def _chain(v, dv, om, u, e, D, c0, th0, cb, cp, rf, ad, bd, hpf, lpf, zh, zl, out):
+    """AMDM chain per internal sample: C_t and dC_s/dtheta from u and e = exp(-u^2)
+    (:func:`~mems_sim.devices.scanner.capacitance`, ``dcap_dtheta``), V_o1 (eq. (93)), the
+    high-pass and low-pass sections in direct form II transposed (as ``scipy.signal.sosfilt``,
+    states ``zh``, ``zl`` updated in place) around the square-law detector; ``out`` gets
+    every D-th low-pass output."""
+    nh = hpf.shape[0]
+    nl = lpf.shape[0]
+    m2c0 = -2.0 * c0
+    nrf = -rf
+    for i in range(v.shape[0]):
+        ct = c0 * e[i] + cb + cp
+        dc = m2c0 * u[i] / th0 * e[i]
+        x = nrf * (dv[i] * ct + v[i] * dc * om[i])
+        for s in range(nh):
+            y = hpf[s, 0] * x + zh[s, 0]
+            zh[s, 0] = hpf[s, 1] * x - hpf[s, 4] * y + zh[s, 1]
+            zh[s, 1] = hpf[s, 2] * x - hpf[s, 5] * y
+            x = y
+        x = ad * x + bd * x * x
+        for s in range(nl):
+            y = lpf[s, 0] * x + zl[s, 0]
+            zl[s, 0] = lpf[s, 1] * x - lpf[s, 4] * y + zl[s, 1]
+            zl[s, 1] = lpf[s, 2] * x - lpf[s, 5] * y
+            x = y
+        if i % D == 0:
+            out[i // D] = x

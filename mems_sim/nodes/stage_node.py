@@ -18,7 +18,8 @@ Topics (relative to the namespace, default ``/stage``):
 Input: ``temperature_input`` sensor_msgs/Temperature: the stage's temperature follows it
 (``temperature_c``, from the next frame; ``temperature`` is the node's output).
 Parameters: STAGE_SPECS (its own ``device_seed``: the channel gain mismatch; its own
-``temperature_c`` with ``ref_temperature_c``), GYRO_SPECS, SCHEDULE_SPECS and EMULATOR_SPECS.
+``temperature_c`` with ``ref_temperature_c``), GYRO_SPECS, SCHEDULE_SPECS (``gyro_seed``: the
+gyro's noise seed, -1 = the node's ``seed``) and EMULATOR_SPECS.
 """
 
 from __future__ import annotations
@@ -105,6 +106,15 @@ SCHEDULE_SPECS: tuple[ParamSpec, ...] = (
     ),
     ParamSpec("gyro_enabled", True, "-", "emulate the on-stage gyro", "sec. 3.5.2"),
     ParamSpec(
+        "gyro_seed",
+        -1,
+        "-",
+        "run seed of the on-stage gyro's noise; -1: the node's seed",
+        "deterministic: the gyro may be seeded apart from the stage",
+        min=-1,
+        max=2**62,
+    ),
+    ParamSpec(
         "publish_imu",
         False,
         "-",
@@ -170,7 +180,7 @@ class MicroStageNode(EmulatorNode):
         self.gyro = (
             MemsGyro(
                 self.values_of(GYRO_SPECS),
-                seed=self.p["seed"],
+                seed=self.p["seed"] if self.p["gyro_seed"] < 0 else self.p["gyro_seed"],
                 temperature_c=self.p["temperature_c"],
             )
             if self.p["gyro_enabled"]

@@ -423,8 +423,10 @@ class MemsNode(Node):
     DIAGNOSTICS_TITLE: str | Callable[[dict], str] = ""
     #: Parameters that may be changed while the node runs (the others are set at start).
     RUNTIME_PARAMETERS: tuple[str, ...] = ()
-    #: The node's fully qualified name as hardware_id of its diagnostics status.
-    DIAGNOSTICS_HARDWARE_ID = False
+    #: The node's fully qualified name as hardware_id of its diagnostics status (the
+    #: status name starts with the node's plain name, the same for e.g. the estimators of
+    #: two devices: the hardware_id tells them apart in a recording).
+    DIAGNOSTICS_HARDWARE_ID = True
 
     def __init__(self, **node_kwargs) -> None:
         node_kwargs.setdefault("namespace", self.DEFAULT_NAMESPACE)

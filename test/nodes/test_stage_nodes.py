@@ -74,6 +74,139 @@ def test_graph_estimate_and_calibration(graph, yaml_path):
     assert ekf.diag.counters.get("rejected_frames", 0) == 0
 
 
+def test_insitu_mode_equals_core(graph, yaml_path):
+    """insitu: the node keeps the sweep, and once the stage's end-of-stream record announced
+    its end corrects wn, b_c from the sweep's channels (Chen 2018 eqs. 44-47) and publishes
+    the EKF on the corrected model (alpha = 1, beta = 0) frame by frame, equal to the core on
+    the same frames, with the input frames' indices and stamps."""
+    from mems_estimation.identification.stage_insitu import insitu_correct
+
+    ctx, ex, probe = graph
+    dev = MicroStageNode(
+        context=ctx,
+        drive_externally=True,
+        parameter_overrides=params(
+            seed=4, gyro_seed=9, n_trials=3, periods_per_trial=120, frame_size=20000
+        ),
+    )
+    ekf = StageEkfNode(context=ctx, parameter_overrides=params(params_yaml=yaml_path, insitu=True))
+    for n in (dev, ekf):
+        ex.add_node(n)
+    est, adc, drv = [], [], []
+    probe.create_subscription(AdcFrame, "/stage/adc", adc.append, FRAME_QOS)
+    probe.create_subscription(SignalFrame, "/stage/drive", drv.append, FRAME_QOS)
+    probe.create_subscription(StateEstimate, "/stage/estimate", est.append, FRAME_QOS)
+    assert spin_until(
+        ex,
+        lambda: (
+            dev.pub_adc.get_subscription_count() >= 2
+            and dev.pub_end_of_stream.get_subscription_count() >= 1
+            and ekf.pub.get_subscription_count() >= 1
+        ),
+    )
+    frames = 0
+    while dev.step():
+        frames += 1
+        spin_until(ex, lambda: ekf.frames_done >= frames, timeout=30)
+        if not dev.finished:
+            assert not est  # the sweep is processed only once complete
+    assert spin_until(ex, lambda: len(est) == frames and len(adc) == frames, timeout=30)
+    assert [m.first_sample_index for m in est] == [m.first_sample_index for m in adc]
+    assert [(m.header.stamp.sec, m.header.stamp.nanosec) for m in est] == [
+        (m.header.stamp.sec, m.header.stamp.nanosec) for m in adc
+    ]
+    x = np.concatenate([np.asarray(m.states).reshape(-1, 2) for m in est])
+    y = np.concatenate([adc_physical(m) for m in adc])
+    d = np.concatenate([signal_data(m) for m in drv])
+    yc = FeedthroughCanceller(4, 625e3).step(y, d[:, 1], d[:, 2])
+    m, _ = insitu_correct(load_model(yaml_path), yc, d[:, 0], d[:, 3], d[:, 4].astype(int), d[:, 2])
+    xr, _ = StageEkf(m).step(yc, d[:, 0], corrected=False)
+    np.testing.assert_array_equal(x, xr)
+    c = ekf.diag.counters
+    assert c["insitu_sweeps"] == 1 and c.get("rejected_frames", 0) == 0
+    assert c["insitu_wn_ratio"] == m.extra["insitu_wn_ratio"] != 1.0
+    assert c["insitu_b_c_ratio"] == m.extra["insitu_b_c_ratio"]
+    # a drive frame without the sweep's phase/trial channels is rejected and counted
+    bad_pub = probe.create_publisher(SignalFrame, "/stage/drive", FRAME_QOS)
+    assert spin_until(ex, lambda: bad_pub.get_subscription_count() >= 1)
+    bad = SignalFrame(
+        first_sample_index=10**9,
+        sample_rate_hz=625e3,
+        num_samples=2,
+        channel_names=["u", "v_bias", "f_drive"],
+        channel_units=["V", "V", "Hz"],
+    )
+    bad.data = array.array("d", [0.0, 1.0, 1700.0, 0.0, 1.0, 1700.0])
+    bad_pub.publish(bad)
+    assert spin_until(ex, lambda: ekf.diag.counters.get("rejected_frames", 0) == 1)
+
+
+def _insitu_chain(graph, yaml_path, ns: str, origin: str) -> tuple:
+    """Stage (``stamp_origin`` ``origin``), in-situ EKF and calibration node in ``ns``, the
+    sweep stepped through; (calibration node, its result after close)."""
+    ctx, ex, probe = graph
+    dev = MicroStageNode(
+        context=ctx,
+        namespace=ns,
+        drive_externally=True,
+        parameter_overrides=params(
+            seed=4,
+            gyro_seed=9,
+            n_trials=3,
+            periods_per_trial=120,
+            frame_size=20000,
+            stamp_origin=origin,
+        ),
+    )
+    ekf = StageEkfNode(
+        context=ctx,
+        namespace=ns,
+        parameter_overrides=params(device_namespace=ns, params_yaml=yaml_path, insitu=True),
+    )
+    cal = GyroCalibrationNode(
+        context=ctx, namespace=ns, parameter_overrides=params(device_namespace=ns, n_trials=3)
+    )
+    for n in (dev, ekf, cal):
+        ex.add_node(n)
+    assert spin_until(
+        ex,
+        lambda: (
+            dev.pub_adc.get_subscription_count() >= 1
+            and dev.pub_gyro.get_subscription_count() >= 1
+            and dev.pub_end_of_stream.get_subscription_count() >= 1
+            and ekf.pub.get_subscription_count() >= 1
+        ),
+    )
+    frames = 0
+    while dev.step():
+        frames += 1
+        spin_until(ex, lambda: ekf.frames_done >= frames, timeout=30)
+    assert spin_until(
+        ex,
+        lambda: cal.estimates_received == frames and cal.gyro_frames_received == frames,
+        timeout=30,
+    )
+    cal.close()
+    for n in (dev, ekf, cal):
+        ex.remove_node(n)
+    return dev, cal
+
+
+def test_calibration_with_stamps_from_the_wall_clock(graph, yaml_path):
+    """The in-situ EKF publishes every estimate after every gyro frame: the calibration node
+    takes the stage's time origin from the drive stream (live) and holds gyro frames that
+    arrive before any stage frame, so stamps from the wall-clock epoch (real-time runs) place
+    the gyro exactly as stamps from 0: the same pairs and eq. (27) result, bit for bit."""
+    dz, zero = _insitu_chain(graph, yaml_path, "/z", "zero")
+    dw, wall = _insitu_chain(graph, yaml_path, "/w", "wall")
+    assert dz.t0_ns == 0 and dw.t0_ns > 10**18  # ns since the epoch (2001 on)
+    assert wall.t0_ns == dw.t0_ns
+    assert zero.results and wall.results
+    assert wall.results[-1] == zero.results[-1]
+    assert zero.results[-1]["n"] == 3 and abs(zero.results[-1]["scale_factor"] - 1) < 0.02
+    assert wall.cal.pairs == zero.cal.pairs
+
+
 def test_refusals(ros_context, yaml_path, tmp_path):
     with pytest.raises(ParameterError, match="params_yaml"):
         StageEkfNode(

@@ -3,6 +3,7 @@ node graph (Chen 2018 ch. 3, Tables 3.4-3.6)."""
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 from figure_checks import assert_figures, met_of, verdict
 
@@ -68,12 +69,23 @@ def test_figures_as_data_and_every_miss_flagged(result):
     assert figs["scale_factor_error_rms"]["value"] == pytest.approx(result["sf_rms_ppm"])
 
 
+#: the drifting instances of the graph -> their figures' key (row 1 at both temperatures,
+#: row 2 at 35.7 C)
+DRIFTING_NS = {
+    "stage_d1": "drifting.stage_t1",
+    "stage_d2": "drifting.stage_t2",
+    "stage_d2r": "drifting.stage_t2.ref_t2",
+}
+
+
 @pytest.mark.slow
 def test_drifting_device_reported_honestly(tmp_path):
     """The default run adds the drifting device's table: its scale-factor error against
     <= 300 ppm (the in-situ corrected EKF, D_n and eta re-identified at 35.7 C with the
     reference: row 2), every miss marked; removing the capacitive channels moves the
-    35.7 C scale factor by >= 3000 ppm (the sensor carries the result)."""
+    35.7 C scale factor by >= 3000 ppm (the sensor carries the result). Rows 1 and 2 run
+    through the node graph (drifting stage nodes, in-situ EKF nodes, calibration nodes),
+    recorded losslessly, and equal the ROS-free cores on the same seeds."""
     from conftest import next_domain_id
 
     res = gyro_calibration.run(
@@ -94,6 +106,63 @@ def test_drifting_device_reported_honestly(tmp_path):
     assert figs["drifting.ablation_no_channels_35.7C"]["pass"] is True
     row1 = figs["drifting.scale_factor_error_rms.ref_t1_only"]
     assert row1["pass"] == (row1["value"] <= 300)
+    # rows 1 and 2 come from the graph: the drifting instances (in-situ EKF nodes) recorded
+    # losslessly, their published gyro_scale_factor the figures
+    from mems_sim.bag.player import read_messages
+
+    counts = res["recorder"]["counts"]
+    for ns in DRIFTING_NS:
+        for topic in ("adc", "drive", "truth", "estimate", "gyro/adc"):
+            assert counts[f"/{ns}/{topic}"] == res["published"][ns]
+        assert counts[f"/{ns}/gyro_scale_factor"] >= 1
+        assert res["rejected"][ns] == 0
+    assert all(g == 0 for g in res["recorder"]["gaps"].values())
+    assert not res["recorder"]["losses"]
+    topics = [f"/{ns}/gyro_scale_factor" for ns in DRIFTING_NS]
+    recorded = {t: m.values[0] for t, _, _, m in read_messages(str(tmp_path / "gc-1.mcap"), topics)}
+    for ns, key in DRIFTING_NS.items():
+        assert figs[f"{key}.scale_factor"]["value"] == recorded[f"/{ns}/gyro_scale_factor"]
+    # the stage node emulates the cores' calibration sweep sample for sample (same seeds):
+    # the graph's figures are the cores' in-situ calibration (Chen 2018 eqs. 44-47, 27)
+    import dataclasses
+
+    from mems_estimation.identification.stage_gyro_calibration import (
+        INSITU_PERIODS,
+        Plan,
+        identify_stage,
+        insitu_calibration,
+        retrain_at,
+    )
+
+    plan = Plan()
+    cal_plan = dataclasses.replace(plan, cal_periods=max(plan.cal_periods, INSITU_PERIODS))
+    m1, _ = identify_stage(1, plan, {})
+    m2 = retrain_at(m1, T2, 1, plan, {})
+    c1 = insitu_calibration({"ref_t1": (m1, "insitu")}, T1, 1, cal_plan, {})
+    c2 = insitu_calibration(
+        {"ref_t1": (m1, "insitu"), "ref_t2": (m2, "insitu")}, T2, 1, cal_plan, {}
+    )
+    cores = {
+        "stage_d1": ("drifting.stage_t1", c1["ref_t1"]),
+        "stage_d2": ("drifting.stage_t2", c2["ref_t1"]),
+        "stage_d2r": ("drifting.stage_t2.ref_t2", c2["ref_t2"]),
+    }
+    from mems_scenarios.base import topic_frames
+
+    for ns, (key, core) in cores.items():
+        # the in-situ EKF node's recorded estimates are the core's, bit for bit
+        est = topic_frames(tmp_path / "gc-1.mcap", f"/{ns}/estimate")["data"]
+        np.testing.assert_array_equal(est, core["x"])
+        assert figs[f"{key}.omega_rmse"]["value"] == core["eval"]["rmse"]
+        assert figs[f"{key}.alpha"]["value"] == core["eval"]["alpha"]
+        # eq. (27): the calibration node places the gyro samples on the stage index through
+        # their frames' integer-ns stamps, the core through exact times: ~1e-7 apart
+        assert figs[f"{key}.scale_factor"]["value"] == pytest.approx(
+            core["cal"]["scale_factor"], rel=2e-7
+        )
+        assert figs[f"{key}.scale_factor_error"]["value"] == pytest.approx(core["ppm"], abs=0.2)
+        for ratio in ("insitu_wn_ratio", "insitu_b_c_ratio"):
+            assert figs[f"{key}.{ratio}"]["value"] == core["model"].extra[ratio]
 
 
 def test_stage_sf_curve_scenario_short(tmp_path):
