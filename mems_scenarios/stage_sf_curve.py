@@ -5,23 +5,37 @@ sec. 3.6.3, at more temperatures than the thesis' two).
 Steps (all seeded; nothing reads the emulator's truth except the evaluation figures):
 
 1. identification of the stage at 22.9 C (:func:`identify_stage`: frequency sweep, LDV
-   training sweep, zero drive);
-2. per calibration temperature (default 20, 25, ..., 45 C): (D_n, eta) re-identified there
-   with the LDV-like reference (the thesis' procedure at its second temperature: labelled
-   "D_n, eta re-identified at each temperature"), a calibration sweep with the gyro, the
-   in-situ corrected EKF and eq. (27)
-   (:func:`mems_estimation.identification.stage_sf_curve.calibrate_point`), with a bootstrap
-   over the training trials (the re-identification) and over the calibration trials;
+   training sweep, zero drive), on the ROS-free cores;
+2. per calibration temperature (default 20, 25, ..., 45 C): (D_n [m], eta [-]) re-identified
+   there with the LDV-like reference (eq. 55; the thesis' procedure at its second
+   temperature: labelled "D_n, eta re-identified at each temperature") on the cores
+   (:func:`reidentify_point`); then the calibration sweep with the gyro through ONE node
+   graph (:func:`run_graph`): per temperature a drifting ``stage_node`` (namespace
+   ``/stage_<T>C``, e.g. ``/stage_20C``, ``/stage_32p5C``; seeded as the cores' sweep, so
+   its record equals theirs sample for sample), a ``stage_ekf_node`` in its in-situ mode
+   loading the model re-identified at that temperature (eqs. 44-47 on the whole sweep,
+   then the EKF of eqs. 48-53 on the corrected model) and a
+   ``stage_gyro_calibration_node`` publishing ``/stage_<T>C/gyro_scale_factor`` (eq. 27),
+   everything recorded to the MCAP file ``options.out``. The point SF(T_i) = k_I|S [-] is
+   the recorded ``gyro_scale_factor``; the bootstrap over the training trials (the
+   re-identification) and over the calibration trials runs on the cores, fed from the
+   recording (the cancelled ADC channels' harmonics) and the published peak-to-peak pairs
+   (:func:`graph_points`, :func:`bootstrap_point`);
 3. SF(T) fitted linearly in T (the emulated MPU-6500-like gyro's scale factor is linear in
    T) with its 95 % band; written as a calibration YAML (format
-   ``mems_emulator/gyro_sf_curve``, docs/stage.md) and plotted against the gyro's true
-   curve.
+   ``mems_emulator/gyro_sf_curve``) and plotted against the gyro's true curve.
 
-The study runs the ROS-free cores (no node graph: 6 temperatures x 2 sweeps), so it is not a
-``run_scenario`` scenario (those run and record a node graph): run it with ``python -m
+The graph's points equal the cores' (:func:`run_pipeline`,
+:func:`mems_estimation.identification.stage_sf_curve.sf_curve_study`, all on the cores) to
+~1e-7 relative: the estimates are the same bit for bit, and the calibration node places the
+gyro samples through their frames' integer-ns stamps, the core through exact times.
+
+It is not (yet) a ``run_scenario`` scenario: run it with ``python -m
 mems_scenarios.stage_sf_curve [--seed N] [--device-seed N] [--set stage.PARAM=VALUE ...]
-[--out DIR] [--json] [--no-plots]``; it writes the calibration YAML and the figure. Stage and gyro parameters: ``--set
-stage.PARAM=VALUE`` (any of the stage node's device and gyro parameters, e.g.
+[--out DIR] [--json] [--no-plots]`` (~1.2 min at the full plan); it writes the MCAP file
+``<out>/stage_sf_curve-<N>.mcap``, the calibration YAML and the figure. Stage and gyro
+parameters: ``--set stage.PARAM=VALUE`` (any of the stage node's device and gyro
+parameters, reaching every stage node of the graph and the cores alike, e.g.
 ``stage.freq_tempco_per_k``, ``stage.b_c_tempco_per_k``, ``stage.damping_ratio``,
 ``stage.gyro_sf_tempco_per_k``), ``--device-seed``; ``--temperature`` is refused (the
 scenario sets the temperatures). ``options.extra``: ``short`` (test plan, 3 temperatures,
@@ -34,12 +48,20 @@ from pathlib import Path
 
 import numpy as np
 
-from mems_estimation.identification.stage_gyro_calibration import T1, Plan
+from mems_estimation.filters.stage_ekf import save_model
+from mems_estimation.identification.stage_gyro_calibration import T1, Plan, identify_stage
 from mems_estimation.identification.stage_sf_curve import (
     COVER_TARGET,
     DEFAULT_TEMPERATURES,
     MAX_DEV_TARGET_PPM,
     RANGE_C,
+    CurvePoint,
+    bootstrap_point,
+    calibration_seeds,
+    evaluate_curve,
+    fit_sf_curve_points,
+    point_rng,
+    reidentify_point,
     save_yaml,
     sf_curve_study,
 )
@@ -57,39 +79,61 @@ DESCRIPTION = (
 DEFAULT_DURATION_S = round(6 * 7 * 600 / 1700.0, 3)
 #: bootstrap replicates per temperature
 N_BOOT = 100
-STAGE_FQN = "/stage/stage"
+#: topics recorded per stage instance
+RECORDED = ("adc", "drive", "truth", "estimate", "gyro/adc", "gyro_scale_factor", "temperature")
+#: samples per published frame
+FRAME = 20000
+#: the stage node's parameters that describe the device (the stage's physics, spreads and
+#: temperature coefficients, its gyro's): the ones ``--set stage.PARAM=V`` may set
+DEVICE_PARAMETERS = frozenset(s.name for s in STAGE_SPECS + GYRO_SPECS) - {
+    "idealised",
+    "temperature_c",
+}
 
 
-def stage_and_gyro_params(options) -> tuple[dict, dict]:
-    """Stage and gyro parameters from ``--set stage.PARAM=VALUE`` (matching the stage node
-    ``/stage/stage``) and ``--device-seed``; ScenarioError for anything else."""
+def namespace(temperature_c: float) -> str:
+    """The namespace of the stage instance at ``temperature_c`` [C]: ``stage_20C``,
+    ``stage_32p5C`` (a ROS name has no dot), ``stage_m5C``."""
+    return "stage_" + f"{temperature_c:g}".replace(".", "p").replace("-", "m") + "C"
+
+
+def stage_and_gyro_params(options, temperatures=DEFAULT_TEMPERATURES) -> tuple[dict, dict]:
+    """Stage and gyro parameters from ``--set stage.PARAM=VALUE`` (reaching every stage node
+    ``/stage_<T>C/stage`` of the run alike: the device is identified once, so graph and
+    cores must see the same one) and ``--device-seed``, for the cores (identification and
+    re-identification); the graph's stage nodes take the same overrides. ScenarioError for
+    anything else."""
     from mems_scenarios.base import ScenarioError
     from mems_sim.ros.params_file import node_matches
 
     stage_names = {s.name: s for s in STAGE_SPECS}
     gyro_names = {s.name: s for s in GYRO_SPECS}
+    fqns = [f"/{namespace(T)}/stage" for T in temperatures]
     sp, gp = {}, {}
     if options.temperature_c is not None:
         raise ScenarioError(
             f"{NAME}: --temperature does not apply: the scenario calibrates at "
-            f"{', '.join(f'{t:g}' for t in DEFAULT_TEMPERATURES)} C"
+            f"{', '.join(f'{t:g}' for t in temperatures)} C"
         )
     if options.device_seed is not None:
         sp["device_seed"] = int(options.device_seed)
     for o in options.overrides:
-        if not node_matches(o.node, STAGE_FQN):
-            raise ScenarioError(f"{o.where()}: {NAME} has one node, {STAGE_FQN}")
+        hits = [f for f in fqns if node_matches(o.node, f)]
+        if len(hits) < len(fqns):
+            raise ScenarioError(
+                f"{o.where()}: {NAME} takes device parameters of its stage nodes, all alike "
+                f"({', '.join(fqns)}): set stage.PARAM"
+            )
         if o.name in ("temperature_c", "idealised"):
             raise ScenarioError(f"{o.where()}: {NAME} sets {o.name} itself")
+        if o.name not in DEVICE_PARAMETERS:
+            raise ScenarioError(f"{o.where()}: the stage node has no device parameter {o.name!r}")
         specs = stage_names if o.name in stage_names else gyro_names
-        if o.name not in specs:
-            raise ScenarioError(f"{o.where()}: {STAGE_FQN} has no device parameter {o.name!r}")
         try:
             value = specs[o.name].validate(o.value)
         except Exception as exc:  # ParameterError: one line naming the range
             raise ScenarioError(f"{o.where()}: {exc}") from None
         (sp if specs is stage_names else gp)[o.name] = value
-        options.applied[(STAGE_FQN, o.name)] = (value, o.origin)
     return sp, gp
 
 
@@ -189,9 +233,252 @@ def run_pipeline(
     n_boot: int = N_BOOT,
     order: int = 1,
 ) -> dict:
-    """Steps 1-3 on the cores (:func:`sf_curve_study`) and the figure records."""
+    """Steps 1-3 all on the ROS-free cores (:func:`sf_curve_study`; no node graph) and the
+    figure records: the reference the graph's points equal."""
     res = sf_curve_study(seed, plan, stage_params, gyro_params, temperatures, n_boot, order)
     res["figures"] = figure_records(res, res["evaluation"])
+    return res
+
+
+def run_graph(options, plan: Plan, models: dict, out: Path) -> dict:
+    """Step 2 through one node graph, recorded to ``out``: per temperature T of ``models``
+    (T -> the stage model with D_n, eta re-identified at T: :func:`reidentify_point`) a
+    drifting ``stage_node`` in the namespace :func:`namespace` seeded as the cores'
+    calibration sweep (:func:`calibration_seeds`: its record equals the cores' sample for
+    sample), a ``stage_ekf_node`` in its in-situ mode loading that model's parameter YAML
+    (Chen 2018 eqs. 44-47: the sweep processed once the stage announced its end, then the
+    EKF of eqs. 48-53 on the corrected model) and a ``stage_gyro_calibration_node``
+    publishing ``/<ns>/gyro_scale_factor`` (eq. 27). Returns the published results (with
+    their peak-to-peak pairs), the true k_I(T) per namespace, the recorder's summary, the
+    frames published and rejected, the in-situ corrections, simulated and wall time [s]."""
+    import time
+
+    from mems_estimation.nodes.stage_ekf_node import StageEkfNode
+    from mems_estimation.nodes.stage_gyro_calibration_node import GyroCalibrationNode
+    from mems_scenarios.base import Progress, graph_for, output_path, publish_all
+    from mems_sim.nodes.stage_node import MicroStageNode
+
+    seed = int(options.seed)
+    layout: dict[str, tuple[dict, Path]] = {}
+    for T, model in models.items():
+        ns = namespace(T)
+        yaml_path = output_path(out, seed, f"-stage_params_{ns.removeprefix('stage_')}.yaml")
+        save_model(model, str(yaml_path))
+        stage_seed, gyro_seed = calibration_seeds(T, seed)
+        stage = dict(
+            seed=stage_seed,
+            gyro_seed=gyro_seed,
+            idealised=False,
+            temperature_c=float(T),
+            n_trials=plan.cal_trials,
+            periods_per_trial=plan.cal_periods,
+        )
+        layout[ns] = (stage, yaml_path)
+
+    graph = graph_for(options)
+    devs, ekfs, cals = {}, {}, {}
+    topics = [f"/{ns}/{t}" for ns in layout for t in (*RECORDED, "end_of_stream")]
+    topics.append("/diagnostics")
+    rec = None
+    try:
+        for ns, (stage, yaml_path) in layout.items():
+            devs[ns] = graph.add_device(
+                MicroStageNode,
+                dict(stage, frame_size=FRAME, frame_id=ns, publish_imu=bool(options.realtime)),
+                realtime=options.realtime,
+                namespace=ns,
+            )
+            ekfs[ns] = graph.node(
+                StageEkfNode,
+                dict(device_namespace=f"/{ns}", params_yaml=str(yaml_path), insitu=True),
+                namespace=ns,
+            )
+            cals[ns] = graph.node(
+                GyroCalibrationNode,
+                dict(device_namespace=f"/{ns}", n_trials=stage["n_trials"]),
+                namespace=ns,
+            )
+        rec = graph.recorder(str(out), topics=topics)
+        graph.spin_until(
+            lambda: (
+                all(
+                    d.pub_adc.get_subscription_count() >= 2
+                    and d.pub_gyro.get_subscription_count() >= 2
+                    # the in-situ EKF learns the sweep's end from the end-of-stream record
+                    and d.pub_end_of_stream.get_subscription_count() >= 2
+                    for d in devs.values()
+                )
+                and all(e.pub.get_subscription_count() >= 2 for e in ekfs.values())
+            ),
+            30.0,
+            "the recorder, EKF and calibration nodes to subscribe",
+        )
+        total = max(d.total_samples for d in devs.values()) / next(iter(devs.values())).fs
+        progress = Progress(total, options.progress, NAME)
+        wall0 = time.monotonic()
+        publish_all(
+            graph,
+            list(devs.values()),
+            lambda d: ekfs[d.get_namespace().lstrip("/")].frames_done,
+            progress,
+            realtime=options.realtime,
+            realtime_timeout_s=total * 50 + 120,
+            window=20,
+            drain_timeout_s=120.0,
+        )
+        wall = time.monotonic() - wall0
+        progress.close()
+        # every estimate published (once the sweep is processed) and taken
+        graph.spin_until(
+            lambda: all(
+                ekfs[ns].estimates_published >= ekfs[ns].frames_done
+                and cals[ns].estimates_received >= ekfs[ns].estimates_published
+                and cals[ns].gyro_frames_received >= rec.received(f"/{ns}/gyro/adc")
+                for ns in layout
+            ),
+            120.0,
+            "the calibration nodes to receive the last estimates and gyro frames",
+        )
+        for c in cals.values():
+            c.close()
+        graph.spin_until(
+            lambda: all(rec.received(f"/{ns}/gyro_scale_factor") >= 1 for ns in layout),
+            30.0,
+            "the calibration results",
+        )
+        graph.spin_until(
+            lambda: all(rec.received(f"/{ns}/estimate") >= ekfs[ns].frames_done for ns in layout),
+            60.0,
+            "the last estimates",
+        )
+        k_true = {ns: devs[ns].gyro.scale_factor() for ns in layout}
+        results = {ns: cals[ns].results[-1] for ns in layout}
+        rejected = {ns: ekfs[ns].diag.counters.get("rejected_frames", 0) for ns in layout}
+        published = {ns: d.frames_published for ns, d in devs.items()}
+        insitu = {
+            ns: {
+                k: ekfs[ns].diag.counters.get(k)
+                for k in ("insitu_wn_ratio", "insitu_b_c_ratio", "insitu_sweeps")
+            }
+            for ns in layout
+        }
+    finally:
+        summary = None
+        if rec is not None:  # None when building the graph failed
+            rec.close()
+            summary = dict(counts=rec.counts(), gaps=rec.gaps(), losses=rec.losses())
+        graph.close()
+    return dict(
+        k_true=k_true,
+        results=results,
+        recorder=summary,
+        published=published,
+        rejected=rejected,
+        insitu=insitu,
+        wall_s=wall,
+        simulated_s=total,
+    )
+
+
+def graph_points(
+    out: Path, g: dict, models: dict, fits: dict, seed: int, n_boot: int
+) -> list[CurvePoint]:
+    """The calibration points from the recording ``out`` and the graph's results ``g``
+    (:func:`run_graph`): SF(T) = k_I|S [-] and its standard error are the recorded
+    ``gyro_scale_factor`` (eq. 27); the omega RMSE [rad/s] and alpha of the recorded
+    estimates against the recorded truth; the bootstrap (:func:`bootstrap_point`) on the
+    same data: the recorded ADC channels, feedthrough-cancelled, give the per-trial
+    harmonics and pooled response G of the in-situ correction (eqs. 44, 46-47, as the EKF
+    node computed them), the calibration node's published pairs the peak-to-peak pairs,
+    ``fits`` (T -> the training trials' fits) the re-identification's trials."""
+    from mems_estimation.filters.stage_ekf import FeedthroughCanceller
+    from mems_estimation.identification.stage_identification import evaluate
+    from mems_estimation.identification.stage_insitu import insitu_correct
+    from mems_scenarios.base import ScenarioError, topics_frames
+    from mems_sim.bag.player import read_messages
+
+    nss = {namespace(T): T for T in models}
+    fr = topics_frames(
+        out, [f"/{ns}/{t}" for ns in nss for t in ("adc", "drive", "truth", "estimate")]
+    )
+    sf_topics = [f"/{ns}/gyro_scale_factor" for ns in nss]
+    recorded = {t: m for t, _, _, m in read_messages(str(out), sf_topics)}  # the last one
+    pts = []
+    for ns, T in nss.items():
+        m = models[T]
+        if f"/{ns}/gyro_scale_factor" not in recorded:
+            raise ScenarioError(f"{out}: no gyro_scale_factor recorded for /{ns}")
+        msg = recorded[f"/{ns}/gyro_scale_factor"]
+        drv, adc = fr[f"/{ns}/drive"], fr[f"/{ns}/adc"]
+        est, tru = fr[f"/{ns}/estimate"]["data"], fr[f"/{ns}/truth"]
+
+        def col(frame, name):
+            return np.ascontiguousarray(frame["data"][:, list(frame["names"]).index(name)])
+
+        u, vb, fd, phase = (col(drv, c) for c in ("u", "v_bias", "f_drive", "phase"))
+        trial = col(drv, "trial").astype(int)
+        y = np.ascontiguousarray(adc["data"][:, [list(adc["names"]).index(c) for c in m.channels]])
+        yc = FeedthroughCanceller(len(m.channels), m.fs).step(y, vb, fd)
+        _, rep = insitu_correct(m, yc, u, phase, trial, fd)
+        n = min(len(est), len(phase))
+        ev = evaluate(est[:n, 1], col(tru, "omega_y")[:n], phase[:n], trial[:n])
+        boot = bootstrap_point(
+            m,
+            fits[T],
+            rep["harmonics"],
+            rep["G"],
+            g["results"][ns]["pairs"],
+            n_boot,
+            point_rng(seed, T),
+        )
+        pts.append(
+            CurvePoint(
+                float(T),
+                float(msg.values[0]),
+                float(msg.standard_errors[0]),
+                boot,
+                float(g["k_true"][ns]),
+                float(ev["rmse"]),
+                float(ev["alpha"]),
+                complex(rep["G"]),
+                m.gap,
+                m.eta,
+                g["results"][ns]["pairs"],
+            )
+        )
+    return pts
+
+
+def run_graph_pipeline(
+    options,
+    out: Path,
+    plan: Plan,
+    stage_params: dict,
+    gyro_params: dict,
+    temperatures,
+    n_boot: int,
+    order: int,
+) -> dict:
+    """Steps 1-3 with step 2 through the node graph: the identification at 22.9 C and the
+    (D_n, eta) re-identification per temperature on the cores (:func:`identify_stage`,
+    :func:`reidentify_point`), the calibration sweeps through one recorded graph
+    (:func:`run_graph`), the points from the recording (:func:`graph_points`), the fit
+    and its evaluation; the figure records."""
+    seed = int(options.seed)
+    model, _ = identify_stage(seed, plan, stage_params)
+    models, fits = {}, {}
+    for T in temperatures:
+        models[T], fits[T] = reidentify_point(model, T, seed, plan, stage_params)
+    g = run_graph(options, plan, models, out)
+    pts = graph_points(out, g, models, fits, seed, n_boot)
+    res = {"points": pts, "curve": fit_sf_curve_points(pts, order), "model": model}
+    res["gyro_params"] = gyro_params
+    res["graph"] = g
+    res["evaluation"] = evaluate_curve(res["curve"], gyro_params)
+    res["figures"] = figure_records(res, res["evaluation"]) + [
+        Figure("graph.simulated_time", g["simulated_s"], "s"),
+        Figure("graph.wall_time", g["wall_s"], "s"),
+    ]
     return res
 
 
@@ -240,26 +527,32 @@ def table_rows(res: dict) -> list[list[str]]:
 
 
 def run(options) -> dict:
-    """The study ``stage_sf_curve``: identification, calibration at every temperature,
-    SF(T) fit, YAML and figure."""
+    """The study ``stage_sf_curve``: identification and re-identification per temperature
+    on the cores, the calibration sweeps through the node graph recorded to
+    ``options.out``, SF(T) fit, YAML and figure."""
     from mems_scenarios.base import ScenarioError, format_table, output_path
 
     if options.duration_s not in (None, 0.0):
         raise ScenarioError(f"{NAME}: the duration follows from the drive schedules; omit it")
-    sp, gp = stage_and_gyro_params(options)
     short = bool(options.extra.get("short"))
     plan = Plan.short() if short else Plan()
     temps = tuple(
-        options.extra.get("temperatures") or ((20.0, 32.5, 45.0) if short else DEFAULT_TEMPERATURES)
+        float(t)
+        for t in options.extra.get("temperatures")
+        or ((20.0, 32.5, 45.0) if short else DEFAULT_TEMPERATURES)
     )
     n_boot = int(options.extra.get("n_boot") or (20 if short else N_BOOT))
     order = int(options.extra.get("order") or 1)
     if len(temps) < order + 2 or min(temps) < -60 or max(temps) > 150:
         raise ScenarioError(f"{NAME}: needs >= {order + 2} temperatures in [-60, 150] C")
+    if len({namespace(t) for t in temps}) < len(temps):
+        raise ScenarioError(f"{NAME}: the temperatures must be distinct")
+    sp, gp = stage_and_gyro_params(options, temps)
     seed = int(options.seed)
-    res = run_pipeline(seed, plan, sp, gp, temps, n_boot, order)
     out = Path(options.out or Path("runs") / f"{NAME}-{seed}.mcap")
     out.parent.mkdir(parents=True, exist_ok=True)
+    res = run_graph_pipeline(options, out, plan, sp, gp, temps, n_boot, order)
+    g = res["graph"]
     yaml_path = output_path(out, seed, "-sf_curve.yaml")
     save_yaml(
         res["curve"],
@@ -283,19 +576,24 @@ def run(options) -> dict:
     )
     table += (
         "\nSF(T) from D_n, eta re-identified at each temperature with the LDV-like "
-        f"reference; calibration YAML: {yaml_path}"
+        "reference (cores); calibration sweeps through the node graph "
+        f"({', '.join('/' + namespace(t) for t in temps)}), recorded to {out}; "
+        f"calibration YAML: {yaml_path}"
     )
     return {
         "table": table,
         "figures": res["figures"],
-        "duration_s": len(temps)
-        * (plan.train_trials * plan.train_periods + plan.cal_trials * plan.cal_periods)
-        / 1700.0,
-        "mcap": str(yaml_path),
-        "recorder": {},
+        "duration_s": g["simulated_s"],
+        "wall_s": g["wall_s"],
+        "mcap": str(out),
+        "recorder": g["recorder"],
+        "published": g["published"],
+        "rejected": g["rejected"],
+        "insitu": g["insitu"],
         "figure": ", ".join(str(p) for p in plots),
         "curve": res["curve"],
         "points": res["points"],
+        "model": res["model"],
         "evaluation": res["evaluation"],
         "yaml": str(yaml_path),
         "sf_max_dev_ppm": res["evaluation"]["max_dev_ppm"],

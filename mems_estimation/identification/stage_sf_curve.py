@@ -12,6 +12,11 @@ temperature, 22.9 C):
    frequency is re-measured from the capacitive channels (eqs. 44, 46-47; eq. 34), the EKF
    (eqs. 48-53) runs on the corrected model, and eq. (27) gives SF(T_i) = k_I|S.
 
+Step 1 is :func:`reidentify_point`, step 2 on the cores :func:`calibrate_point` (a node
+graph runs the same sweep from :func:`calibration_seeds` with the in-situ EKF and
+calibration nodes instead), the bootstrap below :func:`bootstrap_point`, given step 1's
+results and the sweep's (either path's).
+
 SF(T) is then fitted by least squares as a polynomial in T - t_ref (default order 1: the
 MPU-6500-like gyro's scale factor is linear in T by construction, k_I(T) = k_ref (1 + c_k
 (T - T_ref)), so a quadratic term has no physical counterpart and only widens the band at
@@ -74,7 +79,13 @@ __all__ = [
     "stream_seed",
     "SensorBootstrap",
     "CurvePoint",
+    "reidentify_point",
+    "calibration_seeds",
+    "calibration_devices",
+    "bootstrap_point",
+    "point_rng",
     "calibrate_point",
+    "fit_sf_curve_points",
     "SfCurve",
     "fit_sf_curve",
     "sf_curve",
@@ -194,21 +205,18 @@ def _resample(rng: np.random.Generator, n: int, distinct: int = 1) -> np.ndarray
             return i
 
 
-def calibrate_point(
+def reidentify_point(
     model: StageModel,
     temperature_c: float,
     seed: int,
     plan: Plan,
     stage_params: dict | None = None,
-    gyro_params: dict | None = None,
-    n_boot: int = 100,
-    rng: np.random.Generator | None = None,
-) -> CurvePoint:
-    """Steps 1-2 of the module doc at one temperature, with ``n_boot`` bootstrap
-    replicates (module doc). ``model``: the stage model identified at the training
-    temperature (:func:`mems_estimation.identification.stage_gyro_calibration.identify_stage`).
-    Records: :func:`stream_seed` (training sweep, calibration sweep, gyro)."""
-    rng = rng or np.random.default_rng([int(seed), int(round(temperature_c * 100))])
+) -> tuple[StageModel, list]:
+    """Step 1 of the module doc at one temperature: the sensor parameters (D_n [m], eta
+    [-]) per channel re-identified at ``temperature_c`` [C] with the LDV-like reference
+    (eq. 55) from a training amplitude sweep (record :func:`stream_seed` k = 0). Returns
+    (the model of the training temperature with those D_n, eta: the model the calibration
+    sweep's in-situ EKF starts from, the training trials' fits the bootstrap resamples)."""
     sp = dict(stage_params or {}, temperature_c=temperature_c)
     tr = record(
         MicroStage(
@@ -230,14 +238,94 @@ def calibrate_point(
     mT = copy.deepcopy(model)
     mT.gap, mT.eta = gaps, etas
     mT.extra = dict(model.extra, temperature_c=float(temperature_c))
+    return mT, fits
+
+
+def calibration_seeds(temperature_c: float, seed: int) -> tuple[int, int]:
+    """Noise seeds (stage, gyro) of the calibration sweep at ``temperature_c`` [C] of the
+    run ``seed`` (:func:`stream_seed` k = 1, 2; a node graph that emulates the same sweep
+    seeds its stage node's ``seed`` and ``gyro_seed`` with them)."""
+    return stream_seed(seed, temperature_c, 1), stream_seed(seed, temperature_c, 2)
+
+
+def calibration_devices(
+    temperature_c: float,
+    seed: int,
+    plan: Plan,
+    stage_params: dict | None = None,
+    gyro_params: dict | None = None,
+) -> tuple[MicroStage, MemsGyro]:
+    """Step 2's devices at ``temperature_c`` [C]: the stage driven by the calibration
+    amplitude sweep (``plan.cal_trials`` x ``plan.cal_periods`` periods) and its gyro,
+    seeded by :func:`calibration_seeds`."""
+    sp = dict(stage_params or {}, temperature_c=temperature_c)
+    stage_seed, gyro_seed = calibration_seeds(temperature_c, seed)
     stage = MicroStage(
         sp,
         DriveSchedule.amplitude_sweep(n_trials=plan.cal_trials, periods=plan.cal_periods),
-        seed=stream_seed(seed, temperature_c, 1),
+        seed=stage_seed,
     )
-    gyro = MemsGyro(
-        gyro_params, seed=stream_seed(seed, temperature_c, 2), temperature_c=temperature_c
-    )
+    return stage, MemsGyro(gyro_params, seed=gyro_seed, temperature_c=temperature_c)
+
+
+def bootstrap_point(
+    model_t: StageModel,
+    fits: list,
+    harmonics: list,
+    G: complex,
+    pairs: list,
+    n_boot: int,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """The bootstrap replicates (``n_boot``,) of SF = k_I|S at one temperature (module
+    doc), given step 1's results (``model_t`` with the re-identified D_n, eta, the training
+    trials' ``fits``: :func:`reidentify_point`) and the calibration sweep's: the per-trial
+    ``harmonics`` of the cancelled channels and the pooled response ``G`` [rad/V] of the
+    in-situ correction (eqs. 44, 46-47;
+    :func:`mems_estimation.identification.stage_insitu.insitu_correct`) and eq. (27)'s
+    peak-to-peak ``pairs`` (dicts with ``segment``, ``stage_pp`` [rad/s], ``gyro_pp``
+    [rad/s])."""
+    segs = [h["segment"] for h in harmonics]
+    by_seg = {p["segment"]: p for p in pairs}
+    spp = np.array([by_seg[s]["stage_pp"] for s in segs])
+    gpp = np.array([by_seg[s]["gyro_pp"] for s in segs])
+    sb = SensorBootstrap(fits, model_t.limits, model_t.gap)
+    boot = np.empty(n_boot)
+    mb = copy.deepcopy(model_t)
+    for b in range(n_boot):
+        mb.gap, mb.eta = sb.identify(np.bincount(_resample(rng, len(fits)), minlength=len(fits)))
+        ph = phasors_from_harmonics(harmonics, mb)
+        ic = _resample(rng, len(harmonics), 3)
+        Gb = pooled_response([ph[i] for i in ic])
+        boot[b] = least_squares_eq27(spp[ic] * abs(Gb) / abs(G), gpp[ic])["scale_factor"]
+    return boot
+
+
+def point_rng(seed: int, temperature_c: float) -> np.random.Generator:
+    """The bootstrap's generator at one temperature of the run ``seed``."""
+    return np.random.default_rng([int(seed), int(round(temperature_c * 100))])
+
+
+def calibrate_point(
+    model: StageModel,
+    temperature_c: float,
+    seed: int,
+    plan: Plan,
+    stage_params: dict | None = None,
+    gyro_params: dict | None = None,
+    n_boot: int = 100,
+    rng: np.random.Generator | None = None,
+) -> CurvePoint:
+    """Steps 1-2 of the module doc at one temperature on the ROS-free cores, with
+    ``n_boot`` bootstrap replicates (module doc). ``model``: the stage model identified at
+    the training temperature
+    (:func:`mems_estimation.identification.stage_gyro_calibration.identify_stage`).
+    Step 1: :func:`reidentify_point`; step 2: the sweep of :func:`calibration_devices`, the
+    in-situ correction (eqs. 44-47), the EKF (eqs. 48-53) on the corrected model and eq.
+    (27); the bootstrap: :func:`bootstrap_point`."""
+    rng = rng or point_rng(seed, temperature_c)
+    mT, fits = reidentify_point(model, temperature_c, seed, plan, stage_params)
+    stage, gyro = calibration_devices(temperature_c, seed, plan, stage_params, gyro_params)
     rec = record(stage, gyro)
     yc = cancelled(rec)
     mc, rep = insitu_correct(mT, yc, rec["u"], rec["phase"], rec["segment"], rec["f_drive"])
@@ -245,21 +333,7 @@ def calibrate_point(
     ev = evaluate(x[:, 1], rec["omega"][:, 0], rec["phase"], rec["segment"])
     cal = calibrate(rec, x[:, 1])
     del rec, yc, x
-    harm = rep["harmonics"]
-    G0 = rep["G"]
-    segs = [h["segment"] for h in harm]
-    pairs = {p["segment"]: p for p in cal["pairs"]}
-    spp = np.array([pairs[s]["stage_pp"] for s in segs])
-    gpp = np.array([pairs[s]["gyro_pp"] for s in segs])
-    sb = SensorBootstrap(fits, model.limits, gaps)
-    boot = np.empty(n_boot)
-    mb = copy.deepcopy(mT)
-    for b in range(n_boot):
-        mb.gap, mb.eta = sb.identify(np.bincount(_resample(rng, len(fits)), minlength=len(fits)))
-        ph = phasors_from_harmonics(harm, mb)
-        ic = _resample(rng, len(harm), 3)
-        Gb = pooled_response([ph[i] for i in ic])
-        boot[b] = least_squares_eq27(spp[ic] * abs(Gb) / abs(G0), gpp[ic])["scale_factor"]
+    boot = bootstrap_point(mT, fits, rep["harmonics"], rep["G"], cal["pairs"], n_boot, rng)
     return CurvePoint(
         float(temperature_c),
         float(cal["scale_factor"]),
@@ -268,9 +342,9 @@ def calibrate_point(
         float(gyro.scale_factor()),
         float(ev["rmse"]),
         float(ev["alpha"]),
-        complex(G0),
-        gaps,
-        etas,
+        complex(rep["G"]),
+        mT.gap,
+        mT.eta,
         cal["pairs"],
     )
 
@@ -383,13 +457,17 @@ def sf_curve(
         calibrate_point(model, T, seed, plan, stage_params, gyro_params, n_boot)
         for T in temperatures
     ]
-    curve = fit_sf_curve(
-        [p.temperature_c for p in pts],
-        [p.scale_factor for p in pts],
-        np.column_stack([p.boot for p in pts]),
+    return {"points": pts, "curve": fit_sf_curve_points(pts, order)}
+
+
+def fit_sf_curve_points(points: Sequence[CurvePoint], order: int = 1) -> SfCurve:
+    """:func:`fit_sf_curve` through calibration points (their SF and bootstrap replicates)."""
+    return fit_sf_curve(
+        [p.temperature_c for p in points],
+        [p.scale_factor for p in points],
+        np.column_stack([p.boot for p in points]),
         order,
     )
-    return {"points": pts, "curve": curve}
 
 
 # ------------------------------------------------------------------------------ YAML

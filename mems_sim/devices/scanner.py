@@ -574,6 +574,25 @@ def _accel(th, om, v2, tau_n, J, k, b, dc0, dth0, thth):
     return (tq + tau_n - b * om - k * th) / J
 
 
+@numba.njit(cache=True, inline="always")
+def rk4_step(th, om, v2, tn, hs, J, k, b, dc0, dth0, thth):
+    """One classical RK4 step of eq. (66) over hs [s] with V^2 = v2 [V^2] and the noise
+    torque tn [N m] held: (theta [rad], omega [rad/s]) after the step."""
+    a1 = _accel(th, om, v2, tn, J, k, b, dc0, dth0, thth)
+    t2 = th + 0.5 * hs * om
+    o2 = om + 0.5 * hs * a1
+    a2 = _accel(t2, o2, v2, tn, J, k, b, dc0, dth0, thth)
+    t3 = th + 0.5 * hs * o2
+    o3 = om + 0.5 * hs * a2
+    a3 = _accel(t3, o3, v2, tn, J, k, b, dc0, dth0, thth)
+    t4 = th + hs * o3
+    o4 = om + hs * a3
+    a4 = _accel(t4, o4, v2, tn, J, k, b, dc0, dth0, thth)
+    th = th + hs / 6.0 * (om + 2.0 * o2 + 2.0 * o3 + o4)
+    om = om + hs / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+    return th, om
+
+
 @numba.njit(cache=True)
 def _mech_run(th, om, v, tau, h, m, J, k, b, dc0, dth0, thth, out_th, out_om):
     """RK4 over each sample interval with held v[i], tau[i]; out[i] = state at t_i."""
@@ -584,18 +603,7 @@ def _mech_run(th, om, v, tau, h, m, J, k, b, dc0, dth0, thth, out_th, out_om):
         v2 = v[i] * v[i]
         tn = tau[i]
         for _ in range(m):
-            a1 = _accel(th, om, v2, tn, J, k, b, dc0, dth0, thth)
-            t2 = th + 0.5 * hs * om
-            o2 = om + 0.5 * hs * a1
-            a2 = _accel(t2, o2, v2, tn, J, k, b, dc0, dth0, thth)
-            t3 = th + 0.5 * hs * o2
-            o3 = om + 0.5 * hs * a2
-            a3 = _accel(t3, o3, v2, tn, J, k, b, dc0, dth0, thth)
-            t4 = th + hs * o3
-            o4 = om + hs * a3
-            a4 = _accel(t4, o4, v2, tn, J, k, b, dc0, dth0, thth)
-            th = th + hs / 6.0 * (om + 2.0 * o2 + 2.0 * o3 + o4)
-            om = om + hs / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+            th, om = rk4_step(th, om, v2, tn, hs, J, k, b, dc0, dth0, thth)
     return th, om
 
 

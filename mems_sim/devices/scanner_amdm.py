@@ -53,7 +53,7 @@ import numba
 import numpy as np
 import scipy.signal
 
-from mems_sim.devices.scanner import ScannerParams, _accel, capacitance
+from mems_sim.devices.scanner import ScannerParams, capacitance, rk4_step
 from mems_sim.params import (
     AIR_DAMPING_TEMPCO,
     SILICON_EXPANSION_TEMPCO,
@@ -745,18 +745,7 @@ def _drive_mechanics(
             omega[kk] = om
         v2 = vm * vm
         tn = tau[i] if noisy else 0.0
-        a1 = _accel(th, om, v2, tn, J, k, b, dc0, dth0, thth)
-        t2 = th + 0.5 * hs * om
-        o2 = om + 0.5 * hs * a1
-        a2 = _accel(t2, o2, v2, tn, J, k, b, dc0, dth0, thth)
-        t3 = th + 0.5 * hs * o2
-        o3 = om + 0.5 * hs * a2
-        a3 = _accel(t3, o3, v2, tn, J, k, b, dc0, dth0, thth)
-        t4 = th + hs * o3
-        o4 = om + hs * a3
-        a4 = _accel(t4, o4, v2, tn, J, k, b, dc0, dth0, thth)
-        th = th + hs / 6.0 * (om + 2.0 * o2 + 2.0 * o3 + o4)
-        om = om + hs / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+        th, om = rk4_step(th, om, v2, tn, hs, J, k, b, dc0, dth0, thth)
     return th, om
 
 

@@ -110,6 +110,10 @@ def test_foxglove_client_decodes_the_estimate_during_a_scenario(tmp_path, subpro
             "--duration",
             "2",  # the longest this scenario allows: the view closes with the scenario
             "--realtime",
+            # paced at a quarter of real time (8 s of graph), so that a loaded machine's
+            # slow discovery by the client does not outlast the run
+            "--set",
+            "scanner.realtime_factor=0.25",
             "--live-view",
             "0",
             "--out",
