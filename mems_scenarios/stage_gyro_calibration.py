@@ -61,6 +61,7 @@ from mems_estimation.identification.stage_gyro_calibration import (
 )
 from mems_estimation.identification.stage_identification import evaluate, fold_period
 from mems_scenarios.figures import Figure, cell, is_finite, met_cell
+from mems_scenarios.stage_graph import FRAME, RECORDED, run_stage_graph  # noqa: F401  (FRAME, RECORDED: public names of the scenario)
 from mems_sim.devices.stage import STAGE_SPECS, MicroStage, off_axis_rejection_worst
 from mems_sim.devices.stage_gyro import GYRO_SPECS
 
@@ -215,8 +216,6 @@ INSTANCES = {"stage_t1": T1, "stage_t2": T2}
 DRIFTING = {"stage_d1": (T1, T1), "stage_d2": (T2, T1), "stage_d2r": (T2, T2)}
 #: row of the drifting device's table each instance gives
 DRIFTING_ROW = {"stage_d1": "ref_t1", "stage_d2": "ref_t1", "stage_d2r": "ref_t2"}
-RECORDED = ("adc", "drive", "truth", "estimate", "gyro/adc", "gyro_scale_factor", "temperature")
-FRAME = 20000
 #: the stage node's parameters that describe the device: the stage's physics, spreads and
 #: temperature coefficients (``freq_tempco_per_k`` of wn, ``b_c_tempco_per_k`` of the
 #: actuator gain b_c of eq. 33, ``damping_ratio`` zeta, ...) and its gyro's. A ``--set
@@ -328,10 +327,7 @@ def run_graph(
     none of the user's overrides of :data:`DEVICE_PARAMETERS` (the drifting ones do)."""
     INSTANCES = instances or globals()["INSTANCES"]
 
-    from mems_estimation.nodes.stage_ekf_node import StageEkfNode
-    from mems_estimation.nodes.stage_gyro_calibration_node import GyroCalibrationNode
-    from mems_scenarios.base import Progress, graph_for, output_path, publish_all
-    from mems_sim.nodes.stage_node import MicroStageNode
+    from mems_scenarios.base import output_path
 
     seed = int(options.seed)
     # namespace -> (stage node parameters, parameter YAML of its EKF, EKF parameters)
@@ -364,135 +360,17 @@ def run_graph(
             )
             layout[ns] = (stage, yaml_path, {"insitu": True})
 
-    graph = graph_for(options)
-    devs, ekfs, cals = {}, {}, {}
-    topics = [f"/{ns}/{t}" for ns in layout for t in (*RECORDED, "end_of_stream")]
-    topics.append("/diagnostics")
-    rec = None
-    try:
-        for ns, (stage, yaml_path, ekf_params) in layout.items():
-            devs[ns] = graph.add_device(
-                MicroStageNode,
-                dict(
-                    stage,
-                    frame_size=FRAME,
-                    frame_id=ns,
-                    publish_imu=bool(options.realtime),
-                ),
-                realtime=options.realtime,
-                namespace=ns,
-                shielded=shielded.get(ns, frozenset()),
-            )
-            ekfs[ns] = graph.node(
-                StageEkfNode,
-                dict(device_namespace=f"/{ns}", params_yaml=str(yaml_path), **ekf_params),
-                namespace=ns,
-            )
-            cals[ns] = graph.node(
-                GyroCalibrationNode,
-                dict(device_namespace=f"/{ns}", n_trials=stage["n_trials"]),
-                namespace=ns,
-            )
-        rec = graph.recorder(str(out), topics=topics)
-
-        def delivered(d) -> int:
-            """Frames the device's EKF took (the recorder counts in the skeleton)."""
-            return ekfs[d.get_namespace().lstrip("/")].frames_done
-
-        graph.spin_until(
-            lambda: (
-                all(
-                    d.pub_adc.get_subscription_count() >= 2
-                    and d.pub_gyro.get_subscription_count() >= 2
-                    # the in-situ EKF learns the sweep's end from the end-of-stream record
-                    and d.pub_end_of_stream.get_subscription_count()
-                    >= (2 if ekfs[ns].insitu else 1)
-                    for ns, d in devs.items()
-                )
-                and all(e.pub.get_subscription_count() >= 2 for e in ekfs.values())
-            ),
-            30.0,
-            "the recorder, EKF and calibration nodes to subscribe",
-        )
-        total = max(d.total_samples for d in devs.values()) / next(iter(devs.values())).fs
-        progress = Progress(total, options.progress, NAME)
-        import time as _time
-
-        wall0 = _time.monotonic()
-        publish_all(
-            graph,
-            list(devs.values()),
-            delivered,
-            progress,
-            realtime=options.realtime,
-            realtime_timeout_s=total * 50 + 120,
-            window=20,
-            drain_timeout_s=120.0,
-        )
-        wall = _time.monotonic() - wall0
-        progress.close()
-        # every estimate published (in-situ: once the sweep is processed) and taken
-        graph.spin_until(
-            lambda: all(
-                ekfs[ns].estimates_published >= ekfs[ns].frames_done
-                and cals[ns].estimates_received >= ekfs[ns].estimates_published
-                and cals[ns].gyro_frames_received >= rec.received(f"/{ns}/gyro/adc")
-                for ns in layout
-            ),
-            120.0,
-            "the calibration nodes to receive the last estimates and gyro frames",
-        )
-        for ns, c in cals.items():
-            c.close()
-        graph.spin_until(
-            lambda: all(rec.received(f"/{ns}/gyro_scale_factor") >= 1 for ns in layout),
-            30.0,
-            "the calibration results",
-        )
-        graph.spin_until(
-            lambda: all(rec.received(f"/{ns}/estimate") >= ekfs[ns].frames_done for ns in layout),
-            60.0,
-            "the last estimates",
-        )
-        k_true = {ns: devs[ns].gyro.scale_factor() for ns in layout}
-        results = {ns: cals[ns].results[-1] for ns in layout}
-        rejected = {ns: ekfs[ns].diag.counters.get("rejected_frames", 0) for ns in layout}
-        published = {ns: d.frames_published for ns, d in devs.items()}
-        insitu = {
-            ns: {
-                k: ekfs[ns].diag.counters[k]
-                for k in ("insitu_wn_ratio", "insitu_b_c_ratio", "insitu_sweeps")
-            }
-            for ns in layout
-            if ekfs[ns].insitu
-        }
-    finally:
-        summary = None
-        if rec is not None:  # None when building the graph failed
-            rec.close()
-            summary = dict(counts=rec.counts(), gaps=rec.gaps(), losses=rec.losses())
-        graph.close()
-    return dict(
-        k_true=k_true,
-        results=results,
-        recorder=summary,
-        published=published,
-        rejected=rejected,
-        insitu=insitu,
-        wall_s=wall,
-        simulated_s=total,
-    )
+    return run_stage_graph(options, layout, out, NAME, shielded)
 
 
 def _recorded_run(out: Path, g: dict, ns: str) -> dict:
     """One instance's figures from the recorded MCAP (estimate, truth, drive: omega RMSE,
     alpha, beta over one averaged period) and its published calibration result (eq. 27),
     with the true gyro scale factor and the error [ppm]."""
-    from mems_scenarios.base import topic_frames
+    from mems_scenarios.base import topics_frames
 
-    est = topic_frames(out, f"/{ns}/estimate")["data"]
-    tru = topic_frames(out, f"/{ns}/truth")["data"]
-    drv = topic_frames(out, f"/{ns}/drive")["data"]
+    fr = topics_frames(out, [f"/{ns}/{t}" for t in ("estimate", "truth", "drive")])
+    est, tru, drv = (fr[f"/{ns}/{t}"]["data"] for t in ("estimate", "truth", "drive"))
     n = min(len(est), len(tru), len(drv))
     ev = evaluate(est[:n, 1], tru[:n, 1], drv[:n, 3], drv[:n, 4].astype(int))
     r = g["results"][ns]

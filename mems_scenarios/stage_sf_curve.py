@@ -66,6 +66,7 @@ from mems_estimation.identification.stage_sf_curve import (
     sf_curve_study,
 )
 from mems_scenarios.figures import Figure, cell, met_cell
+from mems_scenarios.stage_graph import run_stage_graph
 from mems_sim.devices.stage import STAGE_SPECS
 from mems_sim.devices.stage_gyro import GYRO_SPECS, MemsGyro
 
@@ -79,10 +80,6 @@ DESCRIPTION = (
 DEFAULT_DURATION_S = round(6 * 7 * 600 / 1700.0, 3)
 #: bootstrap replicates per temperature
 N_BOOT = 100
-#: topics recorded per stage instance
-RECORDED = ("adc", "drive", "truth", "estimate", "gyro/adc", "gyro_scale_factor", "temperature")
-#: samples per published frame
-FRAME = 20000
 #: the stage node's parameters that describe the device (the stage's physics, spreads and
 #: temperature coefficients, its gyro's): the ones ``--set stage.PARAM=V`` may set
 DEVICE_PARAMETERS = frozenset(s.name for s in STAGE_SPECS + GYRO_SPECS) - {
@@ -251,12 +248,7 @@ def run_graph(options, plan: Plan, models: dict, out: Path) -> dict:
     publishing ``/<ns>/gyro_scale_factor`` (eq. 27). Returns the published results (with
     their peak-to-peak pairs), the true k_I(T) per namespace, the recorder's summary, the
     frames published and rejected, the in-situ corrections, simulated and wall time [s]."""
-    import time
-
-    from mems_estimation.nodes.stage_ekf_node import StageEkfNode
-    from mems_estimation.nodes.stage_gyro_calibration_node import GyroCalibrationNode
-    from mems_scenarios.base import Progress, graph_for, output_path, publish_all
-    from mems_sim.nodes.stage_node import MicroStageNode
+    from mems_scenarios.base import output_path
 
     seed = int(options.seed)
     layout: dict[str, tuple[dict, Path]] = {}
@@ -275,108 +267,11 @@ def run_graph(options, plan: Plan, models: dict, out: Path) -> dict:
         )
         layout[ns] = (stage, yaml_path)
 
-    graph = graph_for(options)
-    devs, ekfs, cals = {}, {}, {}
-    topics = [f"/{ns}/{t}" for ns in layout for t in (*RECORDED, "end_of_stream")]
-    topics.append("/diagnostics")
-    rec = None
-    try:
-        for ns, (stage, yaml_path) in layout.items():
-            devs[ns] = graph.add_device(
-                MicroStageNode,
-                dict(stage, frame_size=FRAME, frame_id=ns, publish_imu=bool(options.realtime)),
-                realtime=options.realtime,
-                namespace=ns,
-            )
-            ekfs[ns] = graph.node(
-                StageEkfNode,
-                dict(device_namespace=f"/{ns}", params_yaml=str(yaml_path), insitu=True),
-                namespace=ns,
-            )
-            cals[ns] = graph.node(
-                GyroCalibrationNode,
-                dict(device_namespace=f"/{ns}", n_trials=stage["n_trials"]),
-                namespace=ns,
-            )
-        rec = graph.recorder(str(out), topics=topics)
-        graph.spin_until(
-            lambda: (
-                all(
-                    d.pub_adc.get_subscription_count() >= 2
-                    and d.pub_gyro.get_subscription_count() >= 2
-                    # the in-situ EKF learns the sweep's end from the end-of-stream record
-                    and d.pub_end_of_stream.get_subscription_count() >= 2
-                    for d in devs.values()
-                )
-                and all(e.pub.get_subscription_count() >= 2 for e in ekfs.values())
-            ),
-            30.0,
-            "the recorder, EKF and calibration nodes to subscribe",
-        )
-        total = max(d.total_samples for d in devs.values()) / next(iter(devs.values())).fs
-        progress = Progress(total, options.progress, NAME)
-        wall0 = time.monotonic()
-        publish_all(
-            graph,
-            list(devs.values()),
-            lambda d: ekfs[d.get_namespace().lstrip("/")].frames_done,
-            progress,
-            realtime=options.realtime,
-            realtime_timeout_s=total * 50 + 120,
-            window=20,
-            drain_timeout_s=120.0,
-        )
-        wall = time.monotonic() - wall0
-        progress.close()
-        # every estimate published (once the sweep is processed) and taken
-        graph.spin_until(
-            lambda: all(
-                ekfs[ns].estimates_published >= ekfs[ns].frames_done
-                and cals[ns].estimates_received >= ekfs[ns].estimates_published
-                and cals[ns].gyro_frames_received >= rec.received(f"/{ns}/gyro/adc")
-                for ns in layout
-            ),
-            120.0,
-            "the calibration nodes to receive the last estimates and gyro frames",
-        )
-        for c in cals.values():
-            c.close()
-        graph.spin_until(
-            lambda: all(rec.received(f"/{ns}/gyro_scale_factor") >= 1 for ns in layout),
-            30.0,
-            "the calibration results",
-        )
-        graph.spin_until(
-            lambda: all(rec.received(f"/{ns}/estimate") >= ekfs[ns].frames_done for ns in layout),
-            60.0,
-            "the last estimates",
-        )
-        k_true = {ns: devs[ns].gyro.scale_factor() for ns in layout}
-        results = {ns: cals[ns].results[-1] for ns in layout}
-        rejected = {ns: ekfs[ns].diag.counters.get("rejected_frames", 0) for ns in layout}
-        published = {ns: d.frames_published for ns, d in devs.items()}
-        insitu = {
-            ns: {
-                k: ekfs[ns].diag.counters.get(k)
-                for k in ("insitu_wn_ratio", "insitu_b_c_ratio", "insitu_sweeps")
-            }
-            for ns in layout
-        }
-    finally:
-        summary = None
-        if rec is not None:  # None when building the graph failed
-            rec.close()
-            summary = dict(counts=rec.counts(), gaps=rec.gaps(), losses=rec.losses())
-        graph.close()
-    return dict(
-        k_true=k_true,
-        results=results,
-        recorder=summary,
-        published=published,
-        rejected=rejected,
-        insitu=insitu,
-        wall_s=wall,
-        simulated_s=total,
+    return run_stage_graph(
+        options,
+        {ns: (stage, yaml_path, {"insitu": True}) for ns, (stage, yaml_path) in layout.items()},
+        out,
+        NAME,
     )
 
 

@@ -1,0 +1,151 @@
+"""The node graph of the micro-stage calibration scenarios (Chen 2018 ch. 3): per instance a
+``stage_node`` (stage at 625 kHz with its on-stage gyro), a ``stage_ekf_node`` loading an
+identified parameter YAML (eqs. 48-53; optionally in its in-situ mode, eqs. 44-47) and a
+``stage_gyro_calibration_node`` publishing ``/<ns>/gyro_scale_factor`` (eq. 27), one
+recorder for every instance, driven by the scenario skeleton (fast or paced).
+Used by ``gyro_calibration`` and the SF(T) study."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+#: the topics of each instance recorded (besides its end-of-stream record and /diagnostics)
+RECORDED = ("adc", "drive", "truth", "estimate", "gyro/adc", "gyro_scale_factor", "temperature")
+#: stage frame size [samples] (20,000 samples = 32 ms at 625 kHz)
+FRAME = 20000
+
+
+def run_stage_graph(
+    options, layout: dict, out: Path, name: str, shielded: dict | None = None
+) -> dict:
+    """Run the graph of ``layout`` (namespace -> (stage node parameters, parameter YAML
+    path of its EKF, further EKF parameters such as ``insitu``)), recorded to ``out``, until
+    every calibration node published its result and the recorder has every frame.
+    ``shielded``: namespace -> stage parameters the user's overrides must not reach.
+    Returns the published results (eq. 27, with their peak-to-peak pairs) and the true
+    gyro scale factor per namespace, the recorder's summary (counts, gaps, losses), frames
+    published and rejected, the in-situ corrections (in-situ instances), simulated and wall
+    time [s]."""
+    from mems_estimation.nodes.stage_ekf_node import StageEkfNode
+    from mems_estimation.nodes.stage_gyro_calibration_node import GyroCalibrationNode
+    from mems_scenarios.base import Progress, graph_for, publish_all
+    from mems_sim.nodes.stage_node import MicroStageNode
+
+    shielded = shielded or {}
+    graph = graph_for(options)
+    devs, ekfs, cals = {}, {}, {}
+    topics = [f"/{ns}/{t}" for ns in layout for t in (*RECORDED, "end_of_stream")]
+    topics.append("/diagnostics")
+    rec = None
+    try:
+        for ns, (stage, yaml_path, ekf_params) in layout.items():
+            devs[ns] = graph.add_device(
+                MicroStageNode,
+                dict(
+                    stage,
+                    frame_size=FRAME,
+                    frame_id=ns,
+                    publish_imu=bool(options.realtime),
+                ),
+                realtime=options.realtime,
+                namespace=ns,
+                shielded=shielded.get(ns, frozenset()),
+            )
+            ekfs[ns] = graph.node(
+                StageEkfNode,
+                dict(device_namespace=f"/{ns}", params_yaml=str(yaml_path), **ekf_params),
+                namespace=ns,
+            )
+            cals[ns] = graph.node(
+                GyroCalibrationNode,
+                dict(device_namespace=f"/{ns}", n_trials=stage["n_trials"]),
+                namespace=ns,
+            )
+        rec = graph.recorder(str(out), topics=topics)
+
+        def delivered(d) -> int:
+            """Frames the device's EKF took (the recorder counts in the skeleton)."""
+            return ekfs[d.get_namespace().lstrip("/")].frames_done
+
+        graph.spin_until(
+            lambda: (
+                all(
+                    d.pub_adc.get_subscription_count() >= 2
+                    and d.pub_gyro.get_subscription_count() >= 2
+                    # the in-situ EKF learns the sweep's end from the end-of-stream record
+                    and d.pub_end_of_stream.get_subscription_count()
+                    >= (2 if ekfs[ns].insitu else 1)
+                    for ns, d in devs.items()
+                )
+                and all(e.pub.get_subscription_count() >= 2 for e in ekfs.values())
+            ),
+            30.0,
+            "the recorder, EKF and calibration nodes to subscribe",
+        )
+        total = max(d.total_samples for d in devs.values()) / next(iter(devs.values())).fs
+        progress = Progress(total, options.progress, name)
+        wall0 = time.monotonic()
+        publish_all(
+            graph,
+            list(devs.values()),
+            delivered,
+            progress,
+            realtime=options.realtime,
+            realtime_timeout_s=total * 50 + 120,
+            window=20,
+            drain_timeout_s=120.0,
+        )
+        wall = time.monotonic() - wall0
+        progress.close()
+        # every estimate published (in-situ: once the sweep is processed) and taken
+        graph.spin_until(
+            lambda: all(
+                ekfs[ns].estimates_published >= ekfs[ns].frames_done
+                and cals[ns].estimates_received >= ekfs[ns].estimates_published
+                and cals[ns].gyro_frames_received >= rec.received(f"/{ns}/gyro/adc")
+                for ns in layout
+            ),
+            120.0,
+            "the calibration nodes to receive the last estimates and gyro frames",
+        )
+        for ns, c in cals.items():
+            c.close()
+        graph.spin_until(
+            lambda: all(rec.received(f"/{ns}/gyro_scale_factor") >= 1 for ns in layout),
+            30.0,
+            "the calibration results",
+        )
+        graph.spin_until(
+            lambda: all(rec.received(f"/{ns}/estimate") >= ekfs[ns].frames_done for ns in layout),
+            60.0,
+            "the last estimates",
+        )
+        k_true = {ns: devs[ns].gyro.scale_factor() for ns in layout}
+        results = {ns: cals[ns].results[-1] for ns in layout}
+        rejected = {ns: ekfs[ns].diag.counters.get("rejected_frames", 0) for ns in layout}
+        published = {ns: d.frames_published for ns, d in devs.items()}
+        insitu = {
+            ns: {
+                k: ekfs[ns].diag.counters[k]
+                for k in ("insitu_wn_ratio", "insitu_b_c_ratio", "insitu_sweeps")
+            }
+            for ns in layout
+            if ekfs[ns].insitu
+        }
+    finally:
+        summary = None
+        if rec is not None:  # None when building the graph failed
+            rec.close()
+            summary = dict(counts=rec.counts(), gaps=rec.gaps(), losses=rec.losses())
+        graph.close()
+    return dict(
+        k_true=k_true,
+        results=results,
+        recorder=summary,
+        published=published,
+        rejected=rejected,
+        insitu=insitu,
+        wall_s=wall,
+        simulated_s=total,
+    )
