@@ -74,7 +74,6 @@ from mems_estimation.identification.stage_identification import (
     _predicted,
     cancelled,
     identify_sensor,
-    trial_fits,
 )
 from mems_estimation.identification.stage_insitu import (
     correct_model,
@@ -82,6 +81,7 @@ from mems_estimation.identification.stage_insitu import (
     pooled_response,
     trial_harmonics,
 )
+from mems_estimation.identification.stage_sf_curve import training_fits
 from mems_sim.devices.stage import DriveSchedule, MicroStage, record
 from mems_sim.devices.stage_gyro import MemsGyro
 
@@ -327,16 +327,7 @@ def sensitivity_cell(nf: NoiseFreeSweep, noise_scale: float, seed: int) -> dict:
     R = cancelled_noise_variance(sigma, st.fs, nf.rec["f_drive"][0], st.lsb)
     mt = true_model(st, R)
     # identification of the sensor parameters from a noisy LDV training sweep (eq. 55)
-    tr = record(
-        MicroStage(
-            ps,
-            DriveSchedule.amplitude_sweep(n_trials=plan.train_trials, periods=plan.train_periods),
-            seed=stream_seed(seed, T, 0),
-        )
-    )
-    fits = trial_fits(
-        cancelled(tr), tr["ldv"], tr["phase"], tr["segment"], tr["f_drive"], mt.extra["ldv_delay_s"]
-    )
+    fits = training_fits(ps, T, plan, stream_seed(seed, T, 0), mt.extra["ldv_delay_s"])
     gaps, etas, _ = identify_sensor(fits, mt.limits)
     etas_tg = eta_given_gap(fits, mt.gap, mt.limits)
     # the noisy calibration sweep (same motion as the noise-free one)

@@ -205,6 +205,25 @@ def _resample(rng: np.random.Generator, n: int, distinct: int = 1) -> np.ndarray
             return i
 
 
+def training_fits(
+    stage_params: dict | None, temperature_c: float, plan: Plan, seed: int, ldv_delay_s: float
+) -> list:
+    """The LDV training amplitude sweep (``plan.train_trials`` x ``plan.train_periods``
+    periods) of the stage at ``temperature_c`` [C], recorded with noise ``seed``, reduced to
+    its per-trial fits (the inputs of eq. 55's identification of D_n and eta); the LDV's
+    delay ``ldv_delay_s`` [s] as identified."""
+    tr = record(
+        MicroStage(
+            dict(stage_params or {}, temperature_c=temperature_c),
+            DriveSchedule.amplitude_sweep(n_trials=plan.train_trials, periods=plan.train_periods),
+            seed=seed,
+        )
+    )
+    return trial_fits(
+        cancelled(tr), tr["ldv"], tr["phase"], tr["segment"], tr["f_drive"], ldv_delay_s
+    )
+
+
 def reidentify_point(
     model: StageModel,
     temperature_c: float,
@@ -217,23 +236,13 @@ def reidentify_point(
     (eq. 55) from a training amplitude sweep (record :func:`stream_seed` k = 0). Returns
     (the model of the training temperature with those D_n, eta: the model the calibration
     sweep's in-situ EKF starts from, the training trials' fits the bootstrap resamples)."""
-    sp = dict(stage_params or {}, temperature_c=temperature_c)
-    tr = record(
-        MicroStage(
-            sp,
-            DriveSchedule.amplitude_sweep(n_trials=plan.train_trials, periods=plan.train_periods),
-            seed=stream_seed(seed, temperature_c, 0),
-        )
-    )
-    fits = trial_fits(
-        cancelled(tr),
-        tr["ldv"],
-        tr["phase"],
-        tr["segment"],
-        tr["f_drive"],
+    fits = training_fits(
+        stage_params,
+        temperature_c,
+        plan,
+        stream_seed(seed, temperature_c, 0),
         model.extra.get("ldv_delay_s", 0.0),
     )
-    del tr
     gaps, etas, _ = identify_sensor(fits, model.limits)
     mT = copy.deepcopy(model)
     mT.gap, mT.eta = gaps, etas
