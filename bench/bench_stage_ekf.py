@@ -58,6 +58,12 @@ from mems_estimation.identification.stage_gyro_calibration import (
 from mems_sim.devices.stage import DriveSchedule, MicroStage, record
 from mems_sim.devices.stage_capacitance import EPS0, dcdtheta_single
 
+# CPU of the graph's processes (bench/paced_device.py, shared with bench_device_processes.py)
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from paced_device import cpu_ticks as _cpu_ticks
+from paced_device import machine_ticks as _machine_ticks
+from paced_device import reap as _reap
+
 
 def _best(fn, repeats=3):
     fn()
@@ -471,37 +477,6 @@ def graph_rtf(
         "gaps": sum(g["recorder"]["gaps"].values()),
         "instances": len(inst),
     }
-
-
-def _cpu_ticks(pid: int) -> int:
-    """utime + stime of a running process [clock ticks] (0 once it is gone)."""
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            fields = f.read().rsplit(")", 1)[1].split()
-        return int(fields[11]) + int(fields[12])
-    except (OSError, IndexError, ValueError):
-        return 0
-
-
-def _machine_ticks() -> dict:
-    """CPU ticks of the whole machine since boot (all cores): processes (user, nice,
-    system), interrupts (irq + softirq: e.g. the loopback network stack) and steal (the
-    hypervisor's other guests)."""
-    with open("/proc/stat") as f:
-        v = [int(x) for x in f.readline().split()[1:9]]
-    return {"machine": v[0] + v[1] + v[2], "irq": v[5] + v[6], "steal": v[7]}
-
-
-def _reap(proc, timeout_s: float) -> float | None:
-    """Wait for a child with os.wait4; its CPU seconds (None after a timeout)."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        pid, status, ru = os.wait4(proc.pid, os.WNOHANG)
-        if pid:
-            proc.returncode = os.waitstatus_to_exitcode(status)
-            return ru.ru_utime + ru.ru_stime
-        time.sleep(0.02)
-    return None
 
 
 #: ``--graph-processes`` rows: recorder compression, ``-noimu`` with publish_imu off (the

@@ -30,6 +30,12 @@ BENCHES = [
     # one device per graph (each family: device, its estimators, recorder), first frame to
     # last against 1x real time, ~15 s
     ("bench_single_device_fast.py", ["--repeat", "2"]),
+    # each family's graph as separate processes (device paced at 1.5 x its sample rate,
+    # estimators, calibration, zstd recorder of every topic): keeps up, frames lost, worst
+    # frame delay, CPU per process (~6 min: the imu's calibration profile is 66 s of data)
+    ("bench_device_processes.py", ["--pace", "1.5"]),
+    # the stage with the scenario's 20,000-sample frames instead of the node's 5000 (~25 s)
+    ("bench_device_processes.py", ["stage", "--frame-size", "stage=20000", "--pace", "1.5"]),
     # 120 s of data: pacing at rates 1 and 10 and the lossless replay in ~3 min
     # (bench_replay.py alone defaults to the 600 s of the data-path figures)
     ("bench_replay.py", ["--duration", "120"]),

@@ -50,7 +50,7 @@ import math
 import numba
 import numpy as np
 
-from mems_sim.devices.resonator_models import interval_input, next_spill, resonator_zoh
+from mems_sim.devices.resonator_models import interval_input, next_spill, resonator_zoh_t
 from mems_sim.kernels.divergence import covariance_ok, state_ok
 from mems_sim.kernels.resonator_observer import (
     BUSSGANG_GAIN,
@@ -60,8 +60,9 @@ from mems_sim.kernels.resonator_observer import (
     _sd_blocks,
     check_bits,
     check_pulse_timing,
-    cov_predict,
-    predicted_output,
+    cov_predict_sd,
+    predicted_output_sd,
+    predictor_gain_sd,
 )
 
 __all__ = ["AdaptiveObserver"]
@@ -69,10 +70,12 @@ __all__ = ["AdaptiveObserver"]
 _H = 1e-7
 
 
-@numba.njit(cache=True)
-def _res_scaled(f0, Q, fs, wref, out, z):
-    """Scaled resonator transition: out = [P11, P12*wref, P21/wref, P22, G1, G2/wref]."""
-    resonator_zoh(f0, Q, fs, z)
+@numba.njit(cache=True, inline="always")
+def _res_scaled(f0, Q, fs, wref, out):
+    """Scaled resonator transition: out = [P11, P12*wref, P21/wref, P22, G1, G2/wref]
+    (:func:`mems_sim.devices.resonator_models.resonator_zoh_t` over T = 1/fs; inlined: three
+    calls per sample)."""
+    z = resonator_zoh_t(f0, Q, fs, 1.0 / fs)
     out[0] = z[0]
     out[1] = z[1] * wref
     out[2] = z[2] / wref
@@ -168,7 +171,7 @@ def _ekf_run(
                     P[a, j] = 0.0
                     P[j, a] = 0.0
         # ---- update
-        yhat, S = predicted_output(xp, P, C, G, PC)
+        yhat, S = predicted_output_sd(xp, P, C, G, PC)
         nu = bits[k] - yhat
         # innovation monitor: exponential mean of nu^2/S; a jump of f0 (or Q) shows up as
         # a sustained excess -> re-open the parameter covariance (once per window)
@@ -182,14 +185,7 @@ def _ekf_run(
             aux[0] = 1.0
             aux[1] = 1.0 / alpha
             aux[2] += 1.0
-            S = G
-            for i in range(n):
-                acc = 0.0
-                for j in range(n):
-                    acc += P[i, j] * C[j]
-                PC[i] = acc
-            for i in range(n):
-                S += C[i] * PC[i]
+            _, S = predicted_output_sd(xp, P, C, G, PC)
         for i in range(n):
             xf[i] = xp[i] + PC[i] / S * nu
         pos[k] = xf[0]
@@ -214,26 +210,26 @@ def _ekf_run(
                 e0[i] = 0.0
                 ep[i] = 0.0
                 em[i] = 0.0
-        _res_scaled(f0, Qc, fs, wref, r0, z)
+        _res_scaled(f0, Qc, fs, wref, r0)
         if pulse:
             _pulse_scaled(f0, Qc, fs, wref, r0, spill, u, starts[k], widths[k], e0, z, g)
         y0 = xf[0]
         y1 = xf[1]
-        _res_scaled(f0 + f0i * _H, Qc, fs, wref, rp, z)
+        _res_scaled(f0 + f0i * _H, Qc, fs, wref, rp)
         if pulse:
             _pulse_scaled(f0 + f0i * _H, Qc, fs, wref, rp, spill, u, starts[k], widths[k], ep, z, g)
-        _res_scaled(f0 - f0i * _H, Qc, fs, wref, rm, z)
+        _res_scaled(f0 - f0i * _H, Qc, fs, wref, rm)
         if pulse:
             _pulse_scaled(f0 - f0i * _H, Qc, fs, wref, rm, spill, u, starts[k], widths[k], em, z, g)
         J[0, 6] = ((rp[0] - rm[0]) * y0 + (rp[1] - rm[1]) * y1 + (ep[0] - em[0])) / (2 * _H)
         J[1, 6] = ((rp[2] - rm[2]) * y0 + (rp[3] - rm[3]) * y1 + (ep[1] - em[1])) / (2 * _H)
         if est_q:
-            _res_scaled(f0, Qc + Qi * _H, fs, wref, rp, z)
+            _res_scaled(f0, Qc + Qi * _H, fs, wref, rp)
             if pulse:
                 _pulse_scaled(
                     f0, Qc + Qi * _H, fs, wref, rp, spill, u, starts[k], widths[k], ep, z, g
                 )
-            _res_scaled(f0, Qc - Qi * _H, fs, wref, rm, z)
+            _res_scaled(f0, Qc - Qi * _H, fs, wref, rm)
             if pulse:
                 _pulse_scaled(
                     f0, Qc - Qi * _H, fs, wref, rm, spill, u, starts[k], widths[k], em, z, g
@@ -267,13 +263,11 @@ def _ekf_run(
         xp[5] = t4
         for i in range(6, n):
             xp[i] = xf[i]
-        # ---- covariance prediction (predictor form with the cross term)
-        for i in range(n):
-            acc = 0.0
-            for j in range(n):
-                acc += J[i, j] * PC[j]
-            L[i] = (acc + Mv[i]) / S
-        cov_predict(P, J, F, L, S, JP)
+        # ---- covariance prediction (predictor form with the cross term; J has the
+        # pattern of the 6-state model's A plus the parameter columns J[0:2, 6:] and the
+        # random-walk rows, which the structured kernels use)
+        predictor_gain_sd(J, Mv, PC, S, L)
+        cov_predict_sd(P, J, F, L, S, JP)
         if frozen:
             for a in range(6, n):
                 for j in range(n):

@@ -23,7 +23,15 @@ from std_msgs.msg import UInt64
 
 from mems_msgs.msg import AdcFrame
 from mems_sim.params import ParamSpec
-from mems_sim.ros.frames import FrameError, adc_codes, frame_format, index_to_ns, time_to_ns
+from mems_sim.ros.frames import (
+    FrameError,
+    adc_codes,
+    adc_physical,
+    code_range,
+    frame_format,
+    index_to_ns,
+    time_to_ns,
+)
 from mems_sim.ros.node_base import MemsNode
 from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS
 
@@ -130,6 +138,62 @@ def output_frame(make, *arrays, first: int, fs: float, stamp_ns: int | None = No
 def num_samples(values) -> int:
     """Samples of decoded frame values (an array, or a tuple of arrays of equal length)."""
     return int(np.shape(values[0] if isinstance(values, tuple) else values)[0])
+
+
+def adc_columns(msg: AdcFrame, cols, codes: np.ndarray | None = None) -> np.ndarray:
+    """Physical values (n, len(cols)), C-contiguous, of the channels ``cols`` (indices) of
+    an AdcFrame: ``adc_physical(msg)[:, cols]`` bit for bit (each value ``code * lsb +
+    offset`` in float64), without converting the other channels. ``codes``: the frame's
+    codes from :func:`~mems_sim.ros.frames.adc_codes` if already validated.
+
+    Raises:
+        FrameError: as ``adc_physical`` (every channel's conversion checked): malformed
+            fields, codes out of range, or a conversion that overflows (``non_finite``).
+    """
+    if codes is None:
+        codes = adc_codes(msg)
+    nch = codes.shape[1]
+    lsb = np.asarray(msg.lsb, dtype=float)
+    offset = np.asarray(msg.offset, dtype=float) if len(msg.offset) else np.zeros(nch)
+    # code -> code * lsb + offset rounds monotonically (lsb > 0): finite at both ends of
+    # the declared code range, finite for every code of the frame (validated in range)
+    lo, hi = code_range(int(msg.bits))
+    with np.errstate(over="ignore", invalid="ignore"):
+        ends = np.concatenate([lo * lsb + offset, hi * lsb + offset])
+    if not np.all(np.isfinite(ends)):
+        return np.ascontiguousarray(adc_physical(msg)[:, list(cols)])
+    cols = [int(c) for c in cols]
+    out = np.empty((codes.shape[0], len(cols)))
+    if (
+        cols == list(range(nch))
+        and np.all(lsb == lsb[0])
+        and np.all(offset.view(np.int64) == offset[:1].view(np.int64))
+    ):
+        # one lsb and offset for all channels: scalar operands, same values
+        np.multiply(codes, lsb[0], out=out)
+        out += offset[0]
+        return out
+    for j, c in enumerate(cols):
+        col = out[:, j]
+        np.multiply(codes[:, c], lsb[c], out=col)
+        col += offset[c]
+    return out
+
+
+def adc_channels(msg: AdcFrame, channels, codes: np.ndarray | None = None) -> np.ndarray:
+    """Physical values (n, len(channels)), C-contiguous, of the named channels of an
+    AdcFrame (:func:`adc_columns`); FrameError as ``adc_physical``, then ``foreign`` when a
+    channel is absent."""
+    if codes is None:
+        codes = adc_codes(msg)
+    names = list(msg.channel_names)
+    missing = [c for c in channels if c not in names]
+    if missing:
+        adc_columns(msg, [], codes)  # an overflow is reported first, as adc_physical does
+        raise FrameError(
+            f"adc frame at {msg.first_sample_index}: channels {missing} absent", "foreign"
+        )
+    return adc_columns(msg, [names.index(c) for c in channels], codes)
 
 
 class StreamIndex:
@@ -372,6 +436,8 @@ class EstimatorNode(MemsNode):
         self._indices: dict[str, StreamIndex] = {}
         self.primary: str | None = None
         self.progress: int | None = None
+        #: (AdcFrame, its validated codes) while :meth:`take_frame` decodes it
+        self._adc_checked: tuple | None = None
         self.progress_pub = self.create_publisher(UInt64, "~/progress", PROGRESS_QOS)
 
     def device_topic(self, name: str) -> str:
@@ -434,7 +500,7 @@ class EstimatorNode(MemsNode):
             if check_rate:
                 self.check_rate(msg)
             if isinstance(msg, AdcFrame):
-                adc_codes(msg)
+                self._adc_checked = (msg, adc_codes(msg))
             fmt = frame_format(msg)
             verdict = pin.check(fmt)
             if verdict == "foreign":
@@ -450,6 +516,8 @@ class EstimatorNode(MemsNode):
             n = min(int(msg.num_samples), self._limit("max_frame_samples"))
             self._finished(kind, int(msg.first_sample_index) + n)
             return None
+        finally:
+            self._adc_checked = None
         if verdict in ("new", "adopt"):
             pin.adopt(fmt)
         if verdict == "adopt":
@@ -460,6 +528,14 @@ class EstimatorNode(MemsNode):
             )
             self.on_format_change(kind)
         return values
+
+    def checked_codes(self, msg: AdcFrame) -> np.ndarray:
+        """The codes (n, channels) of an AdcFrame (:func:`~mems_sim.ros.frames.adc_codes`):
+        those :meth:`take_frame` validated if it is decoding ``msg``, else validated now."""
+        checked = self._adc_checked
+        if checked is not None and checked[0] is msg:
+            return checked[1]
+        return adc_codes(msg)
 
     def accept_frame(self, msg, decode: Callable[[Any], Any], check_rate: bool = True):
         """:meth:`take_frame` of the single input stream ``"input"``."""

@@ -48,6 +48,7 @@ from mems_estimation.nodes.frame_input import (
     DEVICE_NAMESPACE,
     Diverged,
     EstimatorNode,
+    adc_channels,
     input_specs,
     output_frame,
 )
@@ -55,7 +56,7 @@ from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.kernels.divergence import state_ok
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.end_of_stream import END_OF_STREAM, END_OF_STREAM_QOS, parse_end_of_stream
-from mems_sim.ros.frames import FrameError, adc_physical, make_state_estimate, signal_data
+from mems_sim.ros.frames import FrameError, make_state_estimate, signal_data
 from mems_sim.ros.node_base import run_node
 from mems_sim.ros.qos import FRAME_QOS
 
@@ -199,20 +200,9 @@ class StageEkfNode(EstimatorNode):
             )
 
     def _decode_adc(self, msg: AdcFrame) -> np.ndarray:
-        """The selected channels of an ADC frame [V]; FrameError when absent or non-finite."""
-        y = adc_physical(msg)
-        names = list(msg.channel_names)
-        missing = [c for c in self.channels if c not in names]
-        if missing:
-            raise FrameError(
-                f"adc frame at {msg.first_sample_index}: channels {missing} absent", "foreign"
-            )
-        y = np.ascontiguousarray(y[:, [names.index(c) for c in self.channels]])
-        if not np.all(np.isfinite(y)):
-            raise FrameError(
-                f"adc frame at {msg.first_sample_index}: non-finite values", "non_finite"
-            )
-        return y
+        """The selected channels of an ADC frame [V] (n, channels), C-contiguous; FrameError
+        when absent or when the conversion overflows (the values are then all finite)."""
+        return adc_channels(msg, self.channels, self.checked_codes(msg))
 
     def on_gap(self, gap: int) -> None:
         """The EKF continues with time updates only over the missing span (at most

@@ -31,10 +31,15 @@ from rclpy.duration import Duration
 
 from mems_estimation.identification.stage_gyro_calibration import StreamingCalibrator
 from mems_estimation.identification.stage_identification import harmonic_fit
-from mems_estimation.nodes.frame_input import DEVICE_NAMESPACE, EstimatorNode, input_specs
+from mems_estimation.nodes.frame_input import (
+    DEVICE_NAMESPACE,
+    EstimatorNode,
+    adc_columns,
+    input_specs,
+)
 from mems_msgs.msg import AdcFrame, CalibrationResult, SignalFrame, StateEstimate
 from mems_sim.params import ParamSpec
-from mems_sim.ros.frames import FrameError, adc_physical, ns_to_time, signal_data, time_to_ns
+from mems_sim.ros.frames import FrameError, ns_to_time, signal_data, time_to_ns
 from mems_sim.ros.node_base import run_node
 from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
 
@@ -102,12 +107,11 @@ def _drive_trials(msg: SignalFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return tuple(np.ascontiguousarray(data[:, c]) for c in cols)
 
 
-def _gyro_rate(msg: AdcFrame) -> np.ndarray:
-    """Angular rate [rad/s] of a gyro frame; FrameError when non-finite."""
-    v = adc_physical(msg)[:, 0]
-    if not np.all(np.isfinite(v)):
-        raise FrameError("non-finite gyro values", "non_finite")
-    return v
+def _gyro_rate(msg: AdcFrame, codes: np.ndarray | None = None) -> np.ndarray:
+    """Angular rate [rad/s] of a gyro frame (its first channel; ``codes``: the frame's
+    validated codes, if known); FrameError when the conversion overflows (the values are
+    then all finite)."""
+    return adc_columns(msg, [0], codes)[:, 0]
 
 
 class GyroCalibrationNode(EstimatorNode):
@@ -183,7 +187,7 @@ class GyroCalibrationNode(EstimatorNode):
         """Gyro samples, placed on the stage's sample index through their stamps; held
         while the stage's time origin is not known (bounded, module doc)."""
         self.gyro_frames_received += 1
-        v = self.take_frame("gyro", msg, _gyro_rate, check_rate=False)
+        v = self.take_frame("gyro", msg, self._decode_gyro, check_rate=False)
         if v is None or not self.sequence(
             "gyro", msg.first_sample_index, msg.num_samples, hooks=False
         ):
@@ -193,6 +197,9 @@ class GyroCalibrationNode(EstimatorNode):
             self._hold_gyro(stamp_ns, float(msg.sample_rate_hz), v)
             return
         self._place_gyro(stamp_ns, float(msg.sample_rate_hz), v)
+
+    def _decode_gyro(self, msg: AdcFrame) -> np.ndarray:
+        return _gyro_rate(msg, self.checked_codes(msg))
 
     def _hold_gyro(self, stamp_ns: int, rate: float, v: np.ndarray) -> None:
         """Keep a gyro frame until the time origin is known; at most

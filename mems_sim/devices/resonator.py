@@ -102,6 +102,7 @@ from mems_sim.devices.resonator_models import (
     next_spill,
     resonator_zoh,
     resonator_zoh_dt,
+    resonator_zoh_t,
     sd_step,
     sd_step_standin,
     segment_response,
@@ -109,8 +110,8 @@ from mems_sim.devices.resonator_models import (
 from mems_sim.kernels.resonator_observer import (
     DEFAULT_QUANTIZATION_VAR,
     add_pulse_input,
-    kf_predict,
-    kf_update,
+    kf_predict6,
+    kf_update6,
     observer_model,
     ss_step6,
     steady_state_gains,
@@ -471,39 +472,23 @@ def _position_at(f0, Q, fs, y, yd, t, spill_u, spill_end, u, s, w, f, o2, z):
 
 
 @numba.njit(cache=True)
-def _zoh_t(f0, Q, fs, dt):
-    """:func:`mems_sim.devices.resonator_models.resonator_zoh_dt` as a tuple (Phi11, Phi12, Phi21, Phi22,
-    Gam1, Gam2) (no array argument: cheap to call on every pulse)."""
-    w0 = 2.0 * math.pi * f0
-    sig = w0 / (2.0 * Q)
-    wd = w0 * math.sqrt(1.0 - 1.0 / (4.0 * Q * Q))
-    E = math.exp(-sig * dt)
-    c = math.cos(wd * dt)
-    s = math.sin(wd * dt)
-    p12 = E * s / wd
-    p11 = E * (c + sig / wd * s)
-    g = fs * w0
-    return p11, p12, -w0 * w0 * p12, E * (c - sig / wd * s), g * (1.0 - p11) / (w0 * w0), g * p12
-
-
-@numba.njit(cache=True)
 def _pulse_cache(f0, Q, fs, width, cache, o):
     """Per-f0 constants of a pulse of width w T (exact, closed-form exponentials), written
     to cache[o:o+15] = [f0, Phi(w/2 T) (4), Gam(w/2 T) (2), Phi(T) Phi(-w T) (4),
     Phi((1 - w) T) Gam(w T) (2), fs/w0, fs w0]."""
-    h = _zoh_t(f0, Q, fs, 0.5 * width / fs)
+    h = resonator_zoh_t(f0, Q, fs, 0.5 * width / fs)
     cache[o] = f0
     for m in range(6):
         cache[o + 1 + m] = h[m]
-    p = _zoh_t(f0, Q, fs, 1.0 / fs)
-    zw = _zoh_t(f0, Q, fs, width / fs)
+    p = resonator_zoh_t(f0, Q, fs, 1.0 / fs)
+    zw = resonator_zoh_t(f0, Q, fs, width / fs)
     idet = 1.0 / (zw[0] * zw[3] - zw[1] * zw[2])
     i11, i12, i21, i22 = zw[3] * idet, -zw[1] * idet, -zw[2] * idet, zw[0] * idet
     cache[o + 7] = p[0] * i11 + p[1] * i21
     cache[o + 8] = p[0] * i12 + p[1] * i22
     cache[o + 9] = p[2] * i11 + p[3] * i21
     cache[o + 10] = p[2] * i12 + p[3] * i22
-    r = _zoh_t(f0, Q, fs, (1.0 - width) / fs)
+    r = resonator_zoh_t(f0, Q, fs, (1.0 - width) / fs)
     cache[o + 11] = r[0] * zw[4] + r[1] * zw[5]
     cache[o + 12] = r[2] * zw[4] + r[3] * zw[5]
     w0 = 2.0 * math.pi * f0
@@ -527,7 +512,7 @@ def _pulse_simple(f0, Q, fs, width, f0m, Qm, w0m, y, yd, f, u, s0, obs_mode, st,
     if s0 == 0.0:  # on-sample pulse: Phi(0) = I, Gam(0) = 0
         zs = (1.0, 0.0, 0.0, 1.0, 0.0, 0.0)
     else:
-        zs = _zoh_t(f0, Q, fs, s0 / fs)
+        zs = resonator_zoh_t(f0, Q, fs, s0 / fs)
     idet = 1.0 / (zs[0] * zs[3] - zs[1] * zs[2])
     if obs_mode:
         if cache[15] < 0.0:
@@ -539,7 +524,7 @@ def _pulse_simple(f0, Q, fs, width, f0m, Qm, w0m, y, yd, f, u, s0, obs_mode, st,
             zm = (1.0, 0.0, 0.0, 1.0, 0.0, 0.0)
             idm = 1.0
         else:
-            zm = _zoh_t(f0m, Qm, fs, s0 / fs)
+            zm = resonator_zoh_t(f0m, Qm, fs, s0 / fs)
             idm = 1.0 / (zm[0] * zm[3] - zm[1] * zm[2])
         # Phi_m(-s T) [Phi_m((1 - w) T) Gam_m(w T)] u
         xp[0] += (zm[3] * cache[26] - zm[1] * cache[27]) * idm * u
@@ -639,7 +624,6 @@ def _device_run(
     A,
     B,
     C,
-    Cp,
     F,
     G,
     M,
@@ -668,12 +652,9 @@ def _device_run(
     # carry = [truth spill u, truth spill end, observer spill u, observer spill end,
     #          pending pulse centre in the next interval (T, -1 none)]
     # pred = [Phi11(w/2), Phi12(w/2), Phi11(1 + w/2), Phi12(1 + w/2)] of the observer model
-    nx = xp.shape[0]
-    xf = np.empty(nx)
-    PC = np.empty(nx)
-    L = np.empty(nx)
-    AP = np.empty((nx, nx))
-    tmp = np.empty(nx)
+    PC = np.empty(6)
+    L = np.empty(6)
+    AP = np.empty((6, 6))
     cache = np.full(30, -1.0)  # pulse constants: truth [0:15], observer model [15:30]
     W = win.shape[0]
     varying = drift != 0.0 or step_frac != 0.0
@@ -708,8 +689,7 @@ def _device_run(
                 xf1 = xp[1] + Kss[1] * nu
                 sv = ss_var
             else:
-                nu, S, s_sig, sv = kf_update(xp, P, C, G, Cp, v, xf, PC)
-                xf1 = xf[1]
+                nu, S, s_sig, sv, xf1 = kf_update6(xp, P, C, G, v, PC)
             est[i] = s_sig
             estv[i] = sv
         elif W == 0:
@@ -757,7 +737,7 @@ def _device_run(
             if fast:
                 ss_step6(xp, A, B, C, Lss, 0.0, v, 0.0)
             else:
-                kf_predict(xp, P, A, B, F, M, 0.0, nu, S, PC, L, AP, tmp)
+                kf_predict6(xp, P, A, F, M, nu, S, PC, L, AP)
         quiet = carry[0] == 0.0 and carry[2] == 0.0 and carry[4] < 0.0
         if u == 0.0 and quiet:
             x_start[i] = 0.0
@@ -929,7 +909,6 @@ class SdResonatorDevice:
             m.A,
             m.B,
             m.C,
-            m.C_pos,
             m.F,
             m.G,
             m.M,

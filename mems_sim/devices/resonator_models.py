@@ -70,6 +70,7 @@ __all__ = [
     "stf_num",
     "resonator_zoh",
     "resonator_zoh_dt",
+    "resonator_zoh_t",
     "resonator_zoh_np",
     "segment_response",
     "interval_input",
@@ -91,7 +92,24 @@ def stf_num(c: float = 0.5) -> np.ndarray:
     return np.array([0.0, c, 0.5 - c])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
+def resonator_zoh_t(f0, Q, fs, dt):
+    """:func:`resonator_zoh_dt` as a tuple (Phi11, Phi12, Phi21, Phi22, Gam1, Gam2), the same
+    operations (no array argument: inlined into the per-sample loops, where the call with
+    an output array costs more than the closed form)."""
+    w0 = 2.0 * math.pi * f0
+    sig = w0 / (2.0 * Q)
+    wd = w0 * math.sqrt(1.0 - 1.0 / (4.0 * Q * Q))
+    E = math.exp(-sig * dt)
+    c = math.cos(wd * dt)
+    s = math.sin(wd * dt)
+    p12 = E * s / wd
+    p11 = E * (c + sig / wd * s)
+    g = fs * w0
+    return p11, p12, -w0 * w0 * p12, E * (c - sig / wd * s), g * (1.0 - p11) / (w0 * w0), g * p12
+
+
+@numba.njit(cache=True, inline="always")
 def resonator_zoh_dt(f0, Q, fs, dt, out):
     """ZOH discretisation of eq. (7) over a duration dt (eqs. (8)-(9) for dt = 1/fs), closed form.
 
@@ -106,26 +124,19 @@ def resonator_zoh_dt(f0, Q, fs, dt, out):
     Args:
         f0: natural frequency, Hz. Q: quality factor (> 0.5). fs: sample rate, Hz (sets g).
         dt: duration, s (>= 0).
-        out: (6,) float64 filled with [Phi11, Phi12, Phi21, Phi22, Gam1, Gam2].
+        out: (6,) float64 filled with [Phi11, Phi12, Phi21, Phi22, Gam1, Gam2]
+            (:func:`resonator_zoh_t`).
     """
-    w0 = 2.0 * math.pi * f0
-    sig = w0 / (2.0 * Q)
-    wd = w0 * math.sqrt(1.0 - 1.0 / (4.0 * Q * Q))
-    E = math.exp(-sig * dt)
-    c = math.cos(wd * dt)
-    s = math.sin(wd * dt)
-    p12 = E * s / wd
-    p11 = E * (c + sig / wd * s)
-    out[0] = p11
-    out[1] = p12
-    out[2] = -w0 * w0 * p12
-    out[3] = E * (c - sig / wd * s)
-    g = fs * w0
-    out[4] = g * (1.0 - p11) / (w0 * w0)
-    out[5] = g * p12
+    z = resonator_zoh_t(f0, Q, fs, dt)
+    out[0] = z[0]
+    out[1] = z[1]
+    out[2] = z[2]
+    out[3] = z[3]
+    out[4] = z[4]
+    out[5] = z[5]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def resonator_zoh(f0, Q, fs, out):
     """One-sample ZOH discretisation of eq. (7) (eqs. (8)-(9)): :func:`resonator_zoh_dt`
     with dt = T = 1/fs.  out: (6,) [Phi11, Phi12, Phi21, Phi22, Gam1, Gam2]."""

@@ -781,10 +781,32 @@ class StageFrame(NamedTuple):
 
 @numba.njit(cache=True)
 def _simulate(
-    n, fs, segf, sega, segn, st, A, B, coup, wnoise, u, vb, fd, th, om, seg, phs, switching
+    n,
+    fs,
+    segf,
+    sega,
+    segn,
+    st,
+    A,
+    B,
+    coup,
+    wnoise,
+    u,
+    vb,
+    fd,
+    th,
+    om,
+    seg,
+    phs,
+    switching,
+    v_bias,
+    applied,
+    frac,
 ):
     """Drive generator + stage dynamics over n samples; st = [theta, omega, thx, omx, phase,
-    seg_idx, period_in_seg]. Phase in cycles since the start of the current segment."""
+    seg_idx, period_in_seg]. Phase in cycles since the start of the current segment (phs),
+    and its fraction of a period (frac: numpy's ``phs % 1.0``); vb: the bias (V_bias or 0);
+    applied: the drive incl. the amplifier noise wnoise, held over each sample."""
     nseg = segf.shape[0]
     for i in range(n):
         s = int(st[5])
@@ -802,7 +824,9 @@ def _simulate(
             on = 1.0 if (per % 2) == 1 else 0.0
         u[i] = uu
         phs[i] = ph
-        vb[i] = on
+        # numpy's remainder(ph, 1.0) bit for bit (np.floor: a float, unlike math.floor)
+        frac[i] = ph - np.floor(ph)
+        vb[i] = on * v_bias
         fd[i] = f
         seg[i] = s
         th[i, 0] = st[0]
@@ -810,6 +834,7 @@ def _simulate(
         th[i, 1] = st[2]
         om[i, 1] = st[3]
         ue = uu + wnoise[i]
+        applied[i] = ue
         t0 = A[0, 0] * st[0] + A[0, 1] * st[1] + B[0] * ue
         t1 = A[1, 0] * st[0] + A[1, 1] * st[1] + B[1] * ue
         st[0] = t0
@@ -824,6 +849,42 @@ def _simulate(
             ph -= segn[s]
             st[5] = s + 1
         st[4] = ph
+
+
+@numba.njit(cache=True)
+def _ldv_run(th, om, u, hist, a10, a11, b1, bias, noise, noise_std, out):
+    """LDV output of :meth:`MicroStage._ldv` over k = th.size samples: sample i is
+    ``a10 theta + a11 omega + b1 u`` of the sample m = hist.shape[1] before it (the first m
+    from ``hist``, the (3, m) history of theta, omega, u), + bias (+ noise[i] noise_std
+    if noise_std > 0); then the history becomes the last m samples."""
+    k = th.shape[0]
+    m = hist.shape[1]
+    for i in range(k):
+        if i < m:
+            t = hist[0, i]
+            o = hist[1, i]
+            v = hist[2, i]
+        else:
+            t = th[i - m]
+            o = om[i - m]
+            v = u[i - m]
+        y = a10 * t + a11 * o + b1 * v
+        y = y + bias
+        if noise_std > 0:
+            y = y + noise[i] * noise_std
+        out[i] = y
+    if k:
+        # read index k + j >= j: every entry is read before it is overwritten
+        for j in range(m):
+            q = k + j
+            if q < m:
+                hist[0, j] = hist[0, q]
+                hist[1, j] = hist[1, q]
+                hist[2, j] = hist[2, q]
+            else:
+                hist[0, j] = th[q - m]
+                hist[1, j] = om[q - m]
+                hist[2, j] = u[q - m]
 
 
 class MicroStage:
@@ -932,6 +993,14 @@ class MicroStage:
         """Current true D_n [m]."""
         return gap_at(self.params, self.temperature_c)
 
+    def _buffer(self, name: str, shape) -> np.ndarray:
+        """A float64 scratch array of ``shape`` kept across frames (never returned)."""
+        buf = self.__dict__.get(name)
+        if buf is None or buf.shape != shape:
+            buf = np.empty(shape)
+            setattr(self, name, buf)
+        return buf
+
     def step(self, n: int) -> StageFrame:
         """Produce the next n samples (module doc)."""
         n = int(n)
@@ -944,8 +1013,14 @@ class MicroStage:
         th = np.empty((n, 2))
         om = np.empty((n, 2))
         seg = np.empty(n, np.int64)
-        phs = np.empty(n)
-        w = self._gen_w.standard_normal(n) * self.w_std if self.w_std > 0 else np.zeros(n)
+        phase = np.empty(n)
+        applied = np.empty(n)
+        phs = self._buffer("_phs_buf", (n,))
+        if self.w_std > 0:
+            w = self._gen_w.standard_normal(out=self._buffer("_w_buf", (n,)))
+            w *= self.w_std
+        else:
+            w = np.zeros(n)
         _simulate(
             n,
             self.fs,
@@ -965,12 +1040,14 @@ class MicroStage:
             seg,
             phs,
             p["bias_switching"],
+            float(p["v_bias"]),
+            applied,
+            phase,
         )
-        vb *= p["v_bias"]
         # dual-axis sensor (main axis = Y, off axis = X), transimpedance readout, feedthrough
         # (du/dt of the generator's continuous sinusoid a sin(2 pi phase)), noise and ADC in
         # one pass (:func:`_readout`)
-        noise = self._gen_noise.standard_normal((n, 4))
+        noise = self._gen_noise.standard_normal(out=self._buffer("_noise_buf", (n, 4)))
         y = np.empty((n, 4))
         codes = np.empty((n, 4), np.int32)
         sat = _readout(
@@ -998,11 +1075,10 @@ class MicroStage:
             y,
             codes,
         )
-        applied = u + w
         self.last_applied = applied  # drive incl. amplifier noise, held over each sample
         ldv = self._ldv(th[:, 0], om[:, 0], applied)
         self._next += n
-        return StageFrame(y, codes, u, vb, fd, th, om, ldv, seg, phs % 1.0, sat)
+        return StageFrame(y, codes, u, vb, fd, th, om, ldv, seg, phase, sat)
 
     def _ldv(self, theta: np.ndarray, omega: np.ndarray, u: np.ndarray) -> np.ndarray:
         """LDV reference (sec. 3.5.2/3.5.4): main-axis omega(t - tau) + bias + white noise.
@@ -1011,16 +1087,24 @@ class MicroStage:
         with its held input over the fractional time m/fs - tau (ZOH, eq. 34).
         """
         p = self.params
-        th = np.concatenate([self._ldv_hist[0], theta])
-        om = np.concatenate([self._ldv_hist[1], omega])
-        uu = np.concatenate([self._ldv_hist[2], u])
         k = omega.size
         Af, Bf = self._ldv_AB
-        out = Af[1, 0] * th[:k] + Af[1, 1] * om[:k] + Bf[1] * uu[:k]
-        self._ldv_hist = np.stack([th[k:], om[k:], uu[k:]]) if k else self._ldv_hist
-        out = out + p["ldv_bias"]
-        if p["ldv_noise_std"] > 0:
-            out = out + self._gen_ldv.standard_normal(k) * p["ldv_noise_std"]
+        std = float(p["ldv_noise_std"])
+        noise = self._gen_ldv.standard_normal(out=self._buffer("_ldv_buf", (k,))) if std > 0 else u
+        out = np.empty(k)
+        _ldv_run(
+            theta,
+            omega,
+            u,
+            self._ldv_hist,
+            float(Af[1, 0]),
+            float(Af[1, 1]),
+            float(Bf[1]),
+            float(p["ldv_bias"]),
+            noise,
+            std,
+            out,
+        )
         return out
 
 

@@ -230,6 +230,40 @@ def observer_model(
     )
 
 
+# Frame checks: one pass of a small (vectorisable) kernel per array instead of several numpy
+# temporaries (the observers take 1000-sample frames at 1 kHz).
+@numba.njit(cache=True)
+def _count_bad_bits(bf):
+    """Number of values of bf that are not +1 or -1."""
+    nbad = 0
+    for i in range(bf.shape[0]):
+        nbad += abs(bf[i]) != 1.0
+    return nbad
+
+
+@numba.njit(cache=True)
+def _all_finite(x):
+    """True if every value of the 1-D array x is finite."""
+    nbad = 0
+    for i in range(x.shape[0]):
+        nbad += not abs(x[i]) < math.inf
+    return nbad == 0
+
+
+@numba.njit(cache=True)
+def _timing_fault(pulses, s, w):
+    """0: valid pulse timing; 1: a start or width not finite; 2: where a pulse is fired
+    (pulses != 0), a start outside [0, 1) or a width outside (0, 1] (fractions of T)."""
+    nonfinite = 0
+    outside = 0
+    for i in range(s.shape[0]):
+        si = s[i]
+        wi = w[i]
+        nonfinite += not ((abs(si) < math.inf) & (abs(wi) < math.inf))
+        outside += (pulses[i] != 0.0) & ((si < 0.0) | (si >= 1.0) | (wi <= 0.0) | (wi > 1.0))
+    return 1 if nonfinite else (2 if outside else 0)
+
+
 def check_bits(bits, pulses) -> tuple[np.ndarray, np.ndarray]:
     """Validate a frame: bits only +-1 (float64 out), pulses finite, same length.
 
@@ -244,15 +278,15 @@ def check_bits(bits, pulses) -> tuple[np.ndarray, np.ndarray]:
             f"{b.shape} and {u.shape}"
         )
     bf = b.astype(float)
-    bad = ~((bf == 1.0) | (bf == -1.0))
-    if bad.any():
+    if _count_bad_bits(bf):
+        bad = ~((bf == 1.0) | (bf == -1.0))
         i = int(np.argmax(bad))
         raise ValueError(
             f"bit stream must use the one-bit convention +1/-1 (+1: comparator "
             f"input >= 0, -1: < 0); got {b[i]!r} at index {i} "
             f"({int(bad.sum())} invalid values)"
         )
-    if not np.all(np.isfinite(u)):
+    if not _all_finite(u):
         raise ValueError("pulses must be finite (V)")
     return np.ascontiguousarray(bf), np.ascontiguousarray(u)
 
@@ -271,7 +305,7 @@ def check_outputs(outputs, pulses) -> tuple[np.ndarray, np.ndarray]:
             f"outputs and pulses must be 1-D arrays of equal length; got shapes "
             f"{v.shape} and {u.shape}"
         )
-    if not (np.all(np.isfinite(v)) and np.all(np.isfinite(u))):
+    if not (_all_finite(v) and _all_finite(u)):
         raise ValueError("modulator outputs and pulses must be finite (V)")
     return np.ascontiguousarray(v), np.ascontiguousarray(u)
 
@@ -300,10 +334,10 @@ def check_pulse_timing(
         raise ValueError(
             f"pulse starts/widths must have the pulses' shape ({n},); got {s.shape} and {w.shape}"
         )
-    on = pulses != 0.0
-    if not (np.all(np.isfinite(s)) and np.all(np.isfinite(w))):
+    fault = _timing_fault(pulses, s, w)
+    if fault == 1:
         raise ValueError("pulse starts/widths must be finite (fractions of the sample period)")
-    if np.any(on & ((s < 0.0) | (s >= 1.0))) or np.any(on & ((w <= 0.0) | (w > 1.0))):
+    if fault == 2:
         raise ValueError("pulse start must be in [0, T) and width in (0, T] (T = 1/fs)")
     return np.ascontiguousarray(s), np.ascontiguousarray(w)
 
@@ -409,26 +443,200 @@ def cov_predict(P, A, F, L, S, AP):
             P[j, i] = val
 
 
+# ------------------------------------------------- structured kernels (6-state model, EKF)
+# The matrices of eq. (2) for the model of eq. (13), and the Jacobian of the adaptive
+# observer (:mod:`mems_estimation.filters.resonator_adaptive_observer`, states 6.. its
+# parameters), have a fixed pattern of exact zeros and ones:
+#
+#   rows 0-1  resonator:   A[r, 0], A[r, 1] (Phi_s) and the parameter columns A[r, 6:]
+#   row 2     STF state:   A[2, 0] = 1 (input y), A[2, 2], A[2, 3]   (Ad row 0)
+#   row 3     STF delay:   A[3, 2] = 1
+#   row 4     NTF state:   A[4, 4], A[4, 5]                          (Ad row 0)
+#   row 5     NTF delay:   A[5, 4] = 1
+#   rows 6..  parameters:  A[a, a] = 1 (random walks)
+#   C non-zero on states 2-5 only, M on state 4 only, C_pos = [1, 0, ...];
+#   F zero outside F[0:2, 0:2], F[2, 2], F[4, 4] and F[a, a], a >= 6; B >= 0.
+#
+# The kernels below are the generic loops above (:func:`predicted_output`, :func:`kf_update`,
+# :func:`kf_predict`, :func:`cov_predict`) without the terms these zeros contribute and with
+# the unit products written as the factor itself.  The remaining terms are added in the
+# generic loops' order from the same initial value (+0.0, or G): a sum started at +0.0 is
+# never -0.0 (round to nearest), so adding an omitted term, an exact +-0 for finite operands,
+# leaves it unchanged, and 1.0 * x == x.  The results are therefore equal bit for bit to
+# the generic loops' for finite values (the core tests of these kernels check it; once a
+# filter has diverged to inf/NaN the non-finite values may differ).  A P, an intermediate,
+# is formed without the leading +0.0: it differs at most in the sign of a zero, which the
+# sums of (A P) A' (started at +0.0) do not see.  They are inlined into the per-sample
+# loops (a call with array arguments costs more than the arithmetic).  Numba invalidates a
+# cached kernel only when the text of its own source file changes, not when a function it
+# inlines or calls from another file does: after editing these, clear the cached kernels
+# of mems_sim/devices/resonator.py and mems_estimation/filters/resonator_adaptive_observer.py
+# (their files under NUMBA_CACHE_DIR), or the old code stays in use.
+
+
+@numba.njit(cache=True, inline="always")
+def predicted_output_sd(xp, P, C, G, PC):
+    """:func:`predicted_output` for C non-zero on the modulator states 2-5 only (any number
+    of states >= 6): yhat = C X(k|k-1), S = C P C' + G (eq. (2)); fills PC = P C'."""
+    c2 = C[2]
+    c3 = C[3]
+    c4 = C[4]
+    c5 = C[5]
+    for i in range(xp.shape[0]):
+        PC[i] = 0.0 + P[i, 2] * c2 + P[i, 3] * c3 + P[i, 4] * c4 + P[i, 5] * c5
+    yhat = 0.0 + c2 * xp[2] + c3 * xp[3] + c4 * xp[4] + c5 * xp[5]
+    S = G + c2 * PC[2] + c3 * PC[3] + c4 * PC[4] + c5 * PC[5]
+    return yhat, S
+
+
+@numba.njit(cache=True, inline="always")
+def kf_update6(xp, P, C, G, v, PC):
+    """:func:`kf_update` for the 6-state model (C_pos = [1, 0, 0, 0, 0, 0]): measurement
+    update at k, X(k|k) = Xp + P C'/S nu; fills PC = P C'.
+
+    Returns:
+        (nu, S, position y(k|k), its variance C_pos P(k|k) C_pos', X(k|k)[1] the scaled
+        velocity).
+    """
+    yhat, S = predicted_output_sd(xp, P, C, G, PC)
+    nu = v - yhat
+    xf0 = xp[0] + PC[0] / S * nu
+    xf1 = xp[1] + PC[1] / S * nu
+    cpc = 0.0 + PC[0]
+    return nu, S, 0.0 + xf0, (0.0 + P[0, 0]) - cpc * cpc / S, xf1
+
+
+@numba.njit(cache=True, inline="always")
+def predictor_gain_sd(A, M, PC, S, L):
+    """Predictor gain L = (A P C' + M)/S of the cross-term filter (Colinet et al. eq. (2))
+    for the structured A (any number of states >= 6; M non-zero on state 4 only);
+    PC = P C'."""
+    pc0 = PC[0]
+    pc1 = PC[1]
+    pc2 = PC[2]
+    pc4 = PC[4]
+    n = PC.shape[0]
+    s0 = 0.0 + A[0, 0] * pc0 + A[0, 1] * pc1
+    s1 = 0.0 + A[1, 0] * pc0 + A[1, 1] * pc1
+    for a in range(6, n):
+        s0 += A[0, a] * PC[a]
+        s1 += A[1, a] * PC[a]
+    L[0] = s0 / S
+    L[1] = s1 / S
+    L[2] = (0.0 + pc0 + A[2, 2] * pc2 + A[2, 3] * PC[3]) / S
+    L[3] = (0.0 + pc2) / S
+    L[4] = (0.0 + A[4, 4] * pc4 + A[4, 5] * PC[5] + M[4]) / S
+    L[5] = (0.0 + pc4) / S
+    for a in range(6, n):
+        L[a] = (0.0 + PC[a]) / S
+
+
+@numba.njit(cache=True, inline="always")
+def kf_predict6(xp, P, A, F, M, nu, S, PC, L, AP):
+    """:func:`kf_predict` for the 6-state model with u = 0 (the pulses enter through
+    :func:`add_pulse_input`; B >= 0, so B u = +0): Xp <- A Xp + L nu,
+    P <- A P A' + F - L L' S (Colinet et al. eq. (2) with the cross term M,
+    L = (A P C' + M)/S).  L (6,) and AP (6, 6) are scratch."""
+    predictor_gain_sd(A, M, PC, S, L)
+    x0 = xp[0]
+    x1 = xp[1]
+    x2 = xp[2]
+    x3 = xp[3]
+    x4 = xp[4]
+    x5 = xp[5]
+    xp[0] = 0.0 + L[0] * nu + A[0, 0] * x0 + A[0, 1] * x1
+    xp[1] = 0.0 + L[1] * nu + A[1, 0] * x0 + A[1, 1] * x1
+    xp[2] = 0.0 + L[2] * nu + x0 + A[2, 2] * x2 + A[2, 3] * x3
+    xp[3] = 0.0 + L[3] * nu + x2
+    xp[4] = 0.0 + L[4] * nu + A[4, 4] * x4 + A[4, 5] * x5
+    xp[5] = 0.0 + L[5] * nu + x4
+    cov_predict_sd(P, A, F, L, S, AP)
+
+
+@numba.njit(cache=True, inline="always")
+def cov_predict_sd(P, A, F, L, S, AP):
+    """:func:`cov_predict` for the structured A: the 6-state model (n = 6) or the adaptive
+    observer's Jacobian with its parameter states 6.. (f0, Q): P <- A P A' + F - L L' S in
+    place (Colinet et al. eq. (2) with the cross term; L = (A P C' + M)/S).  AP (n, n) is
+    scratch."""
+    n = P.shape[0]
+    a00 = A[0, 0]
+    a01 = A[0, 1]
+    a10 = A[1, 0]
+    a11 = A[1, 1]
+    a22 = A[2, 2]
+    a23 = A[2, 3]
+    a44 = A[4, 4]
+    a45 = A[4, 5]
+    # A P; rows 3, 5 and 6.. of A pick rows 2, 4 and 6.. of P
+    for m in range(n):
+        p0 = P[0, m]
+        p1 = P[1, m]
+        p2 = P[2, m]
+        p4 = P[4, m]
+        s0 = a00 * p0 + a01 * p1
+        s1 = a10 * p0 + a11 * p1
+        for a in range(6, n):
+            s0 += A[0, a] * P[a, m]
+            s1 += A[1, a] * P[a, m]
+        AP[0, m] = s0
+        AP[1, m] = s1
+        AP[2, m] = p0 + a22 * p2 + a23 * P[3, m]
+        AP[3, m] = p2
+        AP[4, m] = a44 * p4 + a45 * P[5, m]
+        AP[5, m] = p4
+        for a in range(6, n):
+            AP[a, m] = P[a, m]
+    # (A P) A' + F - L L' S: upper triangle (i <= j) by the rows j of A, mirrored
+    for j in range(2):  # resonator rows (and their parameter columns)
+        aj0 = A[j, 0]
+        aj1 = A[j, 1]
+        for i in range(j + 1):
+            acc = 0.0 + AP[i, 0] * aj0 + AP[i, 1] * aj1
+            for a in range(6, n):
+                acc += AP[i, a] * A[j, a]
+            val = acc + F[i, j] - L[i] * L[j] * S
+            P[i, j] = val
+            P[j, i] = val
+    for i in range(3):  # STF state, A[2] = [1, 0, a22, a23, 0, ...]
+        val = (0.0 + AP[i, 0] + AP[i, 2] * a22 + AP[i, 3] * a23) + F[i, 2] - L[i] * L[2] * S
+        P[i, 2] = val
+        P[2, i] = val
+    for i in range(4):  # STF delay, A[3] = e_2; F[:, 3] = 0
+        val = (0.0 + AP[i, 2]) - L[i] * L[3] * S
+        P[i, 3] = val
+        P[3, i] = val
+    for i in range(5):  # NTF state, A[4] = [0, 0, 0, 0, a44, a45, 0, ...]
+        val = (0.0 + AP[i, 4] * a44 + AP[i, 5] * a45) + F[i, 4] - L[i] * L[4] * S
+        P[i, 4] = val
+        P[4, i] = val
+    for i in range(6):  # NTF delay, A[5] = e_4; F[:, 5] = 0
+        val = (0.0 + AP[i, 4]) - L[i] * L[5] * S
+        P[i, 5] = val
+        P[5, i] = val
+    for j in range(6, n):  # parameters (random walks), A[j] = e_j
+        for i in range(j + 1):
+            val = (0.0 + AP[i, j]) + F[i, j] - L[i] * L[j] * S
+            P[i, j] = val
+            P[j, i] = val
+
+
 @numba.njit(cache=True)
-def _kf_run(
-    bits, pulses, starts, widths, xp, P, A, B, C, Cp, F, G, M, res, gam, spill, pos, var, innov
-):
-    # res = [f0, Q, fs, w0 velocity scale] of the model
-    n = xp.shape[0]
-    xf = np.empty(n)
-    PC = np.empty(n)
-    L = np.empty(n)
-    AP = np.empty((n, n))
-    tmp = np.empty(n)
+def _kf_run(bits, pulses, starts, widths, xp, P, A, C, F, G, M, res, gam, spill, pos, var, innov):
+    # time-varying filter of the 6-state model (kf_update6 / kf_predict6, equal bit for bit
+    # to the generic kf_update / kf_predict); res = [f0, Q, fs, w0 velocity scale] of the model
+    PC = np.empty(6)
+    L = np.empty(6)
+    AP = np.empty((6, 6))
     eff = np.empty(2)
     z = np.empty(6)
     wc = np.full(3, -1.0)
     for k in range(bits.shape[0]):
-        nu, S, p, pv = kf_update(xp, P, C, G, Cp, bits[k], xf, PC)
+        nu, S, p, pv, _ = kf_update6(xp, P, C, G, bits[k], PC)
         pos[k] = p
         var[k] = pv
         innov[k] = nu / math.sqrt(S)
-        kf_predict(xp, P, A, B, F, M, 0.0, nu, S, PC, L, AP, tmp)
+        kf_predict6(xp, P, A, F, M, nu, S, PC, L, AP)
         if pulses[k] != 0.0 or spill[0] != 0.0:  # (call guarded: array-argument
             add_pulse_input(
                 xp,
@@ -790,9 +998,7 @@ class KalmanObserver:
                 self.x,
                 self.P,
                 m.A,
-                m.B,
                 m.C,
-                m.C_pos,
                 m.F,
                 m.G,
                 m.M,

@@ -14,6 +14,7 @@ The estimator nodes' base, ``EstimatorNode``, is in ``mems_estimation.nodes.fram
 from __future__ import annotations
 
 import dataclasses
+import os
 import sys
 from collections.abc import Callable, Iterable
 
@@ -668,6 +669,57 @@ def _raise_interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
+#: Environment variable choosing the executor of :func:`run_node`: ``events`` (default:
+#: rclpy's C++ ``rclpy.experimental.EventsExecutor``) or ``single``
+#: (``rclpy.executors.SingleThreadedExecutor``).
+EXECUTOR_ENV = "MEMS_EXECUTOR"
+
+
+def _events_unsupported(node) -> bool:
+    """True if ``node`` has what rclpy 9.1's events executor cannot run: a subscription
+    whose callback takes the message info (``SystemError: null argument to internal
+    routine`` at its first message) or a guard condition ("Guard conditions not
+    supported")."""
+    from rclpy.subscription import Subscription
+
+    info = Subscription.CallbackType.WithMessageInfo
+    return bool(list(node.guards)) or any(
+        getattr(s, "_callback_type", None) == info for s in node.subscriptions
+    )
+
+
+def make_executor(node):
+    """The executor :func:`run_node` spins ``node`` with (:data:`EXECUTOR_ENV`).
+
+    ``events`` (the default): rclpy's C++ ``rclpy.experimental.EventsExecutor``, which
+    runs each ready subscription, timer or service from a C++ event queue. The Python
+    ``SingleThreadedExecutor`` rebuilds its wait set (every entity of the node, through
+    ``contextlib.ExitStack``) before every callback: CPU that a node taking ~100 frames a
+    second pays (docs/profiles.md). ``single``: the ``SingleThreadedExecutor``.
+
+    The single-threaded executor is used anyway when ``rclpy.experimental`` has no
+    events executor or the node has what it cannot run (:func:`_events_unsupported`);
+    entities created later are picked up by both. The events executor installs its own
+    SIGINT/SIGTERM handlers when built; :func:`run_node` installs its handlers after.
+    """
+    from rclpy.executors import SingleThreadedExecutor
+
+    choice = os.environ.get(EXECUTOR_ENV, "events").strip().lower() or "events"
+    if choice not in ("events", "single"):
+        raise ParameterError(
+            f"environment variable {EXECUTOR_ENV} = {choice!r} is invalid: allowed "
+            "'events' or 'single'"
+        )
+    if choice == "events" and not _events_unsupported(node):
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:
+            pass
+        else:
+            return EventsExecutor()
+    return SingleThreadedExecutor()
+
+
 def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> int:
     """Init rclpy, spin the node made by ``factory`` until shutdown; clean exit codes.
 
@@ -684,7 +736,7 @@ def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> in
     import signal
 
     import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.executors import ExternalShutdownException
     from rclpy.signals import SignalHandlerOptions
 
     apply_defaults()
@@ -702,11 +754,12 @@ def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> in
         node = factory()
         # one executor for the node's life: rclpy.spin_once(node) adds and removes the node
         # on every call, which wakes and rebuilds the wait set once per callback
-        executor = SingleThreadedExecutor()
+        executor = make_executor(node)
         executor.add_node(node)
         # while spinning, a stop signal only sets a flag that the loop reads between
         # callbacks: raised inside rclpy's C++ take of a message it surfaced as a RuntimeError
-        # ("Unable to convert call argument") and the node died with a traceback
+        # ("Unable to convert call argument") and the node died with a traceback; set after
+        # the executor is built (they replace the events executor's own handlers)
         stop: list[int] = []
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda signum, frame: stop.append(signum))

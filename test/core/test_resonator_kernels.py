@@ -1,0 +1,202 @@
+"""The structured kernels of the resonator observers against the generic loops, bit for bit.
+
+:mod:`mems_sim.kernels.resonator_observer` keeps the generic n x n loops of the Kalman
+recursion of Colinet et al. eq. (2) (``predicted_output``, ``kf_update``, ``kf_predict``,
+``cov_predict``) next to the structured kernels the observers and the device run
+(``predicted_output_sd``, ``kf_update6``, ``kf_predict6``, ``predictor_gain_sd``,
+``cov_predict_sd``), which skip the exact zeros of the model's matrices; the two must give
+equal floats (same bits) for finite inputs, so recordings and reference tables do not
+move.  Checked here on the 6-state model and on the adaptive observer's Jacobian pattern
+(7 and 8 states), with a covariance that starts with exact zeros (the device's prior) and
+with random positive-definite ones; the frame checks keep their results and messages.
+The whole kernels (device, observers) against the old ones: ``bench/bench_sd_resonator.py
+--check-only``, and the slow test below.
+"""
+
+import importlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mems_sim.kernels.resonator_observer import (
+    _sd_blocks,
+    check_bits,
+    check_pulse_timing,
+    cov_predict,
+    cov_predict_sd,
+    kf_predict,
+    kf_predict6,
+    kf_update,
+    kf_update6,
+    observer_model,
+    predicted_output,
+    predicted_output_sd,
+    predictor_gain_sd,
+)
+
+FS, F0, Q = 1e6, 5e4, 100.0
+
+
+def _bits(x):
+    return np.asarray(x, dtype=float).view(np.int64)
+
+
+def _same(a, b):
+    return np.array_equal(_bits(a), _bits(b))
+
+
+def _spd(rng, n, scale=1.0):
+    a = rng.standard_normal((n, n))
+    p = a @ a.T * scale + np.eye(n) * 1e-3 * scale
+    return 0.5 * (p + p.T)
+
+
+def _models():
+    yield observer_model(F0, Q, FS, 0.25, 5e-4)
+    yield observer_model(1.05 * F0, 80.0, FS, 0.5, 0.0, quantizer_gain=1.247)
+    yield observer_model(0.2 * FS, 3.0, FS, 0.0, 1e-3, sd_feedforward=0.0)
+
+
+def _jacobian(rng, n, kappa=1.247):
+    """The adaptive observer's J (rows 0-1 resonator and parameter columns, STF/NTF blocks,
+    random-walk rows), F and M as its kernel builds them."""
+    Ad, _, _ = _sd_blocks(0.5, kappa)
+    J = np.zeros((n, n))
+    J[0:2, 0:2] = rng.standard_normal((2, 2)) * 0.5 + np.eye(2) * 0.5
+    J[0:2, 6:] = rng.standard_normal((2, n - 6)) * 3.0
+    J[2, 0] = 1.0
+    J[2:4, 2:4] = Ad
+    J[4:6, 4:6] = Ad
+    for a in range(6, n):
+        J[a, a] = 1.0
+    g = np.abs(rng.standard_normal(2))
+    F = np.zeros((n, n))
+    F[0:2, 0:2] = np.outer(g, g) * 1e-6
+    F[2, 2] = 0.0625
+    F[4, 4] = 1.0 - 2.0 / np.pi
+    for a in range(6, n):
+        F[a, a] = 4e-14
+    M = np.zeros(n)
+    M[4] = 1.0 - 2.0 / np.pi
+    return J, F, M
+
+
+@pytest.mark.parametrize("start", ["zeros", "random"])
+def test_kf6_steps_equal_generic(start):
+    """kf_update6 / kf_predict6 (with u = 0, as the filters call them) against kf_update /
+    kf_predict over 500 steps of one-bit measurements: x, P, nu, S, position, variance."""
+    rng = np.random.default_rng(7)
+    for m in _models():
+        P0 = np.diag([0.0, 0.0, 0.0, 0.0, 0.0, 0.0]) if start == "zeros" else _spd(rng, 6)
+        x0 = np.zeros(6) if start == "zeros" else rng.standard_normal(6)
+        xa, Pa, xb, Pb = x0.copy(), P0.copy(), x0.copy(), P0.copy()
+        xf, PC, L, AP, tmp = (np.empty(6), np.empty(6), np.empty(6), np.empty((6, 6)), np.empty(6))
+        PCb, Lb, APb = np.empty(6), np.empty(6), np.empty((6, 6))
+        for v in np.sign(rng.standard_normal(500)):
+            ra = kf_update(xa, Pa, m.C, m.G, m.C_pos, v, xf, PC)
+            rb = kf_update6(xb, Pb, m.C, m.G, v, PCb)
+            assert _same(ra, rb[:4]) and _same(xf[1], rb[4]) and _same(PC, PCb)
+            kf_predict(xa, Pa, m.A, m.B, m.F, m.M, 0.0, ra[0], ra[1], PC, L, AP, tmp)
+            kf_predict6(xb, Pb, m.A, m.F, m.M, rb[0], rb[1], PCb, Lb, APb)
+            assert _same(L, Lb) and _same(xa, xb) and _same(Pa, Pb)
+
+
+@pytest.mark.parametrize("n", [6, 7, 8, 9])
+def test_structured_covariance_equal_generic(n):
+    """predicted_output_sd, predictor_gain_sd and cov_predict_sd on the Jacobian pattern
+    of the adaptive observer (n = 7: f0, n = 8: f0 and Q, n = 9: any number of parameter
+    states) against the generic loops, on
+    covariances with exact zeros (the warm-up's held parameter rows) and random ones."""
+    rng = np.random.default_rng(n)
+    _, c_stf, c_ntf = _sd_blocks(0.5, 1.247)
+    C = np.zeros(n)
+    C[2:4] = c_stf
+    C[4:6] = c_ntf
+    G = 1.0 - 2.0 / np.pi
+    for trial in range(40):
+        J, F, M = _jacobian(rng, n)
+        P = _spd(rng, n, 10.0 ** rng.uniform(-8, 1))
+        if trial % 4 == 0:
+            P[6:, :] = 0.0
+            P[:, 6:] = 0.0
+        if trial % 4 == 1:
+            P[:, :] = 0.0
+        xp = rng.standard_normal(n)
+        PCa, PCb = np.empty(n), np.empty(n)
+        yhat, S = predicted_output(xp, P, C, G, PCa)
+        assert _same((yhat, S), predicted_output_sd(xp, P, C, G, PCb))
+        assert _same(PCa, PCb)
+        La = np.empty(n)  # L = (J P C' + M)/S as the generic loop of the EKF formed it
+        for i in range(n):
+            acc = 0.0
+            for j in range(n):
+                acc += J[i, j] * PCa[j]
+            La[i] = (acc + M[i]) / S
+        Lb = np.empty(n)
+        predictor_gain_sd(J, M, PCa, S, Lb)
+        assert _same(La, Lb)
+        Pa, Pb = P.copy(), P.copy()
+        cov_predict(Pa, J, F, La, S, np.empty((n, n)))
+        cov_predict_sd(Pb, J, F, Lb, S, np.empty((n, n)))
+        assert _same(Pa, Pb)
+
+
+@pytest.mark.parametrize(
+    "bits, pulses, starts, widths",
+    [
+        ([1, -1, 0, 2], [0.0] * 4, None, None),
+        ([1, -1, 1.0, np.nan], [0.0] * 4, None, None),
+        ([1, -1, 1, 1], [0, np.inf, 0, 0], None, None),
+        ([1, -1, 1, 1], [0, 1, 0, 0], [0, 2e-6, 0, 0], None),
+        ([1, -1, 1, 1], [0, 1, 0, 0], [0, np.nan, 0, 0], None),
+        ([1, -1, 1, 1], [0, 0, 0, 0], [0, -np.inf, 0, 0], None),
+        ([1, -1, 1, 1], [0, 1, 0, 0], None, [0, 0, 0, 0.0]),
+        ([1, -1, 1, 1], [0, 1, 0, 0], [0, -1e-9, 0, 0], [0, 1e-7, 0, 0.0]),
+        ([1, -1, 1, 1], [0, 1, 0, 0], [0, 0.5e-6, 0, 0], [0, 1.1e-6, 0, 0.0]),
+    ],
+)
+def test_frame_checks_reject(bits, pulses, starts, widths):
+    """The frame checks name the fault as before (bad bit with its index and count,
+    non-finite pulses, non-finite or out-of-range timing where a pulse is fired)."""
+    with pytest.raises(ValueError) as err:
+        b, u = check_bits(np.array(bits), np.array(pulses, dtype=float))
+        check_pulse_timing(
+            u,
+            None if starts is None else np.array(starts),
+            None if widths is None else np.array(widths),
+            FS,
+        )
+    msg = str(err.value)
+    if any(v not in (1, -1) for v in bits):
+        assert "one-bit convention" in msg and "at index" in msg
+    elif not np.all(np.isfinite(pulses)):
+        assert msg == "pulses must be finite (V)"
+    elif starts is not None and not np.all(np.isfinite(starts)):
+        assert msg.startswith("pulse starts/widths must be finite")
+    else:
+        assert msg.startswith("pulse start must be in [0, T)")
+
+
+def test_frame_checks_accept():
+    """Valid frames pass unchanged: float64 contiguous bits, pulses, starts and widths in T
+    (strided inputs included); timing outside the window is allowed where no pulse fires."""
+    bits = np.array([1, -1, 1, 1, -1, 1], dtype=np.int8)[::2]
+    pulses = np.array([0.0, 0.2, -0.3, 0.0, 0.0, 0.0])[::2]
+    starts = np.array([5e-6, 0.0, 0.4e-6, 0.0, 0.0, 0.0])[::2]
+    b, u = check_bits(bits, pulses)
+    s, w = check_pulse_timing(u, starts, None, FS)
+    assert b.dtype == u.dtype == s.dtype == w.dtype == np.float64
+    assert all(a.flags.c_contiguous for a in (b, u, s, w))
+    assert _same(b, [1, 1, -1]) and _same(u, [0.0, -0.3, 0.0]) and _same(w, [1.0, 1.0, 1.0])
+    assert _same(s, np.array([5e-6, 0.4e-6, 0.0]) * FS)
+
+
+@pytest.mark.slow
+def test_kernels_equal_old_reference(monkeypatch):
+    """Device frames and observer outputs (with their carried states) equal bit for bit to
+    the old generic-loop kernels kept in bench/bench_sd_resonator.py (one seed, 50,000
+    samples per case)."""
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2] / "bench"))
+    bench = importlib.import_module("bench_sd_resonator")  # (its cached kernels need the name)
+    assert bench.check_equal(seeds=(5,), n=50_000, frame=1000)
