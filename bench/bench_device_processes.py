@@ -70,7 +70,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
-from paced_device import cpu_ticks, machine_ticks, reap
+from paced_device import cpu_ticks, machine_ticks, reap, wait_quiet
 
 from mems_sim.table import format_table
 
@@ -472,26 +472,6 @@ class _EarlyExit(Exception):
     """A process of the graph ended before the device's data did."""
 
 
-def _quiet(procs: list, limit_s: float) -> float:
-    """Wait until ``procs`` stop using CPU (0.5 s without a tick beyond noise); the time
-    it took (``limit_s`` at most)."""
-    hz = os.sysconf("SC_CLK_TCK")
-    t0 = time.monotonic()
-    prev, quiet_since = None, None
-    while time.monotonic() - t0 < limit_s:
-        ticks = sum(cpu_ticks(p.pid) for p in procs)
-        now = time.monotonic()
-        if prev is not None and ticks - prev <= 0.05 * hz * 0.1 * len(procs) + 1:
-            quiet_since = quiet_since or now
-            if now - quiet_since >= 0.5:
-                break
-        else:
-            quiet_since = None
-        prev = ticks
-        time.sleep(0.1)
-    return (quiet_since or time.monotonic()) - t0
-
-
 def run_graph(g: Graph, pace: float, domain_id: int, tmp: Path, keep: str | None = None) -> dict:
     """Run ``g``'s processes; the figures of the module docstring."""
     from mems_sim.bag.info import bag_info
@@ -538,7 +518,7 @@ def run_graph(g: Graph, pace: float, domain_id: int, tmp: Path, keep: str | None
         if early:
             raise _EarlyExit(early[0])
         rest = [procs[c.name] for c in g.consumers] + [procs["recorder"]]
-        drain_s = _quiet(rest, 120.0)
+        drain_s = wait_quiet(rest, 120.0)
         time.sleep(1.1)  # one more /diagnostics of every node, with its final counters
         stop_ns = time.time_ns()  # what the consumers publish from now on: at shutdown
         for c in g.consumers:

@@ -63,6 +63,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from paced_device import cpu_ticks as _cpu_ticks
 from paced_device import machine_ticks as _machine_ticks
 from paced_device import reap as _reap
+from paced_device import wait_quiet
 
 
 def _best(fn, repeats=3):
@@ -636,24 +637,9 @@ def graph_processes(
                 cpu["stage"] = _reap(procs["stage"], 0.05)
                 if time.monotonic() > deadline:
                     raise RuntimeError("the stage process did not finish in 180 s")
-            t_stage_exit = time.monotonic()
             # the consumers are done when they stop using CPU (no ROS participant of ours)
             rest = [procs[n] for n in ("ekf", "calibration", "recorder")]
-            hz = os.sysconf("SC_CLK_TCK")
-            prev, quiet_since = None, None
-            deadline = time.monotonic() + 60.0
-            while time.monotonic() < deadline:
-                ticks = sum(_cpu_ticks(p.pid) for p in rest)
-                now = time.monotonic()
-                if prev is not None and ticks - prev <= 0.05 * hz * 0.1 * len(rest) + 1:
-                    quiet_since = quiet_since or now
-                    if now - quiet_since >= 0.5:
-                        break
-                else:
-                    quiet_since = None
-                prev = ticks
-                time.sleep(0.1)
-            drain_s = (quiet_since or time.monotonic()) - t_stage_exit
+            drain_s = wait_quiet(rest, 60.0)
             for name in ("calibration", "ekf", "recorder"):
                 procs[name].send_signal(signal.SIGINT)
                 cpu[name] = _reap(procs[name], 60.0)

@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import os
 import resource
 import sys
 import time
@@ -100,6 +101,26 @@ def reap(proc, timeout_s: float) -> float | None:
 
 
 # ------------------------------------------------------------------ the device process
+
+
+def wait_quiet(procs: list, limit_s: float) -> float:
+    """Wait until ``procs`` stop using CPU (0.5 s without a tick beyond noise); the time
+    it took (``limit_s`` at most)."""
+    hz = os.sysconf("SC_CLK_TCK")
+    t0 = time.monotonic()
+    prev, quiet_since = None, None
+    while time.monotonic() - t0 < limit_s:
+        ticks = sum(cpu_ticks(p.pid) for p in procs)
+        now = time.monotonic()
+        if prev is not None and ticks - prev <= 0.05 * hz * 0.1 * len(procs) + 1:
+            quiet_since = quiet_since or now
+            if now - quiet_since >= 0.5:
+                break
+        else:
+            quiet_since = None
+        prev = ticks
+        time.sleep(0.1)
+    return (quiet_since or time.monotonic()) - t0
 
 
 def node_class(spec: str):
