@@ -70,7 +70,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
-from paced_device import cpu_ticks, machine_ticks, reap, wait_quiet
+from paced_device import cpu_ticks, machine_ticks, process_env, reap, wait_quiet
 
 from mems_sim.table import format_table
 
@@ -476,16 +476,7 @@ def run_graph(g: Graph, pace: float, domain_id: int, tmp: Path, keep: str | None
     """Run ``g``'s processes; the figures of the module docstring."""
     from mems_sim.bag.info import bag_info
 
-    env = dict(
-        os.environ,
-        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-        ROS_DOMAIN_ID=str(domain_id),
-        PYTHONUNBUFFERED="1",
-        PYTHONPATH=os.pathsep.join(
-            [str(HERE.parent)] + [x for x in [os.environ.get("PYTHONPATH")] if x]
-        ),
-    )
-    env.pop("ROS_LOCALHOST_ONLY", None)
+    env = process_env(domain_id)
     out = tmp / f"{g.family}.mcap"
     sim = g.device.params.get("duration_s")
     max_wall = 60.0 + 20.0 * (sim or 30.0) / pace

@@ -62,8 +62,8 @@ from mems_sim.devices.stage_capacitance import EPS0, dcdtheta_single
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from paced_device import cpu_ticks as _cpu_ticks
 from paced_device import machine_ticks as _machine_ticks
+from paced_device import process_env, wait_quiet
 from paced_device import reap as _reap
-from paced_device import wait_quiet
 
 
 def _best(fn, repeats=3):
@@ -534,16 +534,7 @@ def graph_processes(
     ns = "/stage_t1"
     py = sys.executable
     here = Path(__file__).resolve().parent
-    env = dict(
-        os.environ,
-        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-        ROS_DOMAIN_ID=str(domain_id),
-        PYTHONUNBUFFERED="1",
-        PYTHONPATH=os.pathsep.join(
-            [str(here.parent)] + [x for x in [os.environ.get("PYTHONPATH")] if x]
-        ),
-    )
-    env.pop("ROS_LOCALHOST_ONLY", None)
+    env = process_env(domain_id)
     env.update(extra_env or {})
     topics = [f"{ns}/{t}" for t in gc.RECORDED] + ["/diagnostics"]
     frames_topics = ("adc", "drive", "truth", "estimate")

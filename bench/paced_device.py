@@ -103,6 +103,21 @@ def reap(proc, timeout_s: float) -> float | None:
 # ------------------------------------------------------------------ the device process
 
 
+def process_env(domain_id: int) -> dict:
+    """Environment of a graph's process: this one's, with localhost discovery in
+    ``domain_id``, unbuffered output and the repository on ``PYTHONPATH``."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(
+        os.environ,
+        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+        ROS_DOMAIN_ID=str(domain_id),
+        PYTHONUNBUFFERED="1",
+        PYTHONPATH=os.pathsep.join([root] + [x for x in [os.environ.get("PYTHONPATH")] if x]),
+    )
+    env.pop("ROS_LOCALHOST_ONLY", None)
+    return env
+
+
 def wait_quiet(procs: list, limit_s: float) -> float:
     """Wait until ``procs`` stop using CPU (0.5 s without a tick beyond noise); the time
     it took (``limit_s`` at most)."""

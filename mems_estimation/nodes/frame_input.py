@@ -162,17 +162,7 @@ def adc_columns(msg: AdcFrame, cols, codes: np.ndarray | None = None) -> np.ndar
         ends = np.concatenate([lo * lsb + offset, hi * lsb + offset])
     if not np.all(np.isfinite(ends)):
         return np.ascontiguousarray(adc_physical(msg)[:, list(cols)])
-    cols = [int(c) for c in cols]
     out = np.empty((codes.shape[0], len(cols)))
-    if (
-        cols == list(range(nch))
-        and np.all(lsb == lsb[0])
-        and np.all(offset.view(np.int64) == offset[:1].view(np.int64))
-    ):
-        # one lsb and offset for all channels: scalar operands, same values
-        np.multiply(codes, lsb[0], out=out)
-        out += offset[0]
-        return out
     for j, c in enumerate(cols):
         col = out[:, j]
         np.multiply(codes[:, c], lsb[c], out=col)
