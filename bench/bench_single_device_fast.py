@@ -16,7 +16,7 @@ The graphs (device parameters as the scenarios set them, shorter durations):
 - accelerometer: ``FrAccelerometerNode`` (1 MHz, PI rebalance loop at 1 g, 10,000-sample
   frames) + the downstream hybrid EKF node.
 - resonator: ``SdResonatorNode`` (1 MHz, observer-mode loop, noisy) + one observer set
-  (exact model, 5 % f0 error, adaptive), 1000-sample frames.
+  (exact model, 5 % f0 error, adaptive), 10,000-sample frames (the node's default).
 - scanner: ``MicroScannerNode`` (500 kHz, drifted sensing comb, the whole drive programme)
   + threshold detector / hybrid EKF node, 5000-sample frames.
 - scanner_amdm: ``ScannerAmdmNode`` (1 MHz out, 10 MHz internal, driven into parametric
@@ -102,7 +102,7 @@ def _resonator(graph, duration):
             pulse_amplitude=default_pulse_amplitude(0.25),
             seed=1,
             duration_s=duration,
-            frame_size=1000,
+            frame_size=10000,
         ),
         realtime=False,
         namespace=ns,
@@ -236,7 +236,7 @@ def _stage(graph, duration, tmp: Path):
 BUILDERS = {
     "imu": (_imu, 300.0),
     "accelerometer": (_accelerometer, 0.2),
-    "resonator": (_resonator, 0.1),
+    "resonator": (_resonator, 0.4),
     "scanner": (_scanner, 0.4),
     "scanner_amdm": (_scanner_amdm, 0.06),
     "stage": (_stage, 0.5),

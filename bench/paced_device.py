@@ -25,9 +25,8 @@ executable (``mems_sim/nodes/*_node.py``), none of which the node itself offers:
   without an end (no ``duration_s``, no schedule) is refused; ``--max-wall=S`` stops it
   after S wall seconds of publishing (then ``finished`` is false);
 * before the timer starts, one frame of a copy of the node's device is computed (unless
-  ``--no-warm``), so that numba kernels are loaded before the first frame is due: only the
-  stage node loads its kernels at construction, the others at their first frame, which is
-  then published late (0.4 s for the accelerometer) and the following ones catch up;
+  ``--no-warm``; the node's ``warm_kernels``, which a self-started node runs before its
+  timer), so that numba kernels are loaded before the first frame is due;
 * it prints one JSON line with the timing:
 
     frames, samples, fs, frame_size, pace (``realtime_factor``), t_first/t_last
@@ -159,20 +158,20 @@ def _executor(node):
 
 
 def _warm(dev) -> bool:
-    """Load the device's compiled kernels before the first frame: one frame of a copy of
-    the node's device (its state and noise streams untouched): ``device.step(n)``, or for
-    the IMU ``model.generate(n, ...)`` at rest. False when the node has neither or the copy
-    fails."""
+    """Load the device's compiled kernels before the first frame: the node's
+    ``warm_kernels()`` (one short frame of a copy of its device), or for the IMU
+    ``model.generate(n, ...)`` at rest on a copy. False when the node has neither or the
+    copy fails."""
     import copy
 
     import numpy as np
 
+    if dev.warm_kernels():
+        return True
     n = int(dev.p["frame_size"])
-    device, model = getattr(dev, "device", None), getattr(dev, "model", None)
+    model = getattr(dev, "model", None)
     try:
-        if device is not None and hasattr(device, "step"):
-            copy.deepcopy(device).step(n)
-        elif model is not None and hasattr(model, "generate"):
+        if model is not None and hasattr(model, "generate"):
             copy.deepcopy(model).generate(n, np.zeros((n, 3)), np.zeros((n, 3)), np.full(n, 25.0))
         else:
             return False

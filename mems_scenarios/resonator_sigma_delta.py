@@ -127,7 +127,7 @@ def build_graph(options: ScenarioOptions, out: Path, duration: float):
             params,
             seed=device_seed(options.seed, k),
             duration_s=float(duration),
-            frame_size=1000,
+            frame_size=10000,
         )
         devices[ns] = graph.add_device(SdResonatorNode, p, realtime=options.realtime, namespace=ns)
     observers = {}

@@ -10,9 +10,13 @@ the 6 states of :mod:`mems_sim.kernels.resonator_observer` augmented with
     r = Q/Q_init - 1   (estimate_q)     (random walk, std q_random_walk_ppm*1e-6 per sample)
 
 The resonator block is re-discretised every sample at the current estimate
-(closed-form ZOH, :func:`mems_sim.devices.resonator_models.resonator_zoh`) and its Jacobian
-with respect to d (and r) is taken by a central difference of that closed form
-(step 1e-7, relative error ~1e-9).  The modulator part and the noise model
+(closed-form ZOH, :func:`mems_sim.devices.resonator_models.resonator_zoh`).  Its Jacobian
+column with respect to d is the analytic f0 derivative of that closed form at fixed Q and T
+(:func:`_zoh_dlog_t`: Phi and Gam differentiated in closed form; agrees with a
+Richardson-extrapolated central difference to ~1e-11), computed from the same exp/sin/cos
+as the transition itself, so one set per sample instead of the three of a central
+difference.  The column with respect to r (estimate_q) is a central difference of the
+closed form (step 1e-7, relative error ~1e-9).  The modulator part and the noise model
 (F, G, M with the cross-covariance of eq. (2)) are those of the linear observer;
 the velocity state is scaled by the fixed w_ref = 2 pi f0_init.  By default the
 quantiser is linearised statistically (Bussgang gain, see
@@ -39,8 +43,12 @@ Recursion per sample (a-priori form with the cross term, J = df/dX at X(k|k)):
     Xp <- f(X(k|k), u(k)) + M nu / S,   L = (J P C' + M)/S,   P <- J P J' + F(k) - L L' S
 
 f includes the exact pulse term of sub-sample pulses (fired at s T, width w T) at the
-current f0 estimate, :func:`mems_sim.devices.resonator_models.interval_input`; its f0 (and Q) derivative
-enters J by the same central difference.
+current f0 estimate, the term of :func:`mems_sim.devices.resonator_models.interval_input`
+(the same floats); it is formed together with its f0 derivative (:func:`_pulse_dlog`, the
+product rule on the two sub-sample discretisations of each pulse segment), and its Q
+derivative (estimate_q) by the same central difference as the transition's.  The
+covariance prediction is :func:`_cov_predict_ekf`, the floats of the structured kernel
+:func:`mems_sim.kernels.resonator_observer.cov_predict_sd` written out for n = 7 and 8.
 """
 
 from __future__ import annotations
@@ -60,7 +68,6 @@ from mems_sim.kernels.resonator_observer import (
     _sd_blocks,
     check_bits,
     check_pulse_timing,
-    cov_predict_sd,
     predicted_output_sd,
     predictor_gain_sd,
 )
@@ -84,6 +91,169 @@ def _res_scaled(f0, Q, fs, wref, out):
     out[5] = z[5] / wref
 
 
+@numba.njit(cache=True, inline="always")
+def _zoh_dlog_t(f0, Q, fs, dt):
+    """Closed-form ZOH of eq. (7) over dt and its logarithmic f0 derivative at fixed Q, fs, dt.
+
+    The first six values are those of
+    :func:`mems_sim.devices.resonator_models.resonator_zoh_t` (Colinet, Galayko &
+    Juillard, eqs. (7)-(9); the same operations, so the same floats):
+    [Phi11 (1), Phi12 (s), Phi21 (1/s), Phi22 (1), Gam1 (1), Gam2 (1/s)].  The last six
+    are f0 d/df0 of each (same units), by differentiating that closed form: with
+    w0 = 2 pi f0, sigma = w0/(2Q), wd = w0 sqrt(1 - 1/(4Q^2)), a = sigma dt, th = wd dt,
+    kappa = sigma/wd (independent of f0), E = exp(-a), C = E cos th, S = E sin th,
+    a and th are proportional to f0, so f0 d/df0 maps E -> -a E, cos th -> -th sin th,
+    sin th -> th cos th, and
+
+        f0 dPhi11/df0 = -a Phi11 + th (kappa C - S)
+        f0 dPhi12/df0 = -(1 + a) Phi12 + dt C
+        f0 dPhi21/df0 = -w0^2 ((1 - a) Phi12 + dt C)          (Phi21 = -w0^2 Phi12)
+        f0 dPhi22/df0 = -a Phi22 - th (S + kappa C)
+        f0 dGam1/df0  = -(fs/w0) (f0 dPhi11/df0 + 1 - Phi11)   (Gam1 = fs (1 - Phi11)/w0)
+        f0 dGam2/df0  = fs w0 (dt C - a Phi12)                 (Gam2 = fs w0 Phi12)
+
+    One exp/sin/cos set for both (the central difference it replaces needed three).
+    dt = 0 gives Phi = I, Gam = 0 and zero derivatives.
+
+    Args:
+        f0: natural frequency, Hz (> 0). Q: quality factor (> 0.5). fs: sample rate, Hz.
+        dt: duration, s (>= 0).
+    """
+    w0 = 2.0 * math.pi * f0
+    sig = w0 / (2.0 * Q)
+    wd = w0 * math.sqrt(1.0 - 1.0 / (4.0 * Q * Q))
+    E = math.exp(-sig * dt)
+    c = math.cos(wd * dt)
+    s = math.sin(wd * dt)
+    p12 = E * s / wd
+    p11 = E * (c + sig / wd * s)
+    g = fs * w0
+    p22 = E * (c - sig / wd * s)
+    a = sig * dt
+    th = wd * dt
+    kap = sig / wd
+    Ec = E * c
+    Es = E * s
+    d11 = th * (kap * Ec - Es) - a * p11
+    d12 = dt * Ec - (1.0 + a) * p12
+    d21 = -w0 * w0 * ((1.0 - a) * p12 + dt * Ec)
+    d22 = -a * p22 - th * (Es + kap * Ec)
+    dg1 = -fs / w0 * (d11 + (1.0 - p11))
+    dg2 = g * (dt * Ec - a * p12)
+    return (
+        p11,
+        p12,
+        -w0 * w0 * p12,
+        p22,
+        g * (1.0 - p11) / (w0 * w0),
+        g * p12,
+        d11,
+        d12,
+        d21,
+        d22,
+        dg1,
+        dg2,
+    )
+
+
+@numba.njit(cache=True, inline="always")
+def _res_scaled_dlog(f0, Q, fs, wref, out, dout):
+    """:func:`_res_scaled` (the same floats) and f0 d/df0 of it at fixed Q, analytic
+    (:func:`_zoh_dlog_t` with dt = T = 1/fs).  The Jacobian column with respect to
+    d = f0/f0_init - 1 is (f0_init/f0) times f0 d/df0 (d/dd = f0_init d/df0).
+
+    Args:
+        f0 (Hz), Q, fs (Hz): model. wref: velocity scale 2 pi f0_init, rad/s.
+        out: (6,) [P11, P12*wref, P21/wref, P22, G1, G2/wref].  dout: (6,) f0 d out/df0
+            (same units as out).
+    """
+    z = _zoh_dlog_t(f0, Q, fs, 1.0 / fs)
+    out[0] = z[0]
+    out[1] = z[1] * wref
+    out[2] = z[2] / wref
+    out[3] = z[3]
+    out[4] = z[4]
+    out[5] = z[5] / wref
+    dout[0] = z[6]
+    dout[1] = z[7] * wref
+    dout[2] = z[8] / wref
+    dout[3] = z[9]
+    dout[4] = z[10]
+    dout[5] = z[11] / wref
+
+
+@numba.njit(cache=True, inline="always")
+def _seg_val_dlog(f0, Q, fs, dt_gam, dt_phi):
+    """Phi(dt_phi) Gam(dt_gam), the response dt_phi after its end to a unit force held for
+    dt_gam (eqs. (7)-(9) over sub-sample durations; the operations of
+    :func:`mems_sim.devices.resonator_models.segment_response`, so the same floats), and
+    f0 d/df0 of it at fixed Q by the product rule on :func:`_zoh_dlog_t`.
+
+    Args:
+        f0 (Hz), Q, fs (Hz): model. dt_gam, dt_phi: durations, s.
+    Returns:
+        (dy (V), d(dy/dt) (V/s), f0 d/df0 of each) per V of force.
+    """
+    A = _zoh_dlog_t(f0, Q, fs, dt_gam)
+    B = _zoh_dlog_t(f0, Q, fs, dt_phi)
+    v0 = B[0] * A[4] + B[1] * A[5]
+    v1 = B[2] * A[4] + B[3] * A[5]
+    d0 = B[6] * A[4] + B[0] * A[10] + B[7] * A[5] + B[1] * A[11]
+    d1 = B[8] * A[4] + B[2] * A[10] + B[9] * A[5] + B[3] * A[11]
+    return v0, v1, d0, d1
+
+
+@numba.njit(cache=True)
+def _pulse_dlog(f0, Q, fs, g1, g2, dg1, dg2, spill_u, spill_end, u, s, w, out):
+    """Exact pulse term of one sample interval and f0 d/df0 of it at fixed Q.
+
+    The term is that of :func:`mems_sim.devices.resonator_models.interval_input` (Colinet,
+    Galayko & Juillard, eqs. (7)-(9) integrated over the pulse: a pulse of height u fired at
+    s T of width w T contributes Phi((1 - s - w) T) Gam(w T) u if it ends inside the
+    interval, Gam((1 - s) T) u if it outlasts it, Gam(T) u for a one-sample pulse; the tail
+    [0, e T) of the previous pulse, e = min(spill_end, 1), contributes
+    Phi((1 - e) T) Gam(e T) spill_u), with the same cases and operations, so the same
+    floats; its derivative comes from the same exp/sin/cos (:func:`_seg_val_dlog`), where a
+    central difference needed the term twice more.
+
+    Args:
+        f0 (Hz), Q, fs (Hz): model. g1 (1), g2 (1/s): the one-sample Gam(T); dg1, dg2:
+        f0 dGam(T)/df0 (:func:`_zoh_dlog_t`). spill_u (V), spill_end (fraction of T):
+        previous pulse's tail. u (V), s, w (fractions of T): new pulse.
+        out: (4,) filled with [dy (V), d(dy/dt) (V/s)] and f0 d/df0 of each.
+    """
+    v0 = 0.0
+    v1 = 0.0
+    d0 = 0.0
+    d1 = 0.0
+    if u != 0.0:
+        if s == 0.0 and w == 1.0:
+            v0 = g1 * u
+            v1 = g2 * u
+            d0 = dg1 * u
+            d1 = dg2 * u
+        else:
+            if s + w <= 1.0:  # whole pulse inside
+                a0, a1, b0, b1 = _seg_val_dlog(f0, Q, fs, w / fs, (1.0 - s - w) / fs)
+            else:  # outlasts the interval: its part [s, 1)
+                a0, a1, b0, b1 = _seg_val_dlog(f0, Q, fs, (1.0 - s) / fs, 0.0)
+            v0 = a0 * u
+            v1 = a1 * u
+            d0 = b0 * u
+            d1 = b1 * u
+    if spill_u != 0.0:
+        e = spill_end if spill_end < 1.0 else 1.0
+        a0, a1, b0, b1 = _seg_val_dlog(f0, Q, fs, e / fs, (1.0 - e) / fs)
+        v0 = v0 + spill_u * a0
+        v1 = v1 + spill_u * a1
+        d0 += spill_u * b0
+        d1 += spill_u * b1
+    out[0] = v0
+    out[1] = v1
+    out[2] = d0
+    out[3] = d1
+
+
 @numba.njit(cache=True)
 def _pulse_scaled(f0, Q, fs, wref, r, spill, u, s, w, out, z, g):
     """Scaled exact pulse term of the interval (see mems_sim.devices.resonator_models.interval_input) at
@@ -93,6 +263,189 @@ def _pulse_scaled(f0, Q, fs, wref, r, spill, u, s, w, out, z, g):
     g[2] = -1.0  # no width cache: f0 changes every call
     interval_input(f0, Q, fs, g[0:2], spill[0], spill[1], u, s, w, out, z, g[2:5])
     out[1] /= wref
+
+
+@numba.njit(cache=True, inline="always")
+def _row_r(b0, b1, b6, b7, q, x0, x1, x6, x7):
+    """One entry of a resonator row of J P: b0 x0 + b1 x1 + b6 x6 (+ b7 x7 if q), in that order."""
+    s = b0 * x0 + b1 * x1
+    s += b6 * x6
+    if q:
+        s += b7 * x7
+    return s
+
+
+@numba.njit(cache=True, inline="always")
+def _acc_r(x0, x1, x6, x7, b0, b1, b6, b7, q):
+    """One entry of (J P) J' by a resonator row of J: 0 + x0 b0 + x1 b1 + x6 b6 (+ x7 b7)."""
+    acc = 0.0 + x0 * b0 + x1 * b1
+    acc += x6 * b6
+    if q:
+        acc += x7 * b7
+    return acc
+
+
+@numba.njit(cache=True, inline="always")
+def _put(P, i, j, val):
+    """P[i, j] = P[j, i] = val (a symmetric covariance entry, units of P)."""
+    P[i, j] = val
+    P[j, i] = val
+
+
+@numba.njit(cache=True, inline="always")
+def _cov_predict_ekf(P, J, F, L, S):
+    """Covariance prediction of the EKF, P <- J P J' + F - L L' S in place (Colinet, Galayko
+    & Juillard, eq. (2), the predictor form with the cross term; L = (J P C' + M)/S), for
+    this observer's Jacobian pattern and n = 7 (d) or 8 (d, r) states.
+
+    The same floating-point operations in the same order as
+    :func:`mems_sim.kernels.resonator_observer.cov_predict_sd` (so the same floats, for a
+    P that is exactly symmetric, as this recursion keeps it), written out for the two
+    sizes: the old P is held in scalars (its upper triangle) instead of the scratch J P
+    array with its copied rows, and the loops over the parameter states are unrolled
+    (measured: about 2/3 of cov_predict_sd's time inside the kernel).  Units: V^2 for the
+    voltage states (the velocity is scaled to V by 1/wref), 1 for the parameters d, r.
+    """
+    n = P.shape[0]
+    q = n == 8
+    a00 = J[0, 0]
+    a01 = J[0, 1]
+    a10 = J[1, 0]
+    a11 = J[1, 1]
+    a22 = J[2, 2]
+    a23 = J[2, 3]
+    a44 = J[4, 4]
+    a45 = J[4, 5]
+    j06 = J[0, 6]
+    j16 = J[1, 6]
+    j07 = J[0, 7] if q else 0.0
+    j17 = J[1, 7] if q else 0.0
+    # old P, upper triangle
+    p00 = P[0, 0]
+    p01 = P[0, 1]
+    p02 = P[0, 2]
+    p03 = P[0, 3]
+    p04 = P[0, 4]
+    p05 = P[0, 5]
+    p06 = P[0, 6]
+    p11 = P[1, 1]
+    p12 = P[1, 2]
+    p13 = P[1, 3]
+    p14 = P[1, 4]
+    p15 = P[1, 5]
+    p16 = P[1, 6]
+    p22 = P[2, 2]
+    p23 = P[2, 3]
+    p24 = P[2, 4]
+    p25 = P[2, 5]
+    p26 = P[2, 6]
+    p33 = P[3, 3]
+    p34 = P[3, 4]
+    p35 = P[3, 5]
+    p36 = P[3, 6]
+    p44 = P[4, 4]
+    p45 = P[4, 5]
+    p46 = P[4, 6]
+    p55 = P[5, 5]
+    p56 = P[5, 6]
+    p66 = P[6, 6]
+    if q:
+        p07 = P[0, 7]
+        p17 = P[1, 7]
+        p27 = P[2, 7]
+        p37 = P[3, 7]
+        p47 = P[4, 7]
+        p57 = P[5, 7]
+        p67 = P[6, 7]
+        p77 = P[7, 7]
+    else:
+        p07 = 0.0
+        p17 = 0.0
+        p27 = 0.0
+        p37 = 0.0
+        p47 = 0.0
+        p57 = 0.0
+        p67 = 0.0
+        p77 = 0.0
+    # rows of J P that are not copies of rows of P: 0, 1 (resonator), 2 (STF), 4 (NTF)
+    u0 = _row_r(a00, a01, j06, j07, q, p00, p01, p06, p07)
+    u1 = _row_r(a00, a01, j06, j07, q, p01, p11, p16, p17)
+    u2 = _row_r(a00, a01, j06, j07, q, p02, p12, p26, p27)
+    u3 = _row_r(a00, a01, j06, j07, q, p03, p13, p36, p37)
+    u4 = _row_r(a00, a01, j06, j07, q, p04, p14, p46, p47)
+    u5 = _row_r(a00, a01, j06, j07, q, p05, p15, p56, p57)
+    u6 = _row_r(a00, a01, j06, j07, q, p06, p16, p66, p67)
+    u7 = _row_r(a00, a01, j06, j07, q, p07, p17, p67, p77)
+    v0 = _row_r(a10, a11, j16, j17, q, p00, p01, p06, p07)
+    v1 = _row_r(a10, a11, j16, j17, q, p01, p11, p16, p17)
+    v2 = _row_r(a10, a11, j16, j17, q, p02, p12, p26, p27)
+    v3 = _row_r(a10, a11, j16, j17, q, p03, p13, p36, p37)
+    v4 = _row_r(a10, a11, j16, j17, q, p04, p14, p46, p47)
+    v5 = _row_r(a10, a11, j16, j17, q, p05, p15, p56, p57)
+    v6 = _row_r(a10, a11, j16, j17, q, p06, p16, p66, p67)
+    v7 = _row_r(a10, a11, j16, j17, q, p07, p17, p67, p77)
+    w0 = p00 + a22 * p02 + a23 * p03
+    w2 = p02 + a22 * p22 + a23 * p23
+    w3 = p03 + a22 * p23 + a23 * p33
+    w4 = p04 + a22 * p24 + a23 * p34
+    w5 = p05 + a22 * p25 + a23 * p35
+    w6 = p06 + a22 * p26 + a23 * p36
+    w7 = p07 + a22 * p27 + a23 * p37
+    x4 = a44 * p44 + a45 * p45
+    x5 = a44 * p45 + a45 * p55
+    x6 = a44 * p46 + a45 * p56
+    x7 = a44 * p47 + a45 * p57
+    L0 = L[0]
+    L1 = L[1]
+    L2 = L[2]
+    L3 = L[3]
+    L4 = L[4]
+    L5 = L[5]
+    L6 = L[6]
+    # (J P) J' + F - L L' S, upper triangle mirrored; resonator rows
+    P[0, 0] = _acc_r(u0, u1, u6, u7, a00, a01, j06, j07, q) + F[0, 0] - L0 * L0 * S
+    _put(P, 0, 1, _acc_r(u0, u1, u6, u7, a10, a11, j16, j17, q) + F[0, 1] - L0 * L1 * S)
+    P[1, 1] = _acc_r(v0, v1, v6, v7, a10, a11, j16, j17, q) + F[1, 1] - L1 * L1 * S
+    # STF state, J[2] = [1, 0, a22, a23, 0, ...]
+    _put(P, 0, 2, (0.0 + u0 + u2 * a22 + u3 * a23) + F[0, 2] - L0 * L2 * S)
+    _put(P, 1, 2, (0.0 + v0 + v2 * a22 + v3 * a23) + F[1, 2] - L1 * L2 * S)
+    P[2, 2] = (0.0 + w0 + w2 * a22 + w3 * a23) + F[2, 2] - L2 * L2 * S
+    # STF delay, J[3] = e_2; F[:, 3] = 0
+    _put(P, 0, 3, (0.0 + u2) - L0 * L3 * S)
+    _put(P, 1, 3, (0.0 + v2) - L1 * L3 * S)
+    _put(P, 2, 3, (0.0 + w2) - L2 * L3 * S)
+    P[3, 3] = (0.0 + p22) - L3 * L3 * S
+    # NTF state, J[4] = [0, 0, 0, 0, a44, a45, 0, ...]
+    _put(P, 0, 4, (0.0 + u4 * a44 + u5 * a45) + F[0, 4] - L0 * L4 * S)
+    _put(P, 1, 4, (0.0 + v4 * a44 + v5 * a45) + F[1, 4] - L1 * L4 * S)
+    _put(P, 2, 4, (0.0 + w4 * a44 + w5 * a45) + F[2, 4] - L2 * L4 * S)
+    _put(P, 3, 4, (0.0 + p24 * a44 + p25 * a45) + F[3, 4] - L3 * L4 * S)
+    P[4, 4] = (0.0 + x4 * a44 + x5 * a45) + F[4, 4] - L4 * L4 * S
+    # NTF delay, J[5] = e_4; F[:, 5] = 0
+    _put(P, 0, 5, (0.0 + u4) - L0 * L5 * S)
+    _put(P, 1, 5, (0.0 + v4) - L1 * L5 * S)
+    _put(P, 2, 5, (0.0 + w4) - L2 * L5 * S)
+    _put(P, 3, 5, (0.0 + p24) - L3 * L5 * S)
+    _put(P, 4, 5, (0.0 + x4) - L4 * L5 * S)
+    P[5, 5] = (0.0 + p44) - L5 * L5 * S
+    # parameters (random walks), J[j] = e_j
+    _put(P, 0, 6, (0.0 + u6) + F[0, 6] - L0 * L6 * S)
+    _put(P, 1, 6, (0.0 + v6) + F[1, 6] - L1 * L6 * S)
+    _put(P, 2, 6, (0.0 + w6) + F[2, 6] - L2 * L6 * S)
+    _put(P, 3, 6, (0.0 + p26) + F[3, 6] - L3 * L6 * S)
+    _put(P, 4, 6, (0.0 + x6) + F[4, 6] - L4 * L6 * S)
+    _put(P, 5, 6, (0.0 + p46) + F[5, 6] - L5 * L6 * S)
+    P[6, 6] = (0.0 + p66) + F[6, 6] - L6 * L6 * S
+    if q:
+        L7 = L[7]
+        _put(P, 0, 7, (0.0 + u7) + F[0, 7] - L0 * L7 * S)
+        _put(P, 1, 7, (0.0 + v7) + F[1, 7] - L1 * L7 * S)
+        _put(P, 2, 7, (0.0 + w7) + F[2, 7] - L2 * L7 * S)
+        _put(P, 3, 7, (0.0 + p27) + F[3, 7] - L3 * L7 * S)
+        _put(P, 4, 7, (0.0 + x7) + F[4, 7] - L4 * L7 * S)
+        _put(P, 5, 7, (0.0 + p47) + F[5, 7] - L5 * L7 * S)
+        _put(P, 6, 7, (0.0 + p67) + F[6, 7] - L6 * L7 * S)
+        P[7, 7] = (0.0 + p77) + F[7, 7] - L7 * L7 * S
 
 
 @numba.njit(cache=True)
@@ -136,10 +489,11 @@ def _ekf_run(
     Mv = np.zeros(n)
     Mv[4] = qv
     L = np.empty(n)
-    JP = np.empty((n, n))
     r0 = np.empty(6)
     rp = np.empty(6)
     rm = np.empty(6)
+    dr = np.empty(6)
+    de = np.empty(4)
     z = np.empty(6)
     # constant parts of J
     for i in range(2, 6):
@@ -210,19 +564,37 @@ def _ekf_run(
                 e0[i] = 0.0
                 ep[i] = 0.0
                 em[i] = 0.0
-        _res_scaled(f0, Qc, fs, wref, r0)
-        if pulse:
-            _pulse_scaled(f0, Qc, fs, wref, r0, spill, u, starts[k], widths[k], e0, z, g)
+        # transition at f0 and f0 d/df0 of it (analytic: one exp/sin/cos set); the
+        # Jacobian column of d is f0_init d/df0 = (f0_init/f0) f0 d/df0
+        _res_scaled_dlog(f0, Qc, fs, wref, r0, dr)
         y0 = xf[0]
         y1 = xf[1]
-        _res_scaled(f0 + f0i * _H, Qc, fs, wref, rp)
+        j0 = dr[0] * y0 + dr[1] * y1
+        j1 = dr[2] * y0 + dr[3] * y1
         if pulse:
-            _pulse_scaled(f0 + f0i * _H, Qc, fs, wref, rp, spill, u, starts[k], widths[k], ep, z, g)
-        _res_scaled(f0 - f0i * _H, Qc, fs, wref, rm)
-        if pulse:
-            _pulse_scaled(f0 - f0i * _H, Qc, fs, wref, rm, spill, u, starts[k], widths[k], em, z, g)
-        J[0, 6] = ((rp[0] - rm[0]) * y0 + (rp[1] - rm[1]) * y1 + (ep[0] - em[0])) / (2 * _H)
-        J[1, 6] = ((rp[2] - rm[2]) * y0 + (rp[3] - rm[3]) * y1 + (ep[1] - em[1])) / (2 * _H)
+            # pulse term (interval_input's floats) and f0 d/df0 of it, one pass
+            _pulse_dlog(
+                f0,
+                Qc,
+                fs,
+                r0[4],
+                r0[5] * wref,
+                dr[4],
+                dr[5] * wref,
+                spill[0],
+                spill[1],
+                u,
+                starts[k],
+                widths[k],
+                de,
+            )
+            e0[0] = de[0]
+            e0[1] = de[1] / wref
+            j0 += de[2]
+            j1 += de[3] / wref
+        m = f0i / f0
+        J[0, 6] = m * j0
+        J[1, 6] = m * j1
         if est_q:
             _res_scaled(f0, Qc + Qi * _H, fs, wref, rp)
             if pulse:
@@ -267,7 +639,7 @@ def _ekf_run(
         # pattern of the 6-state model's A plus the parameter columns J[0:2, 6:] and the
         # random-walk rows, which the structured kernels use)
         predictor_gain_sd(J, Mv, PC, S, L)
-        cov_predict_sd(P, J, F, L, S, JP)
+        _cov_predict_ekf(P, J, F, L, S)
         if frozen:
             for a in range(6, n):
                 for j in range(n):

@@ -18,11 +18,13 @@ from functools import partial
 from typing import Any
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import UInt64
 
 from mems_msgs.msg import AdcFrame
 from mems_sim.params import ParamSpec
+from mems_sim.ros.end_of_stream import END_OF_STREAM, END_OF_STREAM_QOS, parse_end_of_stream
 from mems_sim.ros.frames import (
     FrameError,
     adc_codes,
@@ -403,6 +405,10 @@ class EstimatorNode(MemsNode):
     ``max_gap_samples`` away from it does not move it); after a stream reset it follows
     the new stream. A player keeps a bounded credit of samples ahead of it.
 
+    End of the input (:meth:`follow_end_of_stream`): a node that holds samples back (a
+    smoother's lag, a whole sweep) follows the device's latched end-of-stream record and
+    gets :meth:`input_ended` once its progress reaches the announced end of the stream.
+
     The constructor arguments are :class:`~mems_sim.ros.node_base.MemsNode`'s (every
     parameter is set at start; ``specs`` with :data:`DEVICE_NAMESPACE` and
     :func:`input_specs` if the node reads a device's topics, ``default_namespace`` the
@@ -429,6 +435,38 @@ class EstimatorNode(MemsNode):
         #: (AdcFrame, its validated codes) while :meth:`take_frame` decodes it
         self._adc_checked: tuple | None = None
         self.progress_pub = self.create_publisher(UInt64, "~/progress", PROGRESS_QOS)
+        #: End sample index of the input announced by the device, until reached.
+        self.announced_end: int | None = None
+        self._end_topic: str | None = None
+
+    def follow_end_of_stream(self, name: str = "adc") -> None:
+        """Subscribe to the device's end-of-stream record (latched): once the node has
+        finished with its primary input up to the end sample index announced for the
+        device's topic ``name``, :meth:`input_ended` is called (once per announcement)."""
+        self._end_topic = self.resolve_topic_name(self.device_topic(name))
+        self.create_subscription(
+            DiagnosticArray,
+            self.device_topic(END_OF_STREAM),
+            self._on_end_of_stream,
+            END_OF_STREAM_QOS,
+        )
+
+    def _on_end_of_stream(self, msg: DiagnosticArray) -> None:
+        entry = parse_end_of_stream(msg).get(self._end_topic, {})
+        if "end_sample_index" not in entry:
+            return
+        self.announced_end = int(entry["end_sample_index"])
+        self._check_input_end()
+
+    def _check_input_end(self) -> None:
+        end = self.announced_end
+        if end is not None and self.progress is not None and self.progress >= end:
+            self.announced_end = None
+            self.input_ended()
+
+    def input_ended(self) -> None:
+        """The input announced as ended is all done (:meth:`follow_end_of_stream`);
+        nodes that hold samples back publish them here."""
 
     def device_topic(self, name: str) -> str:
         """Topic ``name`` of the device (``device_namespace``, or relative)."""
@@ -448,6 +486,8 @@ class EstimatorNode(MemsNode):
         elif abs(end - self.progress) <= self._limit("max_gap_samples"):
             self.progress = max(self.progress, end)
         self.progress_pub.publish(UInt64(data=min(max(self.progress, 0), 2**64 - 1)))
+        if self.announced_end is not None:
+            self._check_input_end()
 
     def _finished(self, kind: str, end: int, follow: bool = False) -> None:
         if kind == self.primary:

@@ -11,7 +11,9 @@ is ``device_namespace``, or nothing: relative names in the node's namespace, def
   and, if ``run_plain``, a second one without them (plain EKF of Table 4.1).
 
 Publishes (estimates are *final*: they lag the input by the filter's ``lag`` samples, their
-``first_sample_index`` says which samples they are):
+``first_sample_index`` says which samples they are; the last ``lag`` are published once the
+device's end-of-stream record announces the end of the input and every frame of it is done,
+or at shutdown):
     ``<device>/estimate``              StateEstimate "hybrid_ekf": theta [rad], omega [rad/s]
     ``<device>/estimate_plain``        StateEstimate "ekf" (if run_plain)
     ``<device>/threshold_detections``  SignalFrame aligned with the input frames (one row per
@@ -188,6 +190,8 @@ class ScannerThresholdNode(EstimatorNode):
         self._epoch_ns = 0  # time of input sample 0 [ns] (from the last frame taken)
         self._stream_next: int | None = None
         self.subscribe_pair(("adc", AdcFrame, _y_cap), ("drive", SignalFrame, _v_drive))
+        self.flushed = False
+        self.follow_end_of_stream("adc")
 
     def _update_snr(self, y: np.ndarray) -> None:
         w = max(1, int(self.p["snr_window_s"] * self.fs))
@@ -279,6 +283,9 @@ class ScannerThresholdNode(EstimatorNode):
 
     def process_pair(self, first: int, stamp_ns: int, y: np.ndarray, v: np.ndarray) -> None:
         """Detector, hybrid (and plain) EKF on one frame; publish the final estimates."""
+        if self.flushed:  # input after its announced end: the filters start again
+            self.flushed = False
+            self.reset_estimator()
         k0 = self.hybrid.next_index  # the filters' (and the detector's) sample index
         # the input's epoch: the (lagged) estimates are stamped on the input's timeline
         self._epoch_ns = stamp_ns - index_to_ns(first, self.fs)
@@ -326,9 +333,15 @@ class ScannerThresholdNode(EstimatorNode):
         if not (c["min_det"] > 0):
             self.diag.warn("covariance lost positive definiteness")
 
+    def input_ended(self) -> None:
+        """The device announced the end of its stream and the node is done with all of
+        it: publish the last ``lag`` final estimates now, not at shutdown."""
+        self.flush()
+
     def flush(self) -> None:
-        """Publish the last ``lag`` final estimates (end of the input stream)."""
-        if self.hybrid.next_index == 0:
+        """Publish the last ``lag`` final estimates (end of the input stream; once: a
+        second call publishes nothing until new input arrives)."""
+        if self.flushed or self.hybrid.next_index == 0:
             return
         f, x, P = self.hybrid.flush()
         self._publish(self.pub_hyb, "hybrid_ekf", f, x, P)
@@ -339,7 +352,7 @@ class ScannerThresholdNode(EstimatorNode):
 
     def close(self) -> None:
         """On shutdown: publish the pending estimates."""
-        if not getattr(self, "flushed", False):
+        if not getattr(self, "flushed", True):
             try:
                 self.flush()
             except Exception:

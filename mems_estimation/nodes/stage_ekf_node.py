@@ -40,7 +40,6 @@ The ratios corrected/identified of wn and b_c of the last sweep are on /diagnost
 from __future__ import annotations
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray
 
 from mems_estimation.filters.stage_ekf import FeedthroughCanceller, StageEkf, load_model
 from mems_estimation.identification.stage_insitu import insitu_correct
@@ -55,7 +54,6 @@ from mems_estimation.nodes.frame_input import (
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.kernels.divergence import state_ok
 from mems_sim.params import ParameterError, ParamSpec
-from mems_sim.ros.end_of_stream import END_OF_STREAM, END_OF_STREAM_QOS, parse_end_of_stream
 from mems_sim.ros.frames import FrameError, make_state_estimate, signal_data
 from mems_sim.ros.node_base import run_node
 from mems_sim.ros.qos import FRAME_QOS
@@ -183,7 +181,6 @@ class StageEkfNode(EstimatorNode):
         self.insitu = bool(p["insitu"])
         self.sweep: list[tuple] = []
         self.sweep_samples = 0
-        self.announced_end: int | None = None
         self.estimates_published = 0
         self.insitu_models: list = []
         self.subscribe_pair(
@@ -191,13 +188,7 @@ class StageEkfNode(EstimatorNode):
             ("drive", SignalFrame, drive_sweep_columns if self.insitu else drive_columns),
         )
         if self.insitu:
-            self.adc_topic = self.resolve_topic_name(self.device_topic("adc"))
-            self.create_subscription(
-                DiagnosticArray,
-                self.device_topic(END_OF_STREAM),
-                self._on_end_of_stream,
-                END_OF_STREAM_QOS,
-            )
+            self.follow_end_of_stream("adc")
 
     def _decode_adc(self, msg: AdcFrame) -> np.ndarray:
         """The selected channels of an ADC frame [V] (n, channels), C-contiguous; FrameError
@@ -268,26 +259,10 @@ class StageEkfNode(EstimatorNode):
 
     # ------------------------------------------------------------------ in-situ mode
 
-    def _on_end_of_stream(self, msg: DiagnosticArray) -> None:
-        """The device's end-of-stream record: the end sample index of its ``adc`` stream
-        (the sweep is complete once the node has finished with the input up to it)."""
-        entry = parse_end_of_stream(msg).get(self.adc_topic, {})
-        if "end_sample_index" not in entry:
-            return
-        self.announced_end = int(entry["end_sample_index"])
-        self._check_complete()
-
-    def report_progress(self, end: int, follow: bool = False) -> None:
-        """Progress as every estimator node; in-situ mode: then a sweep whose announced
-        end is reached is processed."""
-        super().report_progress(end, follow)
+    def input_ended(self) -> None:
+        """In-situ mode: the device announced the end of its ``adc`` stream and the node
+        has finished with the input up to it: the sweep is complete."""
         if self.insitu:
-            self._check_complete()
-
-    def _check_complete(self) -> None:
-        end = self.announced_end
-        if end is not None and self.progress is not None and self.progress >= end:
-            self.announced_end = None
             self.process_sweep()
 
     def process_sweep(self) -> None:

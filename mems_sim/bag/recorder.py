@@ -820,7 +820,7 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
         choices=list(STORAGE_PRESETS),
         default="none",
         metavar="PROFILE",
-        help="rosbag2's MCAP writer presets: none (default: zstd level 3, 1 MiB chunks, "
+        help="rosbag2's MCAP writer presets: none (default: zstd level 1, 1 MiB chunks, "
         "CRCs), fastwrite (no compression, no CRCs), zstd_fast (zstd level -5, no CRCs), "
         "zstd_small (zstd level 19, 4 MiB chunks); --compression-format and --chunk-size "
         "override the preset's",

@@ -23,11 +23,12 @@ node graph compression runs on another core instead of stalling the executor
 messages): a writer that falls behind blocks the producer rather than growing
 without limit. :meth:`McapBagWriter.close` drains the queue before the Summary.
 
-Compression: ``compression`` (zstd, lz4, none), ``compression_level`` (zstd's level; mcap's
-Writer itself takes none and compresses at zstd's default 3, so the level reaches it through
-:class:`_LeveledZstd`) and ``crcs``; :data:`STORAGE_PRESETS` maps rosbag2's MCAP storage
-preset profiles onto them (``zstd_fast``: level -5 without CRCs, ~0.36 x the CPU of the
-default and a 1.26 x larger file on the stage's frames).
+Compression: ``compression`` (zstd, lz4, none), ``compression_level`` (zstd's level, 1 unless
+given: the level of rosbag2's MCAP storage; mcap's Python Writer itself takes none and
+compresses at zstd's default 3, so the level reaches it through :class:`_LeveledZstd`) and
+``crcs``; :data:`STORAGE_PRESETS` maps rosbag2's MCAP storage preset profiles onto them
+(``zstd_fast``: level -5 without CRCs, ~0.4 x the CPU of the default and a 1.13 x larger
+file on the stage's frames).
 
 Output path: the file is created with ``O_NOFOLLOW`` (and ``O_EXCL`` unless
 ``overwrite``), so a symbolic link is never followed and its target never
@@ -91,12 +92,18 @@ _COMPRESSION = {
     None: CompressionType.NONE,
 }
 
-#: zstd level of mcap's Writer (it calls ``zstandard.compress``, whose default is 3).
-ZSTD_DEFAULT_LEVEL = 3
+#: zstd level of mcap's Python Writer (it calls ``zstandard.compress``, whose default is 3).
+MCAP_PY_ZSTD_LEVEL = 3
+
+#: zstd level this writer compresses at when none is given: mcap's C++ writer's
+#: ``CompressionLevel::Default``, which rosbag2's MCAP storage writes with when no preset
+#: is given (zstd chunks at level 1 with chunk CRCs). On frame data it takes ~0.6 x the CPU
+#: of level 3 for a 5-10 % larger file.
+DEFAULT_ZSTD_LEVEL = 1
 
 #: rosbag2's MCAP storage preset profiles (``ros2 bag record --storage-preset-profile``)
 #: as options of :class:`McapBagWriter`. ``none`` is no preset: the writer's own defaults
-#: (zstd level 3, 1 MiB chunks, chunk CRCs) or the options given apply. The zstd levels
+#: (zstd level 1, 1 MiB chunks, chunk CRCs) or the options given apply. The zstd levels
 #: are those mcap's C++ writer (which rosbag2 uses) gives its ``Fastest`` and ``Slowest``
 #: compression levels. ``fastwrite`` is unchunked in rosbag2; here it keeps chunks
 #: (uncompressed, no CRCs): rosbags does not read an unchunked MCAP file, and the crash
@@ -479,8 +486,8 @@ class McapBagWriter:
     :param path: output file (``.mcap``); created or truncated.
     :param chunk_size: target uncompressed chunk size [bytes].
     :param compression: ``'zstd'`` (default), ``'lz4'`` or ``'none'``.
-    :param compression_level: zstd level (negative: zstd's fast levels; None: 3, the
-        level of mcap's Writer); only with ``'zstd'``.
+    :param compression_level: zstd level (negative: zstd's fast levels; None:
+        :data:`DEFAULT_ZSTD_LEVEL`, rosbag2's); only with ``'zstd'``.
     :param crcs: store the CRC of every chunk's uncompressed data (and of the Summary);
         rosbag2's presets ``fastwrite`` and ``zstd_fast`` leave them out.
     :param on_gap: optional callback ``(topic, expected_index, first_index)``
@@ -523,7 +530,9 @@ class McapBagWriter:
             level = int(compression_level)
             if not (-(1 << 17) <= level <= 22):
                 raise ValueError(f"zstd level {level} outside -131072..22")
-            compression_level = None if level == ZSTD_DEFAULT_LEVEL else level
+            compression_level = None if level == MCAP_PY_ZSTD_LEVEL else level
+        elif compression == "zstd" and _ZSTD is not None:
+            compression_level = DEFAULT_ZSTD_LEVEL
         self.compression_level = compression_level
         self.crcs = bool(crcs)
         if max_bag_size < 0 or max_bag_duration < 0:

@@ -28,7 +28,10 @@ from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import make_adc_frame, make_state_estimate
 from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node, variation_specs
 
-NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=1000, frame_id="resonator")
+#: 10,000 samples (10 ms at 1 MHz) per frame: with 1000-sample frames the graph's per-frame
+#: cost (callbacks, messages, recorder) kept a device and three observers below real time,
+#: and readers more than the frame QoS depth behind lost frames.
+NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=10000, frame_id="resonator")
 
 TRUTH_CHANNELS = (
     "position",

@@ -194,9 +194,120 @@ def test_frame_checks_accept():
 
 @pytest.mark.slow
 def test_kernels_equal_old_reference(monkeypatch):
-    """Device frames and observer outputs (with their carried states) equal bit for bit to
-    the old generic-loop kernels kept in bench/bench_sd_resonator.py (one seed, 50,000
-    samples per case)."""
+    """Device frames and Kalman observer outputs (with their carried states) equal bit for
+    bit to the old generic-loop kernels kept in bench/bench_sd_resonator.py, the adaptive
+    observer's (analytic f0 Jacobian column against the old central difference) within
+    1e-6 of each output's scale with the same monitor resets (one seed, 50,000 samples per
+    case)."""
     monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2] / "bench"))
     bench = importlib.import_module("bench_sd_resonator")  # (its cached kernels need the name)
     assert bench.check_equal(seeds=(5,), n=50_000, frame=1000)
+
+
+# ------------------------------------------------ adaptive observer: analytic f0 Jacobian
+def _richardson(fun, f0, h=1e-3):
+    """f0 d/df0 of fun by a Richardson-extrapolated central difference (relative steps h and
+    h/2; truncation error O(h^4), ~1e-12 here)."""
+
+    def cd(hh):
+        return (np.array(fun(f0 * (1 + hh))) - np.array(fun(f0 * (1 - hh)))) / (2 * hh)
+
+    return (4 * cd(h / 2) - cd(h)) / 3
+
+
+@pytest.mark.parametrize(
+    "f0, q, dt",
+    [
+        (F0, Q, 1 / FS),
+        (1.05 * F0, Q, 1 / FS),
+        (0.2 * FS, 3.0, 1 / FS),
+        (F0, 0.6, 1 / FS),
+        (1e3, 1e4, 1 / FS),
+        (F0, Q, 0.05 / FS),
+        (1.3 * F0, 10.0, 0.97 / FS),
+        (F0, Q, 0.0),
+    ],
+)
+def test_zoh_f0_derivative_analytic(f0, q, dt):
+    """The adaptive observer's closed-form ZOH with its analytic f0 derivative: the values are
+    resonator_zoh_t's bit for bit, the derivative (f0 d/df0 of Phi and Gam, eqs. (7)-(9) of
+    Colinet et al.) matches a fine central difference (1e-8 of each block's largest entry,
+    in the observer's velocity scaling; the old step-1e-7 difference was ~1e-9)."""
+    from mems_estimation.filters.resonator_adaptive_observer import _zoh_dlog_t
+    from mems_sim.devices.resonator_models import resonator_zoh_t
+
+    z = _zoh_dlog_t(f0, q, FS, dt)
+    assert _same(z[:6], resonator_zoh_t(f0, q, FS, dt))
+    w0 = 2 * np.pi * f0
+    scale = np.array([1.0, w0, 1.0 / w0, 1.0, 1.0, 1.0 / w0])
+    ana = np.array(z[6:]) * scale
+    num = _richardson(lambda x: resonator_zoh_t(x, q, FS, dt), f0) * scale
+    if dt == 0.0:
+        assert np.all(ana == 0.0)
+        return
+    for blk in (slice(0, 4), slice(4, 6)):
+        err = np.abs(ana[blk] - num[blk]).max() / np.abs(num[blk]).max()
+        print(f"\nf0 {f0:.0f} Hz, Q {q}, dt {dt * FS:.2f} T: block {blk}: rel. error {err:.1e}")
+        assert err <= 1e-8
+
+
+@pytest.mark.parametrize(
+    "spill_u, spill_end, u, s, w",
+    [
+        (0.0, 0.0, 0.3, 0.0, 1.0),  # one-sample pulse of eq. (8): Gam(T) u
+        (0.0, 0.0, 0.3, 0.2, 0.05),  # whole pulse inside the interval
+        (0.0, 0.0, -0.3, 0.97, 0.05),  # pulse outlasting the interval
+        (0.0, 0.0, 0.3, 1e-9, 0.9),
+        (0.2, 0.4, 0.0, 0.0, 0.0),  # previous pulse's tail only
+        (0.2, 0.4, 0.3, 0.1, 0.05),
+        (-0.2, 0.03, 0.3, 0.0, 1.0),
+    ],
+)
+def test_pulse_f0_derivative_analytic(spill_u, spill_end, u, s, w):
+    """The exact sub-sample pulse term as the adaptive observer forms it (_pulse_dlog): its
+    value equal bit for bit to interval_input's, its f0 derivative against a fine central
+    difference of interval_input itself."""
+    from mems_estimation.filters.resonator_adaptive_observer import _pulse_dlog, _zoh_dlog_t
+    from mems_sim.devices.resonator_models import interval_input
+
+    def pulse_term(f0, q):
+        gam = np.array(_zoh_dlog_t(f0, q, FS, 1 / FS)[4:6])
+        out = np.empty(2)
+        interval_input(
+            f0, q, FS, gam, spill_u, spill_end, u, s, w, out, np.empty(6), np.full(3, -1.0)
+        )
+        return out
+
+    for f0, q in ((F0, Q), (1.05 * F0, Q), (0.2 * FS, 3.0)):
+        z = _zoh_dlog_t(f0, q, FS, 1 / FS)
+        got = np.empty(4)
+        _pulse_dlog(f0, q, FS, z[4], z[5], z[10], z[11], spill_u, spill_end, u, s, w, got)
+        assert _same(got[:2], pulse_term(f0, q))
+        num = _richardson(lambda x: pulse_term(x, q), f0)
+        w0 = 2 * np.pi * f0
+        err = np.abs((got[2:] - num) * [1.0, 1.0 / w0]).max() / np.abs(num * [1.0, 1.0 / w0]).max()
+        print(f"\nf0 {f0:.0f} Hz, Q {q}: rel. error {err:.1e}")
+        assert err <= 1e-8
+
+
+@pytest.mark.parametrize("n", [7, 8])
+def test_ekf_covariance_prediction_equal_structured(n):
+    """The adaptive observer's written-out covariance prediction (_cov_predict_ekf) against
+    cov_predict_sd bit for bit (symmetric covariances with exact zeros and random ones)."""
+    from mems_estimation.filters.resonator_adaptive_observer import _cov_predict_ekf
+
+    rng = np.random.default_rng(100 + n)
+    for trial in range(200):
+        J, F, _ = _jacobian(rng, n)
+        P = _spd(rng, n, 10.0 ** rng.uniform(-8, 1))
+        if trial % 4 == 0:
+            P[6:, :] = 0.0
+            P[:, 6:] = 0.0
+        if trial % 4 == 1:
+            P[:, :] = 0.0
+        L = rng.standard_normal(n)
+        S = rng.uniform(0.1, 3.0)
+        Pa, Pb = P.copy(), P.copy()
+        cov_predict_sd(Pa, J, F, L, S, np.empty((n, n)))
+        _cov_predict_ekf(Pb, J, F, L, S)
+        assert _same(Pa, Pb)

@@ -296,3 +296,31 @@ def test_the_scenario_graph_draws_every_emulator_but_not_the_users_values(domain
             graph.node(FrAccelerometerNode, {"temperature_c": 20.0}, namespace="other")
     finally:
         graph.close()
+
+
+@pytest.mark.parametrize("device", ["accelerometer", "scanner", "scanner_amdm", "resonator"])
+def test_the_warm_up_leaves_the_device_untouched(ros_context, device):
+    """A self-started node loads its kernels on a copy of its device before its first
+    frame (``warm_kernels``): the node's own device then gives the same frames, bit for bit,
+    as one that was not warmed."""
+    cls = _nodes()[device]
+    nodes = []
+    try:
+        warmed, cold = (
+            cls(context=ros_context, drive_externally=True, parameter_overrides=params(seed=5))
+            for _ in range(2)
+        )
+        nodes += [warmed, cold]
+        assert warmed.warm_kernels()
+        for n in (300, 7):
+            a, b = warmed.device.step(n), cold.device.step(n)
+            fields = vars(a) if hasattr(a, "__dict__") else a._asdict()
+            for key, value in fields.items():
+                other = getattr(b, key)
+                if isinstance(value, np.ndarray):
+                    np.testing.assert_array_equal(value, other, err_msg=key)
+                else:
+                    assert value == other or (value != value and other != other), key
+    finally:
+        for node in nodes:
+            node.destroy_node()

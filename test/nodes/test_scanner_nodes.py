@@ -229,3 +229,48 @@ def test_shared_amdm_front_end_publishes(graph):
     dev.step()
     assert spin_until(ex, lambda: len(got["adc"]) == 1 and len(got["truth"]) == 1)
     assert got["adc"][0].num_samples == 200 and got["adc"][0].sample_rate_hz == dev.fs
+
+
+def test_threshold_node_publishes_its_last_estimates_at_the_end_of_the_stream(graph):
+    """The estimates lag the input by ``lag`` samples: once the device's end-of-stream
+    record announces the end and every frame is done, the node publishes the last ``lag``
+    (no shutdown, no flush call), once."""
+    ctx, ex, probe = graph
+    dev = MicroScannerNode(
+        context=ctx,
+        drive_externally=True,
+        parameter_overrides=params(seed=3, frame_size=1000, duration_s=0.008, **DECAY),
+    )
+    est = ScannerThresholdNode(context=ctx, parameter_overrides=params(dog_sigma=45.0))
+    ex.add_node(dev)
+    ex.add_node(est)
+    got = _subscribe(probe, "/scanner", ("estimate", "estimate_plain"))
+    assert spin_until(
+        ex,
+        lambda: (
+            dev.pub_adc.get_subscription_count() == 1
+            and dev.pub_drive.get_subscription_count() == 1
+            and est.pub_hyb.get_subscription_count() == 1
+            and est.pub_plain.get_subscription_count() == 1
+        ),
+    )
+    while dev.step():
+        ex.spin_once(timeout_sec=0.0)
+    assert dev.end_of_stream_sent
+
+    def ends(name):
+        return [m.first_sample_index + m.num_samples for m in got[name]]
+
+    assert spin_until(
+        ex,
+        lambda: ends("estimate")[-1:] == [4000] and ends("estimate_plain")[-1:] == [4000],
+        timeout=30,
+    )
+    for name in ("estimate", "estimate_plain"):
+        firsts = [m.first_sample_index for m in got[name]]
+        assert firsts == [0] + [1000 * k - est.hybrid.lag for k in range(1, 5)], name
+    assert est.flushed
+    est.flush()  # a second flush publishes nothing
+    for _ in range(20):
+        ex.spin_once(timeout_sec=0.01)
+    assert len(got["estimate"]) == 5 and len(got["estimate_plain"]) == 5
