@@ -448,7 +448,8 @@ def _cov_predict_ekf(P, J, F, L, S):
         P[7, 7] = (0.0 + p77) + F[7, 7] - L7 * L7 * S
 
 
-@numba.njit(cache=True)
+# nogil: in a one-process graph the recorder's writer thread runs meanwhile
+@numba.njit(cache=True, nogil=True)
 def _ekf_run(
     bits,
     pulses,

@@ -598,7 +598,8 @@ def _pulse_general(
     return x_s, x_c
 
 
-@numba.njit(cache=True)
+# nogil: in a one-process graph the recorder's writer thread runs meanwhile
+@numba.njit(cache=True, nogil=True)
 def _device_run(
     k0,
     n,

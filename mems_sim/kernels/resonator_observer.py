@@ -621,7 +621,8 @@ def cov_predict_sd(P, A, F, L, S, AP):
             P[j, i] = val
 
 
-@numba.njit(cache=True)
+# nogil: in a one-process graph the recorder's writer thread runs meanwhile
+@numba.njit(cache=True, nogil=True)
 def _kf_run(bits, pulses, starts, widths, xp, P, A, C, F, G, M, res, gam, spill, pos, var, innov):
     # time-varying filter of the 6-state model (kf_update6 / kf_predict6, equal bit for bit
     # to the generic kf_update / kf_predict); res = [f0, Q, fs, w0 velocity scale] of the model
@@ -655,7 +656,7 @@ def _kf_run(bits, pulses, starts, widths, xp, P, A, C, F, G, M, res, gam, spill,
             )
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _ss_run_innov(
     bits, pulses, starts, widths, xp, A, B, C, L, cpk, sqrtS, res, gam, spill, pos, innov
 ):
@@ -686,7 +687,7 @@ def _ss_run_innov(
             )
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _ss_run_states(
     bits, pulses, starts, widths, xp, A, B, C, L, K, sqrtS, res, gam, spill, xf, innov
 ):
