@@ -82,13 +82,19 @@ def _res_scaled(f0, Q, fs, wref, out):
     """Scaled resonator transition: out = [P11, P12*wref, P21/wref, P22, G1, G2/wref]
     (:func:`mems_sim.devices.resonator_models.resonator_zoh_t` over T = 1/fs; inlined: three
     calls per sample)."""
-    z = resonator_zoh_t(f0, Q, fs, 1.0 / fs)
-    out[0] = z[0]
-    out[1] = z[1] * wref
-    out[2] = z[2] / wref
-    out[3] = z[3]
-    out[4] = z[4]
-    out[5] = z[5] / wref
+    _scaled_into(resonator_zoh_t(f0, Q, fs, 1.0 / fs), 0, wref, out)
+
+
+@numba.njit(cache=True, inline="always")
+def _scaled_into(z, k, wref, out):
+    """out = z[k:k+6] = [P11, P12, P21, P22, G1, G2] with the velocity scaled by wref [rad/s]:
+    [P11, P12*wref, P21/wref, P22, G1, G2/wref]."""
+    out[0] = z[k]
+    out[1] = z[k + 1] * wref
+    out[2] = z[k + 2] / wref
+    out[3] = z[k + 3]
+    out[4] = z[k + 4]
+    out[5] = z[k + 5] / wref
 
 
 @numba.njit(cache=True, inline="always")
@@ -168,18 +174,8 @@ def _res_scaled_dlog(f0, Q, fs, wref, out, dout):
             (same units as out).
     """
     z = _zoh_dlog_t(f0, Q, fs, 1.0 / fs)
-    out[0] = z[0]
-    out[1] = z[1] * wref
-    out[2] = z[2] / wref
-    out[3] = z[3]
-    out[4] = z[4]
-    out[5] = z[5] / wref
-    dout[0] = z[6]
-    dout[1] = z[7] * wref
-    dout[2] = z[8] / wref
-    dout[3] = z[9]
-    dout[4] = z[10]
-    dout[5] = z[11] / wref
+    _scaled_into(z, 0, wref, out)
+    _scaled_into(z, 6, wref, dout)
 
 
 @numba.njit(cache=True, inline="always")
