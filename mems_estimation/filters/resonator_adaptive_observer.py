@@ -58,7 +58,12 @@ import math
 import numba
 import numpy as np
 
-from mems_sim.devices.resonator_models import interval_input, next_spill, resonator_zoh_t
+from mems_sim.devices.resonator_models import (
+    interval_input,
+    next_spill,
+    resonator_zoh_parts,
+    resonator_zoh_t,
+)
 from mems_sim.kernels.divergence import covariance_ok, state_ok
 from mems_sim.kernels.resonator_observer import (
     BUSSGANG_GAIN,
@@ -125,16 +130,7 @@ def _zoh_dlog_t(f0, Q, fs, dt):
         f0: natural frequency, Hz (> 0). Q: quality factor (> 0.5). fs: sample rate, Hz.
         dt: duration, s (>= 0).
     """
-    w0 = 2.0 * math.pi * f0
-    sig = w0 / (2.0 * Q)
-    wd = w0 * math.sqrt(1.0 - 1.0 / (4.0 * Q * Q))
-    E = math.exp(-sig * dt)
-    c = math.cos(wd * dt)
-    s = math.sin(wd * dt)
-    p12 = E * s / wd
-    p11 = E * (c + sig / wd * s)
-    g = fs * w0
-    p22 = E * (c - sig / wd * s)
+    w0, sig, wd, E, c, s, p11, p12, p22, g = resonator_zoh_parts(f0, Q, fs, dt)
     a = sig * dt
     th = wd * dt
     kap = sig / wd

@@ -93,10 +93,11 @@ def stf_num(c: float = 0.5) -> np.ndarray:
 
 
 @numba.njit(cache=True, inline="always")
-def resonator_zoh_t(f0, Q, fs, dt):
-    """:func:`resonator_zoh_dt` as a tuple (Phi11, Phi12, Phi21, Phi22, Gam1, Gam2), the same
-    operations (no array argument: inlined into the per-sample loops, where the call with
-    an output array costs more than the closed form)."""
+def resonator_zoh_parts(f0, Q, fs, dt):
+    """The closed form of :func:`resonator_zoh_t` with its intermediates (Colinet, Galayko &
+    Juillard, eqs. (7)-(9)): w0 = 2 pi f0 [rad/s], sigma = w0/(2Q) [1/s], wd (damped
+    frequency) [rad/s], E = exp(-sigma dt), cos(wd dt), sin(wd dt), Phi11, Phi12 [s], Phi22
+    and g = fs w0 [rad/s^2] (f0, fs in Hz, dt in s); for derivatives that reuse them."""
     w0 = 2.0 * math.pi * f0
     sig = w0 / (2.0 * Q)
     wd = w0 * math.sqrt(1.0 - 1.0 / (4.0 * Q * Q))
@@ -106,7 +107,16 @@ def resonator_zoh_t(f0, Q, fs, dt):
     p12 = E * s / wd
     p11 = E * (c + sig / wd * s)
     g = fs * w0
-    return p11, p12, -w0 * w0 * p12, E * (c - sig / wd * s), g * (1.0 - p11) / (w0 * w0), g * p12
+    return w0, sig, wd, E, c, s, p11, p12, E * (c - sig / wd * s), g
+
+
+@numba.njit(cache=True, inline="always")
+def resonator_zoh_t(f0, Q, fs, dt):
+    """:func:`resonator_zoh_dt` as a tuple (Phi11, Phi12, Phi21, Phi22, Gam1, Gam2), the same
+    operations (no array argument: inlined into the per-sample loops, where the call with
+    an output array costs more than the closed form)."""
+    w0, _, _, _, _, _, p11, p12, p22, g = resonator_zoh_parts(f0, Q, fs, dt)
+    return p11, p12, -w0 * w0 * p12, p22, g * (1.0 - p11) / (w0 * w0), g * p12
 
 
 @numba.njit(cache=True, inline="always")
