@@ -34,7 +34,7 @@ from mems_scenarios.domain import (  # noqa: F401  (DEFAULT_DOMAINS, DomainLease
 )
 from mems_sim.bag.recorder import RecorderNode
 from mems_sim.params import ParameterError, spec_table
-from mems_sim.ros.env import apply_defaults
+from mems_sim.ros.env import MAX_DOMAIN_ID, apply_defaults, domain_id_problem
 from mems_sim.ros.frames import index_to_ns
 from mems_sim.ros.node_base import EmulatorNode, PacedEmulator
 from mems_sim.ros.params_file import Override, node_matches
@@ -94,9 +94,14 @@ def default_domain_id() -> int:
     """ROS_DOMAIN_ID from the environment, else a free domain leased for this process
     (:func:`~mems_scenarios.domain.lease_default_domain`: the first of 1..101 without
     61-65, then 0, that no other graph of this package holds). The :class:`Graph` made on
-    it keeps the lease; an explicit domain is leased by the Graph (or refused)."""
+    it keeps the lease; an explicit domain is leased by the Graph (or refused). A value of
+    ROS_DOMAIN_ID that rcl would misread or Fast DDS cannot use raises ScenarioError
+    (:func:`~mems_sim.ros.env.domain_id_problem`)."""
     env = os.environ.get("ROS_DOMAIN_ID")
     if env:
+        problem = domain_id_problem()
+        if problem is not None:
+            raise ScenarioError(problem)
         return int(env)
     try:
         return lease_default_domain()
@@ -153,6 +158,10 @@ class Graph:
         self._used: set[int] = set()
         if domain_id is None:
             domain_id = default_domain_id()
+        if not 0 <= domain_id <= MAX_DOMAIN_ID:
+            raise ScenarioError(
+                f"domain_id = {domain_id!r} is invalid: allowed [0, {MAX_DOMAIN_ID}]"
+            )
         try:
             self.lease = lease_domain(domain_id)
         except DomainBusy as exc:

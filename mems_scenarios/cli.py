@@ -18,7 +18,7 @@ from mems_scenarios import SCENARIOS, load
 from mems_scenarios.base import THROUGHPUT, ScenarioError, ScenarioOptions
 from mems_sim.params import ParameterError
 from mems_sim.ros.end_of_stream import is_end_of_stream_topic
-from mems_sim.ros.env import apply_defaults
+from mems_sim.ros.env import MAX_DOMAIN_ID, apply_defaults, domain_id_problem
 from mems_sim.ros.params_file import Override, ParamsFileError, load_params_file, parse_set
 
 
@@ -146,8 +146,8 @@ def validate(args) -> str | None:
         )
     if args.temperature is not None and not -60.0 <= args.temperature <= 150.0:
         return f"--temperature = {args.temperature!r} is invalid: allowed [-60, 150] C"
-    if args.domain_id is not None and not 0 <= args.domain_id <= 232:
-        return f"--domain-id = {args.domain_id} is invalid: allowed [0, 232]"
+    if args.domain_id is not None and not 0 <= args.domain_id <= MAX_DOMAIN_ID:
+        return f"--domain-id = {args.domain_id} is invalid: allowed [0, {MAX_DOMAIN_ID}]"
     if args.live_view is not None and not 0 <= args.live_view <= 65535:
         return f"--live-view = {args.live_view} is invalid: allowed [0, 65535] (a TCP port)"
     for cut in args.cut:
@@ -231,6 +231,8 @@ def _main(args) -> int:
     if error:
         return _fail(error)
     apply_defaults()
+    if args.domain_id is None and domain_id_problem() is not None:
+        return _fail(domain_id_problem())
     module = load(args.name)
     options = ScenarioOptions(
         duration_s=args.duration,

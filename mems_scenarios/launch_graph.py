@@ -779,7 +779,7 @@ def _error(message: str) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point ``run_graph``; returns the exit status (module doc)."""
-    from mems_sim.ros.env import apply_defaults
+    from mems_sim.ros.env import apply_defaults, domain_id_problem
 
     args = _parser().parse_intermixed_args(argv)
     if args.duration is not None and not 0 < args.duration < 1e9:
@@ -794,6 +794,8 @@ def main(argv: list[str] | None = None) -> int:
         except re.error as exc:
             return _error(f"--record-regex {args.record_regex!r}: {exc}")
     apply_defaults()  # localhost discovery and an ament prefix, inherited by every process
+    if domain_id_problem() is not None:
+        return _error(domain_id_problem())
     try:
         graph = load_graph(args.file, parse_cli_args(args.launch_args), not args.show_args)
         if args.show_args:

@@ -68,7 +68,7 @@ from mems_sim.bag.reader import (
     warn_truncated,
 )
 from mems_sim.bag.reader import iter_stream_records as _iter_stream_records
-from mems_sim.ros.env import apply_defaults, install_stop_request
+from mems_sim.ros.env import apply_defaults, domain_id_problem, install_stop_request
 
 __all__ = [
     "BagMessage",
@@ -1323,6 +1323,9 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(argv: list[str] | None) -> int:
     apply_defaults()
+    if domain_id_problem() is not None:
+        print(f"mcap_play: error: {domain_id_problem()}", file=sys.stderr)
+        return 2
     argv = sys.argv[1:] if argv is None else list(argv)
     own, ros_args = split_ros_args(argv)
     args = _parse_args(own)

@@ -101,7 +101,7 @@ from mems_sim.ros.end_of_stream import (
     missing_tail,
     parse_end_of_stream,
 )
-from mems_sim.ros.env import apply_defaults
+from mems_sim.ros.env import apply_defaults, domain_id_problem
 from mems_sim.ros.qos import FRAME_DEPTH
 
 _BEST_EFFORT = ReliabilityPolicy.BEST_EFFORT
@@ -923,6 +923,8 @@ def main(argv: list[str] | None = None) -> int:
 
 def _run(argv: list[str] | None, stop: _StopRequest) -> int:
     apply_defaults()
+    if domain_id_problem() is not None:
+        return _error(domain_id_problem(), 2)
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions

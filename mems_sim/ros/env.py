@@ -23,6 +23,11 @@ The graph stays on this machine unless the user says otherwise:
   lists ``ROS_STATIC_PEERS`` or ``ROS_DISCOVERY_SERVER`` (which need network
   interfaces), or selects another middleware with ``RMW_IMPLEMENTATION``.
 
+``ROS_DOMAIN_ID`` is checked by every executable that joins a graph
+(:func:`domain_id_problem`): rcl reads it with C's ``strtoul`` and takes ``-1`` for
+domain 0, ``010`` for domain 8 and ``0x10`` for 16, and a domain above
+:data:`MAX_DOMAIN_ID` leaves Fast DDS without ports; such a value is refused in one line.
+
 ``AMENT_PREFIX_PATH`` falls back to the interpreter prefix, where the PyPI ROS 2 wheels
 install their ament index, so that message definitions are found without sourcing a
 setup script.
@@ -44,6 +49,12 @@ MARKER_VARIABLE = "MEMS_EMULATOR_FASTDDS_PROFILE"
 PROFILE_NAME = "fastdds_localhost.xml"
 #: Middleware implementations the profile is for ("" is the default, rmw_fastrtps_cpp).
 FASTDDS_RMWS = ("", "rmw_fastrtps_cpp", "rmw_fastrtps_dynamic_cpp")
+#: Middleware implementations that map a domain to UDP ports as the DDSI-RTPS
+#: specification's default port mapping does (port base 7400, domain gain 250).
+RTPS_RMWS = (*FASTDDS_RMWS, "rmw_cyclonedds_cpp", "rmw_connextdds")
+#: Largest ROS domain of an RTPS middleware: the mapping puts domain d on UDP ports
+#: 7400 + 250 d + 0..11 (plus 2 per participant), which pass 65535 from d = 233 on.
+MAX_DOMAIN_ID = 232
 
 
 def localhost_profile_path() -> Path | None:
@@ -95,6 +106,28 @@ def apply_defaults() -> None:
         return
     env[PROFILE_VARIABLE] = env[MARKER_VARIABLE] = str(profile)
     env[RANGE_VARIABLE] = "SYSTEM_DEFAULT"
+
+
+def domain_id_problem() -> str | None:
+    """Why ``ROS_DOMAIN_ID`` cannot be used (one line), or None if it is unset, empty (rcl
+    then uses domain 0) or a decimal integer in [0, :data:`MAX_DOMAIN_ID`] (any size with a
+    middleware outside :data:`RTPS_RMWS`), without sign, leading zeros or spaces."""
+    value = os.environ.get("ROS_DOMAIN_ID")
+    if not value:
+        return None
+    rtps = os.environ.get("RMW_IMPLEMENTATION", "") in RTPS_RMWS
+    allowed = f"a decimal integer in [0, {MAX_DOMAIN_ID}]" if rtps else "a decimal integer >= 0"
+    why = ""
+    if value.isascii() and value.isdigit() and (value == "0" or not value.startswith("0")):
+        if not rtps or int(value) <= MAX_DOMAIN_ID:
+            return None
+        why = (
+            " (the RTPS port mapping puts domain d on UDP ports 7400 + 250 d + 0..11: above "
+            f"{MAX_DOMAIN_ID} they pass 65535)"
+        )
+    elif value.lstrip().startswith(("-", "+", "0")):
+        why = " (rcl would read it as C's strtoul does: -1 as domain 0, 010 as 8, 0x10 as 16)"
+    return f"ROS_DOMAIN_ID = {value!r} is invalid: allowed {allowed}{why}"
 
 
 def localhost_only() -> bool:

@@ -33,7 +33,7 @@ from mems_sim.ros.end_of_stream import (
     account_publishers,
     end_of_stream_message,
 )
-from mems_sim.ros.env import apply_defaults
+from mems_sim.ros.env import apply_defaults, domain_id_problem
 from mems_sim.ros.frames import make_signal_frame
 from mems_sim.ros.node_help import node_help, wants_help
 from mems_sim.ros.params import declare_specs
@@ -758,6 +758,10 @@ def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> in
     from rclpy.signals import SignalHandlerOptions
 
     apply_defaults()
+    problem = domain_id_problem()
+    if problem is not None:
+        print(f"error: {problem}", file=sys.stderr)
+        return 2
     # Our own SIGINT/SIGTERM handling: the node publishes its final results
     # before the context shuts down.
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)

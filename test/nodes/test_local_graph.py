@@ -133,6 +133,81 @@ def test_profile_is_valid_for_the_installed_fastdds():
     xmlschema.XMLSchema(str(FASTDDS_XSD)).validate(str(PROFILE))
 
 
+# -- ROS_DOMAIN_ID ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("value", [None, "", "0", "7", "101", "232"])
+def test_usable_domain_ids_pass(clean_env, value):
+    if value is not None:
+        clean_env["ROS_DOMAIN_ID"] = value
+    assert ros_env.domain_id_problem() is None
+
+
+@pytest.mark.parametrize(
+    "value, needle",
+    [
+        ("233", "pass 65535"),
+        ("1000", "pass 65535"),
+        ("-1", "-1 as domain 0"),  # rcl: strtoul -> SIZE_MAX, "use the default"
+        ("010", "010 as 8"),
+        ("0x10", "0x10 as 16"),
+        ("abc", "allowed a decimal integer in [0, 232]"),
+        (" 7", "allowed"),
+        ("7 ", "allowed"),
+    ],
+)
+def test_domain_ids_rcl_misreads_or_fastdds_cannot_use_are_refused(clean_env, value, needle):
+    clean_env["ROS_DOMAIN_ID"] = value
+    problem = ros_env.domain_id_problem()
+    assert problem is not None and needle in problem
+    assert problem.startswith(f"ROS_DOMAIN_ID = {value!r} is invalid")
+
+
+def test_a_middleware_without_rtps_ports_takes_any_decimal_domain(clean_env):
+    clean_env["RMW_IMPLEMENTATION"] = "rmw_zenoh_cpp"
+    clean_env["ROS_DOMAIN_ID"] = "500"
+    assert ros_env.domain_id_problem() is None
+    clean_env["ROS_DOMAIN_ID"] = "-1"
+    assert "allowed a decimal integer >= 0" in ros_env.domain_id_problem()
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["imu_node"],
+        ["run_scenario", "imu_noise", "--no-plots"],
+        ["mcap_record", "--all", "-o", "{tmp}/x.mcap"],
+        ["run_graph", "{launch}/imu.launch.yaml"],
+    ],
+    ids=lambda c: c[0],
+)
+@pytest.mark.parametrize("value", ["233", "-1"])
+def test_executables_refuse_a_bad_domain_id_in_one_line(tmp_path, command, value):
+    """Exit 2 and one line naming the variable, no traceback, nothing joins a graph (Fast
+    DDS's own "port number is too high" error never printed) and no file is written."""
+    launch = Path(__file__).resolve().parents[2] / "launch"
+    argv = [a.format(tmp=tmp_path, launch=launch) for a in command]
+    argv[0] = str(Path(sys.executable).parent / argv[0])
+    env = {k: v for k, v in os.environ.items() if k not in SET_BY_DEFAULTS}
+    env["ROS_DOMAIN_ID"] = value
+    proc = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"ROS_DOMAIN_ID = {value!r} is invalid" in lines[0], lines
+    assert "Traceback" not in proc.stderr and "port number" not in proc.stdout + proc.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_graph_refuses_a_bad_domain_id(clean_env):
+    from mems_scenarios.base import Graph, ScenarioError
+
+    clean_env["ROS_DOMAIN_ID"] = "240"
+    with pytest.raises(ScenarioError, match="ROS_DOMAIN_ID = '240' is invalid"):
+        Graph()
+    with pytest.raises(ScenarioError, match="domain_id = 233 is invalid"):
+        Graph(domain_id=233)
+
+
 # -- sockets and packets ------------------------------------------------------------------
 
 

@@ -377,16 +377,27 @@ def test_start_paused_play_next_resume(tmp_path, graph, subprocess_env):
         bag, subprocess_env, "--topics", "/s/adc", "--start-paused", "--clock", "50", "-r", "10"
     )
 
-    def call(name: str):
-        client = probe.create_client(Trigger, f"/mcap_player/{name}")
+    # one client per service for the whole test: a reply is lost when it is sent before
+    # the client's reply reader is matched (wait_for_service sees the request side only),
+    # so every client is made before the first call and the first call, an idempotent
+    # query, is repeated until a reply arrives
+    clients = {
+        name: probe.create_client(Trigger, f"/mcap_player/{name}")
+        for name in ("is_paused", "play_next", "resume")
+    }
+
+    def call(name: str, attempts: int = 1):
+        client = clients[name]
         assert client.wait_for_service(timeout_sec=15.0), name
-        future = client.call_async(Trigger.Request())
-        assert _spin_until(executor, future.done, 10.0), name
-        probe.destroy_client(client)
-        return future.result()
+        for _ in range(attempts):
+            future = client.call_async(Trigger.Request())
+            if _spin_until(executor, future.done, 10.0 / attempts):
+                return future.result()
+            client.remove_pending_request(future)
+        raise AssertionError(f"no reply from {name} in 10 s")
 
     try:
-        assert call("is_paused").success
+        assert call("is_paused", attempts=4).success
         assert _spin_until(executor, lambda: len(clocks) >= 5, 10.0)
         _spin_until(executor, lambda: False, 1.0)
         assert got == []  # paused: nothing published
