@@ -718,7 +718,8 @@ def _drive_mechanics(
     of the interval, torque ``tau[i]`` if ``tau`` is not empty), omega at t (om_out), and
     u = (theta - theta_th)/theta_0 and w = -u^2 of the sense comb (exp(w) is taken by the
     caller); at every D-th sample the output's drive, frequency, theta and omega.
-    Returns the state at the end."""
+    Returns the state at the end. The step comes to rest at exactly 0 instead of ringing
+    down into subnormal floats (:data:`~mems_sim.devices.scanner.REST_ANGLE`)."""
     hv = 0.5 * vmax
     vcw = vc0 * wc
     hs = (1.0 / f_int) / 1

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from mems_sim.devices.scanner import (
+    REST_ANGLE,
     MicroScannerDevice,
     ScannerParams,
     capacitance,
@@ -54,6 +55,25 @@ def test_free_decay_matches_wn_and_zeta():
     n = len(pk) - 1
     delta = math.log(th[pk[0]] / th[pk[-1]]) / n
     assert delta / math.sqrt(4 * math.pi**2 + delta**2) == pytest.approx(0.0066, rel=0.02)
+
+
+def test_a_free_ring_down_comes_to_rest_at_zero_without_subnormal_floats():
+    """Without drive or noise the mirror decays through every power of ten; the RK4 step
+    sets it to exactly 0 below REST_ANGLE instead of entering the subnormal floats (10-100x
+    slower arithmetic), and not before: the last motion is within a few decades of it."""
+    p = scanner_params()
+    p = p._replace(b=p.b * 100)  # zeta ~0.66: 666 time constants in ~0.26 s
+    fs = 50e3
+    th, om = simulate_mechanics(np.zeros(int(0.4 * fs)), fs, p, theta0=0.1)
+    tiny = np.finfo(float).tiny
+    for x in (th, om):
+        assert np.all((x == 0.0) | (np.abs(x) >= tiny))
+    moving = np.flatnonzero(th != 0.0)
+    rest = moving[-1] + 1
+    assert rest < len(th) - 1000 and np.all(th[rest:] == 0.0) and np.all(om[rest:] == 0.0)
+    last = np.abs(th[rest - int(fs / 624.6) : rest]).max()  # over the last period
+    assert 1e-300 < last < 1e-280, last
+    assert 1e-300 < REST_ANGLE < 1e-280
 
 
 def test_parametric_resonance_reaches_table_4_2_amplitude(run):
