@@ -231,8 +231,9 @@ def _main(args) -> int:
     if error:
         return _fail(error)
     apply_defaults()
-    if args.domain_id is None and domain_id_problem() is not None:
-        return _fail(domain_id_problem())
+    problem = None if args.domain_id is not None else domain_id_problem()
+    if problem is not None:
+        return _fail(problem)
     module = load(args.name)
     options = ScenarioOptions(
         duration_s=args.duration,

@@ -794,8 +794,9 @@ def main(argv: list[str] | None = None) -> int:
         except re.error as exc:
             return _error(f"--record-regex {args.record_regex!r}: {exc}")
     apply_defaults()  # localhost discovery and an ament prefix, inherited by every process
-    if domain_id_problem() is not None:
-        return _error(domain_id_problem())
+    problem = domain_id_problem()
+    if problem is not None:
+        return _error(problem)
     try:
         graph = load_graph(args.file, parse_cli_args(args.launch_args), not args.show_args)
         if args.show_args:

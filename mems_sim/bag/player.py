@@ -1323,8 +1323,9 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(argv: list[str] | None) -> int:
     apply_defaults()
-    if domain_id_problem() is not None:
-        print(f"mcap_play: error: {domain_id_problem()}", file=sys.stderr)
+    problem = domain_id_problem()
+    if problem is not None:
+        print(f"mcap_play: error: {problem}", file=sys.stderr)
         return 2
     argv = sys.argv[1:] if argv is None else list(argv)
     own, ros_args = split_ros_args(argv)

@@ -923,8 +923,9 @@ def main(argv: list[str] | None = None) -> int:
 
 def _run(argv: list[str] | None, stop: _StopRequest) -> int:
     apply_defaults()
-    if domain_id_problem() is not None:
-        return _error(domain_id_problem(), 2)
+    problem = domain_id_problem()
+    if problem is not None:
+        return _error(problem, 2)
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
