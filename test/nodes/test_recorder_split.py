@@ -24,6 +24,8 @@ from pathlib import Path
 import pytest
 import yaml
 from mcap.reader import make_reader
+from mcap.records import Message
+from mcap.stream_reader import StreamReader
 from rclpy.qos import ReliabilityPolicy
 from sensor_msgs.msg import Imu
 
@@ -172,14 +174,28 @@ def test_split_by_size_and_duration_match_single_file(ros_context, subprocess_en
         assert qos[0]["reliability"] == "reliable"  # as offered (the graph gives no depth)
         counts, connections = _rosbags_counts(directory)  # one bag, the single file's counts
         assert counts == expected and connections == 2
-    # by log time: every file spans less than 5 s of sensor time
+    # by log time, as the writer documents it: a file ends before the message at which the
+    # highest log time seen is 5 s past the highest one at the file's first message. (A
+    # file's own span can pass 5 s: a message of the other topic taken late, with an older
+    # log time, lands in the next file.)
     info = yaml.safe_load((tmp_path / "by_time" / "metadata.yaml").read_text())
-    spans = [f["duration"]["nanoseconds"] for f in info["rosbag2_bagfile_information"]["files"]]
-    assert (
-        max(spans) < 5_000_000_000
-        and info["rosbag2_bagfile_information"]["duration"]["nanoseconds"]
-        == (FRAMES - 1) * 100_000_000
-    )
+    high, start = None, None
+    for name in info["rosbag2_bagfile_information"]["relative_file_paths"]:
+        for i, t in enumerate(_log_times_as_written(tmp_path / "by_time" / name)):
+            high = t if high is None else max(high, t)
+            if i == 0:
+                assert start is None or high - start >= 5_000_000_000  # not split early
+                start = high
+            assert high - start < 5_000_000_000  # nor late
+    assert start is not None
+    info = info["rosbag2_bagfile_information"]
+    assert info["duration"]["nanoseconds"] == (FRAMES - 1) * 100_000_000
+
+
+def _log_times_as_written(path: Path) -> list[int]:
+    """Log times of an MCAP file's messages in the order they were written."""
+    with open(path, "rb") as f:
+        return [r.log_time for r in StreamReader(f).records if isinstance(r, Message)]
 
 
 def test_duration_ends_on_time(ros_context, subprocess_env, tmp_path):

@@ -133,7 +133,9 @@ def test_launch_file_runs_and_its_estimator_publishes(name, graph, subprocess_en
     proc = subprocess.Popen(
         [str(VENV_BIN / "run_graph"), str(LAUNCH / f"{name}.launch.yaml"), f"namespace:={ns}"]
         + cli
-        + ["--duration", "60"],
+        # the stop deadline has its own test; here a node finishing its final results
+        # slowly on a loaded machine (seen: the noise identifier, > 5 s) is not a failure
+        + ["--duration", "60", "--kill-timeout", "30"],
         cwd=REPO,  # the stage file's default params_yaml is relative to the repository
         env=subprocess_env,
         stdout=out,
@@ -149,7 +151,7 @@ def test_launch_file_runs_and_its_estimator_publishes(name, graph, subprocess_en
         first = time.monotonic() - t0
         if proc.poll() is None:
             os.kill(proc.pid, signal.SIGINT)
-        code = proc.wait(timeout=30)
+        code = proc.wait(timeout=90)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
