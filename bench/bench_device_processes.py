@@ -53,6 +53,7 @@ and the other jobs' cores on the machine (load).
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import os
@@ -416,7 +417,9 @@ BUILDERS = {
 # ------------------------------------------------------------------ running a graph
 
 
-def _commands(g: Graph, out: Path, pace: float, max_wall: float) -> dict[str, list[str]]:
+def _commands(
+    g: Graph, out: Path, pace: float, max_wall: float, preset: str | None = None
+) -> dict[str, list[str]]:
     py = sys.executable
     cmds = {
         "recorder": [
@@ -427,6 +430,7 @@ def _commands(g: Graph, out: Path, pace: float, max_wall: float) -> dict[str, li
             str(out),
             "--compression",
             "zstd",
+            *(["--storage-preset-profile", preset] if preset else []),
             *g.topics,
             "--ros-args",
             "--log-level",
@@ -472,7 +476,14 @@ class _EarlyExit(Exception):
     """A process of the graph ended before the device's data did."""
 
 
-def run_graph(g: Graph, pace: float, domain_id: int, tmp: Path, keep: str | None = None) -> dict:
+def run_graph(
+    g: Graph,
+    pace: float,
+    domain_id: int,
+    tmp: Path,
+    keep: str | None = None,
+    preset: str | None = None,
+) -> dict:
     """Run ``g``'s processes; the figures of the module docstring."""
     from mems_sim.bag.info import bag_info
 
@@ -480,7 +491,7 @@ def run_graph(g: Graph, pace: float, domain_id: int, tmp: Path, keep: str | None
     out = tmp / f"{g.family}.mcap"
     sim = g.device.params.get("duration_s")
     max_wall = 60.0 + 20.0 * (sim or 30.0) / pace
-    cmds = _commands(g, out, pace, max_wall)
+    cmds = _commands(g, out, pace, max_wall, preset)
     dev = g.device.name
     procs, logs, cpu = {}, {}, {}
     early: list[str] = []
@@ -835,31 +846,79 @@ HEADER = [
 ]
 
 
+def _frame_size(text: str) -> tuple[str, int]:
+    fam, sep, n = text.partition("=")
+    if not sep or fam not in FAMILIES or not n.isdigit() or int(n) < 1:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected FAMILY=N with FAMILY one of {', '.join(FAMILIES)} and N >= 1"
+        )
+    return fam, int(n)
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    """The options of the module docstring (``--help`` prints them)."""
+    ap = argparse.ArgumentParser(
+        prog="bench_device_processes.py",
+        description="Each device family's graph as separate processes, paced by the "
+        "device's wall-clock timer (details in the module docstring).",
+    )
+    ap.add_argument(
+        "families",
+        nargs="*",
+        metavar="FAMILY",
+        help=f"families to run (default all: {', '.join(FAMILIES)})",
+    )
+    ap.add_argument("--pace", type=float, default=1.5, help="x real time (default 1.5)")
+    ap.add_argument(
+        "--seconds",
+        type=float,
+        default=7.0,
+        help="wall seconds of data at the pace (default 7; imu at least 66 s of data)",
+    )
+    ap.add_argument(
+        "--frame-size",
+        type=_frame_size,
+        action="append",
+        default=[],
+        metavar="FAMILY=N",
+        help="frame size of a family (repeatable)",
+    )
+    ap.add_argument("--keep-bags", metavar="DIR", help="keep the recordings in DIR")
+    ap.add_argument(
+        "--storage-preset-profile",
+        metavar="PRESET",
+        help="the recorder's preset (mcap_record's option; default none: zstd level 1 "
+        "with chunk CRCs)",
+    )
+    args = ap.parse_args(argv)
+    from mems_sim.bag.writer import STORAGE_PRESETS
+
+    if args.storage_preset_profile not in (None, *STORAGE_PRESETS):
+        ap.error(
+            f"--storage-preset-profile {args.storage_preset_profile!r}: known "
+            f"{', '.join(STORAGE_PRESETS)}"
+        )
+    unknown = sorted(set(args.families) - set(FAMILIES))
+    if unknown:
+        ap.error(f"unknown families {unknown}; known: {', '.join(FAMILIES)}")
+    if not args.pace > 0 or not args.seconds > 0:
+        ap.error(f"--pace ({args.pace}) and --seconds ({args.seconds}) must be > 0")
+    args.frame_size = dict(args.frame_size)
+    return args
+
+
 def main() -> None:
     from mems_sim.ros.env import apply_defaults
 
     apply_defaults()
-    args = sys.argv[1:]
-
-    def option(name: str, default=None, convert=str):
-        if name in args:
-            i = args.index(name)
-            value = args[i + 1]
-            del args[i : i + 2]
-            return convert(value)
-        return default
-
-    pace = option("--pace", 1.5, float)
-    seconds = option("--seconds", 7.0, float)
-    keep = option("--keep-bags")
-    frames: dict[str, int] = {}
-    while "--frame-size" in args:
-        fam, _, n = option("--frame-size").partition("=")
-        frames[fam] = int(n)
-    families = [a for a in args if not a.startswith("--")] or list(FAMILIES)
-    unknown = sorted((set(families) | set(frames)) - set(FAMILIES))
-    if unknown:
-        raise SystemExit(f"unknown families {unknown}; known: {', '.join(FAMILIES)}")
+    args = parse_args(sys.argv[1:])
+    pace, seconds, keep, frames, families = (
+        args.pace,
+        args.seconds,
+        args.keep_bags,
+        args.frame_size,
+        args.families or list(FAMILIES),
+    )
     domain = int(os.environ.get("ROS_DOMAIN_ID") or 77)
     rows = []
     with tempfile.TemporaryDirectory() as d:
@@ -867,7 +926,7 @@ def main() -> None:
             tmp = Path(d)
             g = BUILDERS[family](pace, seconds, frames.get(family), tmp)
             try:
-                r = run_graph(g, pace, domain, tmp, keep)
+                r = run_graph(g, pace, domain, tmp, keep, args.storage_preset_profile)
             except RuntimeError as exc:
                 print(f"{family}: FAILED: {exc}", flush=True)
                 rows.append([family] + ["-"] * (len(HEADER) - 2) + ["failed"])

@@ -655,7 +655,6 @@ def _device_run(
     # pred = [Phi11(w/2), Phi12(w/2), Phi11(1 + w/2), Phi12(1 + w/2)] of the observer model
     PC = np.empty(6)
     L = np.empty(6)
-    AP = np.empty((6, 6))
     cache = np.full(30, -1.0)  # pulse constants: truth [0:15], observer model [15:30]
     W = win.shape[0]
     varying = drift != 0.0 or step_frac != 0.0
@@ -738,7 +737,7 @@ def _device_run(
             if fast:
                 ss_step6(xp, A, B, C, Lss, 0.0, v, 0.0)
             else:
-                kf_predict6(xp, P, A, F, M, nu, S, PC, L, AP)
+                kf_predict6(xp, P, A, F, M, nu, S, PC, L)
         quiet = carry[0] == 0.0 and carry[2] == 0.0 and carry[4] < 0.0
         if u == 0.0 and quiet:
             x_start[i] = 0.0

@@ -532,11 +532,11 @@ def predictor_gain_sd(A, M, PC, S, L):
 
 
 @numba.njit(cache=True, inline="always")
-def kf_predict6(xp, P, A, F, M, nu, S, PC, L, AP):
+def kf_predict6(xp, P, A, F, M, nu, S, PC, L):
     """:func:`kf_predict` for the 6-state model with u = 0 (the pulses enter through
     :func:`add_pulse_input`; B >= 0, so B u = +0): Xp <- A Xp + L nu,
     P <- A P A' + F - L L' S (Colinet et al. eq. (2) with the cross term M,
-    L = (A P C' + M)/S).  L (6,) and AP (6, 6) are scratch."""
+    L = (A P C' + M)/S; :func:`cov_predict6`).  L (6,) is scratch."""
     predictor_gain_sd(A, M, PC, S, L)
     x0 = xp[0]
     x1 = xp[1]
@@ -550,7 +550,7 @@ def kf_predict6(xp, P, A, F, M, nu, S, PC, L, AP):
     xp[3] = 0.0 + L[3] * nu + x2
     xp[4] = 0.0 + L[4] * nu + A[4, 4] * x4 + A[4, 5] * x5
     xp[5] = 0.0 + L[5] * nu + x4
-    cov_predict_sd(P, A, F, L, S, AP)
+    cov_predict6(P, A, F, L, S)
 
 
 @numba.njit(cache=True, inline="always")
@@ -621,6 +621,111 @@ def cov_predict_sd(P, A, F, L, S, AP):
             P[j, i] = val
 
 
+@numba.njit(cache=True, inline="always")
+def cov_predict6(P, A, F, L, S):
+    """:func:`cov_predict_sd` for the 6-state model (n = 6): P <- A P A' + F - L L' S in
+    place (Colinet et al. eq. (2) with the cross term; L = (A P C' + M)/S), units V^2 (the
+    velocity scaled to V).
+
+    The same floating-point operations in the same order as :func:`cov_predict_sd`, so the
+    same floats for any P (symmetric or not): the entries of the old P that the result
+    depends on are held in scalars (``p<row><column>``), and so are the entries of A P
+    that it uses (``u``, ``v``, ``w``, ``x``: rows 0, 1, 2 and 4; rows 3 and 5 of A P are
+    rows 2 and 4 of P), instead of the scratch array that the compiler had to store and
+    reload around every write of P.
+    """
+    a00 = A[0, 0]
+    a01 = A[0, 1]
+    a10 = A[1, 0]
+    a11 = A[1, 1]
+    a22 = A[2, 2]
+    a23 = A[2, 3]
+    a44 = A[4, 4]
+    a45 = A[4, 5]
+    p00 = P[0, 0]
+    p01 = P[0, 1]
+    p02 = P[0, 2]
+    p03 = P[0, 3]
+    p04 = P[0, 4]
+    p05 = P[0, 5]
+    p10 = P[1, 0]
+    p11 = P[1, 1]
+    p12 = P[1, 2]
+    p13 = P[1, 3]
+    p14 = P[1, 4]
+    p15 = P[1, 5]
+    p20 = P[2, 0]
+    p22 = P[2, 2]
+    p23 = P[2, 3]
+    p24 = P[2, 4]
+    p25 = P[2, 5]
+    p30 = P[3, 0]
+    p32 = P[3, 2]
+    p33 = P[3, 3]
+    p34 = P[3, 4]
+    p35 = P[3, 5]
+    p44 = P[4, 4]
+    p45 = P[4, 5]
+    p54 = P[5, 4]
+    p55 = P[5, 5]
+    # rows of A P that are not copies of rows of P (those entries only that the
+    # products below use)
+    u0 = a00 * p00 + a01 * p10
+    u1 = a00 * p01 + a01 * p11
+    u2 = a00 * p02 + a01 * p12
+    u3 = a00 * p03 + a01 * p13
+    u4 = a00 * p04 + a01 * p14
+    u5 = a00 * p05 + a01 * p15
+    v0 = a10 * p00 + a11 * p10
+    v1 = a10 * p01 + a11 * p11
+    v2 = a10 * p02 + a11 * p12
+    v3 = a10 * p03 + a11 * p13
+    v4 = a10 * p04 + a11 * p14
+    v5 = a10 * p05 + a11 * p15
+    w0 = p00 + a22 * p20 + a23 * p30
+    w2 = p02 + a22 * p22 + a23 * p32
+    w3 = p03 + a22 * p23 + a23 * p33
+    w4 = p04 + a22 * p24 + a23 * p34
+    w5 = p05 + a22 * p25 + a23 * p35
+    x4 = a44 * p44 + a45 * p54
+    x5 = a44 * p45 + a45 * p55
+    L0 = L[0]
+    L1 = L[1]
+    L2 = L[2]
+    L3 = L[3]
+    L4 = L[4]
+    L5 = L[5]
+    # (A P) A' + F - L L' S, upper triangle mirrored
+    _put6(P, 0, 0, (0.0 + u0 * a00 + u1 * a01) + F[0, 0] - L0 * L0 * S)
+    _put6(P, 0, 1, (0.0 + u0 * a10 + u1 * a11) + F[0, 1] - L0 * L1 * S)
+    _put6(P, 1, 1, (0.0 + v0 * a10 + v1 * a11) + F[1, 1] - L1 * L1 * S)
+    _put6(P, 0, 2, (0.0 + u0 + u2 * a22 + u3 * a23) + F[0, 2] - L0 * L2 * S)
+    _put6(P, 1, 2, (0.0 + v0 + v2 * a22 + v3 * a23) + F[1, 2] - L1 * L2 * S)
+    _put6(P, 2, 2, (0.0 + w0 + w2 * a22 + w3 * a23) + F[2, 2] - L2 * L2 * S)
+    _put6(P, 0, 3, (0.0 + u2) - L0 * L3 * S)
+    _put6(P, 1, 3, (0.0 + v2) - L1 * L3 * S)
+    _put6(P, 2, 3, (0.0 + w2) - L2 * L3 * S)
+    _put6(P, 3, 3, (0.0 + p22) - L3 * L3 * S)
+    _put6(P, 0, 4, (0.0 + u4 * a44 + u5 * a45) + F[0, 4] - L0 * L4 * S)
+    _put6(P, 1, 4, (0.0 + v4 * a44 + v5 * a45) + F[1, 4] - L1 * L4 * S)
+    _put6(P, 2, 4, (0.0 + w4 * a44 + w5 * a45) + F[2, 4] - L2 * L4 * S)
+    _put6(P, 3, 4, (0.0 + p24 * a44 + p25 * a45) + F[3, 4] - L3 * L4 * S)
+    _put6(P, 4, 4, (0.0 + x4 * a44 + x5 * a45) + F[4, 4] - L4 * L4 * S)
+    _put6(P, 0, 5, (0.0 + u4) - L0 * L5 * S)
+    _put6(P, 1, 5, (0.0 + v4) - L1 * L5 * S)
+    _put6(P, 2, 5, (0.0 + w4) - L2 * L5 * S)
+    _put6(P, 3, 5, (0.0 + p24) - L3 * L5 * S)
+    _put6(P, 4, 5, (0.0 + x4) - L4 * L5 * S)
+    _put6(P, 5, 5, (0.0 + p44) - L5 * L5 * S)
+
+
+@numba.njit(cache=True, inline="always")
+def _put6(P, i, j, val):
+    """P[i, j] = P[j, i] = val (a symmetric covariance entry, V^2)."""
+    P[i, j] = val
+    P[j, i] = val
+
+
 # nogil: in a one-process graph the recorder's writer thread runs meanwhile
 @numba.njit(cache=True, nogil=True)
 def _kf_run(bits, pulses, starts, widths, xp, P, A, C, F, G, M, res, gam, spill, pos, var, innov):
@@ -628,7 +733,6 @@ def _kf_run(bits, pulses, starts, widths, xp, P, A, C, F, G, M, res, gam, spill,
     # to the generic kf_update / kf_predict); res = [f0, Q, fs, w0 velocity scale] of the model
     PC = np.empty(6)
     L = np.empty(6)
-    AP = np.empty((6, 6))
     eff = np.empty(2)
     z = np.empty(6)
     wc = np.full(3, -1.0)
@@ -637,7 +741,7 @@ def _kf_run(bits, pulses, starts, widths, xp, P, A, C, F, G, M, res, gam, spill,
         pos[k] = p
         var[k] = pv
         innov[k] = nu / math.sqrt(S)
-        kf_predict6(xp, P, A, F, M, nu, S, PC, L, AP)
+        kf_predict6(xp, P, A, F, M, nu, S, PC, L)
         if pulses[k] != 0.0 or spill[0] != 0.0:  # (call guarded: array-argument
             add_pulse_input(
                 xp,

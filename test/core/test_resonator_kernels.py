@@ -4,7 +4,7 @@
 recursion of Colinet et al. eq. (2) (``predicted_output``, ``kf_update``, ``kf_predict``,
 ``cov_predict``) next to the structured kernels the observers and the device run
 (``predicted_output_sd``, ``kf_update6``, ``kf_predict6``, ``predictor_gain_sd``,
-``cov_predict_sd``), which skip the exact zeros of the model's matrices; the two must give
+``cov_predict_sd``, ``cov_predict6``), which skip the exact zeros of the model's matrices; the two must give
 equal floats (same bits) for finite inputs, so recordings and reference tables do not
 move.  Checked here on the 6-state model and on the adaptive observer's Jacobian pattern
 (7 and 8 states), with a covariance that starts with exact zeros (the device's prior) and
@@ -24,6 +24,7 @@ from mems_sim.kernels.resonator_observer import (
     check_bits,
     check_pulse_timing,
     cov_predict,
+    cov_predict6,
     cov_predict_sd,
     kf_predict,
     kf_predict6,
@@ -92,14 +93,35 @@ def test_kf6_steps_equal_generic(start):
         x0 = np.zeros(6) if start == "zeros" else rng.standard_normal(6)
         xa, Pa, xb, Pb = x0.copy(), P0.copy(), x0.copy(), P0.copy()
         xf, PC, L, AP, tmp = (np.empty(6), np.empty(6), np.empty(6), np.empty((6, 6)), np.empty(6))
-        PCb, Lb, APb = np.empty(6), np.empty(6), np.empty((6, 6))
+        PCb, Lb = np.empty(6), np.empty(6)
         for v in np.sign(rng.standard_normal(500)):
             ra = kf_update(xa, Pa, m.C, m.G, m.C_pos, v, xf, PC)
             rb = kf_update6(xb, Pb, m.C, m.G, v, PCb)
             assert _same(ra, rb[:4]) and _same(xf[1], rb[4]) and _same(PC, PCb)
             kf_predict(xa, Pa, m.A, m.B, m.F, m.M, 0.0, ra[0], ra[1], PC, L, AP, tmp)
-            kf_predict6(xb, Pb, m.A, m.F, m.M, rb[0], rb[1], PCb, Lb, APb)
+            kf_predict6(xb, Pb, m.A, m.F, m.M, rb[0], rb[1], PCb, Lb)
             assert _same(L, Lb) and _same(xa, xb) and _same(Pa, Pb)
+
+
+def test_cov_predict6_equal_structured_loop_for_any_covariance():
+    """cov_predict6 (the 6-state covariance step on scalars) gives the floats of
+    cov_predict_sd, bit for bit, also for a covariance that is not exactly symmetric (it
+    reads every entry that loop reads), with exact zeros, and with the gain of a zero
+    or negative innovation variance's sign."""
+    rng = np.random.default_rng(66)
+    for m in _models():
+        for trial in range(60):
+            P = _spd(rng, 6, 10.0 ** rng.uniform(-8, 2))
+            if trial % 3 == 0:
+                P = P + rng.standard_normal((6, 6)) * 1e-9  # not symmetric
+            if trial % 5 == 0:
+                P[rng.integers(6), :] = 0.0
+            L = rng.standard_normal(6)
+            S = float(rng.uniform(-1.0, 3.0))
+            Pa, Pb = P.copy(), P.copy()
+            cov_predict_sd(Pa, m.A, m.F, L, S, np.empty((6, 6)))
+            cov_predict6(Pb, m.A, m.F, L, S)
+            assert _same(Pa, Pb), trial
 
 
 @pytest.mark.parametrize("n", [6, 7, 8, 9])
