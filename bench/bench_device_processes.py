@@ -3,6 +3,7 @@
 Run:  .venv/bin/python bench/bench_device_processes.py [FAMILY ...] [--pace 1.5]
                                                          [--seconds S] [--frame-size FAMILY=N]
                                                          [--keep-bags DIR]
+                                                         [--storage-preset-profile PRESET]
 
 For each family (imu, accelerometer, resonator, scanner, scanner_amdm, stage; default all)
 the graph the way ROS users run it, one process per node, localhost discovery in
@@ -13,7 +14,8 @@ ending at the end of its data; its numba kernels loaded before the first frame),
 estimator node(s) and the calibration node where the family has one (``python -m
 mems_estimation.nodes.*_node``), and ``python -m mems_sim.bag.recorder -o OUT
 --compression zstd TOPICS`` recording every topic the graph publishes (the end-of-stream
-record, the estimates, the calibration result) and /diagnostics. The graphs (estimators as
+record, the estimates, the calibration result) and /diagnostics (zstd level 1 with chunk
+CRCs, or ``--storage-preset-profile PRESET``, e.g. ``zstd_fast``). The graphs (estimators as
 the scenarios and bench_single_device_fast.py attach them), frames of the node
 executable's default size unless ``--frame-size FAMILY=N``:
 
@@ -583,6 +585,7 @@ def run_graph(
         namespace=g.device.namespace,
         note=g.note,
         pace=pace,
+        preset=preset,
         st=st,
         info=info,
         topics=g.topics,
@@ -708,7 +711,8 @@ def print_run(r: dict, s: dict) -> None:
     print(
         f"{r['family']}: {st['node']} at {st['fs'] / 1e3:g} kHz, frames of {st['frame_size']}, "
         f"paced at {r['pace']:g} x ({r['note'] + ', ' if r['note'] else ''}"
-        f"{st['samples'] / st['fs']:.2f} s of data, executor {st['executor']}): "
+        f"{st['samples'] / st['fs']:.2f} s of data, executor {st['executor']}"
+        f"{', recorder preset ' + r['preset'] if r['preset'] else ''}): "
         f"{st['rtf']:.3f} x real time first to last frame "
         f"({st['sim_span_s']:.2f} sim s in {st['wall_span_s']:.2f} wall s), "
         + (f"{st['rtf_steady']:.3f} x steady" if st["rtf_steady"] else "no steady state")
