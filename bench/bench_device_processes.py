@@ -4,6 +4,7 @@ Run:  .venv/bin/python bench/bench_device_processes.py [FAMILY ...] [--pace 1.5]
                                                          [--seconds S] [--frame-size FAMILY=N]
                                                          [--keep-bags DIR]
                                                          [--storage-preset-profile PRESET]
+                                                         [--compose]
 
 For each family (imu, accelerometer, resonator, scanner, scanner_amdm, stage; default all)
 the graph the way ROS users run it, one process per node, localhost discovery in
@@ -17,7 +18,10 @@ mems_estimation.nodes.*_node``), and ``python -m mems_sim.bag.recorder -o OUT
 record, the estimates, the calibration result) and /diagnostics (zstd level 1 with chunk
 CRCs, or ``--storage-preset-profile PRESET``, e.g. ``zstd_fast``). The graphs (estimators as
 the scenarios and bench_single_device_fast.py attach them), frames of the node
-executable's default size unless ``--frame-size FAMILY=N``:
+executable's default size unless ``--frame-size FAMILY=N``; with ``--compose`` a family's
+two or more estimator and calibration nodes run in one ``component_container`` process
+(ROS 2 composition: the resonator's three observers, the stage's EKF and calibration, the
+IMU's identifier and calibration):
 
 - imu: ``imu_node`` (ADIS16350 preset, 100 Hz, 10-sample frames, sensor_msgs/Imu on
   ``data``) on a short multi-position / rate-table profile (12 segments of >= 5.5 s: the
@@ -419,8 +423,33 @@ BUILDERS = {
 # ------------------------------------------------------------------ running a graph
 
 
+#: Process name of a family's estimator nodes composed in one container (``--compose``).
+COMPOSED = "estimators"
+
+
+def consumer_processes(g: Graph, compose: bool) -> dict[str, list[Proc]]:
+    """Process name -> the consumer nodes it runs: one process per consumer, or with
+    ``compose`` one ``component_container`` for a family's two or more consumers."""
+    if compose and len(g.consumers) > 1:
+        return {COMPOSED: list(g.consumers)}
+    return {c.name: [c] for c in g.consumers}
+
+
+def _ros_section(c: Proc) -> list[str]:
+    """A consumer's own ROS arguments: namespace and parameters."""
+    args = ["-r", f"__ns:={c.namespace}"]
+    for k, v in c.params.items():
+        args += ["-p", f"{k}:={_ros_value(v)}"]
+    return args
+
+
 def _commands(
-    g: Graph, out: Path, pace: float, max_wall: float, preset: str | None = None
+    g: Graph,
+    out: Path,
+    pace: float,
+    max_wall: float,
+    preset: str | None = None,
+    compose: bool = False,
 ) -> dict[str, list[str]]:
     py = sys.executable
     cmds = {
@@ -439,19 +468,15 @@ def _commands(
             "warn",
         ]
     }
-    for c in g.consumers:
-        cmds[c.name] = [
-            py,
-            "-m",
-            c.module,
-            "--ros-args",
-            "--log-level",
-            "warn",
-            "-r",
-            f"__ns:={c.namespace}",
-        ]
-        for k, v in c.params.items():
-            cmds[c.name] += ["-p", f"{k}:={_ros_value(v)}"]
+    for name, nodes in consumer_processes(g, compose).items():
+        if name == COMPOSED:
+            cmds[name] = [py, "-m", "mems_sim.ros.container", "--ros-args", "--log-level", "warn"]
+            for c in nodes:
+                plugin = c.module.rsplit(".", 1)[1]  # the node's executable
+                cmds[name] += ["--node", plugin, "--ros-args", *_ros_section(c)]
+        else:
+            cmds[name] = [py, "-m", nodes[0].module, "--ros-args", "--log-level", "warn"]
+            cmds[name] += _ros_section(nodes[0])
     d = g.device
     wait = ",".join(f"{t}:{n}" for t, n in g.wait_subs().items())
     cmds[d.name] = [
@@ -485,6 +510,7 @@ def run_graph(
     tmp: Path,
     keep: str | None = None,
     preset: str | None = None,
+    compose: bool = False,
 ) -> dict:
     """Run ``g``'s processes; the figures of the module docstring."""
     from mems_sim.bag.info import bag_info
@@ -493,7 +519,8 @@ def run_graph(
     out = tmp / f"{g.family}.mcap"
     sim = g.device.params.get("duration_s")
     max_wall = 60.0 + 20.0 * (sim or 30.0) / pace
-    cmds = _commands(g, out, pace, max_wall, preset)
+    cmds = _commands(g, out, pace, max_wall, preset, compose)
+    consumers = list(consumer_processes(g, compose))
     dev = g.device.name
     procs, logs, cpu = {}, {}, {}
     early: list[str] = []
@@ -521,14 +548,14 @@ def run_graph(
                 break
         if early:
             raise _EarlyExit(early[0])
-        rest = [procs[c.name] for c in g.consumers] + [procs["recorder"]]
+        rest = [procs[n] for n in consumers] + [procs["recorder"]]
         drain_s = wait_quiet(rest, 120.0)
         time.sleep(1.1)  # one more /diagnostics of every node, with its final counters
         stop_ns = time.time_ns()  # what the consumers publish from now on: at shutdown
-        for c in g.consumers:
-            procs[c.name].send_signal(signal.SIGINT)
-        for c in g.consumers:
-            cpu[c.name] = reap(procs[c.name], 30.0)
+        for n in consumers:
+            procs[n].send_signal(signal.SIGINT)
+        for n in consumers:
+            cpu[n] = reap(procs[n], 30.0)
         time.sleep(0.5)
         procs["recorder"].send_signal(signal.SIGINT)
         cpu["recorder"] = reap(procs["recorder"], 60.0)
@@ -586,6 +613,7 @@ def run_graph(
         note=g.note,
         pace=pace,
         preset=preset,
+        compose=compose and COMPOSED in consumers,
         st=st,
         info=info,
         topics=g.topics,
@@ -712,7 +740,8 @@ def print_run(r: dict, s: dict) -> None:
         f"{r['family']}: {st['node']} at {st['fs'] / 1e3:g} kHz, frames of {st['frame_size']}, "
         f"paced at {r['pace']:g} x ({r['note'] + ', ' if r['note'] else ''}"
         f"{st['samples'] / st['fs']:.2f} s of data, executor {st['executor']}"
-        f"{', recorder preset ' + r['preset'] if r['preset'] else ''}): "
+        f"{', recorder preset ' + r['preset'] if r['preset'] else ''}"
+        f"{', estimators in one component_container' if r['compose'] else ''}): "
         f"{st['rtf']:.3f} x real time first to last frame "
         f"({st['sim_span_s']:.2f} sim s in {st['wall_span_s']:.2f} wall s), "
         + (f"{st['rtf_steady']:.3f} x steady" if st["rtf_steady"] else "no steady state")
@@ -889,6 +918,12 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     )
     ap.add_argument("--keep-bags", metavar="DIR", help="keep the recordings in DIR")
     ap.add_argument(
+        "--compose",
+        action="store_true",
+        help="run a family's estimator and calibration nodes (two or more) in one "
+        "component_container process instead of one process each",
+    )
+    ap.add_argument(
         "--storage-preset-profile",
         metavar="PRESET",
         help="the recorder's preset (mcap_record's option; default none: zstd level 1 "
@@ -930,7 +965,7 @@ def main() -> None:
             tmp = Path(d)
             g = BUILDERS[family](pace, seconds, frames.get(family), tmp)
             try:
-                r = run_graph(g, pace, domain, tmp, keep, args.storage_preset_profile)
+                r = run_graph(g, pace, domain, tmp, keep, args.storage_preset_profile, args.compose)
             except RuntimeError as exc:
                 print(f"{family}: FAILED: {exc}", flush=True)
                 rows.append([family] + ["-"] * (len(HEADER) - 2) + ["failed"])

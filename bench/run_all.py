@@ -36,6 +36,9 @@ BENCHES = [
     ("bench_device_processes.py", ["--pace", "1.5"]),
     # the stage with the scenario's 20,000-sample frames instead of the node's 5000 (~25 s)
     ("bench_device_processes.py", ["stage", "--frame-size", "stage=20000", "--pace", "1.5"]),
+    # the families with two or more estimator nodes, those composed in one
+    # component_container: their CPU against the separate processes of the run above (~2 min)
+    ("bench_device_processes.py", ["imu", "resonator", "stage", "--compose", "--pace", "1.5"]),
     # 120 s of data: pacing at rates 1 and 10 and the lossless replay in ~3 min
     # (bench_replay.py alone defaults to the 600 s of the data-path figures)
     ("bench_replay.py", ["--duration", "120"]),

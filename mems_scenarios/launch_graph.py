@@ -30,6 +30,16 @@ refused with one line naming the file, the entry and what is not supported)::
         remap:                 (optional list)
         - from: A              ``-r A:=B``
           to: B
+    - node_container:          several nodes in one process (ROS 2 composition)
+        pkg: PACKAGE           (required; this package's ``component_container``)
+        exec: EXECUTABLE       (required)
+        name: NAME             (required: names the process in messages and logs)
+        namespace: NS          (optional, as for ``node``: in messages and logs only)
+        output: screen | log   (optional)
+        composable_node:       (required list: the nodes of the process)
+        - pkg: PACKAGE         (required)
+          plugin: PLUGIN       (required: a node executable of PACKAGE, or MODULE:CLASS)
+          name, namespace, param, remap   (optional, as for ``node``)
     - include:                 runs another launch YAML file's entries
         file: PATH
         arg:                   (optional list)
@@ -46,7 +56,10 @@ text after substitution, and a parameter value is typed by the node as YAML (``3
 integer, ``0.5`` a float, ``true`` a boolean). Each ``node`` is resolved through the ament
 index as ``ros2 run`` does (``<prefix of PKG>/lib/PKG/EXECUTABLE``) and started as
 ``EXECUTABLE --ros-args -r __node:=NAME -r __ns:=/NS -p P:=VALUE ... --params-file F ...
--r A:=B ...`` in a process group of its own. Includes are not scoped: the include's ``arg``
+-r A:=B ...`` in a process group of its own. A ``node_container`` is one such process,
+``component_container --node PLUGIN --ros-args ... --node PLUGIN --ros-args ...``: each
+composable node's name, namespace, parameters and remappings are its own (a composable node
+without ``namespace`` keeps its node's default one, not the container's). Includes are not scoped: the include's ``arg``
 values, and what the included file declares or sets, stay set for the entries after the
 include (so an include that does not pass ``namespace`` inherits the one an earlier include
 set). A relative path (``include`` file, ``param`` from) is relative to
@@ -103,12 +116,16 @@ TAGS = {
     "let": {"name", "value"},
     "node": {"pkg", "exec", "name", "namespace", "param", "remap", "output"},
     "include": {"file", "arg"},
+    "node_container": {"pkg", "exec", "name", "namespace", "output", "composable_node"},
 }
+#: Attributes of a ``composable_node`` of a ``node_container``.
+COMPOSABLE = {"pkg", "plugin", "name", "namespace", "param", "remap"}
 REQUIRED = {
     "arg": ("name",),
     "let": ("name", "value"),
     "node": ("pkg", "exec"),
     "include": ("file",),
+    "node_container": ("pkg", "exec", "name", "composable_node"),
 }
 OUTPUTS = ("screen", "log")
 #: Deepest chain of includes (deeper: an include cycle).
@@ -129,9 +146,50 @@ class GraphError(Exception):
 # --------------------------------------------------------------------------- model
 
 
+def ros_arguments(
+    name: str,
+    namespace: str,
+    params: list[tuple[str, str]],
+    param_files: list[str],
+    remaps: list[tuple[str, str]],
+) -> list[str]:
+    """``--ros-args -r __node:=NAME -r __ns:=NS -p P:=V ... --params-file F ... -r A:=B ...``"""
+    args = ["--ros-args"]
+    if name:
+        args += ["-r", f"__node:={name}"]
+    if namespace:
+        args += ["-r", f"__ns:={namespace}"]
+    for key, value in params:
+        args += ["-p", f"{key}:={value}"]
+    for path in param_files:
+        args += ["--params-file", path]
+    for src, dst in remaps:
+        args += ["-r", f"{src}:={dst}"]
+    return args
+
+
+@dataclass
+class ComposableNode:
+    """One ``composable_node`` of a ``node_container``, substituted."""
+
+    pkg: str
+    plugin: str
+    name: str = ""
+    namespace: str = ""
+    params: list[tuple[str, str]] = field(default_factory=list)
+    param_files: list[str] = field(default_factory=list)
+    remaps: list[tuple[str, str]] = field(default_factory=list)
+
+    def arguments(self) -> list[str]:
+        """Its part of the container's command line."""
+        return ["--node", self.plugin] + ros_arguments(
+            self.name, self.namespace, self.params, self.param_files, self.remaps
+        )
+
+
 @dataclass
 class NodeAction:
-    """One ``node`` entry, substituted and resolved."""
+    """One ``node`` (or ``node_container``) entry, substituted and resolved."""
 
     pkg: str
     exe: str
@@ -149,6 +207,8 @@ class NodeAction:
     label: str = ""
     #: How messages name the process (default: its node name and executable).
     title: str = ""
+    #: The nodes of a ``node_container`` (its name and namespace then only label it).
+    composables: list[ComposableNode] = field(default_factory=list)
 
     def fqn(self) -> str:
         """Fully qualified node name (the executable's name when no name is given)."""
@@ -157,18 +217,18 @@ class NodeAction:
 
     def command(self) -> list[str]:
         """The process's command line."""
-        cmd = [self.executable, *self.arguments, "--ros-args"]
-        if self.name:
-            cmd += ["-r", f"__node:={self.name}"]
-        if self.namespace:
-            cmd += ["-r", f"__ns:={self.namespace}"]
-        for key, value in self.params:
-            cmd += ["-p", f"{key}:={value}"]
-        for path in self.param_files:
-            cmd += ["--params-file", path]
-        for src, dst in self.remaps:
-            cmd += ["-r", f"{src}:={dst}"]
-        return cmd + self.ros_arguments
+        if self.composables:
+            # no __node/__ns of the container's: given to the process, they would rename
+            # every node in it
+            own = ["--ros-args", *self.ros_arguments] if self.ros_arguments else []
+            return [self.executable, *self.arguments, *own] + [
+                a for c in self.composables for a in c.arguments()
+            ]
+        return (
+            [self.executable, *self.arguments]
+            + ros_arguments(self.name, self.namespace, self.params, self.param_files, self.remaps)
+            + self.ros_arguments
+        )
 
 
 @dataclass
@@ -195,6 +255,26 @@ def resolve_executable(pkg: str, exe: str) -> str:
     if "/" in exe or not path.is_file() or not os.access(path, os.X_OK):
         raise GraphError(f"executable {exe!r} not found in package {pkg!r} ({path.parent})")
     return str(path)
+
+
+def _check_plugin(pkg: str, plugin: str, where: str) -> None:
+    """A composable node's plugin: an executable of ``pkg`` (a node executable; the
+    container checks that it runs a node), or ``MODULE:CLASS`` of an importable module."""
+    import importlib.util
+
+    if ":" in plugin:
+        module = plugin.partition(":")[0]
+        try:
+            found = bool(module) and importlib.util.find_spec(module) is not None
+        except (ImportError, ValueError):
+            found = False
+        if not found:
+            raise GraphError(f"{where}: module {module!r} of plugin {plugin!r} not found")
+        return
+    try:
+        resolve_executable(pkg, plugin)
+    except GraphError as exc:
+        raise GraphError(f"{where}: {exc}") from None
 
 
 def _text(value) -> str:
@@ -236,9 +316,7 @@ class _Loader:
         for i, entry in enumerate(entries, 1):
             where = f"{path}: entry {i}"
             if not isinstance(entry, dict) or len(entry) != 1:
-                raise GraphError(
-                    f"{where}: must be a mapping with one tag (arg, let, node, include)"
-                )
+                raise GraphError(f"{where}: must be a mapping with one tag ({', '.join(TAGS)})")
             ((tag, attrs),) = entry.items()
             if tag not in TAGS:
                 raise GraphError(f"{where}: unsupported tag {tag!r} (supported: {', '.join(TAGS)})")
@@ -336,20 +414,20 @@ class _Loader:
         scope.update(values)  # not scoped: the including file sees them afterwards too
         self.load(target, scope, depth + 1)
 
-    def _node(self, path, where, attrs, scope, depth) -> None:
-        pkg = self.sub(attrs["pkg"], scope, where)
-        exe = self.sub(attrs["exec"], scope, where)
-        where = f"{path}: node {exe!r}"
-        try:
-            node = NodeAction(pkg=pkg, exe=exe, executable=resolve_executable(pkg, exe))
-        except GraphError as exc:
-            raise GraphError(f"{where}: {exc}") from None
-        node.name = self.sub(attrs.get("name", ""), scope, where)
+    def _namespace(self, attrs, scope, where) -> str:
+        """The ``namespace`` attribute, absolute (empty when not given)."""
         ns = self.sub(attrs.get("namespace", ""), scope, where).strip().rstrip("/")
-        node.namespace = ("" if not ns or ns.startswith("/") else "/") + ns
-        node.output = self.sub(attrs.get("output", "log"), scope, where)
-        if node.output not in OUTPUTS:
-            raise GraphError(f"{where}: output {node.output!r} is not one of {', '.join(OUTPUTS)}")
+        return ("" if not ns or ns.startswith("/") else "/") + ns
+
+    def _output(self, attrs, scope, where) -> str:
+        """The ``output`` attribute (``log`` when not given)."""
+        output = self.sub(attrs.get("output", "log"), scope, where)
+        if output not in OUTPUTS:
+            raise GraphError(f"{where}: output {output!r} is not one of {', '.join(OUTPUTS)}")
+        return output
+
+    def _params_remaps(self, node, attrs, scope, where) -> None:
+        """The ``param`` and ``remap`` lists of a node or composable node, into ``node``."""
         params = attrs.get("param") or []
         if not isinstance(params, list):
             raise GraphError(f"{where}: 'param' must be a list")
@@ -373,7 +451,59 @@ class _Loader:
             node.remaps.append(
                 (self.sub(item["from"], scope, where), self.sub(item["to"], scope, where))
             )
+
+    def _node(self, path, where, attrs, scope, depth) -> None:
+        pkg = self.sub(attrs["pkg"], scope, where)
+        exe = self.sub(attrs["exec"], scope, where)
+        where = f"{path}: node {exe!r}"
+        try:
+            node = NodeAction(pkg=pkg, exe=exe, executable=resolve_executable(pkg, exe))
+        except GraphError as exc:
+            raise GraphError(f"{where}: {exc}") from None
+        node.name = self.sub(attrs.get("name", ""), scope, where)
+        node.namespace = self._namespace(attrs, scope, where)
+        node.output = self._output(attrs, scope, where)
+        self._params_remaps(node, attrs, scope, where)
         self.graph.nodes.append(node)
+
+    def _node_container(self, path, where, attrs, scope, depth) -> None:
+        pkg = self.sub(attrs["pkg"], scope, where)
+        exe = self.sub(attrs["exec"], scope, where)
+        name = self.sub(attrs["name"], scope, where)
+        where = f"{path}: node_container {name!r}"
+        try:
+            box = NodeAction(pkg=pkg, exe=exe, executable=resolve_executable(pkg, exe))
+        except GraphError as exc:
+            raise GraphError(f"{where}: {exc}") from None
+        box.name = name
+        box.namespace = self._namespace(attrs, scope, where)
+        box.output = self._output(attrs, scope, where)
+        items = attrs["composable_node"]
+        if not isinstance(items, list) or not items:
+            raise GraphError(f"{where}: 'composable_node' must be a non-empty list")
+        for k, item in enumerate(items, 1):
+            at = f"{where}: composable_node {k}"
+            if not isinstance(item, dict):
+                raise GraphError(f"{at}: attributes must be a mapping")
+            unknown = sorted(set(map(str, item)) - COMPOSABLE)
+            if unknown:
+                raise GraphError(
+                    f"{at}: unsupported attribute {unknown[0]!r} "
+                    f"(supported: {', '.join(sorted(COMPOSABLE))})"
+                )
+            for required in ("pkg", "plugin"):
+                if item.get(required) is None:
+                    raise GraphError(f"{at}: attribute {required!r} is required")
+            node = ComposableNode(
+                pkg=self.sub(item["pkg"], scope, at), plugin=self.sub(item["plugin"], scope, at)
+            )
+            at = f"{where}: composable_node {node.plugin!r}"
+            _check_plugin(node.pkg, node.plugin, at)
+            node.name = self.sub(item.get("name", ""), scope, at)
+            node.namespace = self._namespace(item, scope, at)
+            self._params_remaps(node, item, scope, at)
+            box.composables.append(node)
+        self.graph.nodes.append(box)
 
 
 def parse_cli_args(items: list[str]) -> dict[str, str]:

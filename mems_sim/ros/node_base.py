@@ -6,7 +6,8 @@ estimator nodes.
   duration of an emulator;
 * :class:`EmulatorNode`: every emulator node (device, frame publishers, ``step``; one device
   of a batch at a temperature: ``device_seed``, ``temperature_c``, :func:`variation_specs`);
-* :func:`run_node`: the ``main()`` of every node executable (exit code 2 on a bad parameter).
+* :func:`run_node`: the ``main()`` of every node executable (exit code 2 on a bad parameter);
+  :func:`run_nodes`: several nodes in one process and one executor (``component_container``).
 
 The estimator nodes' base, ``EstimatorNode``, is in ``mems_estimation.nodes.frame_input``.
 """
@@ -706,29 +707,30 @@ def _events_unsupported(node) -> bool:
     )
 
 
-def make_executor(node):
-    """The executor :func:`run_node` spins ``node`` with (:data:`EXECUTOR_ENV`).
+def make_executor(nodes):
+    """The executor :func:`run_node` spins ``nodes`` with (a node or several; :data:`EXECUTOR_ENV`).
 
     ``events`` (the default): rclpy's C++ ``rclpy.experimental.EventsExecutor``, which
     runs each ready subscription, timer or service from a C++ event queue. The Python
-    ``SingleThreadedExecutor`` rebuilds its wait set (every entity of the node, through
+    ``SingleThreadedExecutor`` rebuilds its wait set (every entity of the nodes, through
     ``contextlib.ExitStack``) before every callback: CPU that a node taking ~100 frames a
     second pays (docs/profiles.md). ``single``: the ``SingleThreadedExecutor``.
 
     The single-threaded executor is used anyway when ``rclpy.experimental`` has no
-    events executor or the node has what it cannot run (:func:`_events_unsupported`);
+    events executor or a node has what it cannot run (:func:`_events_unsupported`);
     entities created later are picked up by both. The events executor installs its own
     SIGINT/SIGTERM handlers when built; :func:`run_node` installs its handlers after.
     """
     from rclpy.executors import SingleThreadedExecutor
 
+    nodes = [nodes] if isinstance(nodes, Node) else list(nodes)
     choice = os.environ.get(EXECUTOR_ENV, "events").strip().lower() or "events"
     if choice not in ("events", "single"):
         raise ParameterError(
             f"environment variable {EXECUTOR_ENV} = {choice!r} is invalid: allowed "
             "'events' or 'single'"
         )
-    if choice == "events" and not _events_unsupported(node):
+    if choice == "events" and not any(_events_unsupported(n) for n in nodes):
         try:
             from rclpy.experimental import EventsExecutor
         except ImportError:
@@ -751,6 +753,22 @@ def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> in
     if isinstance(factory, type) and wants_help(args):
         sys.stdout.write(node_help(factory))
         return 0
+    return run_nodes([("", factory)], args)
+
+
+def run_nodes(factories: list[tuple[str, Callable[[], object]]], args: list[str]) -> int:
+    """Init rclpy with ``args``, build the nodes and spin them in one executor until a
+    stop signal or shutdown; every node built is closed (its final results published) and
+    destroyed, and 0 is returned.
+
+    Args:
+        factories: ``(label, factory)`` per node, built in this order; the label (empty
+            for a process of one node) prefixes the error line of that node.
+        args: the process's command line (rclpy's global arguments).
+
+    An invalid parameter (:class:`ParameterError` while a node is built) returns 2 after
+    one line on stderr. SIGINT and SIGTERM stop the spin between callbacks.
+    """
     import signal
 
     import rclpy
@@ -762,22 +780,26 @@ def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> in
     if problem is not None:
         print(f"error: {problem}", file=sys.stderr)
         return 2
-    # Our own SIGINT/SIGTERM handling: the node publishes its final results
+    # Our own SIGINT/SIGTERM handling: the nodes publish their final results
     # before the context shuts down.
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     # SIGINT explicitly too: a process started in the background of a script inherits it
-    # ignored, and would not stop on the SIGINT that launch tools send. While the node is
-    # built a signal interrupts it (e.g. a wait for /clock); once it spins, see below.
+    # ignored, and would not stop on the SIGINT that launch tools send. While a node is
+    # built a signal interrupts it (e.g. a wait for /clock); once they spin, see below.
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, _raise_interrupt)
-    node = None
+    nodes: list = []
     executor = None
+    label = ""
     try:
-        node = factory()
-        # one executor for the node's life: rclpy.spin_once(node) adds and removes the node
-        # on every call, which wakes and rebuilds the wait set once per callback
-        executor = make_executor(node)
-        executor.add_node(node)
+        for label, factory in factories:
+            nodes.append(factory())
+        label = ""
+        # one executor for the process's life: rclpy.spin_once(node) adds and removes the
+        # node on every call, which wakes and rebuilds the wait set once per callback
+        executor = make_executor(nodes)
+        for node in nodes:
+            executor.add_node(node)
         # while spinning, a stop signal only sets a flag that the loop reads between
         # callbacks: raised inside rclpy's C++ take of a message it surfaced as a RuntimeError
         # ("Unable to convert call argument") and the node died with a traceback; set after
@@ -785,20 +807,21 @@ def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> in
         stop: list[int] = []
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda signum, frame: stop.append(signum))
-        # short waits: SIGINT/SIGTERM are handled within 0.1 s even when no timer of the
+        # short waits: SIGINT/SIGTERM are handled within 0.1 s even when no timer of a
         # node fires (e.g. under use_sim_time while nobody publishes /clock)
         while rclpy.ok() and not stop:
             executor.spin_once(timeout_sec=0.1)
     except ParameterError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {label}: {exc}" if label else f"error: {exc}", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        if node is not None:
+        for node in nodes:
             close = getattr(node, "close", None)
             if close is not None:
                 close()
+        for node in nodes:
             if executor is not None:
                 executor.remove_node(node)
             node.destroy_node()

@@ -1,6 +1,7 @@
-"""The graph files shipped in launch/: one per device family, only the launch YAML tags that
-run_graph supports, installed in share/mems_emulator/launch, and each one runs with
-run_graph until its estimator publishes, then stops cleanly on SIGINT."""
+"""The graph files shipped in launch/: one per device family (and the resonator's three
+observers composed in one process), only the launch YAML tags that run_graph supports,
+installed in share/mems_emulator/launch, and each one runs with run_graph until its
+estimator publishes, then stops cleanly on SIGINT."""
 
 import os
 import re
@@ -26,7 +27,10 @@ SUBSET = {
     "let": {"name", "value"},
     "node": {"pkg", "exec", "name", "namespace", "param", "remap", "output"},
     "include": {"file", "arg"},
+    "node_container": {"pkg", "exec", "name", "namespace", "output", "composable_node"},
 }
+#: Attributes of a node_container's composable_node.
+COMPOSABLE = {"pkg", "plugin", "name", "namespace", "param", "remap"}
 
 #: file -> (launch arguments of a short run, topics its estimator(s) publish (relative to
 #: the namespace), message type name, result QoS?)
@@ -48,7 +52,15 @@ RUNS = {
         False,
     ),
     "resonator": (["realtime_factor:=0.05"], ["estimate"], "StateEstimate", False),
+    "resonator_observers": (
+        ["realtime_factor:=0.05"],
+        ["exact/estimate", "f0_error/estimate", "adaptive/estimate"],
+        "StateEstimate",
+        False,
+    ),
 }
+#: Default namespace of a file's graph, where it is not the file's name.
+NAMESPACE = {"resonator_observers": "resonator"}
 
 
 def test_one_launch_file_per_device_family_installed_in_share():
@@ -81,10 +93,15 @@ def test_launch_file_uses_only_the_supported_subset(name, subprocess_env):
     for entry in doc["launch"]:
         ((tag, attrs),) = entry.items()
         assert tag in SUBSET and set(attrs) <= SUBSET[tag], (tag, attrs)
-        for item in attrs.get("param", []):
-            assert set(item) in ({"name", "value"}, {"from"}), item
-        for item in attrs.get("remap", []):
-            assert set(item) == {"from", "to"}, item
+        nodes = [attrs]
+        for item in attrs.get("composable_node", []):
+            assert set(item) <= COMPOSABLE, item
+            nodes.append(item)
+        for node in nodes:
+            for item in node.get("param", []):
+                assert set(item) in ({"name", "value"}, {"from"}), item
+            for item in node.get("remap", []):
+                assert set(item) == {"from", "to"}, item
         strings(attrs)
     assert all(re.fullmatch(r"[^$]*(\$\(var \w+\)[^$]*)*", t) for t in texts), texts
     # run_graph reads it: the emulator and its estimator(s), all in the device's namespace
@@ -98,8 +115,12 @@ def test_launch_file_uses_only_the_supported_subset(name, subprocess_env):
     assert run.returncode == 0, run.stderr
     cmds = [shlex.split(line) for line in run.stdout.splitlines()]
     assert len(cmds) >= 2
+    ns = NAMESPACE.get(name, name)
     for cmd in cmds:
-        assert Path(cmd[0]).parent == LIB and f"__ns:=/{name}" in cmd, cmd
+        assert Path(cmd[0]).parent == LIB, cmd
+        spaces = [a for a in cmd if a.startswith("__ns:=")]
+        # every node, composed ones included, in the device's namespace or below it
+        assert spaces and all(a == f"__ns:=/{ns}" or a.startswith(f"__ns:=/{ns}/") for a in spaces)
     run = subprocess.run(
         [str(VENV_BIN / "run_graph"), str(path), "--show-args"],
         env=subprocess_env,

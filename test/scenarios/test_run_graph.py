@@ -172,6 +172,43 @@ def test_dry_run_prints_the_recorder_then_the_nodes(tmp_path, subprocess_env):
     assert imu == [str(LIB / "imu_node"), "--ros-args", "-r", "__ns:=/a"]
 
 
+def test_node_container_becomes_one_container_command_line(tmp_path, subprocess_env):
+    f = write(
+        tmp_path / "c.launch.yaml",
+        """\
+        launch:
+        - arg: {name: ns, default: dev}
+        - node_container:
+            pkg: mems_emulator
+            exec: component_container
+            name: box
+            namespace: $(var ns)
+            composable_node:
+            - pkg: mems_emulator
+              plugin: imu_node
+              name: imu
+              namespace: $(var ns)
+              param:
+              - {name: frame_size, value: 50}
+              remap:
+              - {from: truth, to: truth_2}
+            - pkg: mems_emulator
+              plugin: mems_estimation.nodes.imu_noise_identifier_node:NoiseIdentifierNode
+        """,
+    )
+    assert commands(run_graph([f, "--dry-run"], subprocess_env)) == [
+        [
+            str(LIB / "component_container"),
+            # the container's own name and namespace are not passed: they would rename
+            # every node of the process
+            *("--node", "imu_node", "--ros-args", "-r", "__node:=imu", "-r", "__ns:=/dev"),
+            *("-p", "frame_size:=50", "-r", "truth:=truth_2"),
+            *("--node", "mems_estimation.nodes.imu_noise_identifier_node:NoiseIdentifierNode"),
+            "--ros-args",
+        ]
+    ]
+
+
 # --------------------------------------------------------------------------- refusals
 
 
@@ -211,6 +248,42 @@ NODE = "- node: {pkg: mems_emulator, exec: imu_node}\n"
             "    param: [{from: /nonexistent.yaml}]\n",
             [],
             "parameter file /nonexistent.yaml not found",
+        ),
+        (
+            "launch:\n- node_container: {pkg: mems_emulator, exec: component_container, name: c}\n",
+            [],
+            "'composable_node' is required",
+        ),
+        (
+            "launch:\n- node_container: {pkg: mems_emulator, exec: component_container, "
+            "name: c, composable_node: []}\n",
+            [],
+            "'composable_node' must be a non-empty list",
+        ),
+        (
+            "launch:\n- node_container: {pkg: mems_emulator, exec: component_container, "
+            "name: c, composable_node: [{pkg: mems_emulator, plugin: imu_nod}]}\n",
+            [],
+            "composable_node 'imu_nod': executable 'imu_nod' not found",
+        ),
+        (
+            "launch:\n- node_container: {pkg: mems_emulator, exec: component_container, "
+            "name: c, composable_node: [{pkg: mems_emulator, plugin: 'nope_xyz:Cls'}]}\n",
+            [],
+            "module 'nope_xyz' of plugin 'nope_xyz:Cls' not found",
+        ),
+        (
+            "launch:\n- node_container: {pkg: mems_emulator, exec: component_container, "
+            "name: c, composable_node: [{pkg: mems_emulator, plugin: imu_node, "
+            "extra_arg: [{name: use_intra_process_comms, value: 'true'}]}]}\n",
+            [],
+            "composable_node 1: unsupported attribute 'extra_arg'",
+        ),
+        (
+            "launch:\n- node_container: {pkg: mems_emulator, exec: component_container, "
+            "name: c, composable_node: [{pkg: mems_emulator}]}\n",
+            [],
+            "composable_node 1: attribute 'plugin' is required",
         ),
     ],
 )
