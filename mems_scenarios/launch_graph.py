@@ -452,17 +452,23 @@ class _Loader:
                 (self.sub(item["from"], scope, where), self.sub(item["to"], scope, where))
             )
 
+    def _process(self, pkg: str, exe: str, attrs, scope, where: str) -> NodeAction:
+        """The process of a ``node`` or ``node_container`` entry: its executable resolved,
+        its namespace and output."""
+        try:
+            action = NodeAction(pkg=pkg, exe=exe, executable=resolve_executable(pkg, exe))
+        except GraphError as exc:
+            raise GraphError(f"{where}: {exc}") from None
+        action.namespace = self._namespace(attrs, scope, where)
+        action.output = self._output(attrs, scope, where)
+        return action
+
     def _node(self, path, where, attrs, scope, depth) -> None:
         pkg = self.sub(attrs["pkg"], scope, where)
         exe = self.sub(attrs["exec"], scope, where)
         where = f"{path}: node {exe!r}"
-        try:
-            node = NodeAction(pkg=pkg, exe=exe, executable=resolve_executable(pkg, exe))
-        except GraphError as exc:
-            raise GraphError(f"{where}: {exc}") from None
+        node = self._process(pkg, exe, attrs, scope, where)
         node.name = self.sub(attrs.get("name", ""), scope, where)
-        node.namespace = self._namespace(attrs, scope, where)
-        node.output = self._output(attrs, scope, where)
         self._params_remaps(node, attrs, scope, where)
         self.graph.nodes.append(node)
 
@@ -471,13 +477,8 @@ class _Loader:
         exe = self.sub(attrs["exec"], scope, where)
         name = self.sub(attrs["name"], scope, where)
         where = f"{path}: node_container {name!r}"
-        try:
-            box = NodeAction(pkg=pkg, exe=exe, executable=resolve_executable(pkg, exe))
-        except GraphError as exc:
-            raise GraphError(f"{where}: {exc}") from None
+        box = self._process(pkg, exe, attrs, scope, where)
         box.name = name
-        box.namespace = self._namespace(attrs, scope, where)
-        box.output = self._output(attrs, scope, where)
         items = attrs["composable_node"]
         if not isinstance(items, list) or not items:
             raise GraphError(f"{where}: 'composable_node' must be a non-empty list")
