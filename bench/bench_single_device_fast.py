@@ -20,7 +20,7 @@ The graphs (device parameters as the scenarios set them, shorter durations):
 - scanner: ``MicroScannerNode`` (500 kHz, drifted sensing comb, the whole drive programme)
   + threshold detector / hybrid EKF node, 5000-sample frames.
 - scanner_amdm: ``ScannerAmdmNode`` (1 MHz out, 10 MHz internal, driven into parametric
-  resonance) + EKF/UKF estimator node, 1000-sample frames.
+  resonance) + EKF/UKF estimator node, 10,000-sample frames.
 - stage: ``MicroStageNode`` (625 kHz, calibration sweep of 3 trials) + stage EKF (model of
   the nominal device) + gyro calibration node, 20,000-sample frames.
 
@@ -174,7 +174,7 @@ def _scanner_amdm(graph, duration):
             torque_noise_std=p["inertia"] * math.sqrt(qa * p["output_decimation"]),
             seed=1,
             duration_s=duration,
-            frame_size=1000,
+            frame_size=10000,
         ),
         realtime=False,
         namespace=ns,

@@ -107,7 +107,7 @@ def build_graph(options: ScenarioOptions, out: Path, duration: float):
     graph = graph_for(options)
     devices, estimators = {}, {}
     for k, (ns, dev) in enumerate(cases().items()):
-        p = dict(dev, seed=int(options.seed) * 10 + k, duration_s=float(duration), frame_size=1000)
+        p = dict(dev, seed=int(options.seed) * 10 + k, duration_s=float(duration), frame_size=10000)
         devices[ns] = graph.add_device(ScannerAmdmNode, p, realtime=options.realtime, namespace=ns)
         delay = devices[ns].device.delay
         estimators[ns] = graph.node(

@@ -23,7 +23,7 @@ from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import make_adc_frame
 from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node, variation_specs
 
-NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=1000, frame_id="scanner")
+NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=10000, frame_id="scanner")
 
 ADC_CHANNEL = "y_cap"
 DRIVE_CHANNELS = ("v_drive", "f_drive")
