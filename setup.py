@@ -120,7 +120,7 @@ setup(
             "mcap_play = mems_sim.bag.player:main",
             "mcap_info = mems_sim.bag.info:main",
             "live_view = mems_sim.ros.live_view:main",
-            "component_container = mems_sim.ros.container:main",
+            "component_container = mems_scenarios.container:main",
         ],
     },
 )

@@ -8,7 +8,9 @@ ROS 2's composition runs nodes as components of one process (rclcpp_components'
 ``component_container``, loaded through the composition_interfaces services); neither it,
 launch_ros nor those services are distributed as Python wheels, so this container takes
 its nodes on its command line instead, and ``run_graph`` turns a launch file's
-``node_container`` with ``composable_node`` entries into that command line.
+``node_container`` with ``composable_node`` entries into that command line. It lives
+with ``run_graph`` on the scenarios' side because it loads node classes of both the
+device and the estimation side by name.
 
 ``PLUGIN`` is a node executable of this package (``resonator_observer_node``: the node
 class it runs) or ``MODULE:CLASS`` (any rclpy node class whose constructor takes rclpy

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from conftest import spin_until
 
-from mems_sim.ros.container import ContainerError, node_label, resolve_plugin, split_command_line
+from mems_scenarios.container import ContainerError, node_label, resolve_plugin, split_command_line
 
 CONTAINER = str(Path(sys.executable).parent / "component_container")
 
