@@ -435,10 +435,10 @@ def consumer_processes(g: Graph, compose: bool) -> dict[str, list[Proc]]:
     return {c.name: [c] for c in g.consumers}
 
 
-def _ros_section(c: Proc) -> list[str]:
-    """A consumer's own ROS arguments: namespace and parameters."""
-    args = ["-r", f"__ns:={c.namespace}"]
-    for k, v in c.params.items():
+def _ros_section(namespace: str, params: dict) -> list[str]:
+    """A node's own ROS arguments: namespace and parameters."""
+    args = ["-r", f"__ns:={namespace}"]
+    for k, v in params.items():
         args += ["-p", f"{k}:={_ros_value(v)}"]
     return args
 
@@ -473,10 +473,10 @@ def _commands(
             cmds[name] = [py, "-m", "mems_scenarios.container", "--ros-args", "--log-level", "warn"]
             for c in nodes:
                 plugin = c.module.rsplit(".", 1)[1]  # the node's executable
-                cmds[name] += ["--node", plugin, "--ros-args", *_ros_section(c)]
+                cmds[name] += ["--node", plugin, "--ros-args", *_ros_section(c.namespace, c.params)]
         else:
             cmds[name] = [py, "-m", nodes[0].module, "--ros-args", "--log-level", "warn"]
-            cmds[name] += _ros_section(nodes[0])
+            cmds[name] += _ros_section(nodes[0].namespace, nodes[0].params)
     d = g.device
     wait = ",".join(f"{t}:{n}" for t, n in g.wait_subs().items())
     cmds[d.name] = [
@@ -488,14 +488,11 @@ def _commands(
         "--ros-args",
         "--log-level",
         "warn",
-        "-r",
-        f"__ns:={d.namespace}",
     ]
     # sensor time on the wall clock (the bench starts the timer, so 'auto' would stamp
     # from 0): stamps and publication times are then on one timeline
     params = dict(d.params, stamp_origin="wall", realtime_factor=float(pace))
-    for k, v in params.items():
-        cmds[d.name] += ["-p", f"{k}:={_ros_value(v)}"]
+    cmds[d.name] += _ros_section(d.namespace, params)
     return cmds
 
 

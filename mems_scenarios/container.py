@@ -35,6 +35,7 @@ one line and exit status 2 before ROS starts.
 
 from __future__ import annotations
 
+import functools
 import importlib
 import inspect
 import sys
@@ -161,7 +162,7 @@ def resolve_plugin(plugin: str) -> type:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``component_container``."""
     argv = list(sys.argv if argv is None else argv)
-    if any(a in ("-h", "--help") for a in argv[1:2]):
+    if argv[1:2] in (["-h"], ["--help"]):
         sys.stdout.write(USAGE)
         return 0
     try:
@@ -172,11 +173,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     from mems_sim.ros.node_base import run_nodes
 
-    def factory(cls, args):
-        return lambda: cls(cli_args=args)
-
     factories = [
-        (node_label(plugin, args, cls), factory(cls, args))
+        (node_label(plugin, args, cls), functools.partial(cls, cli_args=args))
         for (plugin, args), cls in zip(plugins, classes, strict=True)
     ]
     return run_nodes(factories, [argv[0], *own])
