@@ -19,13 +19,14 @@ PY := $(VENV)/bin/python
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export NUMBA_CACHE_DIR := $(CURDIR)/$(VENV)/numba-cache
 export MPLBACKEND := Agg
-# The same floats on every x86-64 machine with AVX2 and FMA: numpy and OpenBLAS choose
-# their kernels by the CPU at run time, and their AVX-512 kernels round differently from
-# the AVX2 ones (sums, exp/log, BLAS), which moves results in the last bits and a one-bit
-# sigma-delta loop's decisions with them; the reference bags and tables are compared
-# exactly. test/conftest.py sets the same for a bare pytest.
+# The same floats on every x86-64 machine with AVX2 and FMA: numpy's and OpenBLAS's
+# kernel choice pinned (AVX2 kernels, no BLAS reduction split over threads). Importing the
+# package applies the same pins (mems_sim/cpu_pins.py, for every executable); they are
+# exported here for the scripts that import numpy first (test/architecture checks that the
+# two agree). docs/testing.md states the rule.
 export NPY_DISABLE_CPU_FEATURES := X86_V4 AVX512_ICL AVX512_SPR
 export OPENBLAS_CORETYPE := Haswell
+export OPENBLAS_NUM_THREADS := 1
 DEMO_DOMAIN ?= 61
 BENCH_DOMAIN ?= 62
 TEST_DOMAIN ?= 63
@@ -37,10 +38,14 @@ DEPS_STAMP := $(VENV)/.stamp-deps
 MSGS_STAMP := $(VENV)/.stamp-msgs
 PKG_STAMP := $(VENV)/.stamp-pkg
 MSG_FILES := $(wildcard msg_defs/msg/*.msg)
+KERNEL_STAMP := $(VENV)/.stamp-kernels
+KERNEL_SOURCES := $(shell grep -rl --include=*.py numba.njit mems_sim mems_estimation)
+# numba targets besides the host CPU that test/core/test_portable_results.py compiles for
+PORTABLE_TARGETS := generic haswell
 
 .PHONY: setup demo test lint acceptance bench bags clean
 
-setup: $(PKG_STAMP)
+setup: $(KERNEL_STAMP)
 
 $(DEPS_STAMP): requirements.lock tools/bootstrap_system.sh
 	bash tools/bootstrap_system.sh
@@ -56,6 +61,16 @@ $(MSGS_STAMP): $(DEPS_STAMP) msg_defs/package.xml msg_defs/CMakeLists.txt $(MSG_
 $(PKG_STAMP): $(MSGS_STAMP) setup.py pyproject.toml package.xml requirements.lock LICENSE CHANGELOG.rst resource/mems_emulator $(wildcard launch/* config/*)
 	$(PY) -m pip install --disable-pip-version-check -q --no-build-isolation --no-deps -e .
 	$(PY) tools/install_ament_prefix.py
+	touch $@
+
+# numba's cache for the host CPU and for the other targets the portable-results test plays
+# (test/portable_probe.py runs every kernel family once per target; the cache keeps one
+# entry per target), so that the test costs seconds
+$(KERNEL_STAMP): $(PKG_STAMP) $(KERNEL_SOURCES) test/portable_probe.py
+	for cpu in $(PORTABLE_TARGETS); do \
+	  $(PY) test/portable_probe.py --target $$cpu --deliberate-fastmath > /dev/null || exit 1; \
+	done
+	$(PY) test/portable_probe.py --deliberate-fastmath > /dev/null
 	touch $@
 
 demo: setup

@@ -8,7 +8,11 @@ identifies, printing the peak RSS (target < 500 MB) and the time per sample at 1
 record and at the whole record (linear: equal per-sample times); then both oadev times on
 1e7 samples (octave taus, same data, one run) and on 1e5 samples (the "all" grid: every
 averaging factor), the ratios and the max relative differences; then the emulator's 6-axis
-samples/s for 1e6 samples.  Numba compile warm-up precedes timing.
+samples/s for 1e6 samples; then the eq. (2) sum kernel in its fixed order (eight
+accumulators written in the source, the same floats on every CPU) against the loop it
+replaced, the same sum with fastmath reassociation (the compiler picks the order and the
+vector width per CPU), ns per term and their ratio, interleaved (target >= 0.9).
+Numba compile warm-up precedes timing.
 """
 
 import os
@@ -16,13 +20,20 @@ import resource
 import sys
 import time
 
+import numba
 import numpy as np
 
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")))
 
 import allantools
 
-from mems_estimation.identification.allan import StreamingAllan, oadev, tau_grid
+from mems_estimation.identification.allan import (
+    StreamingAllan,
+    _sum_sq_second_diff,
+    oadev,
+    rate_to_phase,
+    tau_grid,
+)
 from mems_estimation.identification.imu_noise_fit import identify_stream
 from mems_sim.devices.imu import ImuNoiseModel
 
@@ -112,6 +123,48 @@ def bench_emulator(n: int = 1_000_000, frame: int = 1000) -> None:
     )
 
 
+@numba.njit(cache=True, nogil=True, fastmath={"reassoc"})
+def _reassociated_sum(phase, m):
+    """The loop the fixed-order kernel replaced: 4096-term blocks, reassociated by LLVM."""
+    n = phase.shape[0] - 2 * m
+    total = 0.0
+    k = 0
+    while k < n:
+        stop = min(k + 4096, n)
+        part = 0.0
+        for j in range(k, stop):
+            d = phase[j + 2 * m] - 2.0 * phase[j + m] + phase[j]
+            part += d * d
+        total += part
+        k = stop
+    return total
+
+
+def bench_sum_order(n: int = 2_000_000, rounds: int = 7) -> None:
+    """ns per term of the fixed-order eq. (2) sum and of the reassociated one, interleaved
+    over ``rounds`` rounds of every octave m of n samples; medians and their ratio."""
+    rng = np.random.default_rng(3)
+    phase = rate_to_phase(rng.standard_normal(n), 100.0)
+    ms = [2**k for k in range(int(np.log2(n // 3)))]
+    terms = sum(phase.shape[0] - 2 * m for m in ms)
+    times = {"fixed": [], "reassoc": []}
+    for kernel in (_sum_sq_second_diff, _reassociated_sum):
+        kernel(phase, 1)  # compile / cache load
+    for _ in range(rounds):
+        for name, kernel in (("fixed", _sum_sq_second_diff), ("reassoc", _reassociated_sum)):
+            t0 = time.perf_counter()
+            for m in ms:
+                kernel(phase, m)
+            times[name].append((time.perf_counter() - t0) / terms * 1e9)
+    fixed, reassoc = (float(np.median(times[k])) for k in ("fixed", "reassoc"))
+    rel = max(abs(_sum_sq_second_diff(phase, m) / _reassociated_sum(phase, m) - 1.0) for m in ms)
+    print(f"eq. (2) sum kernel, {n:.0e} samples, {len(ms)} octave m, {rounds} rounds:")
+    print(
+        f"  fixed order {fixed:.3f} ns/term, reassociated {reassoc:.3f} ns/term: "
+        f"speed ratio {reassoc / fixed:.2f} (target >= 0.9); max relative difference {rel:.1e}"
+    )
+
+
 if __name__ == "__main__":
     args = sys.argv[1:]
     seconds = 1e6
@@ -123,3 +176,4 @@ if __name__ == "__main__":
     bench_oadev(int(float(args[0])) if args else 10_000_000)
     bench_oadev(100_000, kind="all")
     bench_emulator()
+    bench_sum_order()

@@ -3,6 +3,8 @@ DEFAULT_DURATION_S and ``run(ScenarioOptions) -> dict``."""
 
 import importlib
 
+import mems_sim  # noqa: F401  (pins numpy's and OpenBLAS's kernels before numpy loads)
+
 #: Registered scenarios, in the order ``run_scenario --list`` shows them.
 SCENARIOS = {
     "imu_noise": "mems_scenarios.imu_noise",

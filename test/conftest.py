@@ -5,10 +5,8 @@ import os
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("MPLBACKEND", "Agg")
-# The Makefile's CPU pins (the same floats on every x86-64 machine with AVX2 and FMA), for a
-# bare pytest too; read when numpy and OpenBLAS load, so before anything imports numpy.
-os.environ.setdefault("NPY_DISABLE_CPU_FEATURES", "X86_V4 AVX512_ICL AVX512_SPR")
-os.environ.setdefault("OPENBLAS_CORETYPE", "Haswell")
+# importing mems_sim pins numpy's and OpenBLAS's kernels (mems_sim.cpu_pins) before anything
+# imports numpy, for a bare pytest too
 from mems_sim.ros.env import apply_defaults
 
 apply_defaults()

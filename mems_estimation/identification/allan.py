@@ -12,8 +12,10 @@ by a cumulative sum exactly as ``allantools.frequency2phase`` does (mean removed
 
 The per-m sum is a numba loop without temporaries (allantools allocates three
 length-L arrays per m); the m values are distributed over threads with
-``prange``.  Each sum is accumulated in blocks of ``_BLOCK`` terms so that its
-rounding error stays far below 1e-9 relative even for 1e8 terms.
+``prange`` (each m's sum is one thread's, so the thread count does not change it).
+Each sum is accumulated in blocks of ``_BLOCK`` terms so that its rounding error
+stays far below 1e-9 relative even for 1e8 terms, and every addition's order is
+fixed in the source (no fastmath): the same floats on every CPU.
 
 Confidence intervals: chi-square with equivalent degrees of freedom (edf) from
 the simple Howe-Allan-Barnes (1981) approximations for the overlapping Allan
@@ -170,19 +172,55 @@ def _phase_from_rate(y, mean, dt):
     return phase
 
 
-@numba.njit(cache=True, nogil=True, fastmath={"reassoc"})
+@numba.njit(cache=True, nogil=True, inline="always")
+def _block_sum(work, lo, hi, m):
+    """sum_{l=lo}^{hi-1} (work[l] - 2 work[l-m] + work[l-2m])^2, in an order fixed here.
+
+    Eight accumulators, the term l - lo = 8 i + r into accumulator r (the terms past the
+    last whole group of eight into accumulator 0, in sequence), added pairwise at the
+    end: the order of every addition is written in the source, so the compiler cannot
+    choose it per CPU (no fastmath reassociation), and the eight independent chains give
+    the vector units the same work a reassociated loop would.
+    """
+    a0 = a1 = a2 = a3 = a4 = a5 = a6 = a7 = 0.0
+    l = lo
+    while l + 8 <= hi:
+        d0 = work[l] - 2.0 * work[l - m] + work[l - 2 * m]
+        d1 = work[l + 1] - 2.0 * work[l + 1 - m] + work[l + 1 - 2 * m]
+        d2 = work[l + 2] - 2.0 * work[l + 2 - m] + work[l + 2 - 2 * m]
+        d3 = work[l + 3] - 2.0 * work[l + 3 - m] + work[l + 3 - 2 * m]
+        d4 = work[l + 4] - 2.0 * work[l + 4 - m] + work[l + 4 - 2 * m]
+        d5 = work[l + 5] - 2.0 * work[l + 5 - m] + work[l + 5 - 2 * m]
+        d6 = work[l + 6] - 2.0 * work[l + 6 - m] + work[l + 6 - 2 * m]
+        d7 = work[l + 7] - 2.0 * work[l + 7 - m] + work[l + 7 - 2 * m]
+        a0 += d0 * d0
+        a1 += d1 * d1
+        a2 += d2 * d2
+        a3 += d3 * d3
+        a4 += d4 * d4
+        a5 += d5 * d5
+        a6 += d6 * d6
+        a7 += d7 * d7
+        l += 8
+    while l < hi:
+        d = work[l] - 2.0 * work[l - m] + work[l - 2 * m]
+        a0 += d * d
+        l += 1
+    return ((a0 + a1) + (a2 + a3)) + ((a4 + a5) + (a6 + a7))
+
+
+@numba.njit(cache=True, nogil=True)
 def _sum_sq_second_diff(phase, m):
-    """sum_k (x[k+2m] - 2 x[k+m] + x[k])^2 over k < len(x)-2m, block-accumulated."""
+    """sum_k (x[k+2m] - 2 x[k+m] + x[k])^2 over k < len(x)-2m, in blocks aligned on k = 0.
+
+    Each block is summed by :func:`_block_sum` (fixed order), the block sums in sequence.
+    """
     n = phase.shape[0] - 2 * m
     total = 0.0
     k = 0
     while k < n:
-        stop = min(k + 4096, n)
-        part = 0.0
-        for j in range(k, stop):
-            d = phase[j + 2 * m] - 2.0 * phase[j + m] + phase[j]
-            part += d * d
-        total += part
+        stop = min(k + _BLOCK, n)
+        total += _block_sum(phase, k + 2 * m, stop + 2 * m, m)
         k = stop
     return total
 
@@ -557,7 +595,6 @@ THIN_RATIO = 4096
 #: Largest averaging factor the streaming accumulator prepares (2^40 samples).
 STREAM_M_LIMIT = 2**40
 _SUB_BLOCK = 2**18
-_TERM_BLOCK = 4096
 
 
 def stream_ms(kind: str, limit: int = STREAM_M_LIMIT) -> np.ndarray:
@@ -584,22 +621,6 @@ def _thin_stride(m: int, ratio: int = THIN_RATIO) -> int:
         if m % s == 0:
             return s
     return m
-
-
-@numba.njit(cache=True, nogil=True, fastmath={"reassoc"})
-def _block_sum(work, lo, hi, m):
-    """sum_{l=lo}^{hi-1} (work[l] - 2 work[l-m] + work[l-2m])^2 in 4096-term blocks."""
-    total = 0.0
-    k = lo
-    while k < hi:
-        stop = min(k + 4096, hi)
-        part = 0.0
-        for j in range(k, stop):
-            d = work[j] - 2.0 * work[j - m] + work[j - 2 * m]
-            part += d * d
-        total += part
-        k = stop
-    return total
 
 
 @numba.njit(cache=True, nogil=True)
@@ -642,12 +663,12 @@ def _stream_update(
             p_end = p_first + nb  # exclusive
             for j in range(ms.shape[0]):
                 m = ms[j]
-                # terms k (phase points k, k+m, k+2m) in whole blocks of _TERM_BLOCK aligned
+                # terms k (phase points k, k+m, k+2m) in whole blocks of _BLOCK aligned
                 # on k = 0, so the sums do not depend on how the samples were split into calls
                 k = committed[c, j]
-                while k + _TERM_BLOCK <= p_end - 2 * m:
+                while k + _BLOCK <= p_end - 2 * m:
                     lo = k + 2 * m - p_first + hist_len
-                    x = _block_sum(w, lo, lo + _TERM_BLOCK, m)
+                    x = _block_sum(w, lo, lo + _BLOCK, m)
                     s = sums[c, j]  # Neumaier compensated accumulation of the block sums
                     t = s + x
                     if abs(s) >= abs(x):
@@ -655,7 +676,7 @@ def _stream_update(
                     else:
                         comps[c, j] += (x - t) + s
                     sums[c, j] = t
-                    k += _TERM_BLOCK
+                    k += _BLOCK
                 committed[c, j] = k
             for j in range(tm.shape[0]):
                 s_, r_ = ts[j], tr[j]
@@ -683,7 +704,7 @@ def _stream_update(
 
 @numba.njit(cache=True, nogil=True)
 def _pending_sums(work, hist_len, p_last, ms, committed):
-    """Sums of the terms not yet in a whole block (fewer than _TERM_BLOCK per m)."""
+    """Sums of the terms not yet in a whole block (fewer than _BLOCK per m)."""
     nch = work.shape[0]
     out = np.zeros((nch, ms.shape[0]))
     for c in range(nch):
@@ -750,7 +771,7 @@ class StreamingAllan:
         self.thin_stride = np.array([_thin_stride(int(m)) for m in thin], dtype=np.int64)
         self.thin_ratio = self.ms_thin // self.thin_stride if thin.size else np.zeros(0, np.int64)
         c = self.n_channels
-        self._hist = int(2 * exact.max()) + _TERM_BLOCK if exact.size else 0
+        self._hist = int(2 * exact.max()) + _BLOCK if exact.size else 0
         self._work = np.zeros((c, self._hist + _SUB_BLOCK))
         self._sums = np.zeros((c, exact.size))
         self._comps = np.zeros((c, exact.size))

@@ -19,7 +19,6 @@ from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import UInt64
 
 from mems_msgs.msg import AdcFrame
@@ -35,7 +34,7 @@ from mems_sim.ros.frames import (
     time_to_ns,
 )
 from mems_sim.ros.node_base import MemsNode
-from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS
+from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS, PROGRESS_QOS
 
 #: Parameter of the estimator nodes that read a device's topics.
 DEVICE_NAMESPACE = ParamSpec(
@@ -79,15 +78,6 @@ INPUT_SPECS: tuple[ParamSpec, ...] = (
         min=1,
         max=2**62,
     ),
-)
-
-#: Progress topic of every estimator node: one past the last sample index of its primary
-#: input that the node has finished with (reliable, transient local, depth 1).
-PROGRESS_QOS = QoSProfile(
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
 )
 
 

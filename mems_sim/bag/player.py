@@ -738,7 +738,9 @@ class Player:
                 if fast:
                     shown_ns = last_ns if last_ns is not None else item.log_time_ns
                 else:
-                    shown_ns = timeline.now_ns(now)
+                    # the time reached, but never past a message not published yet (a late
+                    # wake-up on a loaded machine must not carry /clock beyond the data)
+                    shown_ns = min(timeline.now_ns(now), item.log_time_ns)
                 if clock_period is not None and now >= next_clock:
                     if paused or not fast:
                         publish_clock(shown_ns)

@@ -74,12 +74,14 @@ from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
+from std_msgs.msg import UInt64
 
 from mems_sim.bag.schema import (
     SchemaError,
     has_header,
     message_class,
     normalize_type_name,
+    peek_frame_index,
     peek_header_stamp_ns,
     qos_profiles_yaml,
     schema_text,
@@ -102,7 +104,7 @@ from mems_sim.ros.end_of_stream import (
     parse_end_of_stream,
 )
 from mems_sim.ros.env import apply_defaults, domain_id_problem
-from mems_sim.ros.qos import FRAME_DEPTH
+from mems_sim.ros.qos import FRAME_DEPTH, PROGRESS_QOS
 
 _BEST_EFFORT = ReliabilityPolicy.BEST_EFFORT
 
@@ -275,6 +277,10 @@ class RecorderNode(Node):
         the adapted one (rosbag2's ``--qos-profile-overrides-path``).
     :param include_hidden_topics: with ``all_topics`` or ``regex``, record hidden topics
         too (listed topics always are); the ``mcap_record`` CLI defaults to False as rosbag2.
+    :param progress_topic: a recorded frame topic whose progress the recorder reports on
+        ``~/progress`` (one past the last sample index written, after each frame of that
+        topic), so that a player's ``--wait-for-consumer NODE_FQN:TOPIC`` flow control can
+        replay into the recorder without loss; None: no progress topic.
     :param kwargs: passed to ``rclpy.node.Node`` (e.g. ``context=ctx``).
 
     The constructor arguments can be overridden by ROS parameters of the same
@@ -299,6 +305,7 @@ class RecorderNode(Node):
         max_bag_duration: float = 0.0,
         qos_overrides: dict[str, QoSProfile] | None = None,
         include_hidden_topics: bool = True,
+        progress_topic: str | None = None,
         **kwargs,
     ):
         super().__init__(node_name, **kwargs)
@@ -334,6 +341,10 @@ class RecorderNode(Node):
         self._end_of_stream: dict[str, dict[str, int]] = {}
         self._rec_closed = False
         self._graph_clock_ns: int | None = None
+        self._progress_topic = progress_topic
+        self._progress_pub = (
+            self.create_publisher(UInt64, "~/progress", PROGRESS_QOS) if progress_topic else None
+        )
         self._clock_sub = self.create_subscription(
             Clock, "/clock", self._on_clock, QoSProfile(depth=10, reliability=_BEST_EFFORT)
         )
@@ -470,6 +481,10 @@ class RecorderNode(Node):
             topic, data, log_time, sent or time.time_ns(), sequence=sequence, publisher=publisher
         )
         self._rx_counts[topic] += 1
+        if self._progress_pub is not None and topic == self._progress_topic:
+            peek = peek_frame_index(data)
+            if peek is not None:
+                self._progress_pub.publish(UInt64(data=peek[0] + peek[1]))
         if topic in self._eos_topics:
             self._take_end_of_stream(topic, data)
 
@@ -825,6 +840,14 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
         "zstd_small (zstd level 19, 4 MiB chunks); --compression-format and --chunk-size "
         "override the preset's",
     )
+    parser.add_argument(
+        "--report-progress",
+        metavar="TOPIC",
+        default=None,
+        help="publish ~/progress (one past the last sample index written) after each frame "
+        "of this recorded frame topic, so that mcap_play --wait-for-consumer NODE:TOPIC "
+        "replays into the recorder without loss",
+    )
     args = parser.parse_args(argv)
     args.writer_options = storage_preset(args.storage_preset_profile)
     if args.compression is not None:
@@ -961,6 +984,7 @@ def _run(argv: list[str] | None, stop: _StopRequest) -> int:
                 max_bag_duration=args.max_bag_duration,
                 qos_overrides=args.qos_overrides,
                 include_hidden_topics=args.include_hidden_topics,
+                progress_topic=args.report_progress,
             )
         except BagWriteError as exc:
             return _error(exc, 1)

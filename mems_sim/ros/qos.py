@@ -26,3 +26,14 @@ RESULT_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
     depth=10,
 )
+
+#: Progress of a lossless consumer (``~/progress``, std_msgs/UInt64): one past the last
+#: sample index of its primary input that it has finished with (reliable, transient local,
+#: depth 1). Estimator nodes and a recorder asked to report progress publish it; the
+#: player's ``--wait-for-consumer`` flow control reads it.
+PROGRESS_QOS = QoSProfile(
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+)

@@ -1,18 +1,21 @@
-"""Acceptance (``make acceptance``): every scenario at seed 1 and its default duration prints
-the same table as the reference recorded for it, cell for cell.
+"""Acceptance (``make acceptance``): every scenario at seed 1 and its default duration gives
+the figures of the reference recorded for it, by the comparison rule of docs/testing.md.
 
-The references in ``reference/`` were printed by the scenarios before the package layout
-changed (0.1.0), so a move that claims to keep behaviour is checked against the figures
-users saw. Lines that depend on the machine (wall time, real-time factor, log lines with
-wall-clock stamps, output paths, the number of
-diagnostics messages, which go out once per wall-clock second) are left out of the comparison,
-and a table's rule of dashes counts as one rule whatever its widths. A change that is meant to
-move a figure regenerates the reference with ``MEMS_UPDATE_REFERENCE=1 make acceptance`` and
-says so in the changelog.
+``reference/NAME-seed1.json`` holds the scenario's ``--json`` records; they are compared by
+``reference_rule.figures_difference`` (names, units, targets and verdicts exact, values
+within the fitted rule), never as printed text, whose last digit a one-ulp change may round
+the other way. The recorded message counts (integers, the ``recorded ...`` lines of the
+table) must be equal. ``reference/NAME-seed1.txt`` keeps the printed table for readers
+(lines that depend on the host left out); it is rewritten with the JSON, not compared. The
+references of 0.1.0 were printed tables; the JSON references were written by a run whose
+printed tables equalled them cell for cell. A change that is meant to move a figure
+regenerates the references with ``MEMS_UPDATE_REFERENCE=1 make acceptance`` and says so in
+the changelog.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
@@ -20,6 +23,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from reference_rule import figures_difference
 
 from mems_scenarios import SCENARIOS
 
@@ -67,19 +71,25 @@ def test_comparable_drops_host_lines():
     assert comparable("  -----  ---\n") == ["---"]
 
 
+def recorded_lines(lines: list[str]) -> list[str]:
+    """The ``recorded ...`` lines (message counts per topic) of comparable table lines."""
+    return [line for line in lines if line.startswith("recorded ")]
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", list(SCENARIOS))
 def test_scenario_table_matches_reference(name, tmp_path, domain_id):
-    ref = REFERENCE / f"{name}-seed1.txt"
+    ref_json, ref_text = (REFERENCE / f"{name}-seed1.{ext}" for ext in ("json", "txt"))
     cmd = [sys.executable, "-m", "mems_scenarios.cli", name, "--seed", "1", "--no-progress"]
-    cmd += ["--out", str(tmp_path / f"{name}-1.mcap"), "--domain-id", str(domain_id)]
+    cmd += ["--out", str(tmp_path / f"{name}-1.mcap"), "--domain-id", str(domain_id), "--json"]
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=1800, cwd=tmp_path)
     assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-3000:]
-    got = comparable(run.stdout + run.stderr)
+    figures = json.loads(run.stdout)
+    text = comparable(run.stderr)
     if os.environ.get("MEMS_UPDATE_REFERENCE") == "1":
-        ref.write_text("\n".join(got) + "\n")
-    expected = [
-        "---" if re.fullmatch(r"[-\s]+", line) else " ".join(line.split())
-        for line in ref.read_text().splitlines()
-    ]
-    assert got == expected
+        ref_json.write_text(json.dumps(figures, indent=1) + "\n")
+        ref_text.write_text("\n".join(text) + "\n")
+    found = figures_difference(figures, json.loads(ref_json.read_text()))
+    assert found is None, found
+    expected = [" ".join(line.split()) for line in ref_text.read_text().splitlines()]
+    assert recorded_lines(text) == recorded_lines(expected)

@@ -521,7 +521,10 @@ def test_sigint_finalises(ctx, tmp_path):
 
 
 def test_cli_play_round_trip(ctx, tmp_path):
-    """mcap_play (subprocess, --as-fast-as-possible, --clock) -> RecorderNode: no loss, same bytes."""
+    """mcap_play (subprocess, --as-fast-as-possible, --clock) -> RecorderNode: no loss, same
+    bytes. The replay is flow-controlled by the recorder's progress (``--wait-for-consumer``):
+    unpaced, a recorder behind by more than the 1000-frame history on a loaded machine
+    loses frames, and a lossless path in a test uses the project's flow control."""
     src = str(tmp_path / "src.mcap")
     writer = McapBagWriter(src)
     writer.add_topic(
@@ -536,7 +539,7 @@ def test_cli_play_round_trip(ctx, tmp_path):
         writer.write("/c/adc", data, t0 + k * 1_000_000, t0 + k * 1_000_000)
     writer.close()
     out = str(tmp_path / "replay.mcap")
-    recorder = RecorderNode(out, topics=["/c/adc", "/clock"], context=ctx)
+    recorder = RecorderNode(out, topics=["/c/adc", "/clock"], progress_topic="/c/adc", context=ctx)
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(recorder)
     env = dict(
@@ -547,8 +550,8 @@ def test_cli_play_round_trip(ctx, tmp_path):
             str(BIN / "mcap_play"),
             src,
             "--as-fast-as-possible",
-            "--wait-for-subscribers",
-            "1",
+            "--wait-for-consumer",
+            "/mcap_recorder:/c/adc",
             "--clock",
             "100",
         ],

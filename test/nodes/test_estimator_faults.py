@@ -48,7 +48,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import UInt64
 
 from mems_estimation.nodes.accelerometer_ekf_node import HybridEkfNode
-from mems_estimation.nodes.frame_input import PROGRESS_QOS, FormatPin
+from mems_estimation.nodes.frame_input import FormatPin
 from mems_estimation.nodes.imu_noise_identifier_node import NoiseIdentifierNode
 from mems_estimation.nodes.resonator_observer_node import SdObserverNode
 from mems_estimation.nodes.scanner_amdm_estimator_node import ScannerAmdmEstimatorNode
@@ -73,7 +73,7 @@ from mems_sim.ros.frames import (
     time_to_ns,
 )
 from mems_sim.ros.node_base import FRAME_TYPES
-from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
+from mems_sim.ros.qos import FRAME_QOS, PROGRESS_QOS, RESULT_QOS
 
 REPO = Path(__file__).resolve().parents[2]
 EPOCH_NS = 1_767_225_600 * 10**9  # 2026-01-01 UTC: the clean run's epoch
