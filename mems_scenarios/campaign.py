@@ -486,22 +486,33 @@ def plot_report(out: Path, results: list[RunResult], per_page: int = 24) -> list
 # ---------------------------------------------------------------------- driver
 
 
+#: Dask settings of the local cluster: its scheduler and workers still open an HTTP server
+#: each (Dask starts one whatever the dashboard setting, on every interface by default);
+#: here they serve no route and listen on the loopback interface only.
+LOCAL_HTTP = {"distributed.scheduler.http.routes": [], "distributed.worker.http.routes": []}
+LOOPBACK_ANY_PORT = "127.0.0.1:0"
+
+
 def _client(args):
     """A Dask client: an existing cluster (``--scheduler``) or a local one of ``--workers``
-    single-threaded workers in this process (Dask's in-process transport, no socket)."""
+    single-threaded workers in this process (Dask's in-process transport; the HTTP servers
+    Dask always starts bound to 127.0.0.1 and serving nothing)."""
+    import dask
     from distributed import Client, LocalCluster
 
     if args.scheduler:
         return Client(args.scheduler, timeout=args.connect_timeout), None
     # the runs are processes of their own: workers in this process (threads) only wait on
     # them, and start in a fraction of the time worker processes take
-    cluster = LocalCluster(
-        n_workers=args.workers,
-        threads_per_worker=1,
-        processes=False,  # in-process transport: no socket at all
-        dashboard_address=None,
-        silence_logs=40,
-    )
+    with dask.config.set(LOCAL_HTTP):
+        cluster = LocalCluster(
+            n_workers=args.workers,
+            threads_per_worker=1,
+            processes=False,  # in-process transport between scheduler and workers
+            dashboard_address=LOOPBACK_ANY_PORT,
+            worker_dashboard_address=LOOPBACK_ANY_PORT,
+            silence_logs=40,
+        )
     return Client(cluster), cluster
 
 

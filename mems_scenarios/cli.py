@@ -10,6 +10,7 @@ Usage:
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import time
 from pathlib import Path
@@ -18,7 +19,7 @@ from mems_scenarios import SCENARIOS, load
 from mems_scenarios.base import THROUGHPUT, ScenarioError, ScenarioOptions
 from mems_sim.params import ParameterError
 from mems_sim.ros.end_of_stream import is_end_of_stream_topic
-from mems_sim.ros.env import MAX_DOMAIN_ID, apply_defaults, domain_id_problem
+from mems_sim.ros.env import MAX_DOMAIN_ID, apply_defaults, domain_id_problem, stop_signals_raise
 from mems_sim.ros.params_file import Override, ParamsFileError, load_params_file, parse_set
 
 
@@ -199,8 +200,9 @@ def applied_text(applied: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``run_scenario``. Exit status: 0 ran, 1 lost data, 2 bad input; a missed
-    target is reported in the table (and ``--json``), it does not change the status."""
+    """Entry point of ``run_scenario``. Exit status: 0 ran, 1 lost data, 2 bad input,
+    128 + N stopped by signal N (SIGINT, SIGTERM, SIGHUP; the recording is finalised); a
+    missed target is reported in the table (and ``--json``), it does not change the status."""
     args = _parser().parse_args(argv)
     args.result = None
     if not args.json or args.list:
@@ -254,13 +256,22 @@ def _main(args) -> int:
     THROUGHPUT.reset()
     start = time.monotonic()
     try:
-        result = args.result = module.run(options)
+        # SIGTERM and SIGHUP (a closed terminal) stop the run as SIGINT does: the graph
+        # unwinds and the recording is finalised
+        with stop_signals_raise():
+            result = args.result = module.run(options)
     except (ScenarioError, ParameterError) as exc:
         return _fail(str(exc))
     except OSError as exc:  # e.g. the output directory cannot be created, the disk is full
         return _fail(" ".join(str(exc).split()))
-    except KeyboardInterrupt:
-        return _fail("interrupted; the MCAP file was finalised")
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", signal.SIGINT)
+        print(
+            f"run_scenario: error: interrupted by {signal.Signals(signum).name}; the MCAP file "
+            "was finalised",
+            file=sys.stderr,
+        )
+        return 128 + signum
     wall = time.monotonic() - start
     result["device_seed"], result["temperature_c"] = args.device_seed, args.temperature
     print(

@@ -95,6 +95,7 @@ to start, exited non-zero, or had to be killed (one line on stderr for each, nam
 from __future__ import annotations
 
 import argparse
+import ctypes
 import os
 import re
 import shlex
@@ -104,9 +105,12 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import yaml
+
+from mems_sim.ros.env import install_stop_request
 
 PROG = "run_graph"
 
@@ -575,6 +579,27 @@ def recorder_action(output: str, regex: str | None, overwrite: bool) -> NodeActi
 # --------------------------------------------------------------------------- running
 
 
+#: Linux's prctl(2), bound once at import (the child after fork calls only this).
+_PRCTL = None
+if sys.platform.startswith("linux"):
+    try:
+        _PRCTL = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        _PRCTL = None
+#: prctl option: the signal a process gets when the thread that started it ends.
+PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent(parent: int) -> None:
+    """In the child, before exec: SIGTERM when run_graph ends in any way, even SIGKILL
+    (Linux's parent-death signal; the nodes and the recorder finalise on SIGTERM); if
+    run_graph is already gone, terminate at once."""
+    if _PRCTL is not None:
+        _PRCTL(PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+    if os.getppid() != parent:
+        os._exit(143)
+
+
 class _Process:
     """One started node: its Popen, output pumps and how it ended."""
 
@@ -592,6 +617,7 @@ class _Process:
                 stderr=subprocess.PIPE,
                 env=env,
                 start_new_session=True,  # a process group of its own: signals come from us only
+                preexec_fn=partial(_die_with_parent, os.getpid()),  # reaped with run_graph
             )
         except OSError:
             if self._log is not None:
@@ -717,12 +743,9 @@ class Runner:
         self._lock = threading.Lock()
         self.failures: list[str] = []
 
-    def _on_signal(self, signum, _frame) -> None:
-        self._signals.append(signum)
-
     def run(self) -> int:
         """Run the graph until it stops; the exit status (module doc)."""
-        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        _, previous = install_stop_request(self._signals.append)
         try:
             return self._run()
         finally:
@@ -776,6 +799,9 @@ class Runner:
                 sig = self._signals.pop(0)
                 if not stopping_nodes:
                     stopping_nodes, node_deadline = True, time.monotonic() + self.kill_timeout
+                # the nodes and the recorder finalise on SIGINT and SIGTERM; a closed
+                # terminal's SIGHUP reaches them as SIGTERM
+                sig = signal.SIGTERM if sig == signal.SIGHUP else sig
                 for p in nodes:
                     p.send(sig)
                 if recorder_deadline is not None and recorder is not None:

@@ -103,7 +103,7 @@ from mems_sim.ros.end_of_stream import (
     missing_tail,
     parse_end_of_stream,
 )
-from mems_sim.ros.env import apply_defaults, domain_id_problem
+from mems_sim.ros.env import STOP_SIGNALS, apply_defaults, domain_id_problem
 from mems_sim.ros.qos import FRAME_DEPTH, PROGRESS_QOS
 
 _BEST_EFFORT = ReliabilityPolicy.BEST_EFFORT
@@ -901,7 +901,8 @@ def drain(
 
 
 class _StopRequest:
-    """SIGINT/SIGTERM as a counter the main loop polls (the handler only records)."""
+    """The stop signals (SIGINT, SIGTERM, SIGHUP) as a counter the main loop polls (the
+    handler only records)."""
 
     def __init__(self):
         self.count = 0
@@ -916,7 +917,7 @@ class _StopRequest:
             self.first_name = signal.Signals(signum).name
 
     def install(self) -> None:
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig in STOP_SIGNALS:
             self.previous[sig] = signal.signal(sig, self._handle)
 
     def restore(self) -> None:

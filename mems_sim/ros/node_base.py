@@ -34,7 +34,7 @@ from mems_sim.ros.end_of_stream import (
     account_publishers,
     end_of_stream_message,
 )
-from mems_sim.ros.env import apply_defaults, domain_id_problem
+from mems_sim.ros.env import STOP_SIGNALS, apply_defaults, domain_id_problem
 from mems_sim.ros.frames import make_signal_frame
 from mems_sim.ros.node_help import node_help, wants_help
 from mems_sim.ros.params import declare_specs
@@ -780,13 +780,13 @@ def run_nodes(factories: list[tuple[str, Callable[[], object]]], args: list[str]
     if problem is not None:
         print(f"error: {problem}", file=sys.stderr)
         return 2
-    # Our own SIGINT/SIGTERM handling: the nodes publish their final results
+    # Our own stop-signal handling (SIGINT, SIGTERM, SIGHUP): the nodes publish their final results
     # before the context shuts down.
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     # SIGINT explicitly too: a process started in the background of a script inherits it
     # ignored, and would not stop on the SIGINT that launch tools send. While a node is
     # built a signal interrupts it (e.g. a wait for /clock); once they spin, see below.
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    for sig in STOP_SIGNALS:
         signal.signal(sig, _raise_interrupt)
     nodes: list = []
     executor = None
@@ -805,7 +805,7 @@ def run_nodes(factories: list[tuple[str, Callable[[], object]]], args: list[str]
         # ("Unable to convert call argument") and the node died with a traceback; set after
         # the executor is built (they replace the events executor's own handlers)
         stop: list[int] = []
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig in STOP_SIGNALS:
             signal.signal(sig, lambda signum, frame: stop.append(signum))
         # short waits: SIGINT/SIGTERM are handled within 0.1 s even when no timer of a
         # node fires (e.g. under use_sim_time while nobody publishes /clock)

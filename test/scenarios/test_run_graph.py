@@ -378,6 +378,40 @@ def test_a_node_that_ignores_the_stop_signal_is_killed(tmp_path, fake_pkg):
     ]
 
 
+def test_no_node_outlives_a_killed_run_graph(tmp_path, fake_pkg):
+    """run_graph SIGKILLed (no handler of its own runs): every node, each in a session of
+    its own, gets SIGTERM from the parent-death signal and is gone within 5 s."""
+    make, env = fake_pkg
+    marker = tmp_path / "terminated"
+    make("worker", f"trap 'touch {marker}-$$; exit 0' TERM; while true; do sleep 0.05; done")
+    f = write(
+        tmp_path / "two.launch.yaml",
+        "launch:\n" + "".join(f"- node: {{pkg: fake, exec: worker, name: w{k}}}\n" for k in (1, 2)),
+    )
+    proc = subprocess.Popen(
+        [str(VENV_BIN / "run_graph"), str(f)],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and len(processes_naming(str(tmp_path / "prefix"))) < 2:
+            time.sleep(0.05)
+        assert len(processes_naming(str(tmp_path / "prefix"))) == 2
+        proc.kill()
+        proc.wait()
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and processes_naming(str(tmp_path / "prefix")):
+            time.sleep(0.05)
+        assert not processes_naming(str(tmp_path / "prefix"))
+        assert len(list(tmp_path.glob("terminated-*"))) == 2  # both got SIGTERM
+    finally:
+        for line in processes_naming(str(tmp_path / "prefix")):
+            print("left running:", line)
+
+
 def test_a_node_that_cannot_start_is_named_and_nothing_else_runs(tmp_path, fake_pkg):
     make, env = fake_pkg
     make("broken", "true", shebang="#!/nonexistent/interpreter")
@@ -442,14 +476,32 @@ launch:
 """
 
 
+def processes_naming(text: str) -> list[str]:
+    """Command lines of the running processes that contain ``text`` (``pgrep -f``)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            line = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        if text in line:
+            found.append(line)
+    return found
+
+
 def stderr_of(f) -> str:
     f.seek(0)
     return f.read()[-3000:]
 
 
-def test_graph_with_args_two_namespaces_and_recorder_stops_cleanly_on_sigint(
-    tmp_path, graph, subprocess_env
+@pytest.mark.parametrize("stop", ["SIGINT", "SIGHUP"])
+def test_graph_with_args_two_namespaces_and_recorder_stops_cleanly_on_a_signal(
+    stop, tmp_path, graph, subprocess_env
 ):
+    """SIGINT (Ctrl-C) or SIGHUP (the terminal closed): every node and the recorder stop and
+    finalise, and no process of the graph outlives run_graph."""
     from mems_msgs.msg import AdcFrame
     from mems_sim.bag.player import read_messages
     from mems_sim.ros.qos import FRAME_QOS
@@ -485,12 +537,14 @@ def test_graph_with_args_two_namespaces_and_recorder_stops_cleanly_on_sigint(
         # then 10 more frames each (20 frames/s per IMU)
         n = {t: len(v) for t, v in got.items()}
         assert spin_until(ex, lambda: all(len(v) >= n[t] + 10 for t, v in got.items()), 20)
-        os.kill(proc.pid, signal.SIGINT)
+        os.kill(proc.pid, getattr(signal, stop))
         assert proc.wait(timeout=90) == 0, stderr_of(out) + stderr_of(err)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
+    # the graph's processes (each started in a session of its own) are gone too
+    assert not processes_naming(str(tmp_path))
     out.seek(0)
     err.seek(0)
     stdout, stderr = out.read(), err.read()
