@@ -159,15 +159,29 @@ class RunResult:
 # ---------------------------------------------------------------------- planning
 
 
+#: Most runs one campaign plans (checked before anything is built), -.
+MAX_RUNS = 100_000
+
+
+def _too_many(what: str, n: int) -> CampaignError:
+    return CampaignError(f"{what}: {n} runs is more than a campaign plans (at most {MAX_RUNS})")
+
+
 def parse_ints(text: str, what: str) -> list[int]:
-    """``A-B`` (inclusive) or ``A,B,C`` (or a mix: ``1-5,9``) -> ints in [0, 2^62]."""
-    out: list[int] = []
+    """``A-B`` (inclusive) or ``A,B,C`` (or a mix: ``1-5,9``) -> ints in [0, 2^62], at most
+    :data:`MAX_RUNS` of them (counted before the list is built)."""
+    bounds = []
     for part in text.split(","):
         m = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", part)
         if m is None or (m.group(2) is not None and int(m.group(2)) < int(m.group(1))):
             raise CampaignError(f"{what} = {text!r} is invalid: A-B or A,B,C (integers)")
-        lo = int(m.group(1))
-        out.extend(range(lo, int(m.group(2) or lo) + 1))
+        bounds.append((int(m.group(1)), int(m.group(2) or m.group(1))))
+    count = sum(hi - lo + 1 for lo, hi in bounds)
+    if count > MAX_RUNS:
+        raise _too_many(f"{what} = {text!r}", count)
+    out: list[int] = []
+    for lo, hi in bounds:
+        out.extend(range(lo, hi + 1))
     if any(v > 2**62 for v in out):
         raise CampaignError(f"{what} = {text!r} is invalid: integers in [0, 2^62]")
     return out
@@ -198,6 +212,9 @@ def parameter_points(grid: list[str], draw: list[str], draws: int, draw_seed: in
     for g in grid:
         key, values = _assignment(g, "--grid")
         axes.append([f"{key}={v}" for v in values.split(",")])
+    size = math.prod(len(a) for a in axes) * (draws if draw else 1)
+    if size > MAX_RUNS:
+        raise _too_many("--grid and --draw", size)
     points = [tuple(p) for p in itertools.product(*axes)] if axes else [()]
     if not draw:
         return points
@@ -227,6 +244,9 @@ def plan(args: argparse.Namespace) -> list[RunSpec]:
     if args.draws < 1:
         raise CampaignError(f"--draws = {args.draws} is invalid: allowed >= 1")
     points = parameter_points(args.grid, args.draw, args.draws, args.draw_seed)
+    total = len(points) * len(temps) * len(dseeds) * len(seeds)
+    if total > MAX_RUNS:
+        raise _too_many("the plan", total)
     return [
         RunSpec(args.name, s, d, t, tuple(args.set) + p, args.duration)
         for p in points

@@ -110,7 +110,9 @@ from pathlib import Path
 
 import yaml
 
+from mems_sim import bounded_yaml
 from mems_sim.ros.env import install_stop_request
+from mems_sim.ros.params_file import ParamsFileError, load_params_file
 
 PROG = "run_graph"
 
@@ -302,11 +304,13 @@ class _Loader:
         if depth > MAX_INCLUDE_DEPTH:
             raise GraphError(f"{path}: includes nested deeper than {MAX_INCLUDE_DEPTH} (a cycle?)")
         try:
-            text = path.read_text()
+            text = bounded_yaml.read_text(path)
         except OSError as exc:
             raise GraphError(f"{path}: cannot read: {exc.strerror or exc}") from None
+        except yaml.YAMLError as exc:  # not a regular file, too large, not UTF-8
+            raise GraphError(str(exc)) from None
         try:
-            doc = yaml.safe_load(text)
+            doc = bounded_yaml.load(text)
         except yaml.YAMLError as exc:
             mark = getattr(exc, "problem_mark", None)
             where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else str(path)
@@ -378,7 +382,7 @@ class _Loader:
         if isinstance(value, dict):
             raise GraphError(f"{where}: nested parameter values are not supported")
         if isinstance(value, list):
-            items = [yaml.safe_load(self.param_value(v, scope, where) or "''") for v in value]
+            items = [bounded_yaml.load(self.param_value(v, scope, where) or "''") for v in value]
             return yaml.safe_dump(items, default_flow_style=True, width=1 << 30).strip()
         if isinstance(value, float):
             return repr(value)
@@ -443,6 +447,10 @@ class _Loader:
                 file = self.sub(item["from"], scope, where)
                 if not Path(file).is_file():
                     raise GraphError(f"{where}: parameter file {file} not found")
+                try:  # the node's own parser would fail late, or work unboundedly
+                    load_params_file(file)
+                except ParamsFileError as exc:
+                    raise GraphError(f"{where}: {exc}") from None
                 node.param_files.append(file)
             else:
                 raise GraphError(f"{where}: each param needs 'name' and 'value', or 'from'")

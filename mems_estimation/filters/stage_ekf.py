@@ -37,6 +37,7 @@ from typing import Any
 import numba
 import numpy as np
 
+from mems_sim import bounded_yaml
 from mems_sim.devices.stage import stage_matrices
 from mems_sim.devices.stage_capacitance import (
     EPS0,
@@ -632,14 +633,20 @@ def load_model(path: str) -> StageModel:
     """Read a parameter YAML; FileNotFoundError / ValueError with a clear message."""
     import os
 
-    import yaml
-
     if not path or not os.path.isfile(path):
         raise FileNotFoundError(
             f"stage parameter YAML not found: {path!r} (run the identification first)"
         )
-    with open(path) as fh:
-        d = yaml.safe_load(fh)
+    import yaml
+
+    try:
+        d = bounded_yaml.load_file(path)
+    except yaml.YAMLError as exc:
+        raise ValueError(f"stage parameter YAML {path!r}: {bounded_yaml.problem(exc)}") from None
     if not isinstance(d, dict):
         raise ValueError(f"stage parameter YAML {path!r} is not a mapping")
-    return model_from_dict(d)
+    try:
+        return model_from_dict(d)
+    except (KeyError, TypeError, IndexError) as exc:  # a missing or mistyped entry
+        name = type(exc).__name__
+        raise ValueError(f"stage parameter YAML {path!r}: {name} {exc}") from None

@@ -66,6 +66,8 @@ from typing import Any
 
 import numpy as np
 
+from mems_sim import bounded_yaml
+
 __all__ = [
     "T_REF_C",
     "SENSORS",
@@ -959,7 +961,7 @@ def load_yaml(path: str | Path) -> ImuCalibration:
     import yaml
 
     try:
-        d = yaml.safe_load(Path(path).read_text())
+        d = bounded_yaml.load_file(path)
     except (OSError, yaml.YAMLError) as exc:
         raise CalibrationError(f"{path}: cannot read YAML: {' '.join(str(exc).split())}") from None
     try:

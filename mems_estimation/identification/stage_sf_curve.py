@@ -71,6 +71,7 @@ from mems_estimation.identification.stage_insitu import (
     phasors_from_harmonics,
     pooled_response,
 )
+from mems_sim import bounded_yaml
 from mems_sim.devices.stage import DriveSchedule, MicroStage, record
 from mems_sim.devices.stage_gyro import MemsGyro
 
@@ -558,9 +559,8 @@ def save_yaml(curve: SfCurve, path: str | Path, info: dict | None = None) -> Non
 
 def load_yaml(path: str | Path) -> SfCurve:
     """Read a curve YAML (:func:`curve_from_dict`)."""
-    import yaml
 
-    return curve_from_dict(yaml.safe_load(Path(path).read_text()))
+    return curve_from_dict(bounded_yaml.load_file(path))
 
 
 #: evaluation range [C] and its test temperatures (1 K apart)

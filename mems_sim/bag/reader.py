@@ -64,6 +64,8 @@ from mcap.records import (
     Statistics,
 )
 
+from mems_sim import bounded_yaml
+
 MAGIC = b"\x89MCAP0\r\n"
 
 #: Largest uncompressed chunk accepted [bytes]. rosbag2 writes chunks of about
@@ -169,8 +171,7 @@ def _listed_files(directory: str) -> list[str] | None:
     import yaml
 
     try:
-        with open(meta, "rb") as handle:
-            doc = yaml.safe_load(handle.read(MAX_METADATA_BYTES + 1))
+        doc = bounded_yaml.load(bounded_yaml.read_text(meta, MAX_METADATA_BYTES))
     except (OSError, yaml.YAMLError, ValueError, RecursionError) as exc:
         raise BagReadError(f"{meta}: unreadable ({one_line(exc, 120)})") from None
     info = doc.get("rosbag2_bagfile_information") if isinstance(doc, dict) else None
@@ -544,10 +545,9 @@ def qos_yaml_problem(text: str) -> str | None:
         return None
     if len(text) > MAX_QOS_YAML_BYTES:
         return f"offered_qos_profiles is {len(text)} bytes (limit {MAX_QOS_YAML_BYTES})"
-    import yaml
 
     try:
-        entries = yaml.safe_load(text)
+        entries = bounded_yaml.load(text)
     except Exception as exc:  # any YAML error
         return f"offered_qos_profiles is not YAML ({one_line(exc, 80)})"
     if entries is None:

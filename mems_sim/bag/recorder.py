@@ -76,6 +76,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import UInt64
 
+from mems_sim import bounded_yaml
 from mems_sim.bag.schema import (
     SchemaError,
     has_header,
@@ -202,8 +203,7 @@ def load_qos_overrides(path: str) -> dict[str, QoSProfile]:
     import yaml
 
     try:
-        with open(path, encoding="utf-8") as handle:
-            data = yaml.safe_load(handle)
+        data = bounded_yaml.load_file(path)
     except OSError as exc:
         raise ValueError(f"{path}: {exc.strerror or exc}") from None
     except yaml.YAMLError as exc:

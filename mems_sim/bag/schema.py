@@ -31,6 +31,8 @@ import struct
 import sys
 from collections.abc import Iterable
 
+from mems_sim import bounded_yaml
+
 #: Line that separates definitions in a ``ros2msg`` schema (exactly 80 '=').
 SEPARATOR = "=" * 80
 
@@ -411,7 +413,6 @@ def qos_profiles_yaml(profiles: Iterable) -> str:
 
 def qos_profiles_from_yaml(text: str) -> list:
     """Parse ``offered_qos_profiles`` YAML (version 9 strings or older ints) into rclpy ``QoSProfile``s."""
-    import yaml
     from rclpy.duration import Duration
     from rclpy.qos import (
         DurabilityPolicy,
@@ -431,7 +432,7 @@ def qos_profiles_from_yaml(text: str) -> list:
         ns = int(value.get("sec", 0)) * 1_000_000_000 + int(value.get("nsec", 0))
         return Duration(nanoseconds=min(ns, _INFINITE_NS))
 
-    entries = yaml.safe_load(text) if text else []
+    entries = bounded_yaml.load(text) if text else []
     profiles = []
     for entry in entries or []:
         history = policy(HistoryPolicy, entry.get("history", "keep_last"))

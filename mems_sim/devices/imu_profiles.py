@@ -70,6 +70,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from mems_sim import bounded_yaml
+
 __all__ = [
     "G0",
     "Segment",
@@ -458,9 +460,10 @@ def load_profile(path_or_name: str | Path) -> ImuProfile:
     import yaml
 
     try:
-        data = yaml.safe_load(path.read_text())
+        data = bounded_yaml.load_file(path)
     except (OSError, yaml.YAMLError) as exc:
-        raise ProfileError(f"IMU profile file {key!r}: cannot read YAML: {exc}") from None
+        reason = bounded_yaml.problem(exc) if isinstance(exc, yaml.YAMLError) else exc
+        raise ProfileError(f"IMU profile file {key!r}: cannot read YAML: {reason}") from None
     try:
         return profile_from_dict(data, default_name=path.stem)
     except ProfileError as exc:

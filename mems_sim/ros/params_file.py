@@ -26,6 +26,8 @@ from typing import Any
 
 import yaml
 
+from mems_sim import bounded_yaml
+
 #: The key under a node name that holds its parameters.
 ROS_PARAMETERS = "ros__parameters"
 #: A token of a ROS name (ROS 2 design, "Topic and Service name mapping to DDS"), or a wildcard.
@@ -61,6 +63,8 @@ def _float(loader, node):
 
 
 _Loader.add_constructor("tag:yaml.org,2002:float", _float)
+#: :class:`_Loader` with the bounds of every user-supplied YAML (no aliases, depth, size).
+_BOUNDED = bounded_yaml.bounded_loader(_Loader)
 
 
 def parse_value(text: str) -> Any:
@@ -68,7 +72,7 @@ def parse_value(text: str) -> Any:
     flow list the way rcl types it (see the module docstring); refused if it is a mapping,
     null or a list of mixed types."""
     try:
-        value = yaml.load(text, Loader=_Loader)  # _Loader is a SafeLoader
+        value = bounded_yaml.load(text, _BOUNDED)
     except yaml.YAMLError as exc:
         raise ParamsFileError(f"{text!r} is not a YAML value ({_yaml_problem(exc)})") from None
     return check_value(value, text)
@@ -211,12 +215,12 @@ def load_params_file(path: str | Path) -> list[Override]:
     """
     where = str(path)
     try:
-        text = Path(path).read_text()
-    except (OSError, UnicodeDecodeError) as exc:
+        text = bounded_yaml.read_text(path)
+    except (OSError, yaml.YAMLError) as exc:
         reason = getattr(exc, "strerror", None) or str(exc)
         raise ParamsFileError(f"{where}: cannot read it ({reason})") from None
     try:
-        doc = yaml.load(text, Loader=_Loader)  # _Loader is a SafeLoader
+        doc = bounded_yaml.load(text, _BOUNDED)
     except yaml.YAMLError as exc:
         raise ParamsFileError(f"{where}: not YAML ({_yaml_problem(exc)})") from None
     if not isinstance(doc, dict) or not doc:

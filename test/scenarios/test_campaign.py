@@ -105,10 +105,32 @@ def test_bad_input_one_line(capsys, tmp_path):
         (["imu_noise", "--seeds", "x", "--out", str(tmp_path)], "--seeds"),
         (["imu_noise", "--seeds", "1", "--workers", "-1", "--out", str(tmp_path)], "--workers"),
         (["imu_noise", "--seeds", "1", "--set", "nodot=1", "--out", str(tmp_path)], "--set"),
+        # sizes checked before anything is built (this took 2.45 GB in 40 s)
+        (["imu_noise", "--seeds", "0-30000000", "--out", str(tmp_path)], "at most 100000"),
+        (
+            ["imu_noise", "--seeds", "0-999", "--device-seeds", "0-999", "--out", str(tmp_path)],
+            "the plan",
+        ),
+        (
+            [
+                "imu_noise",
+                "--seeds",
+                "1",
+                "--grid",
+                "a.b=" + ",".join(["1"] * 400),
+                "--grid",
+                "a.c=" + ",".join(["1"] * 400),
+                "--out",
+                str(tmp_path),
+            ],
+            "--grid",
+        ),
     ):
+        t0 = time.monotonic()
         assert main(argv) == 2
         err = capsys.readouterr().err.strip()
         assert what in err and len(err.splitlines()) == 1, err
+        assert time.monotonic() - t0 < 5
 
 
 def _campaign(args: list[str], env: dict, timeout: float = 300) -> subprocess.CompletedProcess:
