@@ -54,6 +54,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mems_sim.cli_values import OneLineParser, number, positive
+
 #: Figure columns of a result row, in the order ``run_scenario --json`` gives them.
 FIGURE_KEYS = ("name", "value", "unit", "target", "pass")
 #: Bootstrap resamples of the report's confidence intervals.
@@ -587,7 +589,7 @@ def execute(specs: list[RunSpec], args, out: Path) -> list[RunResult]:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = OneLineParser(
         prog="run_campaign",
         description="Run a scenario over noise seeds, device seeds, temperatures and "
         "parameter points on Dask distributed; write the per-run table and a report.",
@@ -614,12 +616,17 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=None, help="scenario duration [s]")
     p.add_argument("--workers", type=int, default=None, help="local workers (0: serial)")
     p.add_argument("--scheduler", default=None, help="existing Dask scheduler address")
-    p.add_argument("--connect-timeout", type=float, default=30.0, help=argparse.SUPPRESS)
+    p.add_argument(
+        "--connect-timeout",
+        type=number(0.0, 3600.0, lo_open=True),
+        default=30.0,
+        help=argparse.SUPPRESS,
+    )
     p.add_argument("--out", required=True, type=Path, help="campaign directory")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.add_argument("--keep-bags", action="store_true", help="keep every run's MCAP")
     p.add_argument("--retry-failed", action="store_true", help="run failed runs again")
-    p.add_argument("--run-timeout", type=float, default=None, help="per-run limit [s]")
+    p.add_argument("--run-timeout", type=positive, default=None, help="per-run limit [s]")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
@@ -642,6 +649,8 @@ def main(argv: list[str] | None = None) -> int:
         args.workers = os.cpu_count() or 1
     if args.workers is not None and not 0 <= args.workers <= 1024:
         return fail(f"--workers = {args.workers} is invalid: allowed [0, 1024]")
+    if args.scheduler and not re.fullmatch(r"(tcp|tls|inproc|ucx)://\S+:\d+", args.scheduler):
+        return fail(f"--scheduler {args.scheduler!r} is invalid: an address tcp://HOST:PORT")
     if args.duration is not None and not (0 < args.duration < 1e9):
         return fail(f"--duration = {args.duration!r} is invalid: allowed (0, 1e9) s")
     from mems_scenarios.cli import _parser as scenario_parser

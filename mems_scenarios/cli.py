@@ -17,6 +17,7 @@ from pathlib import Path
 
 from mems_scenarios import SCENARIOS, load
 from mems_scenarios.base import THROUGHPUT, ScenarioError, ScenarioOptions
+from mems_sim.cli_values import quiet_on_broken_pipe
 from mems_sim.params import ParameterError
 from mems_sim.ros.end_of_stream import is_end_of_stream_topic
 from mems_sim.ros.env import MAX_DOMAIN_ID, apply_defaults, domain_id_problem, stop_signals_raise
@@ -199,6 +200,7 @@ def applied_text(applied: dict) -> str:
     return "\n".join(f"  {node}: {', '.join(items)}" for node, items in sorted(by_node.items()))
 
 
+@quiet_on_broken_pipe
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``run_scenario``. Exit status: 0 ran, 1 lost data, 2 bad input,
     128 + N stopped by signal N (SIGINT, SIGTERM, SIGHUP; the recording is finalised); a

@@ -45,6 +45,7 @@ import argparse
 import bisect
 import heapq
 import os
+import re
 import signal
 import sys
 import time
@@ -68,6 +69,7 @@ from mems_sim.bag.reader import (
     warn_truncated,
 )
 from mems_sim.bag.reader import iter_stream_records as _iter_stream_records
+from mems_sim.cli_values import OneLineParser, non_negative, number, positive
 from mems_sim.ros.env import apply_defaults, domain_id_problem, install_stop_request
 
 __all__ = [
@@ -844,8 +846,11 @@ def parse_consumer(text: str) -> tuple[str, str | None]:
     """``'/ns/node'`` or ``'/ns/node:/topic'`` -> (node's fully qualified name, topic or None)."""
     fqn, _, topic = str(text).partition(":")
     fqn = fqn if fqn.startswith("/") else "/" + fqn
-    if fqn == "/" or fqn.endswith("/"):
+    tokens = fqn[1:].split("/")
+    if not all(re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", t) for t in tokens):
         raise ValueError(f"bad consumer {text!r} (expected a node name such as /imu/node)")
+    if topic and not re.fullmatch(r"/?[A-Za-z_~][A-Za-z0-9_/~{}]*", topic):
+        raise ValueError(f"bad consumer {text!r}: {topic!r} is not a topic name")
     return fqn, (topic or None)
 
 
@@ -1193,11 +1198,17 @@ class FlowControl:
 
 
 def _parse_args(argv: list[str]) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="mcap_play", description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="mcap_play", description=__doc__.splitlines()[0])
     parser.add_argument(
         "file", nargs="?", metavar="BAG", help="MCAP file or rosbag2 bag directory to play"
     )
-    parser.add_argument("--rate", "-r", type=float, default=1.0, help="playback rate factor (> 0)")
+    parser.add_argument(
+        "--rate",
+        "-r",
+        type=number(0.0, 1e6, lo_open=True),
+        default=1.0,
+        help="playback rate factor (> 0)",
+    )
     parser.add_argument(
         "--as-fast-as-possible",
         action="store_true",
@@ -1207,16 +1218,18 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument(
         "--clock",
         nargs="?",
-        type=float,
+        type=number(0.0, 1e4, lo_open=True),
         const=40.0,
         default=None,
         metavar="HZ",
         help="publish /clock at HZ (default 40 Hz)",
     )
     parser.add_argument(
-        "--start-offset", type=float, default=0.0, help="skip this much of the bag [s]"
+        "--start-offset", type=non_negative, default=0.0, help="skip this much of the bag [s]"
     )
-    parser.add_argument("--duration", type=float, default=None, help="play this much bag time [s]")
+    parser.add_argument(
+        "--duration", type=positive, default=None, help="play this much bag time [s]"
+    )
     parser.add_argument("--topics", nargs="+", default=None, help="play only these topics")
     parser.add_argument(
         "--remap",
@@ -1242,11 +1255,13 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
     )
     parser.add_argument(
         "--wait-timeout",
-        type=float,
+        type=number(0.0, 1e6, lo_open=True),
         default=10.0,
         help="give up waiting for subscribers after this long [s]",
     )
-    parser.add_argument("--delay", type=float, default=0.0, help="sleep before playing [s]")
+    parser.add_argument(
+        "--delay", type=number(0.0, 86400.0), default=0.0, help="sleep before playing [s]"
+    )
     parser.add_argument(
         "--wait-for-consumer",
         action="append",
@@ -1264,7 +1279,7 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
     )
     parser.add_argument(
         "--consumer-timeout",
-        type=float,
+        type=number(0.0, 1e6, lo_open=True),
         default=30.0,
         metavar="S",
         help="stop waiting for a consumer whose progress has not moved for S seconds [s]",

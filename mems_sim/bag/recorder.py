@@ -98,6 +98,7 @@ from mems_sim.bag.writer import (
     output_problem,
     storage_preset,
 )
+from mems_sim.cli_values import OneLineParser, non_negative, positive
 from mems_sim.ros.end_of_stream import (
     describe_tail,
     is_end_of_stream_topic,
@@ -680,31 +681,8 @@ class RecorderNode(Node):
 # -------------------------------------------------------------------- CLI
 
 
-class _OneLineParser(argparse.ArgumentParser):
-    """argparse with errors as one line (``mcap_record: error: ...``) and exit status 2."""
-
-    def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"{text!r} must be a finite number > 0")
-    return value
-
-
-def _non_negative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not 0 <= value < float("inf"):
-        raise argparse.ArgumentTypeError(f"{text!r} must be a finite number >= 0")
-    return value
+#: Smallest split size of ``-b`` [bytes]: below it every message would start a file.
+MIN_SPLIT_BYTES = 16384
 
 
 def _byte_count(text: str) -> int:
@@ -735,7 +713,7 @@ def _regex(text: str) -> str:
 
 
 def _parse_args(argv: list[str]) -> argparse.Namespace:
-    parser = _OneLineParser(
+    parser = OneLineParser(
         prog="mcap_record",
         description=__doc__.splitlines()[0],
         epilog="Without -b/-d, -o names one MCAP file. With -b or -d, -o names a rosbag2 bag "
@@ -804,14 +782,14 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument(
         "-d",
         "--max-bag-duration",
-        type=_non_negative_float,
+        type=non_negative,
         default=0.0,
         metavar="SECONDS",
         help="split the bag into a new file at this much log (sensor) time [s] (0: never)",
     )
     parser.add_argument(
         "--duration",
-        type=_positive_float,
+        type=positive,
         default=None,
         metavar="SECONDS",
         help="stop after this much wall-clock time from the start of recording [s]",
@@ -863,6 +841,8 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
         parser.error("give topics, -a/--all or -e/--regex")
     if args.chunk_size < 1:
         parser.error("argument --chunk-size: must be at least 1 byte")
+    if 0 < args.max_bag_size < MIN_SPLIT_BYTES:
+        parser.error(f"argument -b/--max-bag-size: at least {MIN_SPLIT_BYTES} bytes (0: never)")
     args.split = bool(args.max_bag_size or args.max_bag_duration)
     if args.split:
         args.output = bag_directory_path(args.output)
