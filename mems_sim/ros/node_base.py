@@ -756,6 +756,58 @@ def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> in
     return run_nodes([("", factory)], args)
 
 
+def command_line_parameters(args: list[str]) -> list[tuple[str | None, str]]:
+    """``(node name or None, parameter name)`` of every ``-p``/``--param`` rule in the
+    ``--ros-args`` sections of ``args`` (``-p NAME:=V``, ``-p NODE:NAME:=V``)."""
+    out, ros, k = [], False, 0
+    while k < len(args):
+        token = args[k]
+        if token == "--ros-args":
+            ros = True
+        elif token == "--":
+            ros = False
+        elif ros and token in ("-p", "--param", "-r", "--remap"):
+            rule = args[k + 1] if k + 1 < len(args) else ""
+            if ":=" not in rule or rule.startswith(":="):
+                raise ParameterError(f"{token} {rule!r}: a rule is NAME:=VALUE")
+            k += 1
+            if token in ("-r", "--remap"):
+                k += 1
+                continue
+            key = rule.partition(":=")[0]
+            node, _, name = key.rpartition(":")
+            out.append((node or None, name))
+        k += 1
+    return out
+
+
+def check_parameter_overrides(nodes: list, args: list[str]) -> None:
+    """Refuse a ``-p`` name that no node of the process declares (:class:`ParameterError`
+    naming the close matches); warn about other overrides no node declares (a wildcard
+    ``/**`` parameter file legitimately serves several nodes)."""
+    import difflib
+
+    declared = {n.get_name(): set(n._parameters) for n in nodes}
+    known = sorted(set().union(*declared.values())) if declared else []
+    for node, name in command_line_parameters(args):
+        pool = declared.get(node, set()) if node is not None else set(known)
+        if node is not None and node not in declared:
+            continue  # a rule for a node of another process
+        if name not in pool and not name.startswith("qos_overrides."):
+            near = difflib.get_close_matches(name, sorted(pool), n=3)
+            hint = f" (did you mean {', '.join(near)}?)" if near else ""
+            raise ParameterError(f"-p {name}: no node here has a parameter {name!r}{hint}")
+    for n in nodes:
+        extra = sorted(set(getattr(n, "_parameter_overrides", {})) - declared[n.get_name()])
+        extra = [e for e in extra if not e.startswith("qos_overrides.")]
+        if extra:
+            print(
+                f"warning: {n.get_fully_qualified_name()}: parameters given but not declared: "
+                + ", ".join(extra),
+                file=sys.stderr,
+            )
+
+
 def run_nodes(factories: list[tuple[str, Callable[[], object]]], args: list[str]) -> int:
     """Init rclpy with ``args``, build the nodes and spin them in one executor until a
     stop signal or shutdown; every node built is closed (its final results published) and
@@ -780,9 +832,19 @@ def run_nodes(factories: list[tuple[str, Callable[[], object]]], args: list[str]
     if problem is not None:
         print(f"error: {problem}", file=sys.stderr)
         return 2
+    try:
+        command_line_parameters(args)  # malformed rules, before rcl logs its own lines
+    except ParameterError as exc:
+        print(f"error: invalid ROS arguments: {exc}", file=sys.stderr)
+        return 2
     # Our own stop-signal handling (SIGINT, SIGTERM, SIGHUP): the nodes publish their final results
     # before the context shuts down.
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except Exception as exc:  # rcl's RCLError: a malformed --ros-args rule (-p noequals)
+        reason = str(exc).split(", at ")[0].removeprefix("failed to initialize rcl: ")
+        print(f"error: invalid ROS arguments: {' '.join(reason.split())}", file=sys.stderr)
+        return 2
     # SIGINT explicitly too: a process started in the background of a script inherits it
     # ignored, and would not stop on the SIGINT that launch tools send. While a node is
     # built a signal interrupts it (e.g. a wait for /clock); once they spin, see below.
@@ -795,6 +857,7 @@ def run_nodes(factories: list[tuple[str, Callable[[], object]]], args: list[str]
         for label, factory in factories:
             nodes.append(factory())
         label = ""
+        check_parameter_overrides(nodes, args)
         # one executor for the process's life: rclpy.spin_once(node) adds and removes the
         # node on every call, which wakes and rebuilds the wait set once per callback
         executor = make_executor(nodes)

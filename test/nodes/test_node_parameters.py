@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
@@ -198,3 +199,49 @@ def test_out_of_range_at_start_exits_2_with_one_line(arg, needle, subprocess_env
     assert run.returncode == 2, run.stderr
     lines = run.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0], run.stderr
+
+
+@pytest.mark.parametrize(
+    "rules, needle",
+    [
+        (["-p", "durations_s:=3"], "did you mean duration_s"),
+        (["-p", "noequals"], "a rule is NAME:=VALUE"),
+        (["-r", "x"], "a rule is NAME:=VALUE"),
+    ],
+)
+def test_a_node_refuses_unknown_or_malformed_rules(rules, needle, subprocess_env):
+    """An unknown -p name is refused with the close matches, a malformed rule too (rcl's
+    RCLError was a traceback): one line, exit 2, before the node starts."""
+    run = subprocess.run(
+        [str(Path(sys.executable).parent / "imu_node"), "--ros-args", *rules],
+        capture_output=True,
+        text=True,
+        env=subprocess_env,
+        timeout=60,
+    )
+    assert run.returncode == 2, run.stderr[-1000:]
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0], run.stderr[-1000:]
+
+
+def test_a_wildcard_parameter_file_with_other_nodes_names_only_warns(tmp_path, subprocess_env):
+    """A ``/**`` file serves several nodes: a name this node lacks is a warning, not an error."""
+    params = tmp_path / "all.yaml"
+    params.write_text("/**:\n  ros__parameters:\n    duration_s: 0.3\n    channels: a,b\n")
+    proc = subprocess.Popen(
+        [str(Path(sys.executable).parent / "imu_node"), "--ros-args", "--params-file", str(params)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=subprocess_env,
+    )
+    try:
+        line = proc.stderr.readline()  # the warning comes before the node spins
+        assert "parameters given but not declared: channels" in line, line
+        assert proc.poll() is None  # and the node runs
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=30) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
