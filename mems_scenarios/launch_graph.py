@@ -88,8 +88,9 @@ exited ``--kill-timeout`` seconds (default 5) after the signal gets SIGKILL; the
 recorder is stopped the same way. A node that exits with a non-zero status while the graph
 runs stops the graph (ros2 launch would keep the others running). Exit status: 0 when
 every process exited with status 0 (or from the signal it was sent); 1 when a node failed
-to start, exited non-zero, or had to be killed (one line on stderr for each, naming it);
-2 for a problem found before starting.
+to start, exited non-zero, or had to be killed, or the recording lost data (the recorder
+runs with ``--fail-on-loss``) (one line on stderr for each, naming it); 2 for a problem
+found before starting.
 """
 
 from __future__ import annotations
@@ -143,6 +144,8 @@ CLI_ARG = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):=(.*)$", re.DOTALL)
 OK, FAILED, BAD_INPUT = 0, 1, 2
 #: Package and executable of the recorder that ``--record`` adds.
 RECORDER = ("mems_emulator", "mcap_record")
+#: Exit status of ``mcap_record --fail-on-loss`` when a recorded topic lost data.
+RECORDER_LOSS_STATUS = 3
 
 
 class GraphError(Exception):
@@ -567,7 +570,7 @@ def recorder_action(output: str, regex: str | None, overwrite: bool) -> NodeActi
     if not out.parent.is_dir():
         raise GraphError(f"--record {output}: directory {out.parent} does not exist")
     pkg, exe = RECORDER
-    args = ["-o", str(out)] + (["--regex", regex] if regex else ["-a"])
+    args = ["-o", str(out), "--fail-on-loss"] + (["--regex", regex] if regex else ["-a"])
     if overwrite:
         args.append("--overwrite")
     return NodeAction(
@@ -696,6 +699,8 @@ class _Process:
             text = f"{what} did not stop after {signal.Signals(self.signalled or 2).name}; killed"
         elif rc is not None and rc < 0:
             text = f"{what} died from {signal.Signals(-rc).name}"
+        elif rc == RECORDER_LOSS_STATUS and self.action.label == "mcap_record":
+            text = f"{what}: the recording lost data (the topics are named above)"
         else:
             text = f"{what} exited with status {rc}"
         return text + (f" (log: {self.log_path})" if self.log_path else "")

@@ -681,6 +681,8 @@ class RecorderNode(Node):
 # -------------------------------------------------------------------- CLI
 
 
+#: Exit status of ``mcap_record --fail-on-loss`` when a recorded topic lost data.
+LOSS_STATUS = 3
 #: Smallest split size of ``-b`` [bytes]: below it every message would start a file.
 MIN_SPLIT_BYTES = 16384
 
@@ -817,6 +819,12 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
         "CRCs), fastwrite (no compression, no CRCs), zstd_fast (zstd level -5, no CRCs), "
         "zstd_small (zstd level 19, 4 MiB chunks); --compression-format and --chunk-size "
         "override the preset's",
+    )
+    parser.add_argument(
+        "--fail-on-loss",
+        action="store_true",
+        help=f"exit with status {LOSS_STATUS} (after the summary, with one line naming the "
+        "topics) when a recorded topic lost data (run_graph sets it)",
     )
     parser.add_argument(
         "--report-progress",
@@ -1024,6 +1032,8 @@ def _run(argv: list[str] | None, stop: _StopRequest) -> int:
                 flush=True,
             )
         print(recorder.summary(), flush=True)
+        if code == 0 and args.fail_on_loss and recorder.losses():
+            code = _error("lost data: " + "; ".join(recorder.losses()), LOSS_STATUS)
     finally:
         if recorder is not None:
             try:

@@ -412,6 +412,53 @@ def test_no_node_outlives_a_killed_run_graph(tmp_path, fake_pkg):
             print("left running:", line)
 
 
+def test_a_stalled_recorder_is_loss_in_the_exit_status(tmp_path, subprocess_env):
+    """The recorder SIGSTOPped while an IMU publishes 1000 frames/s: its 1000-frame history
+    overflows, and run_graph exits 1 naming the lost topic (it exited 0 before)."""
+    namespace = f"/stalled_{os.getpid()}"
+    graph = write(
+        tmp_path / "imu.launch.yaml",
+        "launch:\n- node: {pkg: mems_emulator, exec: imu_node, name: imu, namespace: "
+        + namespace
+        + ", param: [{name: sample_rate_hz, value: 1000.0}, {name: frame_size, value: 1}]}\n",
+    )
+    bag = tmp_path / "stalled.mcap"
+    proc = subprocess.Popen(
+        [str(VENV_BIN / "run_graph"), str(graph), "--record", str(bag), "--kill-timeout", "30"],
+        env=subprocess_env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        recorder = []
+        while time.monotonic() < deadline and not (recorder and bag.exists()):
+            recorder = [
+                int(line.split()[0])
+                for line in processes_naming_with_pid(str(bag))
+                if "mcap_record" in line
+            ]
+            time.sleep(0.1)
+        assert recorder and bag.exists()
+        while time.monotonic() < deadline and bag.stat().st_size < 100_000:
+            time.sleep(0.1)  # frames recorded: the first chunks are in the file
+        os.kill(recorder[0], signal.SIGSTOP)
+        time.sleep(6.0)  # 6000 frames published meanwhile
+        os.kill(recorder[0], signal.SIGCONT)
+        time.sleep(1.0)
+        os.kill(proc.pid, signal.SIGINT)
+        _, stderr = proc.communicate(timeout=90)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 1, stderr[-2000:]
+    assert "recorder mcap_record: the recording lost data" in stderr, stderr[-2000:]
+    assert f"lost data: {namespace}/" in stderr, stderr[-2000:]
+
+
 def test_a_node_that_cannot_start_is_named_and_nothing_else_runs(tmp_path, fake_pkg):
     make, env = fake_pkg
     make("broken", "true", shebang="#!/nonexistent/interpreter")
@@ -478,6 +525,11 @@ launch:
 
 def processes_naming(text: str) -> list[str]:
     """Command lines of the running processes that contain ``text`` (``pgrep -f``)."""
+    return [line.split(" ", 1)[1] for line in processes_naming_with_pid(text)]
+
+
+def processes_naming_with_pid(text: str) -> list[str]:
+    """``PID COMMAND LINE`` of the running processes whose command line contains ``text``."""
     found = []
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit() or int(entry.name) == os.getpid():
@@ -487,7 +539,7 @@ def processes_naming(text: str) -> list[str]:
         except OSError:
             continue
         if text in line:
-            found.append(line)
+            found.append(f"{entry.name} {line}")
     return found
 
 
