@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -64,7 +65,22 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", type=Path, default=None, help="write the Allan deviation figure")
     p.add_argument("--json", action="store_true", help="print the model as JSON on stdout")
     p.add_argument("--kalibr", type=Path, default=None, help="write a Kalibr imu.yaml")
+    p.add_argument(
+        "--overwrite", action="store_true", help="replace existing --kalibr/--plot files"
+    )
     return p
+
+
+def _replace_atomically(path: Path, write) -> None:
+    """``write(tmp)`` into a new file beside ``path``, then rename it over ``path`` (a
+    reader never sees half a file, and a failed write leaves ``path`` as it was)."""
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
 
 
 def _is_mcap_file(path: Path) -> bool:
@@ -323,6 +339,15 @@ def main(argv: list[str] | None = None) -> int:
     from mems_sim.bag.player import BagReadError
 
     out = sys.stderr if args.json else sys.stdout
+    from mems_sim.bag.writer import output_problem
+
+    for option, path in (("--kalibr", args.kalibr), ("--plot", args.plot)):
+        # before the analysis: a symbolic link, a directory or an existing file (without
+        # --overwrite) is refused, an unwritable directory too
+        problem = None if path is None else output_problem(str(path), args.overwrite)
+        if problem is not None:
+            print(f"identify_noise: error: {option} {problem}", file=sys.stderr)
+            return 2
     try:
         topics = bag_topics(args.bag)
         topic = choose_topic(topics, args.topic, args.bag)
@@ -352,12 +377,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.kalibr:
         import yaml
 
-        args.kalibr.write_text(yaml.safe_dump(kalibr, sort_keys=False))
+        text = yaml.safe_dump(kalibr, sort_keys=False)
+        _replace_atomically(args.kalibr, lambda tmp: tmp.write_text(text))
         print(f"kalibr: {args.kalibr}", file=out)
     if args.plot:
         from mems_estimation.identification.imu_noise_plots import plot_allan
 
-        plot_allan(model, args.plot)
+        _replace_atomically(args.plot, lambda tmp: plot_allan(model, tmp))
         print(f"figure: {args.plot}", file=out)
     if args.json:
         d = model_to_dict(model)

@@ -323,3 +323,43 @@ def test_identify_noise_reads_imu_bags_of_any_format(two_runs, tmp_path):
             "update_rate",
         }
         assert k["update_rate"] == pytest.approx(100.0) and k["rostopic"] == "/imu/data_raw"
+
+
+def test_identify_noise_outputs_refuse_links_and_existing_files(tmp_path, subprocess_env):
+    """--kalibr and --plot are checked before the analysis: a symbolic link (whose target
+    would be overwritten), an existing file without --overwrite and a path that cannot be
+    created are one line and exit 2; with --overwrite the file is replaced atomically."""
+    bag = Path(__file__).resolve().parents[2] / "bags" / "imu.mcap"
+    target = tmp_path / "target.txt"
+    target.write_text("keep me\n")
+    link = tmp_path / "link.yaml"
+    link.symlink_to(target)
+    existing = tmp_path / "imu.yaml"
+    existing.write_text("old\n")
+    exe = str(Path(sys.executable).parent / "identify_noise")
+    for option, path, needle in (
+        ("--kalibr", link, "symbolic link"),
+        ("--kalibr", existing, "--overwrite"),
+        ("--plot", tmp_path / "missing" / "f.png", "does not exist"),
+    ):
+        run = subprocess.run(
+            [exe, str(bag), option, str(path)],
+            capture_output=True,
+            text=True,
+            env=subprocess_env,
+            timeout=120,
+        )
+        assert run.returncode == 2, run.stderr
+        lines = run.stderr.strip().splitlines()
+        assert len(lines) == 1 and needle in lines[0], run.stderr
+    assert target.read_text() == "keep me\n" and existing.read_text() == "old\n"
+    run = subprocess.run(
+        [exe, str(bag), "--kalibr", str(existing), "--overwrite"],
+        capture_output=True,
+        text=True,
+        env=subprocess_env,
+        timeout=120,
+    )
+    assert run.returncode == 0, run.stderr
+    assert "gyroscope_noise_density" in existing.read_text()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["imu.yaml", "link.yaml", "target.txt"]
