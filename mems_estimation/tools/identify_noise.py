@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -248,18 +249,62 @@ def identify_bag(path: Path, topic: str, grid: str):
     return identify_message(acc, grid, final=True), frames, rejected, acc
 
 
-def kalibr_dict(model, topic: str) -> dict:
-    """Kalibr's IMU parameters (module doc) from a model with gyro_* and accel_* axes."""
+def kalibr_dict(model, topic: str, notes: list[str] | None = None) -> dict:
+    """Kalibr's IMU parameters (module doc) from a model with gyro_* and accel_* axes.
+
+    Kalibr rejects a noise value <= 0: where every axis fitted a term as 0 (a random walk
+    too small for the record to see), the largest upper 95 % bound stands in, and a line
+    saying so is appended to ``notes``; with no positive bound either, ValueError.
+    ``topic``: the ``sensor_msgs/Imu`` topic Kalibr reads.
+    """
     out = {}
     for prefix, sensor in (("accel", "accelerometer"), ("gyro", "gyroscope")):
         axes = [a for a in model.axes if a.axis.startswith(prefix)]
         if not axes:
             raise ValueError(f"no {prefix}_* axes for Kalibr's {sensor} entries")
-        out[f"{sensor}_noise_density"] = max(a.white_noise_density.value for a in axes)
-        out[f"{sensor}_random_walk"] = max(a.random_walk.value for a in axes)
+        for key, field in (
+            ("noise_density", "white_noise_density"),
+            ("random_walk", "random_walk"),
+        ):
+            terms = [getattr(a, field) for a in axes]
+            value = max(t.value for t in terms)
+            name = f"{sensor}_{key}"
+            if not value > 0:
+                bounds = [t.ci_high for t in terms if math.isfinite(t.ci_high) and t.ci_high > 0]
+                if not bounds:
+                    raise ValueError(
+                        f"--kalibr: {name} fitted 0 on every axis and has no finite upper "
+                        "bound; Kalibr takes only positive values (a longer record is needed)"
+                    )
+                value = max(bounds)
+                if notes is not None:
+                    notes.append(
+                        f"{name}: fitted 0 on every axis; the upper 95 % bound {value:.4g} is "
+                        "written (Kalibr takes only positive values)"
+                    )
+            out[name] = float(value)
     out["rostopic"] = topic
     out["update_rate"] = float(model.sample_rate_hz)
     return out
+
+
+def kalibr_topic(topics: dict[str, str], identified: str) -> str:
+    """The ``sensor_msgs/Imu`` topic for Kalibr's ``rostopic``: the identified topic if it
+    is one, else the Imu topic of the same namespace (or the bag's only one); ValueError if
+    the bag has none (Kalibr cannot read the project's AdcFrame)."""
+    if topics.get(identified) in IMU_TYPES:
+        return identified
+    imu = sorted(t for t, ty in topics.items() if ty in IMU_TYPES)
+    namespace = identified.rsplit("/", 1)[0] + "/"
+    near = [t for t in imu if t.startswith(namespace)]
+    if len(near) == 1 or len(imu) == 1:
+        return (near or imu)[0]
+    if not imu:
+        raise ValueError(
+            f"--kalibr: the bag has no sensor_msgs/Imu topic for Kalibr to read "
+            f"({identified} is {topics.get(identified)})"
+        )
+    raise ValueError(f"--kalibr: several Imu topics ({', '.join(imu)}); give --topic one of them")
 
 
 def model_to_dict(model) -> dict:
@@ -368,7 +413,8 @@ def main(argv: list[str] | None = None) -> int:
                 f"{args.bag}: {topic}, {frames} frames, {model.num_samples} samples at "
                 f"{model.sample_rate_hz:g} Hz, {rejected} rejected, {acc.tracker.gaps} gaps"
             )
-        kalibr = kalibr_dict(model, topic) if args.kalibr else None
+        notes: list[str] = []
+        kalibr = kalibr_dict(model, kalibr_topic(topics, topic), notes) if args.kalibr else None
     except (BagReadError, ValueError) as exc:
         print(f"identify_noise: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
@@ -379,7 +425,9 @@ def main(argv: list[str] | None = None) -> int:
 
         text = yaml.safe_dump(kalibr, sort_keys=False)
         _replace_atomically(args.kalibr, lambda tmp: tmp.write_text(text))
-        print(f"kalibr: {args.kalibr}", file=out)
+        print(f"kalibr: {args.kalibr} (rostopic {kalibr['rostopic']})", file=out)
+        for note in notes:
+            print(f"kalibr: {note}", file=out)
     if args.plot:
         from mems_estimation.identification.imu_noise_plots import plot_allan
 

@@ -2,6 +2,7 @@
 
 import contextlib
 import json
+import math
 import subprocess
 import sys
 import time
@@ -353,13 +354,47 @@ def test_identify_noise_outputs_refuse_links_and_existing_files(tmp_path, subpro
         lines = run.stderr.strip().splitlines()
         assert len(lines) == 1 and needle in lines[0], run.stderr
     assert target.read_text() == "keep me\n" and existing.read_text() == "old\n"
+    figure = tmp_path / "allan.png"
+    figure.write_text("old\n")
     run = subprocess.run(
-        [exe, str(bag), "--kalibr", str(existing), "--overwrite"],
+        [exe, str(bag), "--plot", str(figure), "--overwrite"],
         capture_output=True,
         text=True,
         env=subprocess_env,
         timeout=120,
     )
     assert run.returncode == 0, run.stderr
-    assert "gyroscope_noise_density" in existing.read_text()
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["imu.yaml", "link.yaml", "target.txt"]
+    assert figure.read_bytes().startswith(b"\x89PNG")
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == ["allan.png", "imu.yaml", "link.yaml", "target.txt"]  # no temporary left
+
+
+def test_kalibr_values_are_positive_and_name_the_imu_topic():
+    """Kalibr rejects a noise value <= 0: a random walk fitted 0 on every axis is written as
+    its upper 95 % bound (and said so); rostopic is the sensor_msgs/Imu topic, not the
+    project's AdcFrame topic that was identified."""
+    from types import SimpleNamespace as NS
+
+    from mems_estimation.tools.identify_noise import kalibr_dict, kalibr_topic
+
+    def term(value, high):
+        return NS(value=value, ci_low=0.0, ci_high=high)
+
+    axes = [
+        NS(axis=f"{s}_{c}", white_noise_density=term(1e-3, 2e-3), random_walk=term(0.0, hi))
+        for s in ("gyro", "accel")
+        for c, hi in zip("xyz", (1e-5, 3e-5, 2e-5))
+    ]
+    notes: list[str] = []
+    k = kalibr_dict(NS(axes=axes, sample_rate_hz=200.0), "/imu/data", notes)
+    assert k["gyroscope_random_walk"] == 3e-5 and k["accelerometer_random_walk"] == 3e-5
+    assert all(v > 0 for key, v in k.items() if key.endswith(("density", "walk")))
+    assert len(notes) == 2 and all("upper 95 % bound" in n for n in notes)
+    for a in axes:
+        a.random_walk = term(0.0, math.inf)
+    with pytest.raises(ValueError, match="only positive"):
+        kalibr_dict(NS(axes=axes, sample_rate_hz=200.0), "/imu/data")
+    topics = {"/imu/adc": "mems_msgs/msg/AdcFrame", "/imu/data": "sensor_msgs/msg/Imu"}
+    assert kalibr_topic(topics, "/imu/adc") == "/imu/data"
+    with pytest.raises(ValueError, match="no sensor_msgs/Imu"):
+        kalibr_topic({"/imu/adc": "mems_msgs/msg/AdcFrame"}, "/imu/adc")
