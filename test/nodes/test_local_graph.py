@@ -7,7 +7,6 @@ on a network interface during a scenario run with an empty range."""
 import ipaddress
 import os
 import socket
-import struct
 import subprocess
 import sys
 import tempfile
@@ -16,6 +15,7 @@ from pathlib import Path
 
 import pytest
 from conftest import spin_until
+from proc_sockets import inet_sockets, is_loopback
 
 from mems_sim.ros import env as ros_env
 
@@ -209,40 +209,6 @@ def test_a_graph_refuses_a_bad_domain_id(clean_env):
 
 
 # -- sockets and packets ------------------------------------------------------------------
-
-
-def inet_sockets(pid: int) -> list[tuple[str, str]]:
-    """(protocol, local address:port) of every IPv4/IPv6 UDP or TCP socket of a process."""
-    inodes = set()
-    for fd in os.listdir(f"/proc/{pid}/fd"):
-        try:
-            target = os.readlink(f"/proc/{pid}/fd/{fd}")
-        except OSError:
-            continue
-        if target.startswith("socket:["):
-            inodes.add(target[len("socket:[") : -1])
-    found = []
-    for proto in ("udp", "udp6", "tcp", "tcp6"):
-        table = Path(f"/proc/{pid}/net/{proto}")
-        if not table.exists():
-            continue
-        for line in table.read_text().splitlines()[1:]:
-            cols = line.split()
-            if cols[9] not in inodes:
-                continue
-            host, port = cols[1].split(":")
-            raw = bytes.fromhex(host)
-            if len(raw) == 4:
-                address = socket.inet_ntop(socket.AF_INET, raw[::-1])
-            else:  # four host-order 32-bit words
-                words = struct.unpack("<4I", raw)
-                address = socket.inet_ntop(socket.AF_INET6, struct.pack(">4I", *words))
-            found.append((proto, f"{address}:{int(port, 16)}"))
-    return found
-
-
-def is_loopback(address_port: str) -> bool:
-    return ipaddress.ip_address(address_port.rsplit(":", 1)[0]).is_loopback
 
 
 def receive_frames(graph, topic: str, proc, count: int = 3, timeout: float = 30.0) -> list:

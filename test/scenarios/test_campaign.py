@@ -261,43 +261,6 @@ def test_scheduler_over_tcp_equals_local_and_serial(tmp_path, subprocess_env):
                 p.kill()
 
 
-def _listening_sockets(pid: int) -> list[tuple[str, int]]:
-    """(address, port) of every TCP socket of process ``pid`` in the LISTEN state, from
-    /proc (``ss -ltnp`` reads the same tables)."""
-    import ipaddress
-
-    inodes = set()
-    for fd in os.listdir(f"/proc/{pid}/fd"):
-        try:
-            target = os.readlink(f"/proc/{pid}/fd/{fd}")
-        except OSError:
-            continue
-        if target.startswith("socket:["):
-            inodes.add(target[8:-1])
-    out = []
-    for table, width in (("tcp", 8), ("tcp6", 32)):
-        with open(f"/proc/{pid}/net/{table}") as handle:
-            for line in handle.readlines()[1:]:
-                fields = line.split()
-                if fields[3] != "0A" or fields[9] not in inodes:  # 0A: LISTEN
-                    continue
-                hex_ip, hex_port = fields[1].split(":")
-                raw = bytes.fromhex(hex_ip)
-                # /proc prints the address as 32-bit words in host (little-endian) order
-                raw = b"".join(raw[i : i + 4][::-1] for i in range(0, len(raw), 4))
-                out.append((str(ipaddress.ip_address(raw)), int(hex_port, 16)))
-                assert len(hex_ip) == width
-    return out
-
-
-def _is_loopback(address: str) -> bool:
-    import ipaddress
-
-    ip = ipaddress.ip_address(address)
-    mapped = getattr(ip, "ipv4_mapped", None)
-    return (mapped or ip).is_loopback
-
-
 def test_local_cluster_listens_on_loopback_only():
     """--workers N: Dask's scheduler and worker HTTP servers (which it starts whatever the
     dashboard setting) are bound to 127.0.0.1 and serve no route; nothing listens beyond."""
@@ -305,15 +268,17 @@ def test_local_cluster_listens_on_loopback_only():
     import urllib.request
     from types import SimpleNamespace
 
+    from proc_sockets import inet_sockets, is_loopback
+
     from mems_scenarios.campaign import _client
 
-    before = set(_listening_sockets(os.getpid()))
+    before = set(inet_sockets(os.getpid()))
     client, cluster = _client(SimpleNamespace(scheduler=None, workers=2))
     try:
         assert client.submit(int, "41").result() == 41
-        new = set(_listening_sockets(os.getpid())) - before
+        new = set(inet_sockets(os.getpid())) - before
         assert len(new) >= 3, new  # the scheduler's server and one per worker
-        assert all(_is_loopback(address) for address, _ in new), new
+        assert all(is_loopback(address) for _, address in new), new
         port = cluster.scheduler.http_server.port
         with pytest.raises(urllib.error.HTTPError) as refused:
             urllib.request.urlopen(f"http://127.0.0.1:{port}/json/identity.json", timeout=5)
