@@ -159,16 +159,17 @@ def test_dry_run_prints_the_recorder_then_the_nodes(tmp_path, subprocess_env):
     out = tmp_path / "r.mcap"
     run = run_graph([f, "--dry-run", "--record", out, "--record-regex", "^/a/"], subprocess_env)
     recorder, imu = commands(run)
-    assert recorder[:6] == [
+    assert recorder[:7] == [
         str(LIB / "mcap_record"),
         "-o",
         str(out),
+        "--fail-on-loss",
         "--regex",
         "^/a/",
         "--ros-args",
     ]
-    assert recorder[6] == "-r" and recorder[7].startswith("__node:=mcap_record_")
-    assert recorder[8:] == ["--log-level", "warn"]
+    assert recorder[7] == "-r" and recorder[8].startswith("__node:=mcap_record_")
+    assert recorder[9:] == ["--log-level", "warn"]
     assert imu == [str(LIB / "imu_node"), "--ros-args", "-r", "__ns:=/a"]
 
 
