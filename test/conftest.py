@@ -22,10 +22,13 @@ _domains = itertools.count(0)
 
 
 def next_domain_id() -> int:
-    """A domain id for one test, distinct from the other tests of this run and of the other
-    xdist workers (1..200: worker i of n gets the ids that are i modulo n)."""
-    span = 200 - 200 % _WORKERS
-    return 1 + (_BASE * 7 * _WORKERS + _WORKER + _WORKERS * next(_domains)) % span
+    """A domain id for one test, distinct from the other tests of this run, of the other
+    xdist workers (worker i of n gets the ids that are i modulo n) and of a run of the other
+    tier at the same time: ``make test`` (ROS_DOMAIN_ID 63, odd) takes 1..100 and ``make
+    acceptance`` (64, even) 101..200, so the two can run side by side."""
+    span = 100 - 100 % _WORKERS
+    tier = 100 * (_BASE % 2 == 0)
+    return 1 + tier + (_BASE * 7 * _WORKERS + _WORKER + _WORKERS * next(_domains)) % span
 
 
 @pytest.fixture
