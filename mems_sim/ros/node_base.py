@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import sys
+import time
 from collections.abc import Callable, Iterable
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -756,6 +757,30 @@ def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> in
     return run_nodes([("", factory)], args)
 
 
+#: Longest wait at shutdown for the subscribers to acknowledge what was published [s].
+DELIVERY_WAIT_S = 3.0
+
+
+def wait_until_delivered(nodes: list, limit_s: float = DELIVERY_WAIT_S) -> None:
+    """Before the nodes are destroyed: wait (at most ``limit_s`` in all) until every
+    reliable publisher's samples are acknowledged by its subscribers. A process that exits
+    at once takes the samples still in its writers with it: a recorder whose history was
+    momentarily full recorded a stream without its last frames (a missing tail). Returns at
+    once when everything was delivered."""
+    from rclpy.duration import Duration
+
+    deadline = time.monotonic() + limit_s
+    for node in nodes:
+        for pub in list(node.publishers):
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return
+            try:
+                pub.wait_for_all_acked(Duration(seconds=left))
+            except Exception:  # a publisher already destroyed, or a best-effort one
+                continue
+
+
 def command_line_parameters(args: list[str]) -> list[tuple[str | None, str]]:
     """``(node name or None, parameter name)`` of every ``-p``/``--param`` rule in the
     ``--ros-args`` sections of ``args`` (``-p NAME:=V``, ``-p NODE:NAME:=V``)."""
@@ -884,6 +909,7 @@ def run_nodes(factories: list[tuple[str, Callable[[], object]]], args: list[str]
             close = getattr(node, "close", None)
             if close is not None:
                 close()
+        wait_until_delivered(nodes)
         for node in nodes:
             if executor is not None:
                 executor.remove_node(node)
