@@ -123,7 +123,7 @@ def bench_emulator(n: int = 1_000_000, frame: int = 1000) -> None:
     )
 
 
-@numba.njit(cache=True, nogil=True, fastmath={"reassoc"})
+@numba.njit(nogil=True, fastmath={"reassoc"})  # not cached: a script's function
 def _reassociated_sum(phase, m):
     """The loop the fixed-order kernel replaced: 4096-term blocks, reassociated by LLVM."""
     n = phase.shape[0] - 2 * m
