@@ -88,9 +88,8 @@ exited ``--kill-timeout`` seconds (default 5) after the signal gets SIGKILL; the
 recorder is stopped the same way. A node that exits with a non-zero status while the graph
 runs stops the graph (ros2 launch would keep the others running). Exit status: 0 when
 every process exited with status 0 (or from the signal it was sent); 1 when a node failed
-to start, exited non-zero, or had to be killed, or the recording lost data (the recorder
-runs with ``--fail-on-loss``) (one line on stderr for each, naming it); 2 for a problem
-found before starting.
+to start, exited non-zero, or had to be killed, or (with ``--fail-on-loss``) the recording
+lost data (one line on stderr for each, naming it); 2 for a problem found before starting.
 """
 
 from __future__ import annotations
@@ -562,7 +561,9 @@ def _label(nodes: list[NodeAction]) -> None:
             print(f"{PROG}: warning: two nodes named {node.fqn()}", file=sys.stderr)
 
 
-def recorder_action(output: str, regex: str | None, overwrite: bool) -> NodeAction:
+def recorder_action(
+    output: str, regex: str | None, overwrite: bool, fail_on_loss: bool = False
+) -> NodeAction:
     """The recorder process that ``--record`` adds."""
     out = Path(output)
     if out.exists() and not overwrite:
@@ -570,7 +571,8 @@ def recorder_action(output: str, regex: str | None, overwrite: bool) -> NodeActi
     if not out.parent.is_dir():
         raise GraphError(f"--record {output}: directory {out.parent} does not exist")
     pkg, exe = RECORDER
-    args = ["-o", str(out), "--fail-on-loss"] + (["--regex", regex] if regex else ["-a"])
+    args = ["-o", str(out)] + (["--fail-on-loss"] if fail_on_loss else [])
+    args += ["--regex", regex] if regex else ["-a"]
     if overwrite:
         args.append("--overwrite")
     return NodeAction(
@@ -920,6 +922,11 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--overwrite", action="store_true", help="replace an existing --record file")
     p.add_argument(
+        "--fail-on-loss",
+        action="store_true",
+        help="exit 1 when the recording lost data (the recorder names the topics)",
+    )
+    p.add_argument(
         "--log-dir",
         type=Path,
         default=None,
@@ -976,7 +983,9 @@ def main(argv: list[str] | None = None) -> int:
             return OK
         recorder = None
         if args.record is not None:
-            recorder = recorder_action(args.record, args.record_regex, args.overwrite)
+            recorder = recorder_action(
+                args.record, args.record_regex, args.overwrite, args.fail_on_loss
+            )
     except GraphError as exc:
         return _error(str(exc))
     if args.dry_run:

@@ -74,7 +74,9 @@ def parse_value(text: str) -> Any:
     try:
         value = bounded_yaml.load(text, _BOUNDED)
     except yaml.YAMLError as exc:
-        raise ParamsFileError(f"{text!r} is not a YAML value ({_yaml_problem(exc)})") from None
+        raise ParamsFileError(
+            f"{text!r} is not a YAML value ({bounded_yaml.problem(exc)})"
+        ) from None
     return check_value(value, text)
 
 
@@ -95,13 +97,6 @@ def check_value(value: Any, what: str) -> Any:
     elif not isinstance(value, (bool, int, float, str)):
         raise ParamsFileError(f"{what!r}: not a parameter value")
     return value
-
-
-def _yaml_problem(exc: yaml.YAMLError) -> str:
-    mark = getattr(exc, "problem_mark", None)
-    problem = getattr(exc, "problem", None) or str(exc)
-    where = f" at line {mark.line + 1}" if mark is not None else ""
-    return " ".join(f"{problem}{where}".split())
 
 
 def normalise_node(name: str) -> str:
@@ -222,7 +217,7 @@ def load_params_file(path: str | Path) -> list[Override]:
     try:
         doc = bounded_yaml.load(text, _BOUNDED)
     except yaml.YAMLError as exc:
-        raise ParamsFileError(f"{where}: not YAML ({_yaml_problem(exc)})") from None
+        raise ParamsFileError(f"{where}: not YAML ({bounded_yaml.problem(exc)})") from None
     if not isinstance(doc, dict) or not doc:
         raise ParamsFileError(
             f"{where}: not a ROS 2 parameter file (NODE: {{{ROS_PARAMETERS}: {{...}}}})"

@@ -159,17 +159,16 @@ def test_dry_run_prints_the_recorder_then_the_nodes(tmp_path, subprocess_env):
     out = tmp_path / "r.mcap"
     run = run_graph([f, "--dry-run", "--record", out, "--record-regex", "^/a/"], subprocess_env)
     recorder, imu = commands(run)
-    assert recorder[:7] == [
+    assert recorder[:6] == [
         str(LIB / "mcap_record"),
         "-o",
         str(out),
-        "--fail-on-loss",
         "--regex",
         "^/a/",
         "--ros-args",
     ]
-    assert recorder[7] == "-r" and recorder[8].startswith("__node:=mcap_record_")
-    assert recorder[9:] == ["--log-level", "warn"]
+    assert recorder[6] == "-r" and recorder[7].startswith("__node:=mcap_record_")
+    assert recorder[8:] == ["--log-level", "warn"]
     assert imu == [str(LIB / "imu_node"), "--ros-args", "-r", "__ns:=/a"]
 
 
@@ -425,7 +424,8 @@ def test_a_stalled_recorder_is_loss_in_the_exit_status(tmp_path, subprocess_env)
     )
     bag = tmp_path / "stalled.mcap"
     proc = subprocess.Popen(
-        [str(VENV_BIN / "run_graph"), str(graph), "--record", str(bag), "--kill-timeout", "30"],
+        [str(VENV_BIN / "run_graph"), str(graph), "--record", str(bag), "--fail-on-loss"]
+        + ["--kill-timeout", "30"],
         env=subprocess_env,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
