@@ -82,14 +82,8 @@ discovers topics periodically, so a topic is recorded from its subscription on (
 messages of a node that publishes at once can be missed), as with a recorder started next
 to a launch. It is stopped after the nodes, so their last messages are still recorded.
 
-Stopping: SIGINT and SIGTERM are forwarded to every node's process group (a second signal
-is forwarded again); ``--duration S`` sends SIGINT after S seconds. A node that has not
-exited ``--kill-timeout`` seconds (default 5) after the signal gets SIGKILL; then the
-recorder is stopped the same way. A node that exits with a non-zero status while the graph
-runs stops the graph (ros2 launch would keep the others running). Exit status: 0 when
-every process exited with status 0 (or from the signal it was sent); 1 when a node failed
-to start, exited non-zero, or had to be killed, or (with ``--fail-on-loss``) the recording
-lost data (one line on stderr for each, naming it); 2 for a problem found before starting.
+Stopping, SIGHUP, the parent-death signal and the exit status: docs/graphs.md ("Output,
+stopping, exit status").
 """
 
 from __future__ import annotations
