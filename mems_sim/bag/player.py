@@ -71,6 +71,7 @@ from mems_sim.bag.reader import (
 from mems_sim.bag.reader import iter_stream_records as _iter_stream_records
 from mems_sim.cli_values import OneLineParser, non_negative, number, positive
 from mems_sim.ros.env import apply_defaults, domain_id_problem, install_stop_request
+from mems_sim.ros.qos_yaml import playback_profile
 
 __all__ = [
     "BagMessage",
@@ -434,32 +435,6 @@ def playable_topics(
 # -------------------------------------------------------------------- playback
 
 
-def playback_qos(qos_yaml: str):
-    """Publisher QoS from the recorded offered profiles (rosbag2's adaptation); FRAME_QOS if none.
-
-    The first offered profile's reliability and durability are used, with a
-    KEEP_LAST history at least FRAME_DEPTH deep.
-    """
-    from rclpy.qos import HistoryPolicy, QoSProfile
-
-    from mems_sim.bag.schema import qos_profiles_from_yaml
-    from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS
-
-    try:
-        profiles = qos_profiles_from_yaml(qos_yaml)
-    except Exception:
-        profiles = []
-    if not profiles:
-        return FRAME_QOS
-    first = profiles[0]
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
-        depth=max(FRAME_DEPTH, int(first.depth)),
-        reliability=first.reliability,
-        durability=first.durability,
-    )
-
-
 def parse_remaps(remaps: Iterable[str]) -> dict[str, str]:
     """``['FROM:=TO', ...]`` -> ``{FROM: TO}``; raises ValueError on a malformed entry."""
     out = {}
@@ -653,7 +628,7 @@ class Player:
             if self.topics is not None and topic not in self.topics:
                 continue
             self.publishers[topic] = node.create_publisher(
-                cls, self.remap.get(topic, topic), playback_qos(qos_yaml)
+                cls, self.remap.get(topic, topic), playback_profile(qos_yaml)
             )
             self.topic_counts[topic] = 0
             from mems_sim.bag.schema import GAP_CHECKED_TYPES, type_name_of

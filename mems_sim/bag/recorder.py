@@ -76,7 +76,6 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import UInt64
 
-from mems_sim import bounded_yaml
 from mems_sim.bag.schema import (
     SchemaError,
     has_header,
@@ -107,6 +106,7 @@ from mems_sim.ros.end_of_stream import (
 )
 from mems_sim.ros.env import STOP_SIGNALS, apply_defaults, domain_id_problem
 from mems_sim.ros.qos import FRAME_DEPTH, PROGRESS_QOS
+from mems_sim.ros.qos_yaml import load_overrides
 
 _BEST_EFFORT = ReliabilityPolicy.BEST_EFFORT
 
@@ -139,81 +139,6 @@ def is_hidden_topic(topic: str) -> bool:
     """True for a hidden topic: a name token starts with an underscore (the ROS 2 rule
     ``ros2 topic list`` and rosbag2 apply)."""
     return any(token.startswith("_") for token in topic.split("/"))
-
-
-_QOS_DURATION_KEYS = ("deadline", "lifespan", "liveliness_lease_duration")
-_QOS_POLICY_KEYS = ("history", "reliability", "durability", "liveliness")
-_QOS_VALUE_KEYS = ("depth", "avoid_ros_namespace_conventions")
-
-
-def qos_profile_from_dict(entry: dict, where: str = "") -> QoSProfile:
-    """A ``QoSProfile`` from rosbag2's QoS override dict (``history``, ``depth``,
-    ``reliability``, ``durability``, ``deadline``/``lifespan``/``liveliness_lease_duration``
-    as ``{sec, nsec}``, ``liveliness``, ``avoid_ros_namespace_conventions``; policies by
-    their short names as in ``ros2 bag record --qos-profile-overrides-path``).
-
-    Raises ValueError with one line naming ``where`` and the bad key or value.
-    """
-    from rclpy.duration import Duration
-    from rclpy.qos import LivelinessPolicy
-
-    enums = {
-        "history": HistoryPolicy,
-        "reliability": ReliabilityPolicy,
-        "durability": DurabilityPolicy,
-        "liveliness": LivelinessPolicy,
-    }
-    if not isinstance(entry, dict):
-        raise ValueError(f"{where}: expected a mapping of QoS policies, got {entry!r}")
-    kwargs = {}
-    for key, value in entry.items():
-        if key in _QOS_POLICY_KEYS:
-            try:
-                kwargs[key] = enums[key][str(value).upper()]
-            except KeyError:
-                names = ", ".join(p.name.lower() for p in enums[key])
-                raise ValueError(f"{where}: {key} {value!r} is not one of {names}") from None
-        elif key in _QOS_DURATION_KEYS:
-            if not (isinstance(value, dict) and set(value) <= {"sec", "nsec"}):
-                raise ValueError(f"{where}: {key} must be {{sec: S, nsec: N}}, got {value!r}")
-            try:
-                sec, nsec = int(value.get("sec", 0)), int(value.get("nsec", 0))
-            except (TypeError, ValueError):
-                raise ValueError(f"{where}: {key} must be whole numbers, got {value!r}") from None
-            if sec < 0 or nsec < 0:
-                raise ValueError(f"{where}: {key} must not be negative")
-            kwargs[key] = Duration(seconds=sec, nanoseconds=nsec)
-        elif key == "depth":
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                raise ValueError(f"{where}: depth must be a whole number >= 0, got {value!r}")
-            kwargs[key] = value
-        elif key == "avoid_ros_namespace_conventions":
-            kwargs[key] = bool(value)
-        else:
-            allowed = ", ".join(_QOS_POLICY_KEYS + _QOS_VALUE_KEYS + _QOS_DURATION_KEYS)
-            raise ValueError(f"{where}: unknown QoS key {key!r} (allowed: {allowed})")
-    kwargs.setdefault("depth", 10)
-    if kwargs.get("history") == HistoryPolicy.KEEP_LAST and kwargs["depth"] == 0:
-        raise ValueError(f"{where}: history keep_last needs a depth > 0")
-    return QoSProfile(**kwargs)
-
-
-def load_qos_overrides(path: str) -> dict[str, QoSProfile]:
-    """Topic -> QoSProfile from a rosbag2 QoS override file (YAML: ``/topic: {history:
-    keep_last, depth: 10, reliability: best_effort, ...}``). Raises ValueError (one line)."""
-    import yaml
-
-    try:
-        data = bounded_yaml.load_file(path)
-    except OSError as exc:
-        raise ValueError(f"{path}: {exc.strerror or exc}") from None
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
-    if data is None:
-        return {}
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: expected a mapping of topic names to QoS profiles")
-    return {str(t): qos_profile_from_dict(e, f"{path}: {t}") for t, e in data.items()}
 
 
 def adapt_qos(offered: list[QoSProfile], keep_all: bool = True) -> QoSProfile:
@@ -857,7 +782,7 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
     args.qos_overrides = {}
     if args.qos_profile_overrides_path:
         try:
-            args.qos_overrides = load_qos_overrides(args.qos_profile_overrides_path)
+            args.qos_overrides = load_overrides(args.qos_profile_overrides_path)
         except ValueError as exc:
             parser.error(f"argument --qos-profile-overrides-path: {exc}")
     return args

@@ -7,9 +7,8 @@ bytes themselves:
   the top-level ``.msg`` text, then every dependency once (depth first),
   each preceded by a line of exactly 80 ``=`` and a line ``MSG: pkg/msg/Type``
   (rosbag2's ``LocalMessageDefinitionSource`` layout).
-* :func:`qos_profiles_yaml` -- the ``offered_qos_profiles`` channel metadata
-  (rosbag2's version-9 YAML: policy names as strings, durations as
-  ``{sec, nsec}``) and :func:`qos_profiles_from_yaml` for the way back.
+* :func:`qos_profiles_yaml` / :func:`qos_profiles_from_yaml` -- the
+  ``offered_qos_profiles`` channel metadata, from :mod:`mems_sim.ros.qos_yaml`.
 * :func:`type_hash` -- the ``RIHS01_...`` type hash that rosbag2 stores as
   ``topic_type_hash``, read from the ``Type.json`` that rosidl installs next to
   the ``.msg`` file.
@@ -29,9 +28,10 @@ import os
 import re
 import struct
 import sys
-from collections.abc import Iterable
 
-from mems_sim import bounded_yaml
+from mems_sim.ros.qos_yaml import profile_dict as qos_profile_dict  # noqa: F401 (re-export)
+from mems_sim.ros.qos_yaml import profiles_from_yaml as qos_profiles_from_yaml  # noqa: F401
+from mems_sim.ros.qos_yaml import profiles_yaml as qos_profiles_yaml  # noqa: F401
 
 #: Line that separates definitions in a ``ros2msg`` schema (exactly 80 '=').
 SEPARATOR = "=" * 80
@@ -346,112 +346,6 @@ def type_hash(type_name: str) -> str | None:
         if entry.get("type_name") == full:
             return entry.get("hash_string")
     return None
-
-
-# --------------------------------------------------------------------------
-# QoS <-> rosbag2 offered_qos_profiles YAML
-
-_INFINITE_NS = 0x7FFFFFFFFFFFFFFF  # RMW_DURATION_INFINITE: sec 9223372036, nsec 854775807
-
-
-def _duration_ns(duration) -> int:
-    """Nanoseconds of an rclpy Duration (or an int/None)."""
-    if duration is None:
-        return 0
-    if isinstance(duration, int):
-        return duration
-    return int(duration.nanoseconds)
-
-
-def _policy_name(policy) -> str:
-    """rmw short name of a QoS policy enum value ('keep_last', 'reliable', ...)."""
-    name = getattr(policy, "name", str(policy)).lower()
-    if name in ("unknown",):
-        return "unknown"
-    return name
-
-
-def qos_profile_dict(qos) -> dict:
-    """rosbag2's dict form of one rclpy ``QoSProfile`` (durations as ``{sec, nsec}``)."""
-
-    def time(duration) -> dict:
-        ns = _duration_ns(duration)
-        return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
-
-    return {
-        "history": _policy_name(qos.history),
-        "depth": int(qos.depth),
-        "reliability": _policy_name(qos.reliability),
-        "durability": _policy_name(qos.durability),
-        "deadline": time(qos.deadline),
-        "lifespan": time(qos.lifespan),
-        "liveliness": _policy_name(qos.liveliness),
-        "liveliness_lease_duration": time(qos.liveliness_lease_duration),
-        "avoid_ros_namespace_conventions": bool(qos.avoid_ros_namespace_conventions),
-    }
-
-
-def qos_profiles_yaml(profiles: Iterable) -> str:
-    """The ``offered_qos_profiles`` YAML string (a list, one entry per publisher) of rclpy QoS profiles."""
-    lines = []
-    for qos in profiles:
-        entry = qos_profile_dict(qos)
-        first = True
-        for key, value in entry.items():
-            prefix = "- " if first else "  "
-            first = False
-            if isinstance(value, dict):
-                lines.append(f"{prefix}{key}:")
-                lines.append(f"    sec: {value['sec']}")
-                lines.append(f"    nsec: {value['nsec']}")
-            elif isinstance(value, bool):
-                lines.append(f"{prefix}{key}: {'true' if value else 'false'}")
-            else:
-                lines.append(f"{prefix}{key}: {value}")
-    return "\n".join(lines) if lines else "[]"
-
-
-def qos_profiles_from_yaml(text: str) -> list:
-    """Parse ``offered_qos_profiles`` YAML (version 9 strings or older ints) into rclpy ``QoSProfile``s."""
-    from rclpy.duration import Duration
-    from rclpy.qos import (
-        DurabilityPolicy,
-        HistoryPolicy,
-        LivelinessPolicy,
-        QoSProfile,
-        ReliabilityPolicy,
-    )
-
-    def policy(enum, value):
-        if isinstance(value, int):
-            return enum(value)
-        return enum[str(value).upper()]
-
-    def duration(value) -> Duration:
-        value = value or {}
-        ns = int(value.get("sec", 0)) * 1_000_000_000 + int(value.get("nsec", 0))
-        return Duration(nanoseconds=min(ns, _INFINITE_NS))
-
-    entries = bounded_yaml.load(text) if text else []
-    profiles = []
-    for entry in entries or []:
-        history = policy(HistoryPolicy, entry.get("history", "keep_last"))
-        profiles.append(
-            QoSProfile(
-                history=history,
-                depth=int(entry.get("depth", 10)),
-                reliability=policy(ReliabilityPolicy, entry.get("reliability", "reliable")),
-                durability=policy(DurabilityPolicy, entry.get("durability", "volatile")),
-                deadline=duration(entry.get("deadline")),
-                lifespan=duration(entry.get("lifespan")),
-                liveliness=policy(LivelinessPolicy, entry.get("liveliness", "system_default")),
-                liveliness_lease_duration=duration(entry.get("liveliness_lease_duration")),
-                avoid_ros_namespace_conventions=bool(
-                    entry.get("avoid_ros_namespace_conventions", False)
-                ),
-            )
-        )
-    return profiles
 
 
 # --------------------------------------------------------------------------
