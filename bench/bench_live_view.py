@@ -98,7 +98,7 @@ def rtf(live: bool, tmp: Path) -> tuple[float, Client | None]:
     client = None
     if live:
         port = free_port()
-        options.extra["live_view"] = port
+        options.live_view = port
         client = Client(port)
         client.start()
     try:

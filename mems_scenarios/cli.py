@@ -2,6 +2,7 @@
 
 Usage:
     run_scenario --list
+    run_scenario NAME --analyse FILE.mcap [--json]
     run_scenario NAME [--duration S] [--seed N] [--device-seed N] [--temperature C]
                  [--set NODE.PARAM=VALUE ...] [--params-file FILE.yaml] [--realtime]
                  [--out FILE.mcap] [--json]
@@ -17,6 +18,7 @@ from pathlib import Path
 
 from mems_scenarios import SCENARIOS, load
 from mems_scenarios.base import THROUGHPUT, ScenarioError, ScenarioOptions
+from mems_scenarios.contract import RUN_INFO_TOPIC, AnalysisError
 from mems_sim.cli_values import quiet_on_broken_pipe
 from mems_sim.params import ParameterError
 from mems_sim.ros.end_of_stream import is_end_of_stream_topic
@@ -106,6 +108,15 @@ def _parser() -> argparse.ArgumentParser:
     # fault injection for the tests of the loss reporting: TOPIC:N hands only the first N
     # messages of TOPIC to the middleware (the run must then fail naming TOPIC)
     p.add_argument("--cut", action="append", default=[], help=argparse.SUPPRESS)
+    p.add_argument(
+        "--analyse",
+        type=Path,
+        default=None,
+        metavar="FILE.mcap",
+        help="run nothing: compute the scenario's figures from an existing recording (a run, "
+        "a replay, a process graph's or your own recording with the scenario's topics); "
+        "figures it cannot compute are listed, one line each, and the exit status is then 2",
+    )
     p.add_argument("--no-plots", action="store_true", help="do not write PNG figures")
     p.add_argument(
         "--json",
@@ -231,6 +242,8 @@ def _main(args) -> int:
         return 0
     if args.name is None:
         return _fail("no scenario given (run_scenario --list shows them)")
+    if args.analyse is not None:
+        return analyse_main(args)
     error = validate(args)
     if error:
         return _fail(error)
@@ -252,9 +265,9 @@ def _main(args) -> int:
         temperature_c=args.temperature,
     )
     if args.cut:
-        options.extra["cut"] = {c.rpartition(":")[0]: int(c.rpartition(":")[2]) for c in args.cut}
+        options.cut = {c.rpartition(":")[0]: int(c.rpartition(":")[2]) for c in args.cut}
     if args.live_view is not None:
-        options.extra["live_view"] = args.live_view
+        options.live_view = args.live_view
     THROUGHPUT.reset()
     start = time.monotonic()
     try:
@@ -290,7 +303,11 @@ def _main(args) -> int:
         print(applied_text(options.applied) + "\n")
     print(result["table"])
     rec = result.get("recorder") or {}
-    counts = {t: n for t, n in (rec.get("counts") or {}).items() if not is_end_of_stream_topic(t)}
+    counts = {
+        t: n
+        for t, n in (rec.get("counts") or {}).items()
+        if not is_end_of_stream_topic(t) and t != RUN_INFO_TOPIC
+    }
     print(
         f"\nrecorded {result['mcap']}: " + ", ".join(f"{t} {n}" for t, n in sorted(counts.items()))
     )
@@ -308,6 +325,43 @@ def _main(args) -> int:
         )
         return 1
     return 0
+
+
+def analyse_main(args) -> int:
+    """``run_scenario NAME --analyse BAG``: the scenario's figures from the recording alone
+    (its ``analyse``); exit 2 with one line per figure it could not compute."""
+    if args.name not in SCENARIOS:
+        return _fail(
+            f"unknown scenario {args.name!r}: available are {', '.join(SCENARIOS)} "
+            f"(run_scenario --list)"
+        )
+    module = load(args.name)
+    if not hasattr(module, "analyse"):
+        return _fail(f"scenario {args.name} has no analysis of a recording yet")
+    from mems_sim.bag.reader import BagReadError
+
+    if not args.analyse.exists():
+        return _fail(f"--analyse: {args.analyse}: no such file or bag directory")
+    png = None
+    if not args.no_plots:
+        from mems_scenarios.base import output_path
+
+        png = output_path(args.analyse.with_name(args.analyse.stem + "-analysis.mcap"), 0, ".png")
+    try:
+        result = module.analyse(args.analyse, png)
+    except (AnalysisError, BagReadError, ScenarioError) as exc:
+        return _fail(" ".join(str(exc).split()))
+    args.result = {"figures": result.figures}
+    print(f"scenario {args.name}: analysis of {args.analyse}\n")
+    if result.table:
+        print(result.table)
+    for path in result.plots:
+        print(f"figure: {path}")
+    for what in result.oracle_only:
+        print(f"oracle only (needs the simulation): {what}")
+    for what, why in result.unavailable:
+        print(f"run_scenario: not computed: {what}: {why}", file=sys.stderr)
+    return 2 if result.unavailable else 0
 
 
 if __name__ == "__main__":

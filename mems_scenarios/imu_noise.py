@@ -16,7 +16,6 @@ from pathlib import Path
 
 from mems_estimation.identification.imu_noise_fit import crb_relative_se
 from mems_estimation.identification.imu_noise_plots import plot_allan
-from mems_estimation.nodes.imu_noise_identifier_node import NoiseIdentifierNode
 from mems_scenarios.base import (
     Graph,
     Progress,
@@ -29,8 +28,16 @@ from mems_scenarios.base import (
     output_path,
     prepare_delivery,
 )
+from mems_scenarios.contract import (
+    RUN_INFO_TOPIC,
+    AnalysisError,
+    GraphSpec,
+    NodeEntry,
+    ScenarioResult,
+    node_parameters,
+    read_run_info,
+)
 from mems_scenarios.figures import Figure, cell, is_finite
-from mems_sim.nodes.imu_node import ImuNoiseNode
 from mems_sim.ros.frames import index_to_ns
 
 NAME = "imu_noise"
@@ -52,6 +59,9 @@ PARAM_NAMES = (
     ("K", "random_walk"),
     ("T", "correlation_time"),
 )
+#: Fully qualified names of the emulator and the identifier.
+EMULATOR = "/imu/imu"
+IDENTIFIER = "/imu/imu_noise_identifier"
 FIELD = {
     "N": "white_noise_density",
     "B": "bias_instability",
@@ -60,31 +70,45 @@ FIELD = {
 }
 
 
-def build_graph(options: ScenarioOptions, out: Path, duration_s: float):
-    """Create the context, nodes and recorder of the scenario."""
-    graph = graph_for(options)
-    emu_params = {
-        "seed": int(options.seed),
-        "duration_s": float(duration_s),
-        "frame_size": REALTIME_FRAME if options.realtime else FAST_FRAME,
-        "publish_imu": bool(options.realtime),
-    }
-    emu_params.update(options.extra.get("emulator", {}))
-    emu = graph.add_device(ImuNoiseNode, emu_params, realtime=options.realtime)
-    ident = graph.node(
-        NoiseIdentifierNode,
-        {"publish_period_s": 0.0 if duration_s < 7200 else 3600.0},
-        namespace="imu",
+def graph(options: ScenarioOptions, duration_s: float) -> GraphSpec:
+    """The scenario's graph: the emulator and the identifier in ``/imu``, recorded."""
+    emulator = NodeEntry(
+        "imu_node",
+        "imu",
+        "imu",
+        {
+            "seed": int(options.seed),
+            "duration_s": float(duration_s),
+            "frame_size": REALTIME_FRAME if options.realtime else FAST_FRAME,
+            "publish_imu": bool(options.realtime),
+        },
     )
+    identifier = NodeEntry(
+        "imu_noise_identifier_node",
+        "imu_noise_identifier",
+        "imu",
+        {"publish_period_s": 0.0 if duration_s < 7200 else 3600.0},
+    )
+    return GraphSpec(NAME, (emulator, identifier), (*TOPICS, RUN_INFO_TOPIC))
+
+
+def build_graph(options: ScenarioOptions, out: Path, duration_s: float):
+    """Create the context, the nodes of :func:`graph` and the recorder; publish the run
+    record."""
+    spec = graph(options, duration_s)
+    g = graph_for(options)
+    nodes = g.build(spec, realtime=options.realtime)
+    emu, ident = nodes[EMULATOR], nodes[IDENTIFIER]
     # sensor_msgs/Imu (one per sample) whenever the emulator publishes it: on by default in
     # --realtime runs, in fast runs with publish_imu set (lossless through drive_fast's flow
     # control, which counts every data topic the recorder records)
-    topics = TOPICS + (["/imu/data"] if emu.pub_imu is not None else [])
-    rec = graph.recorder(str(out), topics=topics)
-    return graph, emu, ident, rec
+    topics = list(spec.recorded) + (["/imu/data"] if emu.pub_imu is not None else [])
+    rec = g.recorder(str(out), topics=topics)
+    g.publish_run_info(spec, options, nodes, duration_s=duration_s)
+    return g, emu, ident, rec
 
 
-def _wait_matched(graph: Graph, emu: ImuNoiseNode, ident, rec) -> None:
+def _wait_matched(graph: Graph, emu, ident, rec) -> None:
     def matched() -> bool:
         return (
             emu.pub_adc.get_subscription_count() >= 2
@@ -96,7 +120,7 @@ def _wait_matched(graph: Graph, emu: ImuNoiseNode, ident, rec) -> None:
     graph.spin_until(matched, 20.0, "the recorder and identifier to subscribe")
 
 
-def run_fast(graph: Graph, emu: ImuNoiseNode, ident, rec, progress: Progress) -> None:
+def run_fast(graph: Graph, emu, ident, rec, progress: Progress) -> None:
     """Step the emulator as fast as the consumers take its frames (no loss, deterministic)."""
     # the recorder counts for every topic the emulator publishes (the skeleton's flow
     # control): a reader that falls more than the publisher's history behind would lose
@@ -104,7 +128,7 @@ def run_fast(graph: Graph, emu: ImuNoiseNode, ident, rec, progress: Progress) ->
     drive_fast(graph, [emu], lambda _: ident.frames_received, progress, WINDOW)
 
 
-def run_realtime(graph: Graph, emu: ImuNoiseNode, progress: Progress) -> None:
+def run_realtime(graph: Graph, emu, progress: Progress) -> None:
     """Spin with the emulator's own wall-clock timer until its duration is published."""
     prepare_delivery(graph, [emu])
     emu.start()
@@ -114,14 +138,13 @@ def run_realtime(graph: Graph, emu: ImuNoiseNode, progress: Progress) -> None:
         progress.update_to(emu.next_index / emu.fs)
 
 
-def drain(graph: Graph, emu: ImuNoiseNode, ident, rec) -> None:
+def drain(graph: Graph, emu, ident, rec) -> None:
     """Wait until every message reached the identifier and the recorder (a loss raises
-    ScenarioError naming the topic); publish the final model."""
+    ScenarioError naming the topic); have the identifier publish its final model (its
+    end-of-input service, as at shutdown) and wait until the recorder holds it."""
     finish_delivery(graph, [emu], lambda _: ident.frames_received)
     before = rec.received("/imu/noise_model")
-    final = ident.publish_result(final=True)
-    ident._finalised = True
-    if final is None:
+    if ident.finish() is None:
         raise ScenarioError(
             "no noise model: too little data (use --duration of at least "
             f"{ident.p['min_duration_s']:.0f} s)"
@@ -131,14 +154,16 @@ def drain(graph: Graph, emu: ImuNoiseNode, ident, rec) -> None:
         20.0,
         "the recorder to receive the final noise model",
     )
+    graph.wait_run_info(rec)
 
 
-def configured_values(emu: ImuNoiseNode) -> dict:
-    """Configured N, B, K, T of the gyro and accelerometer (SI)."""
-    return {s: {sym: emu.p[f"{s}_{name}"] for sym, name in PARAM_NAMES} for s in ("gyro", "accel")}
+def configured_values(params: dict) -> dict:
+    """Configured N, B, K, T of the gyro and accelerometer (SI) from the emulator's
+    parameter values."""
+    return {s: {sym: params[f"{s}_{name}"] for sym, name in PARAM_NAMES} for s in ("gyro", "accel")}
 
 
-def results_table(model, configured: dict) -> tuple[str, list[dict]]:
+def results_table(model, configured: dict | None) -> tuple[str, list[dict]]:
     """Configured vs identified N, B, K, T per axis with relative errors and the Cramer-Rao
     standard error of each for a record of this length (at the identified values)."""
     rows, records = [], []
@@ -148,7 +173,7 @@ def results_table(model, configured: dict) -> tuple[str, list[dict]]:
         crb = crb_relative_se(*vals, model.sample_rate_hz, model.num_samples)
         for sym, _ in PARAM_NAMES:
             term = getattr(axis, FIELD[sym])
-            conf = configured[sensor][sym]
+            conf = configured[sensor][sym] if configured is not None else None
             rel = (term.value - conf) / conf if conf else math.nan
             unit = {
                 "N": f"{axis.unit}/sqrt(Hz)",
@@ -186,32 +211,77 @@ def results_table(model, configured: dict) -> tuple[str, list[dict]]:
     return format_table(header, rows), records
 
 
-def figure_records(model, configured: dict) -> list[Figure]:
+def figure_records(model, configured: dict | None) -> list[Figure]:
     """The table as data, per axis and term (e.g. ``gyro_x.N.identified``): configured and
     identified value, 95 % CI bounds (unit as printed: SI per axis) and the relative error
-    (a fraction). No targets: the identification is reported, not judged."""
+    (a fraction); without ``configured`` (a recording without run record) the identified
+    ones only. No targets: the identification is reported, not judged."""
     out = []
     for axis in model.axes:
         sensor = "gyro" if axis.axis.startswith("gyro") else "accel"
         for sym, _ in PARAM_NAMES:
             term = getattr(axis, FIELD[sym])
-            conf = configured[sensor][sym]
+            conf = configured[sensor][sym] if configured is not None else None
             rel = (term.value - conf) / conf if conf else math.nan
             unit = {"N": f"{axis.unit}/sqrt(Hz)", "B": axis.unit, "K": f"{axis.unit}/sqrt(s)"}
             unit = unit.get(sym, "s")
             key = f"{axis.axis}.{sym}"
             out += [
-                Figure(f"{key}.configured", conf, unit),
                 Figure(f"{key}.identified", term.value, unit),
                 Figure(f"{key}.ci_low", term.ci_low, unit),
                 Figure(f"{key}.ci_high", term.ci_high, unit),
-                Figure(f"{key}.rel_error", rel, "1"),
             ]
+            if configured is not None:  # the emulator's parameters are in the run record
+                out.insert(-3, Figure(f"{key}.configured", conf, unit))
+                out.append(Figure(f"{key}.rel_error", rel, "1"))
     return out
 
 
+def final_model(bag) -> object | None:
+    """The identifier's final noise model: the last message on ``/imu/noise_model``."""
+    from mems_sim.bag.player import read_messages
+
+    model = None
+    for _, _, _, msg in read_messages(str(bag), ["/imu/noise_model"]):
+        model = msg
+    return model
+
+
+def analyse(bag, plots: Path | None = None) -> ScenarioResult:
+    """The scenario's figures from its recording ``bag`` alone: the final noise model
+    (``/imu/noise_model``) against the emulator's configured terms (its parameters in the
+    run record). ``plots``: the Allan figure's PNG path (None: none)."""
+    model = final_model(bag)
+    if model is None:
+        return ScenarioResult(
+            NAME, [], "", unavailable=[("*", f"{bag}: no message on /imu/noise_model")]
+        )
+    unavailable = []
+    try:
+        configured = configured_values(
+            node_parameters(read_run_info(bag), EMULATOR, "configured N, B, K, T")
+        )
+    except AnalysisError as exc:
+        configured, unavailable = None, [("*.configured, *.rel_error", str(exc))]
+    table, records = results_table(model, configured)
+    figures = figure_records(model, configured)
+    paths = []
+    if plots is not None:
+        plot_allan(model, plots)
+        paths.append(plots)
+    return ScenarioResult(
+        NAME,
+        figures,
+        table,
+        paths,
+        unavailable,
+        values=dict(records=records, model=model),
+    )
+
+
 def run(options: ScenarioOptions) -> dict:
-    """Run the scenario; return a dict with the table, records, paths and counts."""
+    """Run the scenario and analyse its recording (:func:`analyse`); return a dict with the
+    table, records, paths and counts."""
     duration = DEFAULT_DURATION_S if options.duration_s is None else options.duration_s
     out = options.out or Path("runs") / f"{NAME}-{options.seed}.mcap"
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -225,8 +295,6 @@ def run(options: ScenarioOptions) -> dict:
             run_fast(graph, emu, ident, rec, progress)
         progress.close()
         drain(graph, emu, ident, rec)
-        configured = configured_values(emu)
-        model = ident.results[-1]
         published = {
             "/imu/adc": emu.frames_published,
             "/imu/truth": emu.frames_published,
@@ -241,20 +309,17 @@ def run(options: ScenarioOptions) -> dict:
             counts=rec.counts(), gaps=rec.gaps(), losses=rec.losses(), text=rec.summary()
         )
         graph.close()
-    table, records = results_table(model, configured)
-    figures = figure_records(model, configured)
-    figure = None
-    if options.plots:
-        figure = output_path(out, options.seed, "-allan.png")
-        plot_allan(model, figure)
+    png = output_path(out, options.seed, "-allan.png") if options.plots else None
+    result = analyse(out, png)
     return dict(
-        table=table,
-        figures=figures,
-        records=records,
+        table=result.table,
+        figures=result.figures,
+        records=result.values["records"],
         mcap=out,
-        figure=figure,
-        model=model,
+        figure=png,
+        model=result.values["model"],
         recorder=summary,
         published=published,
         duration_s=duration,
+        result=result,
     )

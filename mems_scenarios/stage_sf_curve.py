@@ -26,7 +26,7 @@ Steps (all seeded; nothing reads the emulator's truth except the evaluation figu
    ``mems_emulator/gyro_sf_curve``) and plotted against the gyro's true curve.
 
 The graph's points equal the cores' (:func:`run_pipeline`,
-:func:`mems_estimation.identification.stage_sf_curve.sf_curve_study`, all on the cores) to
+:func:`mems_estimation.studies.stage_sf_curve.sf_curve_study`, all on the cores) to
 ~1e-7 relative: the estimates are the same bit for bit, and the calibration node places the
 gyro samples through their frames' integer-ns stamps, the core through exact times.
 
@@ -38,8 +38,8 @@ parameters: ``--set stage.PARAM=VALUE`` (any of the stage node's device and gyro
 parameters, reaching every stage node of the graph and the cores alike, e.g.
 ``stage.freq_tempco_per_k``, ``stage.b_c_tempco_per_k``, ``stage.damping_ratio``,
 ``stage.gyro_sf_tempco_per_k``), ``--device-seed``; ``--temperature`` is refused (the
-scenario sets the temperatures). ``options.extra``: ``short`` (test plan, 3 temperatures,
-20 replicates), ``temperatures``, ``n_boot``, ``order``.
+scenario sets the temperatures). Options (:class:`SfCurveOptions`): ``short`` (test plan, 3
+temperatures, 20 replicates), ``temperatures``, ``n_boot``, ``order``.
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ import numpy as np
 
 from mems_estimation.filters.stage_ekf import save_model
 from mems_estimation.identification.stage_gyro_calibration import T1, Plan, identify_stage
-from mems_estimation.identification.stage_sf_curve import (
+from mems_estimation.studies.stage_sf_curve import (
     COVER_TARGET,
     DEFAULT_TEMPERATURES,
     MAX_DEV_TARGET_PPM,
@@ -421,6 +421,23 @@ def table_rows(res: dict) -> list[list[str]]:
     return rows
 
 
+def options_class():
+    """The study's options: :class:`~mems_scenarios.base.ScenarioOptions` with
+    ``temperatures`` [degC] (None: the plan's), ``n_boot`` (bootstrap replicates, None: the
+    plan's) and ``order`` (polynomial order of SF(T), None: 1)."""
+    from dataclasses import dataclass
+
+    from mems_scenarios.base import ScenarioOptions
+
+    @dataclass
+    class SfCurveOptions(ScenarioOptions):
+        temperatures: tuple[float, ...] | None = None
+        n_boot: int | None = None
+        order: int | None = None
+
+    return SfCurveOptions
+
+
 def run(options) -> dict:
     """The study ``stage_sf_curve``: identification and re-identification per temperature
     on the cores, the calibration sweeps through the node graph recorded to
@@ -429,15 +446,15 @@ def run(options) -> dict:
 
     if options.duration_s not in (None, 0.0):
         raise ScenarioError(f"{NAME}: the duration follows from the drive schedules; omit it")
-    short = bool(options.extra.get("short"))
+    short = bool(options.short)
     plan = Plan.short() if short else Plan()
     temps = tuple(
         float(t)
-        for t in options.extra.get("temperatures")
+        for t in getattr(options, "temperatures", None)
         or ((20.0, 32.5, 45.0) if short else DEFAULT_TEMPERATURES)
     )
-    n_boot = int(options.extra.get("n_boot") or (20 if short else N_BOOT))
-    order = int(options.extra.get("order") or 1)
+    n_boot = int(getattr(options, "n_boot", None) or (20 if short else N_BOOT))
+    order = int(getattr(options, "order", None) or 1)
     if len(temps) < order + 2 or min(temps) < -60 or max(temps) > 150:
         raise ScenarioError(f"{NAME}: needs >= {order + 2} temperatures in [-60, 150] C")
     if len({namespace(t) for t in temps}) < len(temps):

@@ -20,7 +20,7 @@ def result(tmp_path_factory):
     # the drift-free stage only (the drifting device's rows: the slow test below)
     return gyro_calibration.run(
         ScenarioOptions(
-            seed=2, out=out, domain_id=next_domain_id(), progress=False, extra={"idealised": True}
+            seed=2, out=out, domain_id=next_domain_id(), progress=False, idealised=True
         )
     )
 
@@ -175,7 +175,7 @@ def test_stage_sf_curve_scenario_short(tmp_path):
     from conftest import next_domain_id
 
     from mems_estimation.identification.stage_gyro_calibration import Plan
-    from mems_estimation.identification.stage_sf_curve import load_yaml, sf_curve
+    from mems_estimation.studies.stage_sf_curve import load_yaml, sf_curve
     from mems_scenarios import stage_sf_curve
     from mems_sim.bag.player import read_messages
     from mems_sim.ros.params_file import parse_set
@@ -187,7 +187,7 @@ def test_stage_sf_curve_scenario_short(tmp_path):
         out=out,
         domain_id=next_domain_id(),
         progress=False,
-        extra={"short": True},
+        short=True,
         overrides=[parse_set("stage.b_c_tempco_per_k=0.002")],
     )
     res = stage_sf_curve.run(opts)
@@ -231,6 +231,6 @@ def test_stage_sf_curve_scenario_short(tmp_path):
     with pytest.raises(ScenarioError, match="all alike"):
         stage_sf_curve.run(
             ScenarioOptions(
-                extra={"short": True}, overrides=[parse_set("stage_20C/stage.damping_ratio=0.01")]
+                short=True, overrides=[parse_set("stage_20C/stage.damping_ratio=0.01")]
             )
         )

@@ -1,0 +1,112 @@
+"""The scenario contract: a run's figures equal ``run_scenario NAME --analyse`` of its
+recording, directly, after a replay into another recorder, and a recording that lacks
+what a figure needs gives the other figures, one line per missing one, and exit 2."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+
+import pytest
+from mcap.reader import make_reader
+from mcap.writer import Writer
+
+from conftest import next_domain_id
+from mems_scenarios import SCENARIOS, load
+from mems_scenarios.cli import main as run_scenario
+from mems_scenarios.contract import RUN_INFO_TOPIC
+
+#: Short runs of each scenario for ``make test`` (the defaults run in ``make acceptance``).
+SHORT = {
+    "imu_noise": ["--duration", "300"],
+    "sd_resonator": ["--duration", "0.02"],
+    "scanner_shared_electrodes": ["--duration", "0.05"],
+    "scanner_threshold": ["--duration", "0.2"],
+    "accelerometer_snr": ["--duration", "0.3"],
+    "accelerometer_spread": ["--duration", "0.3"],
+    "gyro_calibration": [],
+    "imu_calibration": [],
+    "imu_thermal_calibration": [],
+}
+
+
+def cli(argv: list[str]) -> tuple[int, str, str]:
+    """``run_scenario argv`` in this process: (status, stdout, stderr)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        status = run_scenario(argv)
+    return status, out.getvalue(), err.getvalue()
+
+
+def ran(name: str, bag, seed: int = 1) -> list[dict]:
+    """The figures (``--json``) of a seeded short run of ``name`` recorded to ``bag``."""
+    argv = [name, "--seed", str(seed), "--out", str(bag), "--json", "--no-plots"]
+    argv += ["--no-progress", "--domain-id", str(next_domain_id())]
+    status, out, err = cli(argv + SHORT[name])
+    assert status == 0, err[-2000:]
+    return json.loads(out)
+
+
+def analysed(name: str, bag, expect: int = 0) -> tuple[list[dict], str]:
+    """The figures and stderr of ``run_scenario name --analyse bag --json``."""
+    status, out, err = cli([name, "--analyse", str(bag), "--json", "--no-plots"])
+    assert status == expect, err[-2000:]
+    return json.loads(out), err
+
+
+def without(src, dst, topics: set[str]) -> None:
+    """Copy the MCAP file ``src`` to ``dst`` without the messages of ``topics``."""
+    with open(src, "rb") as f, open(dst, "wb") as g:
+        reader, writer = make_reader(f), Writer(g)
+        writer.start()
+        schemas, channels = {}, {}
+        for schema, channel, message in reader.iter_messages():
+            if channel.topic in topics:
+                continue
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(
+                    schema.name, schema.encoding, schema.data
+                )
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding, schemas[schema.id], channel.metadata
+                )
+            writer.add_message(
+                channels[channel.id], message.log_time, message.data, message.publish_time
+            )
+        writer.finish()
+
+
+def contract_scenarios() -> list[str]:
+    """The scenarios that follow the contract (an ``analyse`` of a recording)."""
+    return [n for n in SCENARIOS if hasattr(load(n), "analyse")]
+
+
+@pytest.mark.parametrize("name", contract_scenarios())
+def test_analyse_equals_run(name, tmp_path):
+    bag = tmp_path / f"{name}.mcap"
+    figures = ran(name, bag)
+    assert figures, "a run reports figures"
+    again, _ = analysed(name, bag)
+    assert again == figures
+
+
+def test_imu_noise_without_run_record(tmp_path):
+    """A recording without the run record (a user's own): the identified terms, one line
+    for the configured ones and their errors, exit 2."""
+    bag = tmp_path / "imu_noise.mcap"
+    figures = ran("imu_noise", bag)
+    bare = tmp_path / "bare.mcap"
+    without(bag, bare, {RUN_INFO_TOPIC})
+    partial, err = analysed("imu_noise", bare, expect=2)
+    assert partial == [
+        f for f in figures if f["name"].endswith(("identified", "ci_low", "ci_high"))
+    ]
+    assert len(partial) == 6 * 4 * 3  # six axes, four terms
+    assert "not computed: *.configured, *.rel_error" in err and RUN_INFO_TOPIC in err
+    none, err = analysed("imu_noise", tmp_path / "missing.mcap", expect=2)
+    assert none == [] and "no such file" in err
+    empty = tmp_path / "empty.mcap"
+    without(bag, empty, {"/imu/noise_model"})
+    assert analysed("imu_noise", empty, expect=2)[0] == []
