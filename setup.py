@@ -122,5 +122,17 @@ setup(
             "live_view = mems_sim.ros.live_view:main",
             "component_container = mems_scenarios.container:main",
         ],
+        # scenarios of run_scenario (another package adds its own to the same group)
+        "mems_emulator.scenarios": [
+            "imu_noise = mems_scenarios.imu_noise",
+            "sd_resonator = mems_scenarios.resonator_sigma_delta",
+            "scanner_shared_electrodes = mems_scenarios.scanner_amdm_shared_electrodes",
+            "scanner_threshold = mems_scenarios.scanner_threshold",
+            "accelerometer_snr = mems_scenarios.accelerometer_snr",
+            "accelerometer_spread = mems_scenarios.accelerometer_spread",
+            "gyro_calibration = mems_scenarios.stage_gyro_calibration",
+            "imu_calibration = mems_scenarios.imu_calibration",
+            "imu_thermal_calibration = mems_scenarios.imu_thermal_calibration",
+        ],
     },
 )

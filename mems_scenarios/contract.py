@@ -47,6 +47,7 @@ NODE_MODULES = {
     "scanner_amdm_estimator_node": "mems_estimation.nodes.scanner_amdm_estimator_node",
     "imu_calibration_node": "mems_estimation.nodes.imu_calibration_node",
     "imu_corrector_node": "mems_estimation.nodes.imu_corrector_node",
+    "view_node": "mems_sim.nodes.view_node",
 }
 
 
