@@ -275,7 +275,7 @@ def _resonator(pace: float, seconds: float, frame: int | None, tmp: Path) -> Gra
 
 
 def _scanner(pace: float, seconds: float, frame: int | None, tmp: Path) -> Graph:
-    from mems_estimation.filters.scanner_threshold_ekf import DRIFTED_SENSOR
+    from mems_estimation.studies.scanner_threshold import DRIFTED_SENSOR
 
     ns = "/scanner"
     sim = pace * seconds

@@ -24,12 +24,8 @@ import numpy as np
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")))
 
 from mems_estimation.filters.scanner_threshold_detector import Detections, OnlineThresholdDetector
-from mems_estimation.filters.scanner_threshold_ekf import (
-    DRIFTED_SENSOR,
-    model_from_device,
-    run_ekf,
-    scanner_model,
-)
+from mems_estimation.filters.scanner_threshold_ekf import model_from_device, run_ekf, scanner_model
+from mems_estimation.studies.scanner_threshold import DRIFTED_SENSOR
 from mems_sim.devices.scanner import MicroScannerDevice, resolve_scanner
 
 FS = 500e3

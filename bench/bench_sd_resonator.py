@@ -11,9 +11,9 @@ AdaptiveObserver (7 and 8 states).  Numba compile / cache load is done before ti
 
 ``--compare`` (``--check-only``: without the timing): the kernels against the old
 reference kept below (:func:`old_kf_run`, :func:`old_ekf_run`, :func:`old_device_run`: the
-generic n x n loops of :func:`~mems_sim.kernels.resonator_observer.kf_update`,
-:func:`~mems_sim.kernels.resonator_observer.kf_predict`,
-:func:`~mems_sim.kernels.resonator_observer.cov_predict` and the full Jacobian products, as
+generic n x n loops of :func:`~mems_sim.kernels.resonator_kf_steps.kf_update`,
+:func:`~mems_sim.kernels.resonator_kf_steps.kf_predict`,
+:func:`~mems_sim.kernels.resonator_kf_steps.cov_predict` and the full Jacobian products, as
 they were before the structured 6-state kernels, with the adaptive observer's f0 Jacobian
 column by central difference).  First every output is checked (:func:`check_equal`): equal
 bit for bit for the device frames, every field, of the scenario's device cases and more,
@@ -47,23 +47,21 @@ from mems_sim.devices.resonator import (
     _pulse_simple,
     default_pulse_amplitude,
 )
-from mems_sim.devices.resonator_models import (
-    next_crossing,
-    next_spill,
-    sd_step,
-    sd_step_standin,
-)
-from mems_sim.kernels.resonator_observer import (
-    KalmanObserver,
+from mems_sim.kernels.resonator_kf_steps import (
     add_pulse_input,
-    check_bits,
-    check_pulse_timing,
     cov_predict,
     kf_predict,
     kf_update,
     predicted_output,
     ss_step6,
 )
+from mems_sim.kernels.resonator_models import (
+    next_crossing,
+    next_spill,
+    sd_step,
+    sd_step_standin,
+)
+from mems_sim.kernels.resonator_observer import KalmanObserver, check_bits, check_pulse_timing
 
 FS, F0, Q = 1e6, 5e4, 100.0
 _H = rao._H

@@ -128,8 +128,8 @@ def _resonator(graph, duration):
 
 
 def _scanner(graph, duration):
-    from mems_estimation.filters.scanner_threshold_ekf import DRIFTED_SENSOR
     from mems_estimation.nodes.scanner_threshold_ekf_node import ScannerThresholdNode
+    from mems_estimation.studies.scanner_threshold import DRIFTED_SENSOR
     from mems_sim.nodes.scanner_node import MicroScannerNode
 
     ns = "scanner"

@@ -35,18 +35,17 @@ from mems_estimation.filters.scanner_threshold_detector import (
     OnlineThresholdDetector,
     detect_offline,
 )
-from mems_estimation.filters.scanner_threshold_ekf import (
-    DRIFTED_SENSOR,
-    detection_errors,
-    drift_evaluation,
-    model_from_device,
-    rmse,
-    run_ekf,
-    snr_segments,
-)
+from mems_estimation.filters.scanner_threshold_ekf import model_from_device, run_ekf
 from mems_estimation.nodes.scanner_threshold_ekf_node import (
     ScannerThresholdNode,
     detections_from_rows,
+)
+from mems_estimation.studies.scanner_threshold import (
+    DRIFTED_SENSOR,
+    detection_errors,
+    drift_evaluation,
+    rmse,
+    snr_segments,
 )
 from mems_scenarios.base import (
     NOT_RECORDED,

@@ -10,7 +10,7 @@ emulator's truth, as a sensitivity analysis does): identification of D_n, of eta
 thesis' G), of both jointly; the in-situ phasor fit; the EKF fed the noisy channels with a
 perfectly identified model (the "stochastic error", with the design's model-driven Q and
 with the thesis' measurement-driven Q); and the design end to end. Details:
-:mod:`mems_estimation.identification.stage_noise_sensitivity`.
+:mod:`mems_estimation.studies.stage_noise_sensitivity`.
 
 Run: ``python -m mems_scenarios.stage_noise_sensitivity [--seeds 2,3,...] [--scales
 0.5,1,2,4] [--short] [--out DIR] [--no-plots]``; prints the table and writes
@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from mems_estimation.identification.stage_gyro_calibration import Plan
-from mems_estimation.identification.stage_noise_sensitivity import (
+from mems_estimation.studies.stage_noise_sensitivity import (
     IDENTIFICATION,
     MECHANISMS,
     NOISE_SCALES,

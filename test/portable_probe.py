@@ -133,7 +133,7 @@ def _stage_model(stage):
 @functools.cache
 def _scanner_record():
     """The start of the chapter-4 scanner's drive programme with the drifted sensing comb."""
-    from mems_estimation.filters.scanner_threshold_ekf import DRIFTED_SENSOR
+    from mems_estimation.studies.scanner_threshold import DRIFTED_SENSOR
     from mems_sim.devices.scanner import MicroScannerDevice
 
     dev = MicroScannerDevice(DRIFTED_SENSOR, seed=11)
@@ -398,15 +398,11 @@ def scanner_threshold_detector() -> list[np.ndarray]:
 
 
 def scanner_threshold_ekf() -> list[np.ndarray]:
-    """run_ekf: the plain EKF and the hybrid with late detections (_ekf_run), the
-    full-Jacobian 4-state comb filter with the peak-slope angle (_aug_run,
-    _peak_slope_angle), and the PCRB (_pcrb_run)."""
-    from mems_estimation.filters.scanner_threshold_ekf import (
-        HYBRID,
-        model_from_device,
-        pcrb_theta,
-        run_ekf,
-    )
+    """run_ekf: the plain EKF and the hybrid with late detections (ekf_run), the
+    full-Jacobian 4-state comb filter with the peak-slope angle (aug_run,
+    peak_slope_angle), and the PCRB (_pcrb_run)."""
+    from mems_estimation.filters.scanner_threshold_ekf import model_from_device, run_ekf
+    from mems_estimation.studies.scanner_threshold import HYBRID, pcrb_theta
     from mems_sim.devices.scanner import resolve_scanner
 
     dev, rec = _scanner_record()
@@ -481,7 +477,7 @@ def resonator_device() -> list[np.ndarray]:
     comparator, on-sample, stand-in quantiser and varying-f0 configurations, and the
     resonator_models functions the tests call (modulate, interval_input, next_crossing,
     next_spill, resonator_zoh_dt, segment_response)."""
-    from mems_sim.devices.resonator_models import (
+    from mems_sim.kernels.resonator_models import (
         interval_input,
         modulate,
         next_crossing,
@@ -540,8 +536,7 @@ def resonator_observer() -> list[np.ndarray]:
     and the steady-state paths (_ss_run_innov, _ss_run_states), the linear-output
     variant, the frame checks, and the generic and structured Kalman kernels as
     test/core/test_resonator_kernels.py calls them."""
-    from mems_sim.kernels.resonator_observer import (
-        KalmanObserver,
+    from mems_sim.kernels.resonator_kf_steps import (
         cov_predict,
         cov_predict6,
         cov_predict_sd,
@@ -549,14 +544,14 @@ def resonator_observer() -> list[np.ndarray]:
         kf_predict6,
         kf_update,
         kf_update6,
-        observer_model,
         predicted_output,
         predicted_output_sd,
         predictor_gain_sd,
         ss_step,
         ss_step6,
-        steady_state_gains,
     )
+    from mems_sim.kernels.resonator_observer import KalmanObserver
+    from mems_sim.kernels.resonator_observer_model import observer_model, steady_state_gains
 
     fr = _resonator_frame(output_noise_std=0.5, seed=3)
     out = []

@@ -10,7 +10,7 @@ the 6 states of :mod:`mems_sim.kernels.resonator_observer` augmented with
     r = Q/Q_init - 1   (estimate_q)     (random walk, std q_random_walk_ppm*1e-6 per sample)
 
 The resonator block is re-discretised every sample at the current estimate
-(closed-form ZOH, :func:`mems_sim.devices.resonator_models.resonator_zoh`).  Its Jacobian
+(closed-form ZOH, :func:`mems_sim.kernels.resonator_models.resonator_zoh`).  Its Jacobian
 column with respect to d is the analytic f0 derivative of that closed form at fixed Q and T
 (:func:`_zoh_dlog_t`: Phi and Gam differentiated in closed form; agrees with a
 Richardson-extrapolated central difference to ~1e-11), computed from the same exp/sin/cos
@@ -43,12 +43,12 @@ Recursion per sample (a-priori form with the cross term, J = df/dX at X(k|k)):
     Xp <- f(X(k|k), u(k)) + M nu / S,   L = (J P C' + M)/S,   P <- J P J' + F(k) - L L' S
 
 f includes the exact pulse term of sub-sample pulses (fired at s T, width w T) at the
-current f0 estimate, the term of :func:`mems_sim.devices.resonator_models.interval_input`
+current f0 estimate, the term of :func:`mems_sim.kernels.resonator_models.interval_input`
 (the same floats); it is formed together with its f0 derivative (:func:`_pulse_dlog`, the
 product rule on the two sub-sample discretisations of each pulse segment), and its Q
 derivative (estimate_q) by the same central difference as the transition's.  The
 covariance prediction is :func:`_cov_predict_ekf`, the floats of the structured kernel
-:func:`mems_sim.kernels.resonator_observer.cov_predict_sd` written out for n = 7 and 8.
+:func:`mems_sim.kernels.resonator_kf_steps.cov_predict_sd` written out for n = 7 and 8.
 """
 
 from __future__ import annotations
@@ -58,23 +58,20 @@ import math
 import numba
 import numpy as np
 
-from mems_sim.devices.resonator_models import (
+from mems_sim.kernels.divergence import covariance_ok, state_ok
+from mems_sim.kernels.resonator_kf_steps import predicted_output_sd, predictor_gain_sd
+from mems_sim.kernels.resonator_models import (
     interval_input,
     next_spill,
     resonator_zoh_parts,
     resonator_zoh_t,
 )
-from mems_sim.kernels.divergence import covariance_ok, state_ok
-from mems_sim.kernels.resonator_observer import (
+from mems_sim.kernels.resonator_observer import KalmanObserver, check_bits, check_pulse_timing
+from mems_sim.kernels.resonator_observer_model import (
     BUSSGANG_GAIN,
     BUSSGANG_VAR,
     DEFAULT_QUANTIZATION_VAR,
-    KalmanObserver,
     _sd_blocks,
-    check_bits,
-    check_pulse_timing,
-    predicted_output_sd,
-    predictor_gain_sd,
 )
 
 __all__ = ["AdaptiveObserver"]
@@ -85,7 +82,7 @@ _H = 1e-7
 @numba.njit(cache=True, inline="always")
 def _res_scaled(f0, Q, fs, wref, out):
     """Scaled resonator transition: out = [P11, P12*wref, P21/wref, P22, G1, G2/wref]
-    (:func:`mems_sim.devices.resonator_models.resonator_zoh_t` over T = 1/fs; inlined: three
+    (:func:`mems_sim.kernels.resonator_models.resonator_zoh_t` over T = 1/fs; inlined: three
     calls per sample)."""
     _scaled_into(resonator_zoh_t(f0, Q, fs, 1.0 / fs), 0, wref, out)
 
@@ -107,7 +104,7 @@ def _zoh_dlog_t(f0, Q, fs, dt):
     """Closed-form ZOH of eq. (7) over dt and its logarithmic f0 derivative at fixed Q, fs, dt.
 
     The first six values are those of
-    :func:`mems_sim.devices.resonator_models.resonator_zoh_t` (Colinet, Galayko &
+    :func:`mems_sim.kernels.resonator_models.resonator_zoh_t` (Colinet, Galayko &
     Juillard, eqs. (7)-(9); the same operations, so the same floats):
     [Phi11 (1), Phi12 (s), Phi21 (1/s), Phi22 (1), Gam1 (1), Gam2 (1/s)].  The last six
     are f0 d/df0 of each (same units), by differentiating that closed form: with
@@ -178,7 +175,7 @@ def _res_scaled_dlog(f0, Q, fs, wref, out, dout):
 def _seg_val_dlog(f0, Q, fs, dt_gam, dt_phi):
     """Phi(dt_phi) Gam(dt_gam), the response dt_phi after its end to a unit force held for
     dt_gam (eqs. (7)-(9) over sub-sample durations; the operations of
-    :func:`mems_sim.devices.resonator_models.segment_response`, so the same floats), and
+    :func:`mems_sim.kernels.resonator_models.segment_response`, so the same floats), and
     f0 d/df0 of it at fixed Q by the product rule on :func:`_zoh_dlog_t`.
 
     Args:
@@ -199,7 +196,7 @@ def _seg_val_dlog(f0, Q, fs, dt_gam, dt_phi):
 def _pulse_dlog(f0, Q, fs, g1, g2, dg1, dg2, spill_u, spill_end, u, s, w, out):
     """Exact pulse term of one sample interval and f0 d/df0 of it at fixed Q.
 
-    The term is that of :func:`mems_sim.devices.resonator_models.interval_input` (Colinet,
+    The term is that of :func:`mems_sim.kernels.resonator_models.interval_input` (Colinet,
     Galayko & Juillard, eqs. (7)-(9) integrated over the pulse: a pulse of height u fired at
     s T of width w T contributes Phi((1 - s - w) T) Gam(w T) u if it ends inside the
     interval, Gam((1 - s) T) u if it outlasts it, Gam(T) u for a one-sample pulse; the tail
@@ -248,7 +245,7 @@ def _pulse_dlog(f0, Q, fs, g1, g2, dg1, dg2, spill_u, spill_end, u, s, w, out):
 
 @numba.njit(cache=True)
 def _pulse_scaled(f0, Q, fs, wref, r, spill, u, s, w, out, z, g):
-    """Scaled exact pulse term of the interval (see mems_sim.devices.resonator_models.interval_input) at
+    """Scaled exact pulse term of the interval (see mems_sim.kernels.resonator_models.interval_input) at
     the model (f0, Q); r: scaled transition from :func:`_res_scaled` (for Gam(T))."""
     g[0] = r[4]
     g[1] = r[5] * wref
@@ -291,7 +288,7 @@ def _cov_predict_ekf(P, J, F, L, S):
     this observer's Jacobian pattern and n = 7 (d) or 8 (d, r) states.
 
     The same floating-point operations in the same order as
-    :func:`mems_sim.kernels.resonator_observer.cov_predict_sd` (so the same floats, for a
+    :func:`mems_sim.kernels.resonator_kf_steps.cov_predict_sd` (so the same floats, for a
     P that is exactly symmetric, as this recursion keeps it), written out for the two
     sizes: the old P is held in scalars (its upper triangle) instead of the scratch J P
     array with its copied rows, and the loops over the parameter states are unrolled
@@ -793,7 +790,7 @@ class AdaptiveObserver:
             bits: (n,) +1/-1 bit stream. pulses: (n,) heights of the pulses fired in
             [k T, (k+1) T), V.  starts, widths: (n,) their firing offsets and widths, s
             (None: 0 and T, the one-sample ZOH pulses of eq. (8)); the pulse term is exact
-            at the current f0 estimate (:func:`mems_sim.devices.resonator_models.interval_input`).
+            at the current f0 estimate (:func:`mems_sim.kernels.resonator_models.interval_input`).
         Returns:
             (position (n,) V, position variance (n,) V^2, f0 (n,) Hz, f0 variance (n,) Hz^2),
             all a-posteriori at k.

@@ -32,7 +32,7 @@ from scipy import stats
 from scipy.special import ndtr
 
 from mems_sim.devices.resonator import SdResonatorDevice, default_pulse_amplitude
-from mems_sim.devices.resonator_models import modulate
+from mems_sim.kernels.resonator_models import modulate
 from mems_sim.kernels.resonator_observer import KalmanObserver, predicted_error_acf
 
 __all__ = [
@@ -138,7 +138,7 @@ def replay_comparator_input(
 
     The output noise b of :class:`mems_sim.devices.resonator.SdResonatorDevice` is the first
     child stream of ``SeedSequence(seed)`` drawn from sample 0; the modulator
-    (:func:`mems_sim.devices.resonator_models.modulate`, eqs. 10-12) is re-run on y + b.
+    (:func:`mems_sim.kernels.resonator_models.modulate`, eqs. 10-12) is re-run on y + b.
     The replay is accepted only if it reproduces the device's bits exactly.
 
     Returns:

@@ -4,7 +4,7 @@ Source: Colinet, Galayko & Juillard, "Pulse-actuated micromechanical resonator
 using digital Kalman observer": resonator eqs. (7)-(9),
 modulator eqs. (10)-(12), observer loop eq. (13) and Fig. 4, simulation set-up
 Sec. 6 (f0 = 0.05 fs, Q = 100, output noise of the order of the signal).
-Models and unit conventions are in :mod:`mems_sim.devices.resonator_models` (position and
+Models and unit conventions are in :mod:`mems_sim.kernels.resonator_models` (position and
 pulses in volts at the modulator input, H(s) = fs*w0/(s^2 + s w0/Q + w0^2)).
 
 Per sample k (all carried across frames)::
@@ -19,7 +19,7 @@ Per sample k (all carried across frames)::
                                                  f ~ N(0, state_noise_std^2) [V]
 
 where g(k) is the exact effect of the pulse force (height u, width pulse_width_s, fired
-at t_p = k T + s(k) T) over the interval: :func:`mems_sim.devices.resonator_models.interval_input`
+at t_p = k T + s(k) T) over the interval: :func:`mems_sim.kernels.resonator_models.interval_input`
 (the impulse response integrated over the part of the pulse inside the interval, the
 tail outlasting it carried into the next one).  With pulse_width_s = T and s = 0 this is
 the one-sample ZOH pulse Gam u(k) of eqs. (8)-(9).
@@ -33,7 +33,7 @@ Pulse timing (``pulse_timing``, observer mode; the comparator loop is always
   (eq. (7)) and, if it crosses zero within (w/2, 1 + w/2] T (w = pulse width / T),
   fires the pulse at s = t_c - w/2 so that the pulse is centred on the predicted
   crossing t_c (closed-form zero of the damped sinusoid,
-  :func:`mems_sim.devices.resonator_models.next_crossing`).  A crossing that an estimate update has
+  :func:`mems_sim.kernels.resonator_models.next_crossing`).  A crossing that an estimate update has
   moved before the window (sign of the prediction at w/2 differs from the sign expected
   at the end of the previous window) fires at once (s = 0).  This is the paper's claim
   that "the generated pulses happen exactly at the equilibrium position instants"
@@ -96,7 +96,8 @@ from typing import Any, NamedTuple
 import numba
 import numpy as np
 
-from mems_sim.devices.resonator_models import (
+from mems_sim.kernels.resonator_kf_steps import add_pulse_input, kf_predict6, kf_update6, ss_step6
+from mems_sim.kernels.resonator_models import (
     interval_input,
     next_crossing,
     next_spill,
@@ -107,13 +108,9 @@ from mems_sim.devices.resonator_models import (
     sd_step_standin,
     segment_response,
 )
-from mems_sim.kernels.resonator_observer import (
+from mems_sim.kernels.resonator_observer_model import (
     DEFAULT_QUANTIZATION_VAR,
-    add_pulse_input,
-    kf_predict6,
-    kf_update6,
     observer_model,
-    ss_step6,
     steady_state_gains,
 )
 from mems_sim.params import (
@@ -361,7 +358,7 @@ RESONATOR_SPECS: tuple[ParamSpec, ...] = (
         "-",
         "modulator input feed-in c into the 2nd integrator "
         "(0.5: STF of eq. (11); 0: plain double loop, STF 0.5 z^-2/D)",
-        "Colinet eqs. (10)-(12), see mems_sim.devices.resonator_models",
+        "Colinet eqs. (10)-(12), see mems_sim.kernels.resonator_models",
         min=0.0,
         max=0.5,
     ),
@@ -557,7 +554,7 @@ def _pulse_general(
     f0, Q, fs, width, f0m, Qm, w0m, y, yd, f, u, s0, obs_mode, st, zoh, carry, xp, gam_m
 ):
     """Interval with a tail of the previous pulse and/or a pulse outlasting it (rare):
-    :func:`mems_sim.devices.resonator_models.interval_input` for the observer model's pulse term and the
+    :func:`mems_sim.kernels.resonator_models.interval_input` for the observer model's pulse term and the
     truth, :func:`_position_at` for the true positions at the pulse instants (the centre
     possibly in the next interval: carry[4]).  Returns (x at firing, x at a centre), V."""
     z = np.empty(6)

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from mems_estimation.filters.scanner_threshold_ekf import (
+from mems_estimation.studies.scanner_threshold import (
     DRIFT_GRID,
     EVALUATION_SEEDS,
     TUNING_SEEDS,

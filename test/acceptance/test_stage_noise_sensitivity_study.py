@@ -17,7 +17,7 @@ from __future__ import annotations
 import pytest
 
 from mems_estimation.identification.stage_gyro_calibration import Plan
-from mems_estimation.identification.stage_noise_sensitivity import (
+from mems_estimation.studies.stage_noise_sensitivity import (
     IDENTIFICATION,
     noise_sensitivity_study,
 )

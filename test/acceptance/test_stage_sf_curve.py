@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mems_estimation.identification import stage_sf_curve
+from mems_estimation.studies import stage_sf_curve
 
 SEEDS = (2, 3, 4, 5, 6)
 

@@ -19,10 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mems_sim.kernels.resonator_observer import (
-    _sd_blocks,
-    check_bits,
-    check_pulse_timing,
+from mems_sim.kernels.resonator_kf_steps import (
     cov_predict,
     cov_predict6,
     cov_predict_sd,
@@ -30,11 +27,12 @@ from mems_sim.kernels.resonator_observer import (
     kf_predict6,
     kf_update,
     kf_update6,
-    observer_model,
     predicted_output,
     predicted_output_sd,
     predictor_gain_sd,
 )
+from mems_sim.kernels.resonator_observer import check_bits, check_pulse_timing
+from mems_sim.kernels.resonator_observer_model import _sd_blocks, observer_model
 
 FS, F0, Q = 1e6, 5e4, 100.0
 
@@ -256,7 +254,7 @@ def test_zoh_f0_derivative_analytic(f0, q, dt):
     Colinet et al.) matches a fine central difference (1e-8 of each block's largest entry,
     in the observer's velocity scaling; the old step-1e-7 difference was ~1e-9)."""
     from mems_estimation.filters.resonator_adaptive_observer import _zoh_dlog_t
-    from mems_sim.devices.resonator_models import resonator_zoh_t
+    from mems_sim.kernels.resonator_models import resonator_zoh_t
 
     z = _zoh_dlog_t(f0, q, FS, dt)
     assert _same(z[:6], resonator_zoh_t(f0, q, FS, dt))
@@ -290,7 +288,7 @@ def test_pulse_f0_derivative_analytic(spill_u, spill_end, u, s, w):
     value equal bit for bit to interval_input's, its f0 derivative against a fine central
     difference of interval_input itself."""
     from mems_estimation.filters.resonator_adaptive_observer import _pulse_dlog, _zoh_dlog_t
-    from mems_sim.devices.resonator_models import interval_input
+    from mems_sim.kernels.resonator_models import interval_input
 
     def pulse_term(f0, q):
         gam = np.array(_zoh_dlog_t(f0, q, FS, 1 / FS)[4:6])

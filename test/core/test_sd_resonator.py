@@ -18,7 +18,7 @@ from mems_sim.devices.resonator import (
     default_pulse_amplitude,
     validate_params,
 )
-from mems_sim.devices.resonator_models import (
+from mems_sim.kernels.resonator_models import (
     NTF_NUM,
     SD_DEN,
     interval_input,
@@ -298,7 +298,7 @@ def test_standin_quantizer_is_linear_gaussian():
     comparator replaced by additive Gaussian noise of the model's variance): real-valued
     output, v = STF x + NTF w exactly; the default stays the one-bit stream."""
     from mems_sim.devices.resonator import SdResonatorDevice
-    from mems_sim.devices.resonator_models import sd_step_standin
+    from mems_sim.kernels.resonator_models import sd_step_standin
 
     p = {"output_noise_std": 0.25, "state_noise_std": 5e-4, "observer_state_noise_std": 5e-4}
     one = SdResonatorDevice(p, seed=2).step(20_000)

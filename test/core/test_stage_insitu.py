@@ -76,7 +76,7 @@ def test_sensor_bootstrap_table_matches_identification():
     """The tabulated re-identification (eq. 55) equals identify_sensor on the full trials and
     on a resample within 5e-5 (D_n) / 1e-4 (eta)."""
     from mems_estimation.identification.stage_identification import identify_sensor, trial_fits
-    from mems_estimation.identification.stage_sf_curve import SensorBootstrap
+    from mems_estimation.studies.stage_sf_curve import SensorBootstrap
 
     stage = MicroStage(
         {"temperature_c": 30.0}, DriveSchedule.amplitude_sweep(n_trials=4, periods=120), seed=11
@@ -97,7 +97,7 @@ def test_sensor_bootstrap_table_matches_identification():
 def test_sf_curve_fit_band_covers_on_synthetic_points():
     """Linear SF(T) through 6 points with known scatter, bootstrap replicates of that
     scatter: the 95 % band holds the truth at ~95 % of temperatures over 300 draws."""
-    from mems_estimation.identification.stage_sf_curve import fit_sf_curve
+    from mems_estimation.studies.stage_sf_curve import fit_sf_curve
 
     rng = np.random.default_rng(0)
     T = np.arange(20.0, 46.0, 5.0)
@@ -121,7 +121,7 @@ def test_sf_curve_fit_band_covers_on_synthetic_points():
 def test_sf_curve_yaml_round_trip(tmp_path):
     """The calibration YAML (format mems_emulator/gyro_sf_curve) loads back to the same curve,
     band and correction; a file of another format is refused."""
-    from mems_estimation.identification.stage_sf_curve import fit_sf_curve, load_yaml, save_yaml
+    from mems_estimation.studies.stage_sf_curve import fit_sf_curve, load_yaml, save_yaml
 
     T = np.arange(20.0, 46.0, 5.0)
     y = 1 - 4e-3 * (T - 22.9)

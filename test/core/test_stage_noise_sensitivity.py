@@ -8,7 +8,7 @@ import pytest
 
 from mems_estimation.filters.stage_ekf import FeedthroughCanceller
 from mems_estimation.identification.stage_gyro_calibration import Plan, least_squares_eq27
-from mems_estimation.identification.stage_noise_sensitivity import (
+from mems_estimation.studies.stage_noise_sensitivity import (
     cancelled_noise_variance,
     design_sf_ppm,
     eq27_rel_slope_std,

@@ -10,15 +10,17 @@ from mems_estimation.filters.scanner_threshold_detector import (
     detect_offline,
 )
 from mems_estimation.filters.scanner_threshold_ekf import (
-    DRIFTED_SENSOR,
-    EVALUATION_SEEDS,
-    TUNING_SEEDS,
     StreamingScannerEkf,
-    detection_errors,
-    grid_trial,
     model_from_device,
     run_ekf,
     signal_snr,
+)
+from mems_estimation.studies.scanner_threshold import (
+    DRIFTED_SENSOR,
+    EVALUATION_SEEDS,
+    TUNING_SEEDS,
+    detection_errors,
+    grid_trial,
     threshold_trial,
 )
 from mems_sim.devices.scanner import MicroScannerDevice, resolve_scanner
@@ -70,7 +72,7 @@ def test_detector_is_causal(record):
 
 def test_detection_errors_normal_and_sigma_dog(record):
     dev, f = record
-    from mems_estimation.filters.scanner_threshold_ekf import snr_segments
+    from mems_estimation.studies.scanner_threshold import snr_segments
 
     segs = snr_segments(f.y_clean, 0.0435, dev.plan.cutoff, dev.fs)
     var = {}

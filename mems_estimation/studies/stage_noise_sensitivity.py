@@ -81,7 +81,7 @@ from mems_estimation.identification.stage_insitu import (
     pooled_response,
     trial_harmonics,
 )
-from mems_estimation.identification.stage_sf_curve import training_fits
+from mems_estimation.studies.stage_sf_curve import training_fits
 from mems_sim.devices.stage import DriveSchedule, MicroStage, record
 from mems_sim.devices.stage_gyro import MemsGyro
 

@@ -3,8 +3,9 @@
 Source: Colinet, Galayko & Juillard, "Pulse-actuated micromechanical resonator
 using digital Kalman observer", eqs. (7)-(13).
 Used by the device (:mod:`mems_sim.devices.resonator`) and by the observers
-(:mod:`mems_sim.kernels.resonator_observer`, :mod:`mems_estimation.filters.resonator_adaptive_observer`)
-so that "exact model" means bit-for-bit the same matrices.  No ROS here.
+(:mod:`mems_sim.kernels.resonator_observer_model`, :mod:`mems_sim.kernels.resonator_kf_steps`,
+:mod:`mems_estimation.filters.resonator_adaptive_observer`) so that "exact model" means
+bit-for-bit the same matrices.  No ROS here.
 
 Resonator, eq. (7), with time normalised to the sample period as in the
 paper's simulations (f0 given as 0.05 of fs)::
