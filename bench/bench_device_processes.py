@@ -8,10 +8,11 @@ Run:  .venv/bin/python bench/bench_device_processes.py [FAMILY ...] [--pace 1.5]
 
 For each family (imu, accelerometer, resonator, scanner, scanner_amdm, stage; default all)
 the graph the way ROS users run it, one process per node, localhost discovery in
-ROS_DOMAIN_ID (77 if unset): the emulator node (bench/paced_device.py: the node
-executable's class, ``realtime_factor`` = ``--pace`` (default 1.5), stamps from the wall
-clock, its timer started once every subscriber of the graph is matched, the process
-ending at the end of its data; its numba kernels loaded before the first frame), its
+ROS_DOMAIN_ID (77 if unset): the emulator node (its executable, ``realtime_factor`` =
+``--pace`` (default 1.5), stamps from the wall clock, ``start_when_matched``: its timer
+started once every subscriber of the graph is matched, ``exit_when_acknowledged``: the
+process ending at the end of its data; its numba kernels loaded before the first frame;
+its timing read back from the recording), its
 estimator node(s) and the calibration node where the family has one (``python -m
 mems_estimation.nodes.*_node``), and ``python -m mems_sim.bag.recorder -o OUT
 --compression zstd TOPICS`` recording every topic the graph publishes (the end-of-stream
@@ -60,7 +61,6 @@ and the other jobs' cores on the machine (load).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import signal
@@ -77,7 +77,16 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
-from paced_device import cpu_ticks, machine_ticks, process_env, reap, wait_quiet
+from process_tools import (
+    cpu_ticks,
+    device_parameters,
+    device_timing,
+    graph_topics,
+    machine_ticks,
+    process_env,
+    reap,
+    wait_quiet,
+)
 
 from mems_sim.table import format_table
 
@@ -92,8 +101,8 @@ DELAYED_S = 0.2
 
 @dataclass
 class Proc:
-    """One node process: label, ``python -m`` module (the device: ``MODULE:CLASS`` for
-    paced_device.py), namespace, parameters, topics it subscribes and publishes."""
+    """One node process: label, ``python -m`` module (the node's executable), namespace,
+    parameters, topics it subscribes and publishes."""
 
     name: str
     module: str
@@ -164,7 +173,7 @@ def _imu(pace: float, seconds: float, frame: int | None, tmp: Path) -> Graph:
     )
     dev = Proc(
         "imu",
-        "mems_sim.nodes.imu_node:ImuNoiseNode",
+        "mems_sim.nodes.imu_node",
         ns,
         dict(
             seed=1,
@@ -216,7 +225,7 @@ def _accelerometer(pace: float, seconds: float, frame: int | None, tmp: Path) ->
     case = dict(mode="pi_rebalance", accel_amplitude=1.0 * G0)
     dev = Proc(
         "accelerometer",
-        "mems_sim.nodes.accelerometer_node:FrAccelerometerNode",
+        "mems_sim.nodes.accelerometer_node",
         ns,
         dict(case, seed=1, duration_s=pace * seconds, **({"frame_size": frame} if frame else {})),
         outputs=tuple(f"{ns}/{t}" for t in ("adc", "drive", "truth", "end_of_stream")),
@@ -238,7 +247,7 @@ def _resonator(pace: float, seconds: float, frame: int | None, tmp: Path) -> Gra
     ns, f0, noise, state = "/resonator", 5.0e4, 0.25, 5e-4
     dev = Proc(
         "resonator",
-        "mems_sim.nodes.resonator_node:SdResonatorNode",
+        "mems_sim.nodes.resonator_node",
         ns,
         dict(
             mode="observer",
@@ -282,7 +291,7 @@ def _scanner(pace: float, seconds: float, frame: int | None, tmp: Path) -> Graph
     sweep, ring = 0.25, 0.1
     dev = Proc(
         "scanner",
-        "mems_sim.nodes.scanner_node:MicroScannerNode",
+        "mems_sim.nodes.scanner_node",
         ns,
         dict(
             DRIFTED_SENSOR,
@@ -325,7 +334,7 @@ def _scanner_amdm(pace: float, seconds: float, frame: int | None, tmp: Path) -> 
     delay = sa.chain_delay(sa.resolve_amdm(overrides))
     dev = Proc(
         "scanner_amdm",
-        "mems_sim.nodes.scanner_amdm_node:ScannerAmdmNode",
+        "mems_sim.nodes.scanner_amdm_node",
         ns,
         dict(
             overrides, seed=1, duration_s=pace * seconds, **({"frame_size": frame} if frame else {})
@@ -367,7 +376,7 @@ def _stage(pace: float, seconds: float, frame: int | None, tmp: Path) -> Graph:
     save_model(model, str(yaml_path))
     dev = Proc(
         "stage",
-        "mems_sim.nodes.stage_node:MicroStageNode",
+        "mems_sim.nodes.stage_node",
         ns,
         dict(
             seed=150,
@@ -447,7 +456,6 @@ def _commands(
     g: Graph,
     out: Path,
     pace: float,
-    max_wall: float,
     preset: str | None = None,
     compose: bool = False,
 ) -> dict[str, list[str]]:
@@ -478,20 +486,14 @@ def _commands(
             cmds[name] = [py, "-m", nodes[0].module, "--ros-args", "--log-level", "warn"]
             cmds[name] += _ros_section(nodes[0].namespace, nodes[0].params)
     d = g.device
-    wait = ",".join(f"{t}:{n}" for t, n in g.wait_subs().items())
-    cmds[d.name] = [
-        py,
-        str(HERE / "paced_device.py"),
-        f"--node={d.module}",
-        f"--wait-subs={wait}",
-        f"--max-wall={max_wall:g}",
-        "--ros-args",
-        "--log-level",
-        "warn",
-    ]
-    # sensor time on the wall clock (the bench starts the timer, so 'auto' would stamp
-    # from 0): stamps and publication times are then on one timeline
-    params = dict(d.params, stamp_origin="wall", realtime_factor=float(pace))
+    cmds[d.name] = [py, "-m", d.module, "--ros-args", "--log-level", "warn"]
+    # sensor time on the wall clock: stamps and publication times are on one timeline
+    params = dict(
+        d.params,
+        stamp_origin="wall",
+        realtime_factor=float(pace),
+        **device_parameters(g.wait_subs()),
+    )
     cmds[d.name] += _ros_section(d.namespace, params)
     return cmds
 
@@ -516,11 +518,13 @@ def run_graph(
     out = tmp / f"{g.family}.mcap"
     sim = g.device.params.get("duration_s")
     max_wall = 60.0 + 20.0 * (sim or 30.0) / pace
-    cmds = _commands(g, out, pace, max_wall, preset, compose)
+    cmds = _commands(g, out, pace, preset, compose)
     consumers = list(consumer_processes(g, compose))
     dev = g.device.name
     procs, logs, cpu = {}, {}, {}
     early: list[str] = []
+    stopped = False  # the device was stopped after max_wall (its data not finished)
+    graph: dict = {}
     samples = []  # (monotonic, CPU ticks per process and of the machine) while it runs
     t_start = time.monotonic()
     try:
@@ -538,6 +542,9 @@ def run_graph(
                 )
             )
             cpu[dev] = reap(procs[dev], 0.05)
+            if not stopped and time.monotonic() > t_start + max_wall:
+                procs[dev].send_signal(signal.SIGINT)
+                stopped = True
             if time.monotonic() > deadline:
                 raise RuntimeError(f"the {dev} process did not finish in time")
             early = [n for n, p in procs.items() if n != dev and p.poll() is not None]
@@ -547,7 +554,7 @@ def run_graph(
             raise _EarlyExit(early[0])
         rest = [procs[n] for n in consumers] + [procs["recorder"]]
         drain_s = wait_quiet(rest, 120.0)
-        time.sleep(1.1)  # one more /diagnostics of every node, with its final counters
+        graph = graph_topics(domain_id)  # also one more /diagnostics with final counters
         stop_ns = time.time_ns()  # what the consumers publish from now on: at shutdown
         for n in consumers:
             procs[n].send_signal(signal.SIGINT)
@@ -575,12 +582,14 @@ def run_graph(
             f"{name} exited early ({procs[name].returncode}):\n" + texts[name][-3000:]
         )
     total_s = time.monotonic() - t_start
-    lines = [x for x in texts[dev].splitlines() if x.startswith("{")]
-    st = json.loads(lines[-1]) if lines else {"error": "no output"}
-    if "error" in st or procs[dev].returncode:
+    if procs[dev].returncode:
         raise RuntimeError(f"{dev} process failed:\n" + texts[dev][-3000:])
     if procs["recorder"].returncode or not out.exists():
         raise RuntimeError("recorder failed:\n" + texts["recorder"][-3000:])
+    st = device_timing(out, g.device.namespace, pace)
+    # the device's topics are gone from the graph when it has exited: its record has them
+    graph.update({t: [1, 0] for t in st["topics"] if t not in graph})
+    st.update(graph_topics=graph, finished=not stopped)
     failed = {n: procs[n].returncode for n in procs if procs[n].returncode not in (0, None)}
     info = bag_info(str(out))
     delays, diag = _read_bag(out, info, st, stop_ns)

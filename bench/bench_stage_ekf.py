@@ -58,12 +58,13 @@ from mems_estimation.identification.stage_gyro_calibration import (
 from mems_sim.devices.stage import DriveSchedule, MicroStage, record
 from mems_sim.devices.stage_capacitance import EPS0, dcdtheta_single
 
-# CPU of the graph's processes (bench/paced_device.py, shared with bench_device_processes.py)
+# the graph's processes and their CPU (bench/process_tools.py, shared with
+# bench_device_processes.py)
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from paced_device import cpu_ticks as _cpu_ticks
-from paced_device import machine_ticks as _machine_ticks
-from paced_device import process_env, wait_quiet
-from paced_device import reap as _reap
+from process_tools import cpu_ticks as _cpu_ticks
+from process_tools import device_parameters, device_timing, process_env, wait_quiet
+from process_tools import machine_ticks as _machine_ticks
+from process_tools import reap as _reap
 
 
 def _best(fn, repeats=3):
@@ -503,8 +504,9 @@ def graph_processes(
     keep_bag: str | None = None,
 ) -> dict:
     """The scenario's graph for one stage instance (22.9 C) the way ROS users run it: one
-    process per node -- ``stage_node`` paced by its own wall-clock timer
-    (bench/paced_stage.py: the node, its timer started once the subscribers are matched),
+    process per node -- ``stage_node`` paced by its own wall-clock timer (its timer
+    started once the subscribers are matched, its process ending once its schedule is
+    acknowledged; its timing read back from the recording),
     ``stage_ekf_node`` (identified YAML), ``stage_gyro_calibration_node`` and ``mcap_record
     --compression C`` -- all with localhost discovery in ``domain_id``.
 
@@ -517,7 +519,6 @@ def graph_processes(
     the stage's ``realtime_factor`` (1.5: paced at 1.5 x its sample rate, the headroom
     asked for); ``compression``: a ``--compression`` value or a storage preset
     (:data:`PRESET_ROWS`); ``keep_bag``: copy the recording there."""
-    import json
     import signal
     import subprocess
     import tempfile
@@ -533,7 +534,6 @@ def graph_processes(
     frame_size = int(frame_size or gc.FRAME)
     ns = "/stage_t1"
     py = sys.executable
-    here = Path(__file__).resolve().parent
     env = process_env(domain_id)
     env.update(extra_env or {})
     topics = [f"{ns}/{t}" for t in gc.RECORDED] + ["/diagnostics"]
@@ -583,9 +583,22 @@ def graph_processes(
             ],
             "stage": [
                 py,
-                str(here / "paced_stage.py"),
-                f"--wait-subs={ns}/adc:2,{ns}/drive:3,{ns}/truth:1,{ns}/gyro/adc:2,{ns}/estimate:2",
+                "-m",
+                "mems_sim.nodes.stage_node",
                 *ros,
+                *(
+                    a
+                    for k, v in device_parameters(
+                        {
+                            f"{ns}/adc": 2,
+                            f"{ns}/drive": 3,
+                            f"{ns}/truth": 1,
+                            f"{ns}/gyro/adc": 2,
+                            f"{ns}/estimate": 2,
+                        }
+                    ).items()
+                    for a in ("-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}")
+                ),
                 "-p",
                 f"seed:={1 * 100 + 50}",
                 "-p",
@@ -598,8 +611,7 @@ def graph_processes(
                 f"frame_size:={frame_size}",
                 "-p",
                 "frame_id:=stage_t1",
-                # sensor time on the wall clock (the node is started by its owner, so
-                # 'auto' would stamp from 0): the recorded log times are then comparable
+                # sensor time on the wall clock: the recorded log times are comparable
                 # with the publication times
                 "-p",
                 "stamp_origin:=wall",
@@ -646,12 +658,11 @@ def graph_processes(
             f.seek(0)
             texts[name] = f.read()
             f.close()
-        lines = [x for x in texts["stage"].splitlines() if x.startswith("{")]
-        if not lines or "error" in json.loads(lines[-1]) or procs["stage"].returncode:
+        if procs["stage"].returncode:
             raise RuntimeError("stage process failed:\n" + texts["stage"][-3000:])
-        st = json.loads(lines[-1])
         if procs["recorder"].returncode or not out.exists():
             raise RuntimeError("recorder failed:\n" + texts["recorder"][-3000:])
+        st = device_timing(out, ns, pace)
         info = bag_info(str(out))
         if keep_bag:
             import shutil
@@ -717,10 +728,10 @@ def graph_processes(
         missing_samples=missing,
         lag_s=lag,
         drain_s=drain_s,
-        acked=st["acked"],
+        acked=procs["stage"].returncode == 0,  # exit_when_acknowledged: 0 once acknowledged
         cpu_s=cpu,
         run_cpu=run_cpu,
-        stage_loop_cpu_s=st["cpu_s"],
+        stage_loop_cpu_s=run_cpu.get("stage", 0.0) * st["wall_span_s"],
         mb=info["file_size"] / 1e6,
         truncated=info["truncated"],
         lost=sum(max(st["frames"] - recorded[t], 0) for t in frames_topics),

@@ -171,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
     except ContainerError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
-    from mems_sim.ros.node_base import run_nodes
+    from mems_sim.ros.node_main import run_nodes
 
     factories = [
         (node_label(plugin, args, cls), functools.partial(cls, cli_args=args))

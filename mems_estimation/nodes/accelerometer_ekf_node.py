@@ -35,7 +35,7 @@ from mems_sim.kernels.accelerometer_ekf import STATE_NAMES, STATE_UNITS
 from mems_sim.kernels.divergence import state_ok
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import adc_physical, make_state_estimate, signal_data
-from mems_sim.ros.node_base import run_node
+from mems_sim.ros.node_main import run_node
 from mems_sim.ros.qos import FRAME_QOS
 
 NODE_SPECS: tuple[ParamSpec, ...] = (

@@ -34,7 +34,7 @@ from mems_sim.ros.frames import (
     ns_to_time,
     time_to_ns,
 )
-from mems_sim.ros.node_base import run_node
+from mems_sim.ros.node_main import run_node
 from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
 
 IDENTIFIER_SPECS: tuple[ParamSpec, ...] = (

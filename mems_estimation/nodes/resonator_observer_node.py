@@ -35,7 +35,7 @@ from mems_sim.kernels.divergence import state_ok
 from mems_sim.kernels.resonator_observer import KalmanObserver
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.frames import FrameError, make_state_estimate, signal_data
-from mems_sim.ros.node_base import run_node
+from mems_sim.ros.node_main import run_node
 from mems_sim.ros.qos import FRAME_QOS
 
 OBSERVER_SPECS: tuple[ParamSpec, ...] = (

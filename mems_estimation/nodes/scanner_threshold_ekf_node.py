@@ -61,7 +61,7 @@ from mems_sim.ros.frames import (
     make_state_estimate,
     signal_data,
 )
-from mems_sim.ros.node_base import run_node
+from mems_sim.ros.node_main import run_node
 from mems_sim.ros.qos import FRAME_QOS
 
 NODE_SPECS: tuple[ParamSpec, ...] = (

@@ -43,7 +43,7 @@ from mems_estimation.nodes.frame_input import (
 from mems_msgs.msg import AdcFrame, SignalFrame
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import FrameError, adc_physical, make_signal_frame, signal_data
-from mems_sim.ros.node_base import run_node
+from mems_sim.ros.node_main import run_node
 from mems_sim.ros.qos import FRAME_QOS
 
 #: The stage's capacitive channels, averaged in this order.

@@ -55,7 +55,7 @@ from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.kernels.divergence import state_ok
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.frames import FrameError, make_state_estimate, signal_data
-from mems_sim.ros.node_base import run_node
+from mems_sim.ros.node_main import run_node
 from mems_sim.ros.qos import FRAME_QOS
 
 EKF_SPECS: tuple[ParamSpec, ...] = (

@@ -40,7 +40,7 @@ from mems_estimation.nodes.frame_input import (
 from mems_msgs.msg import AdcFrame, CalibrationResult, SignalFrame, StateEstimate
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import FrameError, ns_to_time, signal_data, time_to_ns
-from mems_sim.ros.node_base import run_node
+from mems_sim.ros.node_main import run_node
 from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
 
 CAL_SPECS: tuple[ParamSpec, ...] = (

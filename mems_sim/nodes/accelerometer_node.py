@@ -25,7 +25,8 @@ from mems_sim.devices import accelerometer as fra
 from mems_sim.kernels.accelerometer_ekf import STATE_NAMES, STATE_UNITS
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import make_adc_frame, make_state_estimate
-from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node, variation_specs
+from mems_sim.ros.node_base import EmulatorNode, emulator_specs, variation_specs
+from mems_sim.ros.node_main import run_node
 
 NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=10000, frame_id="accelerometer")
 #: Reference temperature of the table [degC]: the 300 K of Zhang 2010 eq. (3-1).

@@ -44,7 +44,8 @@ from mems_sim.devices import imu_profiles
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.frames import index_to_ns, make_adc_frame, ns_to_time
 from mems_sim.ros.imu_msg import ImuSerializer
-from mems_sim.ros.node_base import EMULATOR_SPECS, EmulatorNode, run_node, variation_specs
+from mems_sim.ros.node_base import EMULATOR_SPECS, EmulatorNode, variation_specs
+from mems_sim.ros.node_main import run_node
 from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS, RESULT_QOS
 
 MOTION_SPECS: tuple[ParamSpec, ...] = (

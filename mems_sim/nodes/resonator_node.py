@@ -26,7 +26,8 @@ import numpy as np
 from mems_sim.devices import resonator as sd_resonator
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import make_adc_frame, make_state_estimate
-from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node, variation_specs
+from mems_sim.ros.node_base import EmulatorNode, emulator_specs, variation_specs
+from mems_sim.ros.node_main import run_node
 
 #: 10,000 samples (10 ms at 1 MHz) per frame: with 1000-sample frames the graph's per-frame
 #: cost (callbacks, messages, recorder) kept a device and three observers below real time,

@@ -32,7 +32,8 @@ import numpy as np
 from mems_sim.devices import scanner as micro_scanner
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import make_adc_frame
-from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node, variation_specs
+from mems_sim.ros.node_base import EmulatorNode, emulator_specs, variation_specs
+from mems_sim.ros.node_main import run_node
 
 NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=10000, frame_id="scanner") + (
     ParamSpec(

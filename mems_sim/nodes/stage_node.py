@@ -31,7 +31,8 @@ from mems_sim.devices import stage as micro_stage
 from mems_sim.devices.stage_gyro import GYRO_SPECS, MemsGyro
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.frames import index_to_ns, make_adc_frame, ns_to_time
-from mems_sim.ros.node_base import EmulatorNode, emulator_specs, run_node
+from mems_sim.ros.node_base import EmulatorNode, emulator_specs
+from mems_sim.ros.node_main import run_node
 from mems_sim.ros.qos import FRAME_QOS
 
 SCHEDULE_SPECS: tuple[ParamSpec, ...] = (

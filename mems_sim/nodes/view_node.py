@@ -36,7 +36,8 @@ from mems_sim.ros.frames import (
     signal_data,
     time_to_ns,
 )
-from mems_sim.ros.node_base import MemsNode, run_node
+from mems_sim.ros.node_base import MemsNode
+from mems_sim.ros.node_main import run_node
 from mems_sim.ros.qos import FRAME_QOS
 
 VIEW_SPECS: tuple[ParamSpec, ...] = (

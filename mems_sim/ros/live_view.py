@@ -40,7 +40,7 @@ from mems_sim.bag.schema import (
     schema_text,
 )
 from mems_sim.params import ParameterError, ParamSpec
-from mems_sim.ros.node_base import run_node
+from mems_sim.ros.node_main import run_node
 from mems_sim.ros.params import declare_specs
 
 #: Topics never offered unless listed in ``topics``: every node's log and parameter events,

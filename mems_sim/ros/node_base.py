@@ -1,22 +1,18 @@
-"""Bases of the nodes, parameters and the main() wrapper shared by the emulator and
-estimator nodes.
+"""Bases of the emulator and estimator nodes and their parameters.
 
 * :class:`MemsNode`: every node (default namespace, ParamSpec parameters, diagnostics);
-* :class:`PacedEmulator`: sensor time (epoch), pacing (wall clock or /clock), /clock and
-  duration of an emulator;
 * :class:`EmulatorNode`: every emulator node (device, frame publishers, ``step``; one device
-  of a batch at a temperature: ``device_seed``, ``temperature_c``, :func:`variation_specs`);
-* :func:`run_node`: the ``main()`` of every node executable (exit code 2 on a bad parameter);
-  :func:`run_nodes`: several nodes in one process and one executor (``component_container``).
+  of a batch at a temperature: ``device_seed``, ``temperature_c``, :func:`variation_specs`;
+  in a graph of processes: ``start_when_matched``, ``exit_when_acknowledged``); its sensor
+  time and pacing: :class:`~mems_sim.ros.pacing.PacedEmulator`.
 
-The estimator nodes' base, ``EstimatorNode``, is in ``mems_estimation.nodes.frame_input``.
+The ``main()`` of the node executables is :mod:`mems_sim.ros.node_main`; the estimator
+nodes' base, ``EstimatorNode``, is in ``mems_estimation.nodes.frame_input``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import os
-import sys
 import time
 from collections.abc import Callable, Iterable
 
@@ -35,10 +31,8 @@ from mems_sim.ros.end_of_stream import (
     account_publishers,
     end_of_stream_message,
 )
-from mems_sim.ros.env import STOP_SIGNALS, apply_defaults, domain_id_problem
 from mems_sim.ros.frames import make_signal_frame
-from mems_sim.ros.node_help import node_help, wants_help
-from mems_sim.ros.param_overrides import check_parameter_overrides, command_line_parameters
+from mems_sim.ros.pacing import PacedEmulator
 from mems_sim.ros.params import declare_specs
 from mems_sim.ros.qos import FRAME_QOS
 
@@ -104,6 +98,44 @@ EMULATOR_SPECS: tuple[ParamSpec, ...] = (
         max=1000.0,
     ),
     ParamSpec("frame_id", "imu_link", "-", "frame_id of published headers", "REP-103/105"),
+    ParamSpec(
+        "start_when_matched",
+        False,
+        "-",
+        "a node that paces itself starts publishing only once every data topic has "
+        "min_subscribers matched subscriptions and every topic of wait_for_subscribers its "
+        "count (a recorder subscribes only after it has seen the publishers: frames "
+        "published before are lost to discovery)",
+        "",
+    ),
+    ParamSpec(
+        "min_subscribers",
+        1,
+        "-",
+        "with start_when_matched: matched subscriptions each data topic of the node needs",
+        "",
+        min=0,
+        max=1000,
+    ),
+    ParamSpec(
+        "wait_for_subscribers",
+        "",
+        "-",
+        "with start_when_matched: more topics to wait for, 'TOPIC:N,TOPIC:N' (a relative "
+        "name is in the node's namespace): N subscriptions each, e.g. an estimator's output "
+        "so that the device starts once the chain is up (the node's own topics: matched "
+        "subscriptions; others: the graph's count)",
+        "",
+    ),
+    ParamSpec(
+        "exit_when_acknowledged",
+        False,
+        "-",
+        "once the duration (or the device's schedule) is published and every subscriber "
+        "acknowledged its samples, the process exits with status 0 (1 if they are not "
+        "acknowledged within 30 s); needs an end (duration_s > 0 or a schedule)",
+        "",
+    ),
 )
 
 
@@ -157,248 +189,6 @@ def emulator_specs(**defaults) -> tuple[ParamSpec, ...]:
         dataclasses.replace(s, default=defaults[s.name]) if s.name in defaults else s
         for s in EMULATOR_SPECS
     )
-
-
-class PacedEmulator:
-    """Mixin of emulator nodes: sensor time, pacing of ``step()``, /clock and the duration limit.
-
-    The node sets ``self.p`` (with the :data:`EMULATOR_SPECS` values), calls
-    :meth:`init_emulator` with its sample rate, and implements ``step()`` with
-    :meth:`next_frame_size` and :meth:`frame_published`.
-
-    Sensor time: sample k is stamped ``t0_ns + k / fs`` (:func:`~mems_sim.ros.frames.index_to_ns`,
-    exact integer arithmetic), ``t0_ns`` being the run's epoch (``stamp_origin``): 0, or the
-    graph's time when the node starts publishing (the wall clock; /clock's time when
-    use_sim_time is true). The epoch is fixed once, before the first frame, and never moves.
-
-    Pacing (a node that paces itself, :meth:`start`): a timer on the steady clock wakes the
-    node every few milliseconds whatever the ROS time does, so the node never waits on a
-    clock that does not move and still stops on SIGINT/SIGTERM. Each tick publishes the
-    frames whose last sample is due:
-
-    * by default on the wall clock, ``realtime_factor`` simulated seconds per wall-clock
-      second, catching up on lag; ``realtime_factor`` may change while the node runs
-      (:meth:`repace` continues from the current sample index at the new rate);
-    * when use_sim_time is true (set at start or at runtime) and the node does not publish
-      /clock itself: on the node's ROS clock, i.e. the /clock it receives, one simulated
-      second per second of /clock (``realtime_factor`` does not apply; the clock's source
-      sets the pace, e.g. ``mcap_play --clock --rate R``). The pacing is relative: from the
-      sample index and /clock time at which it started, so the epochs of the node and of the
-      clock source need not agree. Nothing is published before the first /clock message;
-      a /clock that goes backwards (a replay that loops) restarts the pacing from there.
-
-    Each tick does at most :data:`TICK_BUDGET_S` of work and continues at the next tick.
-
-    /clock (``publish_clock`` > 0): the node is the graph's clock source and publishes its
-    sensor time (:meth:`sensor_time_ns`) on /clock that many times per wall-clock second while
-    it runs, then once more at the end of its data, and stops; it then paces on the wall clock
-    even when use_sim_time is true (its own ROS clock follows the /clock it publishes).
-    """
-
-    #: Longest time [s] one pacing tick spends publishing frames (then the executor runs).
-    TICK_BUDGET_S = 0.2
-
-    def init_emulator(
-        self, fs: float, schedule_samples: int | None = None, *, self_paced: bool = False
-    ) -> None:
-        """Sample rate fs [Hz], stamp origin, sample budget (``duration_s``; 0: unlimited;
-        at most ``schedule_samples`` if given), counters and pacing state.
-
-        ``self_paced``: the node paces itself from start (its executable); ``stamp_origin``
-        'auto' is then 'wall', else 'zero'.
-        """
-        from rclpy.clock import Clock, ClockType
-
-        self.fs = fs
-        origin = self.p["stamp_origin"]
-        if origin == "auto":
-            origin = "wall" if self_paced else "zero"
-        self.stamp_origin = origin
-        #: Epoch [ns]: time of sample 0 (None until fixed, see :meth:`fix_epoch`).
-        self.t0_ns: int | None = 0 if origin == "zero" else None
-        total = int(round(self.p["duration_s"] * fs)) if self.p["duration_s"] > 0 else None
-        if schedule_samples is not None:
-            total = schedule_samples if total is None else min(total, schedule_samples)
-        self.total_samples = total
-        self.next_index = 0
-        self.frames_published = 0
-        self._timer = None
-        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self._wall_start = None  # monotonic time [s] at which sample _index_start was due
-        self._sim_start_ns = None  # /clock time [ns] at which sample _index_start was due
-        self._sim_last_ns = 0  # /clock time [ns] at the last tick
-        self._index_start = 0
-        self._clock_pub = None
-        self._next_clock = None  # monotonic time [s] of the next /clock message
-        self._clock_done = False
-        if self.p["publish_clock"] > 0:
-            from rosgraph_msgs.msg import Clock as ClockMsg
-
-            self._clock_pub = self.create_publisher(ClockMsg, "/clock", 10)
-
-    # ------------------------------------------------------------------ sensor time
-
-    def ros_time_active(self) -> bool:
-        """True while use_sim_time is true (the node's ROS clock follows /clock)."""
-        return bool(self.get_clock().ros_time_is_active)
-
-    def follows_clock(self) -> bool:
-        """True when the pacing follows /clock: use_sim_time is true and the node is not the
-        clock source itself (``publish_clock`` = 0)."""
-        return self.p["publish_clock"] <= 0 and self.ros_time_active()
-
-    def fix_epoch(self, wait_for_clock: bool = False) -> bool:
-        """Fix ``t0_ns`` if it is not fixed yet; True once it is.
-
-        'zero': 0; 'wall': the node's ROS clock now (the wall clock, or /clock's time when
-        use_sim_time is true). With ``wait_for_clock``, a node under use_sim_time that has not
-        received /clock yet leaves the epoch open and returns False.
-        """
-        if self.t0_ns is not None:
-            return True
-        now = self.get_clock().now().nanoseconds
-        if wait_for_clock and now == 0 and self.ros_time_active():
-            return False
-        self.t0_ns = int(now)
-        return True
-
-    def sensor_time_ns(self) -> int:
-        """The node's current time on its sensor timeline [ns] (stamps and /clock).
-
-        Following /clock: the node's ROS clock. Pacing itself on the wall clock: the epoch plus
-        the simulated time reached by the pacing (at most the end of the data). Otherwise (its
-        owner steps it): the time of the next sample to publish, epoch + next_index / fs.
-        """
-        from mems_sim.ros.frames import index_to_ns
-
-        if self.follows_clock() and self._timer is not None:
-            return self.get_clock().now().nanoseconds
-        t0 = self.t0_ns if self.t0_ns is not None else self.get_clock().now().nanoseconds
-        done = index_to_ns(self.next_index, self.fs, t0)
-        if self._timer is None or self._wall_start is None or self._sim_start_ns is not None:
-            return done
-        import time
-
-        elapsed = (time.monotonic() - self._wall_start) * self.p["realtime_factor"]
-        now = index_to_ns(self._index_start, self.fs, t0) + int(elapsed * 1e9)
-        if self.total_samples is not None:
-            now = min(now, index_to_ns(self.total_samples, self.fs, t0))
-        return max(now, done) if self.finished else now
-
-    def graph_time_ns(self) -> int:
-        """Time of the node's diagnostics stamps: its sensor time."""
-        return self.sensor_time_ns()
-
-    @property
-    def frame_kwargs(self) -> dict:
-        """``frame_id`` and ``t0_ns`` of every frame the node publishes."""
-        self.fix_epoch()
-        return dict(frame_id=self.p["frame_id"], t0_ns=self.t0_ns)
-
-    # ------------------------------------------------------------------ frames
-
-    def next_frame_size(self) -> int:
-        """Samples of the next frame: ``frame_size``, fewer at the end, 0 when finished."""
-        n = self.p["frame_size"]
-        if self.total_samples is not None:
-            n = min(n, self.total_samples - self.next_index)
-        return max(n, 0)
-
-    def frame_published(self, n: int) -> None:
-        """Advance the sample index by the n samples just published."""
-        self.next_index += n
-        self.frames_published += 1
-
-    @property
-    def finished(self) -> bool:
-        """True once ``duration_s`` worth of samples has been published."""
-        return self.total_samples is not None and self.next_index >= self.total_samples
-
-    # ------------------------------------------------------------------ pacing
-
-    def _timer_period(self) -> float:
-        period = self.p["frame_size"] / self.fs / self.p["realtime_factor"]
-        return max(min(period, 0.05), 0.001)
-
-    def start(self) -> None:
-        """Start publishing, paced by a timer on the steady clock (class docstring)."""
-        if self._timer is None:
-            self._timer = self.create_timer(
-                self._timer_period(), self._on_timer, clock=self._steady
-            )
-
-    def repace(self) -> None:
-        """After a change of ``realtime_factor``: pace on from the current sample index at
-        the new rate (a running timer gets the new period)."""
-        import time
-
-        if self._wall_start is not None:
-            self._wall_start = time.monotonic()
-            self._index_start = self.next_index
-        if self._timer is not None:
-            self.destroy_timer(self._timer)
-            self._timer = self.create_timer(
-                self._timer_period(), self._on_timer, clock=self._steady
-            )
-
-    def _due(self) -> float | None:
-        """Samples due by now (None: nothing can be published yet); (re)starts the pacing
-        reference when the pacing starts, changes between wall clock and /clock, or /clock
-        went backwards."""
-        import time
-
-        if self.follows_clock():
-            now_ns = self.get_clock().now().nanoseconds
-            if now_ns == 0:
-                return None  # no /clock received yet
-            if self._sim_start_ns is None or now_ns < self._sim_last_ns:
-                self._sim_start_ns, self._wall_start = now_ns, None
-                self._index_start = self.next_index
-            self._sim_last_ns = now_ns
-            return self._index_start + (now_ns - self._sim_start_ns) * 1e-9 * self.fs
-        now = time.monotonic()
-        if self._wall_start is None:
-            self._wall_start, self._sim_start_ns = now, None
-            self._index_start = self.next_index
-        return self._index_start + (now - self._wall_start) * self.p["realtime_factor"] * self.fs
-
-    def _on_timer(self) -> None:
-        """Publish every frame whose last sample is due (catches up on lag, within
-        :data:`TICK_BUDGET_S` per tick); publish /clock when due."""
-        import time
-
-        if not self.finished and self.fix_epoch(wait_for_clock=True):
-            due = self._due()
-            if due is not None:
-                budget = time.monotonic() + self.TICK_BUDGET_S
-                while (
-                    not self.finished
-                    and self.next_index + self.p["frame_size"] <= due
-                    and time.monotonic() < budget
-                ):
-                    self.step()
-        self.publish_clock_if_due()
-
-    def publish_clock_if_due(self) -> None:
-        """Publish the sensor time on /clock when ``publish_clock`` says so (wall-clock
-        period; once more at the end of the data, then no more)."""
-        if self._clock_pub is None or self._clock_done or self.t0_ns is None:
-            return
-        import time
-
-        now = time.monotonic()
-        if self.finished:
-            self._clock_done = True
-        elif self._next_clock is not None and now < self._next_clock:
-            return
-        period = 1.0 / self.p["publish_clock"]
-        nxt = now + period if self._next_clock is None else self._next_clock + period
-        self._next_clock = max(nxt, now)
-        from rosgraph_msgs.msg import Clock as ClockMsg
-
-        msg = ClockMsg()
-        msg.clock.sec, msg.clock.nanosec = divmod(int(self.sensor_time_ns()), 1_000_000_000)
-        self._clock_pub.publish(msg)
 
 
 class MemsNode(Node):
@@ -491,6 +281,11 @@ class EmulatorNode(PacedEmulator, MemsNode):
     (:meth:`retune_device`; frames already published are not touched). A temperature
     outside the parameter's range is ignored with a warning on /diagnostics.
 
+    In a graph of processes (the node paces itself): with ``start_when_matched`` the
+    pacing starts once the subscribers are matched (:meth:`missing_subscribers`), so that
+    no frame is lost to discovery; with ``exit_when_acknowledged`` the process exits once
+    the duration is published and acknowledged (:meth:`run_ended`).
+
     Args:
         drive_externally: if True no timer is created; the owner calls :meth:`step`
             (the scenario runner does this to run faster than real time without loss).
@@ -541,9 +336,73 @@ class EmulatorNode(PacedEmulator, MemsNode):
             DiagnosticArray, END_OF_STREAM, END_OF_STREAM_QOS
         )
         self.end_of_stream_sent = False
+        self.wait_for = self._subscriber_needs()
+        if self.p["exit_when_acknowledged"] and self.total_samples is None:
+            raise ParameterError(
+                "parameter 'exit_when_acknowledged' = True needs an end: set duration_s > 0 "
+                "(the node has no schedule of its own)"
+            )
+        self._match_timer = None
         if not drive_externally and autostart:
             self.warm_kernels()
-            self.start()
+            if self.p["start_when_matched"]:
+                self.start_when_matched()
+            else:
+                self.start()
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def _subscriber_needs(self) -> dict[str, int]:
+        """Subscriptions per topic (absolute) that ``start_when_matched`` waits for: every
+        data topic ``min_subscribers``, the topics of ``wait_for_subscribers`` their count."""
+        need = {t: self.p["min_subscribers"] for t in self.streams}
+        text = self.p["wait_for_subscribers"]
+        for item in filter(None, (x.strip() for x in text.split(","))):
+            topic, _, count = item.rpartition(":")
+            if not topic or not count.isdigit():
+                raise ParameterError(
+                    f"parameter 'wait_for_subscribers' = {text!r} is invalid: expected "
+                    "'TOPIC:N,TOPIC:N' (N an integer >= 0)"
+                )
+            need[self.resolve_topic_name(topic)] = int(count)
+        return {t: n for t, n in need.items() if n > 0}
+
+    def missing_subscribers(self) -> dict[str, tuple[int, int]]:
+        """Topics short of the subscriptions ``start_when_matched`` waits for: topic ->
+        (have, need); the node's own topics count matched subscriptions, others the
+        graph's."""
+        own = {p.topic_name: p for p in self.publishers}
+        missing = {}
+        for topic, need in self.wait_for.items():
+            pub = own.get(topic)
+            have = (
+                pub.get_subscription_count() if pub is not None else self.count_subscribers(topic)
+            )
+            if have < need:
+                missing[topic] = (have, need)
+        return missing
+
+    def start_when_matched(self) -> None:
+        """Start the pacing (:meth:`start`) once no subscriber is missing
+        (:meth:`missing_subscribers`), polled on the steady clock."""
+        self._match_started = time.monotonic()
+        self._match_timer = self.create_timer(0.02, self._on_match_poll, clock=self._steady)
+
+    def _on_match_poll(self) -> None:
+        if self._match_timer is None or self.missing_subscribers():
+            return
+        self.destroy_timer(self._match_timer)
+        self._match_timer = None
+        self.get_logger().info(
+            f"subscribers matched after {time.monotonic() - self._match_started:.2f} s; publishing"
+        )
+        self.start()
+
+    def run_ended(self) -> bool:
+        """True once the node's run is over and its process may exit
+        (``exit_when_acknowledged`` and the duration published); the process's main
+        (:func:`~mems_sim.ros.node_main.run_nodes`) then waits for the acknowledgements."""
+        return bool(self.p["exit_when_acknowledged"]) and self.finished
 
     def warm_kernels(self) -> bool:
         """Load the device's compiled (numba) kernels before the first frame is due: one
@@ -684,187 +543,3 @@ class EmulatorNode(PacedEmulator, MemsNode):
             self.repace()
         elif name == "temperature_c":
             self.temperature_changed()
-
-
-def _raise_interrupt(signum, frame):
-    raise KeyboardInterrupt
-
-
-#: Environment variable choosing the executor of :func:`run_node`: ``events`` (default:
-#: rclpy's C++ ``rclpy.experimental.EventsExecutor``) or ``single``
-#: (``rclpy.executors.SingleThreadedExecutor``).
-EXECUTOR_ENV = "MEMS_EXECUTOR"
-
-
-def _events_unsupported(node) -> bool:
-    """True if ``node`` has what rclpy 9.1's events executor cannot run: a subscription
-    whose callback takes the message info (``SystemError: null argument to internal
-    routine`` at its first message) or a guard condition ("Guard conditions not
-    supported")."""
-    from rclpy.subscription import Subscription
-
-    info = Subscription.CallbackType.WithMessageInfo
-    return bool(list(node.guards)) or any(
-        getattr(s, "_callback_type", None) == info for s in node.subscriptions
-    )
-
-
-def make_executor(nodes):
-    """The executor :func:`run_node` spins ``nodes`` with (a node or several; :data:`EXECUTOR_ENV`).
-
-    ``events`` (the default): rclpy's C++ ``rclpy.experimental.EventsExecutor``, which
-    runs each ready subscription, timer or service from a C++ event queue. The Python
-    ``SingleThreadedExecutor`` rebuilds its wait set (every entity of the nodes, through
-    ``contextlib.ExitStack``) before every callback: CPU that a node taking ~100 frames a
-    second pays (docs/profiles.md). ``single``: the ``SingleThreadedExecutor``.
-
-    The single-threaded executor is used anyway when ``rclpy.experimental`` has no
-    events executor or a node has what it cannot run (:func:`_events_unsupported`);
-    entities created later are picked up by both. The events executor installs its own
-    SIGINT/SIGTERM handlers when built; :func:`run_node` installs its handlers after.
-    """
-    from rclpy.executors import SingleThreadedExecutor
-
-    nodes = [nodes] if isinstance(nodes, Node) else list(nodes)
-    choice = os.environ.get(EXECUTOR_ENV, "events").strip().lower() or "events"
-    if choice not in ("events", "single"):
-        raise ParameterError(
-            f"environment variable {EXECUTOR_ENV} = {choice!r} is invalid: allowed "
-            "'events' or 'single'"
-        )
-    if choice == "events" and not any(_events_unsupported(n) for n in nodes):
-        try:
-            from rclpy.experimental import EventsExecutor
-        except ImportError:
-            pass
-        else:
-            return EventsExecutor()
-    return SingleThreadedExecutor()
-
-
-def run_node(factory: Callable[[], object], argv: list[str] | None = None) -> int:
-    """Init rclpy, spin the node made by ``factory`` until shutdown; clean exit codes.
-
-    An invalid parameter ends the process with exit code 2 and one line on
-    stderr naming the parameter, the value and the allowed range. ``-h``/``--help``
-    before any ``--ros-args`` prints the usage and the parameter table of the node class
-    ``factory`` (:func:`~mems_sim.ros.node_help.node_help`) and returns 0 without
-    starting ROS.
-    """
-    args = argv if argv is not None else sys.argv
-    if isinstance(factory, type) and wants_help(args):
-        sys.stdout.write(node_help(factory))
-        return 0
-    return run_nodes([("", factory)], args)
-
-
-#: Longest wait at shutdown for the subscribers to acknowledge what was published [s].
-DELIVERY_WAIT_S = 3.0
-
-
-def wait_until_delivered(nodes: list, limit_s: float = DELIVERY_WAIT_S) -> None:
-    """Before the nodes are destroyed: wait (at most ``limit_s`` in all) until every
-    reliable publisher's samples are acknowledged by its subscribers. A process that exits
-    at once takes the samples still in its writers with it: a recorder whose history was
-    momentarily full recorded a stream without its last frames (a missing tail). Returns at
-    once when everything was delivered."""
-    from rclpy.duration import Duration
-
-    deadline = time.monotonic() + limit_s
-    for node in nodes:
-        for pub in list(node.publishers):
-            left = deadline - time.monotonic()
-            if left <= 0:
-                return
-            try:
-                pub.wait_for_all_acked(Duration(seconds=left))
-            except Exception:  # a publisher already destroyed, or a best-effort one
-                continue
-
-
-def run_nodes(factories: list[tuple[str, Callable[[], object]]], args: list[str]) -> int:
-    """Init rclpy with ``args``, build the nodes and spin them in one executor until a
-    stop signal or shutdown; every node built is closed (its final results published) and
-    destroyed, and 0 is returned.
-
-    Args:
-        factories: ``(label, factory)`` per node, built in this order; the label (empty
-            for a process of one node) prefixes the error line of that node.
-        args: the process's command line (rclpy's global arguments).
-
-    An invalid parameter (:class:`ParameterError` while a node is built) returns 2 after
-    one line on stderr. SIGINT and SIGTERM stop the spin between callbacks.
-    """
-    import signal
-
-    import rclpy
-    from rclpy.executors import ExternalShutdownException
-    from rclpy.signals import SignalHandlerOptions
-
-    apply_defaults()
-    problem = domain_id_problem()
-    if problem is not None:
-        print(f"error: {problem}", file=sys.stderr)
-        return 2
-    try:
-        command_line_parameters(args)  # malformed rules, before rcl logs its own lines
-    except ParameterError as exc:
-        print(f"error: invalid ROS arguments: {exc}", file=sys.stderr)
-        return 2
-    # Our own stop-signal handling (SIGINT, SIGTERM, SIGHUP): the nodes publish their final results
-    # before the context shuts down.
-    try:
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    except Exception as exc:  # rcl's RCLError: a malformed --ros-args rule (-p noequals)
-        reason = str(exc).split(", at ")[0].removeprefix("failed to initialize rcl: ")
-        print(f"error: invalid ROS arguments: {' '.join(reason.split())}", file=sys.stderr)
-        return 2
-    # SIGINT explicitly too: a process started in the background of a script inherits it
-    # ignored, and would not stop on the SIGINT that launch tools send. While a node is
-    # built a signal interrupts it (e.g. a wait for /clock); once they spin, see below.
-    for sig in STOP_SIGNALS:
-        signal.signal(sig, _raise_interrupt)
-    nodes: list = []
-    executor = None
-    label = ""
-    try:
-        for label, factory in factories:
-            nodes.append(factory())
-        label = ""
-        check_parameter_overrides(nodes, args)
-        # one executor for the process's life: rclpy.spin_once(node) adds and removes the
-        # node on every call, which wakes and rebuilds the wait set once per callback
-        executor = make_executor(nodes)
-        for node in nodes:
-            executor.add_node(node)
-        # while spinning, a stop signal only sets a flag that the loop reads between
-        # callbacks: raised inside rclpy's C++ take of a message it surfaced as a RuntimeError
-        # ("Unable to convert call argument") and the node died with a traceback; set after
-        # the executor is built (they replace the events executor's own handlers)
-        stop: list[int] = []
-        for sig in STOP_SIGNALS:
-            signal.signal(sig, lambda signum, frame: stop.append(signum))
-        # short waits: SIGINT/SIGTERM are handled within 0.1 s even when no timer of a
-        # node fires (e.g. under use_sim_time while nobody publishes /clock)
-        while rclpy.ok() and not stop:
-            executor.spin_once(timeout_sec=0.1)
-    except ParameterError as exc:
-        print(f"error: {label}: {exc}" if label else f"error: {exc}", file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        for node in nodes:
-            close = getattr(node, "close", None)
-            if close is not None:
-                close()
-        wait_until_delivered(nodes)
-        for node in nodes:
-            if executor is not None:
-                executor.remove_node(node)
-            node.destroy_node()
-        if executor is not None:
-            executor.shutdown(timeout_sec=1.0)
-        if rclpy.ok():
-            rclpy.shutdown()
-    return 0
