@@ -9,7 +9,9 @@ rate table about each axis, 60 s each, 720 s) publishes ``adc``, ``truth``,
 (mems_estimation.nodes.imu_calibration_node, the segment-mean covariance from the preset's
 noise model, temperature from the paired temperature_sensor frames) publishes
 ``/imu/calibration`` at the profile's end and writes the calibration YAML next to the MCAP;
-the recorder writes everything.
+the recorder writes everything. The figures are an analysis of the recording
+(:func:`analyse`: the published calibration against ``/imu/truth_calibration``); the
+emulator's nominal B comes from the run record (:func:`oracle`). See docs/scenarios.md.
 
 Figures (targets of the multi-position calibration, per sensor): RMS scale-factor error
 (diagonal of C) [ppm] <= 300; RMS misalignment error (off-diagonal of C, small angles)
@@ -28,7 +30,6 @@ from pathlib import Path
 import numpy as np
 
 from mems_estimation.identification import imu_calibration as ic
-from mems_estimation.nodes.imu_calibration_node import ImuCalibrationNode
 from mems_scenarios.base import (
     Progress,
     ScenarioError,
@@ -38,9 +39,17 @@ from mems_scenarios.base import (
     output_path,
     publish_all,
 )
+from mems_scenarios.contract import (
+    RUN_INFO_TOPIC,
+    AnalysisError,
+    GraphSpec,
+    NodeEntry,
+    ScenarioResult,
+    node_parameters,
+    read_run_info,
+)
 from mems_scenarios.figures import Figure, cell, figure_table
 from mems_sim.devices.imu_profiles import load_profile
-from mems_sim.nodes.imu_node import ImuNoiseNode
 
 NAME = "imu_calibration"
 DESCRIPTION = (
@@ -72,9 +81,17 @@ SF_PPM, MISALIGN_DEG, ACCEL_BIAS_MG, GYRO_BIAS_B, COVERAGE, TEMPCO_REL = (
 )
 
 
-def build_graph(options: ScenarioOptions, out: Path, profile: str, duration_s: float | None):
-    """Context, emulator, calibration node and recorder."""
-    graph = graph_for(options)
+#: Fully qualified names of the emulator and the calibration node.
+EMULATOR = "/imu/imu"
+CALIBRATOR = "/imu/imu_calibration"
+
+
+def graph(
+    options: ScenarioOptions, duration_s: float | None, *, profile: str = PROFILE, out=None
+) -> GraphSpec:
+    """The scenario's graph on ``profile``: the emulator and the calibration node in
+    ``/imu`` (``duration_s`` None: the profile's), recorded; the calibration node writes its
+    YAML beside the MCAP file ``out``."""
     emu_params = {
         "seed": int(options.seed),
         "preset": "adis16350",
@@ -85,19 +102,32 @@ def build_graph(options: ScenarioOptions, out: Path, profile: str, duration_s: f
     }
     if duration_s is not None:
         emu_params["duration_s"] = float(duration_s)
-    emu = graph.add_device(ImuNoiseNode, emu_params, realtime=options.realtime)
-    cal = graph.node(
-        ImuCalibrationNode,
-        {
-            "profile": profile,
-            "noise_model": "adis16350",
-            "temperature_source": "sensor",
-            "output_yaml": str(output_path(out, options.seed, "-calibration.yaml")),
-        },
-        namespace="imu",
-    )
-    rec = graph.recorder(str(out), topics=TOPICS)
-    return graph, emu, cal, rec
+    out = Path(out or Path("runs") / f"{NAME}-{options.seed}.mcap")
+    cal_params = {
+        "profile": profile,
+        "noise_model": "adis16350",
+        "temperature_source": "sensor",
+        "output_yaml": str(output_path(out, options.seed, "-calibration.yaml")),
+    }
+    emulator = NodeEntry("imu_node", "imu", "imu", emu_params)
+    calibrator = NodeEntry("imu_calibration_node", "imu_calibration", "imu", cal_params)
+    return GraphSpec(NAME, (emulator, calibrator), (*TOPICS, RUN_INFO_TOPIC))
+
+
+def build_graph(
+    options: ScenarioOptions, out: Path, profile: str, duration_s: float | None, name: str
+):
+    """Context, the nodes of :func:`graph` and the recorder; the run record names the
+    emulator's parameters given explicitly (:func:`oracle`: its nominal device)."""
+    spec = graph(options, duration_s, profile=profile, out=out)
+    spec = GraphSpec(name, spec.nodes, spec.recorded)
+    g = graph_for(options)
+    nodes = g.build(spec, realtime=options.realtime)
+    rec = g.recorder(str(out), topics=list(spec.recorded))
+    given = set(spec.node(EMULATOR).parameters)
+    given |= {n for (fqn, n) in options.applied if fqn == EMULATOR}
+    g.publish_run_info(spec, options, nodes, emulator_given=sorted(given))
+    return g, nodes[EMULATOR], nodes[CALIBRATOR], rec
 
 
 def _rms(x) -> float:
@@ -105,20 +135,21 @@ def _rms(x) -> float:
     return float(math.sqrt(np.mean(x * x))) if x.size else math.nan
 
 
-def compare(cal: ic.ImuCalibration, truth: dict[str, float]) -> list[dict]:
-    """Per estimated parameter: estimate, truth, error, 95 % interval, covered (aliased
-    parameters -- not the parameter alone -- are left out)."""
+def compare(cal, truth: dict[str, float]) -> list[dict]:
+    """Per estimated parameter of the published calibration ``cal`` (a CalibrationResult:
+    its aliased parameters are left out): estimate, truth, error, 95 % interval (eq. of
+    :meth:`~mems_estimation.identification.imu_calibration.ImuCalibration.ci95`), covered."""
     rows = []
-    for n in cal.estimated:
-        if n in cal.aliases or n not in truth:
+    for n, v, se in zip(cal.names, cal.values, cal.standard_errors):
+        if n not in truth:
             continue
-        lo, hi = cal.ci95(n)
+        lo, hi = v - ic.Z95 * se, v + ic.Z95 * se
         rows.append(
             dict(
                 name=n,
-                estimate=cal.values[n],
+                estimate=v,
                 truth=truth[n],
-                error=cal.values[n] - truth[n],
+                error=v - truth[n],
                 ci95=(lo, hi),
                 covered=bool(lo <= truth[n] <= hi),
                 unit=ic.parameter_unit(n),
@@ -132,8 +163,8 @@ def _target(value: float, limit: float, text: str, unit: str, name: str, ge=Fals
     return Figure(name, value, unit, f"{'>=' if ge else '<='} {limit:g}{text}", ok)
 
 
-def multi_position_figures(rows: list[dict], gyro_b: float) -> list[Figure]:
-    """The figures of the module docstring."""
+def multi_position_figures(rows: list[dict], gyro_b: float | None) -> list[Figure]:
+    """The figures of the module docstring (``gyro_b`` None: without the gyro bias ones)."""
     err = {r["name"]: r["error"] for r in rows}
     out = []
     for s in ic.SENSORS:
@@ -152,6 +183,8 @@ def multi_position_figures(rows: list[dict], gyro_b: float) -> list[Figure]:
         )
     ab = [err[f"accel_bias_{a}"] for a in ic.AXES if f"accel_bias_{a}" in err]
     out.append(_target(_rms(ab) / 9.80665e-3, ACCEL_BIAS_MG, " mg", "mg", "accel.bias_error_rms"))
+    if gyro_b is None:  # the emulator's B (its run record, :func:`oracle`) is unknown
+        return out
     gb = [err[f"gyro_bias_{a}"] for a in ic.AXES if f"gyro_bias_{a}" in err]
     out.append(_target(_rms(gb) / gyro_b, GYRO_BIAS_B, " B", "B", "gyro.bias_error_rms"))
     out.append(Figure("gyro.bias_instability_B", gyro_b, "rad/s"))
@@ -200,15 +233,122 @@ def results_table(rows: list[dict]) -> str:
     )
 
 
+def last_message(bag, topic: str):
+    """The last message on ``topic`` of the recording ``bag`` (None: none)."""
+    from mems_sim.bag.player import read_messages
+
+    msg = None
+    for _, _, _, m in read_messages(str(bag), [topic]):
+        msg = m
+    return msg
+
+
+def oracle(record: dict) -> dict:
+    """What only the simulation knows, from the run record: the emulator's nominal gyro
+    bias instability B [rad/s] (its preset's, or the value set explicitly; the unit of
+    the gyro bias figure), as the emulator resolves its nominal device
+    (:func:`mems_sim.devices.imu_specs.imu_values` of the parameters given explicitly)."""
+    from mems_sim.devices.imu_specs import IMU_SPECS, imu_values
+
+    params = node_parameters(record, EMULATOR, "gyro.bias_error_rms")
+    names = {s.name for s in IMU_SPECS}
+    given = set(record.get("emulator_given", ())) | {"preset"}
+    nominal = imu_values({n: params[n] for n in sorted(given & names) if n in params})
+    return {"gyro_bias_instability": float(nominal["gyro_bias_instability"])}
+
+
+def aliases_of(bag, params: dict) -> dict[str, str]:
+    """The parameters the profile cannot separate (estimated name -> text, as
+    :func:`~mems_estimation.identification.imu_calibration.calibrate_profile` names them):
+    the calibration node's GLS, with its parameters, on the recorded ``/imu/adc`` (and
+    ``/imu/temperature_sensor``); the aliases follow from the profile's design, not from
+    the noise, so the recording gives them."""
+    from mems_estimation.tools.calibrate_imu import read_adc
+    from mems_scenarios.base import topics_frames
+
+    idx, vals, fs, _ = read_adc(Path(bag), "/imu/adc")
+    temperature = None
+    if params.get("temperature_source") == "sensor":
+        fr = topics_frames(bag, ["/imu/temperature_sensor"], missing_ok=True)
+        t = fr.get("/imu/temperature_sensor")
+        if t is not None and t["first_index"] == idx[0] and len(t["data"]) == idx.size:
+            temperature = np.ascontiguousarray(t["data"][:, list(t["names"]).index("temperature")])
+    cal = ic.calibrate_profile(
+        vals[:, :3],
+        vals[:, 3:],
+        load_profile(params["profile"]),
+        fs,
+        index=idx,
+        temperature=temperature,
+        device_temperature_c=params["device_temperature_c"],
+        noise=ic.noise_option(params["noise_model"]),
+        thermal={"auto": None, "on": True, "off": False}[params["thermal"]],
+        base=ic.load_yaml(params["base_yaml"]) if params.get("base_yaml") else None,
+    )
+    return dict(cal.aliases)
+
+
+def analyse_profile(bag, name: str, thermal: bool, pngs=None) -> ScenarioResult:
+    """The figures of ``name`` from its recording ``bag``: the published calibration
+    (``/imu/calibration``) against the emulator's realised error terms
+    (``/imu/truth_calibration``); the gyro bias in units of B from :func:`oracle` (the
+    run record); the notes on inseparable parameters from :func:`aliases_of`. No plots."""
+    cal = last_message(bag, "/imu/calibration")
+    truth_msg = last_message(bag, "/imu/truth_calibration")
+    missing = [
+        t
+        for t, m in (("/imu/calibration", cal), ("/imu/truth_calibration", truth_msg))
+        if m is None
+    ]
+    if missing:
+        return ScenarioResult(
+            name, [], "", unavailable=[("*", f"{bag}: no message on {', '.join(missing)}")]
+        )
+    truth = dict(zip(truth_msg.names, truth_msg.values))
+    rows = compare(cal, truth)
+    record = read_run_info(bag)
+    unavailable, oracle_only = [], []
+    figures = []
+    if not thermal:
+        oracle_only.append("gyro.bias_error_rms, gyro.bias_instability_B")
+        try:
+            gyro_b = oracle(record)["gyro_bias_instability"]
+        except AnalysisError as exc:
+            gyro_b = None
+            unavailable.append((oracle_only[0], str(exc)))
+        figures += multi_position_figures(rows, gyro_b)
+    else:
+        figures += thermal_figures(rows)
+    figures += coverage_figures(rows)
+    table = results_table(rows) + "\n\n" + figure_table(figures)
+    try:
+        params = node_parameters(record, CALIBRATOR, "notes on inseparable parameters")
+        notes = [
+            f"{n} {t} (not separable in {params['profile']}: not judged)"
+            for n, t in aliases_of(bag, params).items()
+        ]
+    except (AnalysisError, ValueError, ic.CalibrationError) as exc:
+        notes = []
+        unavailable.append(("notes on inseparable parameters", str(exc)))
+    return ScenarioResult(
+        name,
+        figures,
+        table + ("\n" + "\n".join(notes) if notes else ""),
+        unavailable=unavailable,
+        oracle_only=oracle_only,
+        values=dict(rows=rows, truth=truth, calibration=cal),
+    )
+
+
 def run_profile(options: ScenarioOptions, name: str, profile: str, thermal: bool) -> dict:
-    """Run the graph on ``profile``; figures of the multi-position (and thermal) kind."""
+    """Run the graph on ``profile`` and analyse its recording (:func:`analyse_profile`)."""
     prof = load_profile(profile)
     duration = options.duration_s
     if duration is not None and duration <= 0:
         raise ScenarioError(f"--duration {duration!r} must be > 0 s")
-    out = options.out or Path("runs") / f"{name}-{options.seed}.mcap"
+    out = Path(options.out or Path("runs") / f"{name}-{options.seed}.mcap")
     out.parent.mkdir(parents=True, exist_ok=True)
-    graph, emu, cal, rec = build_graph(options, out, profile, duration)
+    graph, emu, cal, rec = build_graph(options, out, profile, duration, name)
     total = duration if duration is not None else prof.duration_s()
     progress = Progress(total, options.progress, name)
     try:
@@ -235,9 +375,7 @@ def run_profile(options: ScenarioOptions, name: str, profile: str, thermal: bool
             20.0,
             "the recorder to receive the calibration",
         )
-        truth = {n: v for n, v, _ in emu.model.calibration_truth()}
-        gyro_b = float(emu.nominal["gyro_bias_instability"])
-        result = cal.results[-1]
+        graph.wait_run_info(rec)
     finally:
         progress.close()
         rec.close()
@@ -245,28 +383,25 @@ def run_profile(options: ScenarioOptions, name: str, profile: str, thermal: bool
             counts=rec.counts(), gaps=rec.gaps(), losses=rec.losses(), text=rec.summary()
         )
         graph.close()
-    rows = compare(result, truth)
-    figures = []
-    if not thermal:
-        figures += multi_position_figures(rows, gyro_b)
-    else:
-        figures += thermal_figures(rows)
-    figures += coverage_figures(rows)
-    table = results_table(rows) + "\n\n" + figure_table(figures)
-    notes = [
-        f"{n} {t} (not separable in {prof.name}: not judged)" for n, t in result.aliases.items()
-    ]
+    result = analyse_profile(out, name, thermal)
+    yaml_path = output_path(out, options.seed, "-calibration.yaml")
     return dict(
-        table=table + ("\n" + "\n".join(notes) if notes else ""),
-        figures=figures,
-        rows=rows,
-        calibration=result,
-        truth=truth,
+        table=result.table,
+        figures=result.figures,
+        rows=result.values["rows"],
+        calibration=ic.load_yaml(yaml_path),
+        truth=result.values["truth"],
         mcap=out,
-        yaml=output_path(out, options.seed, "-calibration.yaml"),
+        yaml=yaml_path,
         recorder=summary,
         duration_s=total,
+        result=result,
     )
+
+
+def analyse(bag, pngs=None) -> ScenarioResult:
+    """The figures of ``imu_calibration`` from its recording (:func:`analyse_profile`)."""
+    return analyse_profile(bag, NAME, thermal=False, pngs=pngs)
 
 
 def run(options: ScenarioOptions) -> dict:

@@ -12,7 +12,7 @@ tempco carries b_T,z + g C_zz sf_T,z and the x/y scale-factor tempcos are not ob
 from __future__ import annotations
 
 from mems_scenarios.base import ScenarioOptions
-from mems_scenarios.imu_calibration import run_profile
+from mems_scenarios.imu_calibration import analyse_profile, run_profile
 
 NAME = "imu_thermal_calibration"
 DESCRIPTION = (
@@ -26,3 +26,9 @@ DEFAULT_DURATION_S = 2400.0
 def run(options: ScenarioOptions) -> dict:
     """Run the scenario (thermal_ramp profile)."""
     return run_profile(options, NAME, PROFILE, thermal=True)
+
+
+def analyse(bag, pngs=None):
+    """The figures of the scenario from its recording
+    (:func:`~mems_scenarios.imu_calibration.analyse_profile`)."""
+    return analyse_profile(bag, NAME, thermal=True, pngs=pngs)
