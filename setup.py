@@ -119,7 +119,7 @@ setup(
             "mcap_record = mems_sim.bag.recorder:main",
             "mcap_play = mems_sim.bag.player:main",
             "mcap_info = mems_sim.bag.info:main",
-            "live_view = mems_sim.ros.live_view:main",
+            "live_view = mems_sim.nodes.live_view:main",
             "component_container = mems_scenarios.container:main",
         ],
         # scenarios of run_scenario (another package adds its own to the same group)

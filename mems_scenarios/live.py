@@ -1,6 +1,6 @@
 """The live view of a scenario run (``run_scenario --live-view [PORT]``).
 
-The ``live_view`` executable (:mod:`mems_sim.ros.live_view`) runs as a process of its own
+The ``live_view`` executable (:mod:`mems_sim.nodes.live_view`) runs as a process of its own
 on the graph's ROS domain, so that forwarding to Foxglove takes nothing from the graph's
 executor: it only subscribes (best effort) to the topics a Foxglove client looks at, and
 publishes nothing the graph's isolation checks would see. It is started before the graph's
@@ -41,7 +41,7 @@ def live_view_command() -> list[str]:
     if exe.exists():
         return [str(exe)]
     found = shutil.which("live_view")
-    return [found] if found else [sys.executable, "-m", "mems_sim.ros.live_view"]
+    return [found] if found else [sys.executable, "-m", "mems_sim.nodes.live_view"]
 
 
 class LiveView:
