@@ -116,7 +116,7 @@ setup(
             "calibrate_imu = mems_estimation.tools.calibrate_imu:main",
             "imu_calibration_node = mems_estimation.nodes.imu_calibration_node:main",
             "imu_corrector_node = mems_estimation.nodes.imu_corrector_node:main",
-            "mcap_record = mems_sim.bag.recorder:main",
+            "mcap_record = mems_sim.bag.record_cli:main",
             "mcap_play = mems_sim.bag.player:main",
             "mcap_info = mems_sim.bag.info:main",
             "live_view = mems_sim.nodes.live_view:main",

@@ -14,7 +14,7 @@ started once every subscriber of the graph is matched, ``exit_when_acknowledged`
 process ending at the end of its data; its numba kernels loaded before the first frame;
 its timing read back from the recording), its
 estimator node(s) and the calibration node where the family has one (``python -m
-mems_estimation.nodes.*_node``), and ``python -m mems_sim.bag.recorder -o OUT
+mems_estimation.nodes.*_node``), and ``python -m mems_sim.bag.record_cli -o OUT
 --compression zstd TOPICS`` recording every topic the graph publishes (the end-of-stream
 record, the estimates, the calibration result) and /diagnostics (zstd level 1 with chunk
 CRCs, or ``--storage-preset-profile PRESET``, e.g. ``zstd_fast``). The graphs (estimators as
@@ -464,7 +464,7 @@ def _commands(
         "recorder": [
             py,
             "-m",
-            "mems_sim.bag.recorder",
+            "mems_sim.bag.record_cli",
             "-o",
             str(out),
             "--compression",

@@ -548,7 +548,7 @@ def graph_processes(
             "recorder": [
                 py,
                 "-m",
-                "mems_sim.bag.recorder",
+                "mems_sim.bag.record_cli",
                 "-o",
                 str(out),
                 *(

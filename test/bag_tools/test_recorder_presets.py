@@ -13,7 +13,7 @@ from __future__ import annotations
 import pytest
 from bagtool_helpers import reference_frames, run_measured
 
-from mems_sim.bag.recorder import _parse_args
+from mems_sim.bag.record_cli import _parse_args
 from mems_sim.bag.writer import STORAGE_PRESETS, McapBagWriter, storage_preset
 
 TOPIC = "/imu/adc"

@@ -119,7 +119,7 @@ def _run_graph(tmp: Path, domain_id: int, hosts=None) -> tuple[Path, dict]:
     )
     params = [a for k, v in {**DEVICE_PARAMS, **lifecycle}.items() for a in ("-p", f"{k}:={v}")]
     cmds = {
-        "recorder": [py, "-m", "mems_sim.bag.recorder", "-o", str(out), *TOPICS],
+        "recorder": [py, "-m", "mems_sim.bag.record_cli", "-o", str(out), *TOPICS],
         "estimator": [py, "-m", "mems_estimation.nodes.accelerometer_ekf_node"],
         "device": [py, "-m", "mems_sim.nodes.accelerometer_node", "--ros-args", *params],
     }
