@@ -22,8 +22,9 @@ from mems_scenarios.contract import RUN_INFO_TOPIC, AnalysisError
 from mems_sim.cli_values import quiet_on_broken_pipe
 from mems_sim.params import ParameterError
 from mems_sim.ros.end_of_stream import is_end_of_stream_topic
-from mems_sim.ros.env import MAX_DOMAIN_ID, apply_defaults, domain_id_problem, stop_signals_raise
+from mems_sim.ros.env import MAX_DOMAIN_ID, apply_defaults, domain_id_problem
 from mems_sim.ros.params_file import Override, ParamsFileError, load_params_file, parse_set
+from mems_sim.ros.stop import StopRequest
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -273,7 +274,7 @@ def _main(args) -> int:
     try:
         # SIGTERM and SIGHUP (a closed terminal) stop the run as SIGINT does: the graph
         # unwinds and the recording is finalised
-        with stop_signals_raise():
+        with StopRequest(raising=True):
             result = args.result = module.run(options)
     except (ScenarioError, ParameterError) as exc:
         return _fail(str(exc))

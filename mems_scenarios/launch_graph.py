@@ -105,8 +105,8 @@ from pathlib import Path
 import yaml
 
 from mems_sim import bounded_yaml
-from mems_sim.ros.env import install_stop_request
 from mems_sim.ros.params_file import ParamsFileError, load_params_file
+from mems_sim.ros.stop import StopRequest
 
 PROG = "run_graph"
 
@@ -754,12 +754,8 @@ class Runner:
 
     def run(self) -> int:
         """Run the graph until it stops; the exit status (module doc)."""
-        _, previous = install_stop_request(self._signals.append)
-        try:
+        with StopRequest(on_signal=self._signals.append):
             return self._run()
-        finally:
-            for s, h in previous.items():
-                signal.signal(s, h)
 
     def _start(self, action: NodeAction, env: dict) -> _Process | None:
         try:
