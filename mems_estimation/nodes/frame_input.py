@@ -12,7 +12,6 @@ of its device as default.
 from __future__ import annotations
 
 import dataclasses
-from collections import deque
 from collections.abc import Callable
 from functools import partial
 from typing import Any
@@ -35,6 +34,16 @@ from mems_sim.ros.frames import (
 )
 from mems_sim.ros.node_base import MemsNode
 from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS, PROGRESS_QOS
+from mems_sim.stream_index import (
+    DEVICE_GAP,
+    GAP,
+    OUT_OF_ORDER,
+    REPEAT,
+    RESET,
+    FormatPin,
+    FramePairer,
+    StreamIndex,
+)
 
 #: Parameter of the estimator nodes that read a device's topics.
 DEVICE_NAMESPACE = ParamSpec(
@@ -178,174 +187,6 @@ def adc_channels(msg: AdcFrame, channels, codes: np.ndarray | None = None) -> np
     return adc_columns(msg, [names.index(c) for c in channels], codes)
 
 
-class StreamIndex:
-    """Sequence accounting of one frame stream by ``first_sample_index`` (ROS-free).
-
-    :meth:`update` classifies each frame against the index expected next (``first +
-    num_samples`` of the last frame taken):
-
-    * ``"first"``: the first frame; ``"next"``: the expected index;
-    * ``"gap"``: ahead by at most ``max_gap`` samples (a drop; ``missing`` samples);
-    * ``"reset"``: ahead by more than ``max_gap`` samples, behind by more than
-      ``max_gap`` samples, or :attr:`RESTART_FRAMES` consecutive frames behind the expected
-      index that follow one another (a device that started again): a stream reset;
-    * ``"repeat"``: a frame whose first index is one of the last :attr:`HISTORY` taken;
-    * ``"out_of_order"``: any other frame behind the expected index.
-
-    A frame classed first, next, gap or reset is taken (the expected index moves on); a
-    repeated or out-of-order frame is not (its caller drops it). Bounded memory: the last
-    :attr:`HISTORY` first indices.
-    """
-
-    #: Consecutive frames behind the expected index, each following the previous one, that
-    #: make a stream reset (a device or a replay that started again).
-    RESTART_FRAMES = 3
-    #: First indices remembered to recognise repeated frames.
-    HISTORY = 64
-
-    def __init__(self, max_gap: int = 2**32) -> None:
-        self.max_gap = int(max_gap)
-        self.expected: int | None = None
-        #: whether the last stream reset jumped ahead (True) or back (False)
-        self.ahead = False
-        self._recent: deque[int] = deque(maxlen=self.HISTORY)
-        self._behind_next: int | None = None
-        self._behind_run = 0
-
-    def is_repeat(self, first: int) -> bool:
-        """True if a frame starting at ``first`` was taken recently."""
-        return first in self._recent
-
-    def update(self, first: int, n: int) -> tuple[str, int]:
-        """Classify (and take, see the class doc) a frame of n samples at ``first``;
-        returns ``(event, missing samples)``."""
-        first, n = int(first), int(n)
-        if self.expected is None:
-            event, missing = "first", 0
-        elif first == self.expected:
-            event, missing = "next", 0
-        elif first > self.expected:
-            missing = first - self.expected
-            event = "gap" if missing <= self.max_gap else "reset"
-        elif first in self._recent:
-            return "repeat", 0
-        elif self.expected - first > self.max_gap:
-            event, missing = "reset", 0
-        else:
-            self._behind_run = self._behind_run + 1 if self._behind_next == first else 1
-            self._behind_next = first + n
-            if self._behind_run < self.RESTART_FRAMES:
-                return "out_of_order", 0
-            event, missing = "reset", 0
-        if event == "reset":
-            self._recent.clear()
-            self.ahead = first > self.expected
-        self.expected = first + n
-        self._recent.append(first)
-        self._behind_next, self._behind_run = None, 0
-        return event, missing
-
-
-class FormatPin:
-    """The format (:func:`~mems_sim.ros.frames.frame_format`) of one input stream: the
-    first good frame's; a frame of another format is foreign (rejected) unless
-    :attr:`ADOPT_FRAMES` consecutive frames share it, then that format is adopted (ROS-free)."""
-
-    #: Consecutive frames of one new format after which it replaces the stream's.
-    ADOPT_FRAMES = 3
-
-    def __init__(self) -> None:
-        self.format: tuple | None = None
-        self._candidate: tuple | None = None
-        self._count = 0
-
-    def check(self, fmt: tuple) -> str:
-        """``"new"`` (no format yet), ``"same"``, ``"adopt"`` (the new format's
-        :attr:`ADOPT_FRAMES`-th consecutive frame) or ``"foreign"``."""
-        if self.format is None:
-            return "new"
-        if fmt == self.format:
-            self._candidate, self._count = None, 0
-            return "same"
-        if fmt == self._candidate:
-            self._count += 1
-        else:
-            self._candidate, self._count = fmt, 1
-        return "adopt" if self._count >= self.ADOPT_FRAMES else "foreign"
-
-    def adopt(self, fmt: tuple) -> None:
-        """Make ``fmt`` the stream's format."""
-        self.format, self._candidate, self._count = fmt, None, 0
-
-
-class FramePairer:
-    """Pairs the frames of two streams (e.g. ADC and drive) that share a
-    ``first_sample_index``, in index order (ROS-free).
-
-    Frames waiting for their partner are bounded per stream: at most ``max_samples``
-    samples and ``max_frames`` frames; beyond, the oldest (by arrival) are dropped and
-    returned by :meth:`add` (the caller counts them).
-    """
-
-    def __init__(
-        self,
-        kinds: tuple[str, str] = ("adc", "drive"),
-        max_samples: int | None = None,
-        max_frames: int = FRAME_DEPTH,
-    ) -> None:
-        self.kinds = kinds
-        self.max_samples = max_samples
-        self.max_frames = max_frames
-        self.frames: dict[str, dict[int, object]] = {k: {} for k in kinds}
-        self._sizes: dict[str, dict[int, int]] = {k: {} for k in kinds}
-        self.samples = {k: 0 for k in kinds}
-
-    def holds(self, kind: str, first: int) -> bool:
-        """True if a frame of ``kind`` at ``first`` waits for its partner."""
-        return first in self.frames[kind]
-
-    def add(self, kind: str, first: int, values, n: int | None = None):
-        """Store one frame of stream ``kind`` (n samples; default from the values); return
-        the pairs now complete, ordered by index as ``(first_sample_index, values of
-        kinds[0], values of kinds[1])``. The frames dropped to respect the bounds are in
-        :attr:`overflow` as ``(kind, first, n)`` until the next call."""
-        n = num_samples(values) if n is None else int(n)
-        self.frames[kind][first] = values
-        self._sizes[kind][first] = n
-        self.samples[kind] += n
-        a, b = (self.frames[k] for k in self.kinds)
-        pairs = []
-        for k in sorted(set(a) & set(b)):
-            pairs.append((k, a.pop(k), b.pop(k)))
-            for kk in self.kinds:
-                self.samples[kk] -= self._sizes[kk].pop(k)
-        self.overflow = []
-        store, sizes = self.frames[kind], self._sizes[kind]
-        while len(store) > 1 and (
-            len(store) > self.max_frames
-            or (self.max_samples is not None and self.samples[kind] > self.max_samples)
-        ):
-            old = next(iter(store))
-            del store[old]
-            size = sizes.pop(old)
-            self.samples[kind] -= size
-            self.overflow.append((kind, old, size))
-        return pairs
-
-    def drop_before(self, index: int) -> list[tuple[str, int, int]]:
-        """Drop the waiting frames that start before ``index`` (they can no longer be
-        taken in order); return them as ``(kind, first, n)``."""
-        dropped = []
-        for kind in self.kinds:
-            store = self.frames[kind]
-            for first in [f for f in store if f < index]:
-                del store[first]
-                size = self._sizes[kind].pop(first)
-                self.samples[kind] -= size
-                dropped.append((kind, first, size))
-        return dropped
-
-
 class EstimatorNode(MemsNode):
     """Base of the estimator nodes: parameters, device topics, diagnostics, frame input.
 
@@ -364,10 +205,12 @@ class EstimatorNode(MemsNode):
        and full scale) is its first good frame's; a stray frame of another format is
        rejected, not adopted; only :attr:`FormatPin.ADOPT_FRAMES` consecutive frames of
        one new format replace it (``format_changes``, :meth:`on_format_change`).
-    2. Sequence (:class:`StreamIndex` on ``first_sample_index``): a repeated frame is
+    2. Sequence (:class:`~mems_sim.stream_index.StreamIndex` on ``first_sample_index``,
+       the loss taxonomy of :mod:`mems_sim.stream_index`): a repeated frame is
        dropped (``repeated_frames``), a frame behind the stream is dropped
        (``out_of_order_frames``), a forward jump up to ``max_gap_samples`` is a gap
-       (``gaps``, ``missing_samples``, warning with :attr:`GAP_NOTE`, then :meth:`on_gap`),
+       (``gaps``, ``missing_samples``, warning with :attr:`GAP_NOTE`, then :meth:`on_gap`;
+       samples the device declared missing are ``device_gaps``, ``device_missing_samples``),
        a larger jump (either way) or a stream that started again is a stream reset
        (``stream_resets``, then :meth:`on_stream_reset`, told whether the jump was ahead:
        by default the estimator starts again from its prior, :meth:`reset_estimator`; a
@@ -382,8 +225,10 @@ class EstimatorNode(MemsNode):
        (rejected) or :class:`Diverged` (the filter's state became non-finite or its
        covariance lost positive definiteness; the node has re-initialised it from its
        prior; ``divergences`` and a warning, the frame's estimates are not published);
-       then ``frames_done`` and the ``frames`` counter grow. Single streams use
-       :meth:`take_frame` and :meth:`sequence`.
+       then ``frames_done`` and the ``frames`` counter grow. A single stream
+       (:meth:`subscribe_single`) goes the same way to :meth:`process_frame` (the
+       ``frames`` counter and ``frames_received``); other streams use :meth:`take_frame`
+       and :meth:`sequence`.
 
     Progress (flow control of lossless replay): after every frame of the primary input
     (the first stream of :meth:`subscribe_pair`, or the single input) that the node has
@@ -411,6 +256,8 @@ class EstimatorNode(MemsNode):
     fs: float | None = None
     #: Pairs processed.
     frames_done = 0
+    #: Frames of the single input received (:meth:`subscribe_single`).
+    frames_received = 0
     #: The two paired streams (set by :meth:`subscribe_pair`).
     pairer: FramePairer | None = None
     #: Event of the last frame accounted by :meth:`sequence`.
@@ -573,17 +420,21 @@ class EstimatorNode(MemsNode):
         event (:meth:`StreamIndex.update`) is left in :attr:`last_event`; :meth:`on_gap` and
         :meth:`on_stream_reset` are called only if ``hooks`` (the estimator's main input)."""
         index = self.index(kind)
-        expected = index.expected
+        expected, lost, declared = (
+            index.expected,
+            index.missing_samples,
+            index.device_missing_samples,
+        )
         event, missing = index.update(first, n)
         self.last_event = event
-        if event in ("repeat", "out_of_order"):
-            name = "repeated" if event == "repeat" else "out_of_order"
+        if event in (REPEAT, OUT_OF_ORDER):
+            name = "repeated" if event == REPEAT else "out_of_order"
             self.diag.count(f"{name}_frames", streams)
             self.diag.warn(
                 f"dropped {name.replace('_', '-')} frame at {first} (stream at {expected})"
             )
             return False
-        if event == "reset":
+        if event == RESET:
             self.diag.count("stream_resets")
             self.diag.warn(
                 f"stream reset of {kind} at index {first} (stream at {expected}; a jump "
@@ -591,8 +442,9 @@ class EstimatorNode(MemsNode):
             )
             if hooks:
                 self.on_stream_reset(index.ahead)
-        elif event == "gap":
-            self.note_gap(first, missing)
+        elif event in (GAP, DEVICE_GAP):
+            self.note_gap(first, index.missing_samples - lost)
+            self.note_device_gap(first, index.device_missing_samples - declared)
             if hooks:
                 self.on_gap(missing)
         return True
@@ -605,6 +457,14 @@ class EstimatorNode(MemsNode):
             note = f": {self.GAP_NOTE}" if self.GAP_NOTE else ""
             self.diag.warn(f"gap of {gap} samples before index {first}{note}")
 
+    def note_device_gap(self, first: int, gap: int) -> None:
+        """Count and report ``gap`` samples before index ``first`` that the device declared
+        missing (:meth:`~mems_sim.stream_index.StreamIndex.declare_device_gap`), if any."""
+        if gap:
+            self.diag.count("device_gaps")
+            self.diag.count("device_missing_samples", int(gap))
+            self.diag.warn(f"device gap of {gap} samples before index {first} (declared)")
+
     def note_divergence(self, what: str, first: int) -> None:
         """Count (``divergences``) and report a filter re-initialised from its prior after
         it diverged in the frame at ``first``."""
@@ -614,12 +474,45 @@ class EstimatorNode(MemsNode):
             "positive definite): re-initialised from its prior"
         )
 
+    # ------------------------------------------------------------------ single stream
+
+    def subscribe_single(self, stream: Input, check_rate: bool = True, topic: str | None = None):
+        """Subscribe the single input stream (the primary input, named ``"input"``) whose
+        good frames go to :meth:`process_frame`; ``topic``: its topic instead of the
+        device's topic of the stream's name. Returns the subscription."""
+        name, msg_type, decode = stream
+        self.primary = "input"
+        callback = partial(self._on_single, decode, check_rate)
+        topic = self.device_topic(name) if topic is None else topic
+        return self.create_subscription(msg_type, topic, callback, FRAME_QOS)
+
+    def _on_single(self, decode, check_rate: bool, msg) -> None:
+        self.frames_received += 1
+        first, n = int(msg.first_sample_index), int(msg.num_samples)
+        values = self.accept_frame(msg, decode, check_rate)
+        if values is None:
+            return
+        if not self.sequence("input", first, n):
+            self.report_progress(first + n)
+            return
+        follow = self.last_event == RESET
+        try:
+            self.process_frame(first, time_to_ns(msg.header.stamp), values, msg)
+        except FrameError as exc:
+            self.reject(str(exc), exc.reason)
+            self.report_progress(first + n)
+            return
+        self.diag.count("frames")
+        self.report_progress(first + n, follow)
+
     # ------------------------------------------------------------------ paired streams
 
     def subscribe_pair(self, first: Input, second: Input, check_rate: bool = True) -> None:
         """Subscribe the two streams of the device whose pairs go to :meth:`process_pair`;
         the first is the primary input (progress)."""
-        self.pairer = FramePairer((first[0], second[0]), self._limit("max_unpaired_samples"))
+        self.pairer = FramePairer(
+            (first[0], second[0]), self._limit("max_unpaired_samples"), FRAME_DEPTH
+        )
         self.primary = first[0]
         for name, msg_type, decode in (first, second):
             callback = partial(self._on_frame, name, decode, check_rate)
@@ -657,7 +550,7 @@ class EstimatorNode(MemsNode):
         if not self.sequence("pair", first, na, streams=2):
             self._finished(self.primary, first + na)
             return
-        follow = self.last_event == "reset"
+        follow = self.last_event == RESET
         try:
             self.process_pair(first, stamp_ns, a, b)
         except Diverged as exc:
@@ -689,6 +582,12 @@ class EstimatorNode(MemsNode):
 
     def reset_estimator(self) -> None:
         """Re-initialise the estimator from its prior (stream reset, divergence)."""
+
+    def process_frame(self, first: int, stamp_ns: int, values, msg) -> None:
+        """Process one good frame ``msg`` of the single input (:meth:`subscribe_single`)
+        starting at sample ``first``, stamped ``stamp_ns`` [ns], decoded as ``values``;
+        raise FrameError to reject it."""
+        raise NotImplementedError
 
     def process_pair(self, first: int, stamp_ns: int, a, b) -> None:
         """Estimate on one pair of frames starting at sample ``first``, whose first sample

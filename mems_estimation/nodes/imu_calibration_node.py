@@ -35,10 +35,9 @@ from mems_sim.ros.frames import (
     index_to_ns,
     ns_to_time,
     signal_data,
-    time_to_ns,
 )
 from mems_sim.ros.node_main import run_node
-from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
+from mems_sim.ros.qos import RESULT_QOS
 
 CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 
@@ -141,7 +140,6 @@ class ImuCalibrationNode(EstimatorNode):
             self.base = ic.load_yaml(self.p["base_yaml"]) if self.p["base_yaml"] else None
         except (ProfileError, ic.CalibrationError) as exc:
             raise ParameterError(str(exc)) from None
-        self.frames_received = 0
         self.results: list[ic.ImuCalibration] = []
         self.messages: list[CalibrationResult] = []
         self.pub = self.create_publisher(
@@ -155,8 +153,7 @@ class ImuCalibrationNode(EstimatorNode):
                 check_rate=False,
             )
         else:
-            self.primary = "input"
-            self.create_subscription(AdcFrame, self.device_topic("adc"), self.on_frame, FRAME_QOS)
+            self.subscribe_single(("adc", AdcFrame, self._decode), check_rate=False)
 
     def _start(self) -> None:
         self.chunks_idx: list[np.ndarray] = []
@@ -180,20 +177,9 @@ class ImuCalibrationNode(EstimatorNode):
         self._pair_rate = float(msg.sample_rate_hz)
         return imu_values(msg)
 
-    def on_frame(self, msg: AdcFrame) -> None:
-        """Validate and keep one frame; calibrate at the profile's end."""
-        self.frames_received += 1
-        first, n = int(msg.first_sample_index), int(msg.num_samples)
-        values = self.accept_frame(msg, self._decode, check_rate=False)
-        if values is None:
-            return
-        if not self.sequence("input", first, n):
-            self.report_progress(first + n)
-            return
-        follow = self.last_event == "reset"
-        self._take(first, values, None, time_to_ns(msg.header.stamp), msg.sample_rate_hz)
-        self.diag.count("frames")
-        self.report_progress(first + n, follow)
+    def process_frame(self, first: int, stamp_ns: int, values, msg: AdcFrame) -> None:
+        """Keep one good frame; calibrate at the profile's end."""
+        self._take(first, values, None, stamp_ns, msg.sample_rate_hz)
 
     def process_pair(self, first: int, stamp_ns: int, values, temperature) -> None:
         """A frame with its temperature frame (``temperature_source`` 'sensor')."""

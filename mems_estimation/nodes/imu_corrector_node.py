@@ -37,7 +37,7 @@ from mems_estimation.nodes.frame_input import DEVICE_NAMESPACE, EstimatorNode, i
 from mems_estimation.nodes.imu_calibration_node import _temperature, imu_values
 from mems_msgs.msg import AdcFrame, SignalFrame
 from mems_sim.params import ParameterError, ParamSpec
-from mems_sim.ros.frames import index_to_ns, time_to_ns
+from mems_sim.ros.frames import index_to_ns
 from mems_sim.ros.imu_msg import ImuSerializer
 from mems_sim.ros.node_main import run_node
 from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS
@@ -111,7 +111,6 @@ class ImuCorrectorNode(EstimatorNode):
             self.cal = ic.load_yaml(self.p["calibration_yaml"])
         except ic.CalibrationError as exc:
             raise ParameterError(f"parameter 'calibration_yaml': {exc}") from None
-        self.frames_received = 0
         self.samples_published = 0
         gv, av = self.p["angular_velocity_variance"], self.p["linear_acceleration_variance"]
         self._cdr = ImuSerializer(
@@ -134,8 +133,7 @@ class ImuCorrectorNode(EstimatorNode):
                 check_rate=False,
             )
         else:
-            self.primary = "input"
-            self.create_subscription(AdcFrame, self.device_topic("adc"), self.on_frame, FRAME_QOS)
+            self.subscribe_single(("adc", AdcFrame, self._decode), check_rate=False)
         if self.p["temperature_source"] == "topic":
             self.create_subscription(
                 Temperature,
@@ -168,20 +166,9 @@ class ImuCorrectorNode(EstimatorNode):
         self._rate = float(msg.sample_rate_hz)
         return imu_values(msg)
 
-    def on_frame(self, msg: AdcFrame) -> None:
-        """Correct one frame and publish its samples."""
-        self.frames_received += 1
-        first, n = int(msg.first_sample_index), int(msg.num_samples)
-        values = self.accept_frame(msg, self._decode, check_rate=False)
-        if values is None:
-            return
-        if not self.sequence("input", first, n):
-            self.report_progress(first + n)
-            return
-        follow = self.last_event == "reset"
-        self._publish(values, self.current_temperature_c(), time_to_ns(msg.header.stamp))
-        self.diag.count("frames")
-        self.report_progress(first + n, follow)
+    def process_frame(self, first: int, stamp_ns: int, values, msg: AdcFrame) -> None:
+        """Correct one good frame and publish its samples."""
+        self._publish(values, self.current_temperature_c(), stamp_ns)
 
     def process_pair(self, first: int, stamp_ns: int, values, temperature) -> None:
         """A frame with its temperature frame (``temperature_source`` 'sensor')."""

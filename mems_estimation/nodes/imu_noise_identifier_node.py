@@ -28,14 +28,14 @@ from mems_msgs.msg import AdcFrame, NoiseModel
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import (
     FrameError,
-    IndexTracker,
     adc_physical,
     index_to_ns,
     ns_to_time,
     time_to_ns,
 )
 from mems_sim.ros.node_main import run_node
-from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
+from mems_sim.ros.qos import RESULT_QOS
+from mems_sim.stream_index import StreamIndex
 
 IDENTIFIER_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
@@ -100,7 +100,7 @@ class NoiseAccumulator:
         self.fs: float | None = None
         self.channels: tuple[str, ...] = ()
         self.units: tuple[str, ...] = ()
-        self.tracker = IndexTracker()
+        self.tracker = StreamIndex.recording(start=0)
         self.last_stamp_ns = 0
 
     def start(self, fs: float, first_index: int, channels, units) -> None:
@@ -136,7 +136,7 @@ class NoiseAccumulator:
                 f"({msg.sample_rate_hz} Hz, {list(msg.channel_names)})",
                 "foreign",
             )
-        missing = self.tracker.update(int(msg.first_sample_index), int(msg.num_samples))
+        _, missing = self.tracker.update(int(msg.first_sample_index), int(msg.num_samples))
         self.extend(values)
         self.last_stamp_ns = index_to_ns(values.shape[0] - 1, self.fs, time_to_ns(msg.header.stamp))
         return missing
@@ -197,38 +197,20 @@ class NoiseIdentifierNode(EstimatorNode):
         super().__init__(**node_kwargs)
         self.acc = NoiseAccumulator(self.p["tau_grid"])
         self.results: list[NoiseModel] = []
-        self.frames_received = 0
         self._next_publish_s = self.p["publish_period_s"]
         self._finalised = False
         self.pub = self.create_publisher(NoiseModel, self.p["output_topic"], RESULT_QOS)
-        self.primary = "input"
-        self.sub = self.create_subscription(
-            AdcFrame, self.p["input_topic"], self.on_frame, FRAME_QOS
+        self.sub = self.subscribe_single(
+            ("input", AdcFrame, adc_physical), check_rate=False, topic=self.p["input_topic"]
         )
 
-    def on_frame(self, msg: AdcFrame) -> None:
-        """Validate and accumulate a frame; publish a periodic result when due."""
-        self.frames_received += 1
-        first, n = int(msg.first_sample_index), int(msg.num_samples)
-        values = self.accept_frame(msg, adc_physical, check_rate=False)
-        if values is None:
-            return
-        if not self.sequence("input", first, n):
-            self.report_progress(first + n)
-            return
-        follow = self.last_event == "reset"
-        try:
-            self.acc.append(msg, values)
-        except FrameError as exc:
-            self.reject(str(exc), exc.reason)
-            self.report_progress(first + n)
-            return
-        self.diag.count("frames")
+    def process_frame(self, first: int, stamp_ns: int, values, msg: AdcFrame) -> None:
+        """Accumulate a good frame; publish a periodic result when due."""
+        self.acc.append(msg, values)
         period = self.p["publish_period_s"]
         if period > 0 and self.acc.duration_s() >= self._next_publish_s:
             self._next_publish_s += period
             self.publish_result(final=False)
-        self.report_progress(first + n, follow)
 
     def on_format_change(self, kind: str) -> None:
         """A new stream format: the accumulation (and the periodic schedule) starts again."""

@@ -59,13 +59,13 @@ from mems_sim.bag.schema import (
     peek_frame_fields,
     peek_header_stamp_ns,
 )
-from mems_sim.bag.writer import FrameGapCounter, SequenceGapCounter
 from mems_sim.ros.end_of_stream import (
     describe_tail,
     is_end_of_stream_topic,
     missing_tail,
     parse_end_of_stream,
 )
+from mems_sim.stream_index import SequenceIndex, StreamIndex
 
 
 def _scan(files: list[str]) -> dict:
@@ -81,10 +81,10 @@ def _scan(files: list[str]) -> dict:
     file_channels: list[dict[int, Channel]] = []
     file_counts: list[dict[str, int]] = []
     file_times: list[tuple[int | None, int | None]] = []
-    frames: dict[str, FrameGapCounter] = {}
+    frames: dict[str, StreamIndex] = {}
     rates: dict[str, set] = {}
     data_ends: dict[str, int] = {}
-    sequences: dict[str, SequenceGapCounter] = {}
+    sequences: dict[str, SequenceIndex] = {}
     end_records: list[bytes] = []
     compressions = set()
     header = None
@@ -171,7 +171,7 @@ def _account_frame(message: Message, topic, type_name, frames, rates, data_ends)
         return
     first, num, rate = fields
     rates.setdefault(topic, set()).add(rate)
-    counter = frames.setdefault(topic, FrameGapCounter())
+    counter = frames.setdefault(topic, StreamIndex.recording(start=0))
     if type_name in GAP_CHECKED_TYPES:
         counter.update(first, num)
         stamp = peek_header_stamp_ns(message.data)  # time of the frame's first sample
@@ -184,7 +184,7 @@ def _account_frame(message: Message, topic, type_name, frames, rates, data_ends)
 
 def _account_sequence(message: Message, topic, type_name, sequences, end_records) -> None:
     """Count gaps of the message sequence numbers per topic; keep end-of-stream records."""
-    sequences.setdefault(topic, SequenceGapCounter()).update(message.sequence)
+    sequences.setdefault(topic, SequenceIndex()).update(message.sequence)
     if type_name and is_end_of_stream_topic(topic, type_name):
         end_records.append(message.data)
 

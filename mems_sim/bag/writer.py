@@ -46,7 +46,8 @@ file keeps the complete chunks written before, and ``close`` raises.
 The writer also counts messages per topic and, for frame types
 (:data:`~mems_sim.bag.schema.GAP_CHECKED_TYPES`), gaps of the frame index
 (``first_sample_index`` of a frame differs from ``first + num_samples`` of the
-previous frame on the same topic), peeked from the CDR bytes. Messages written with
+previous frame on the same topic; :meth:`~mems_sim.stream_index.StreamIndex.recording`),
+peeked from the CDR bytes. Messages written with
 their publisher's sequence number (the recorder passes the middleware's publication
 sequence number) keep it as the MCAP ``sequence``, and gaps of each publisher's
 numbers are counted, so a lost message is visible on every topic, frames or not.
@@ -83,6 +84,7 @@ import mcap.writer as _mcap_writer
 from mcap.writer import CompressionType, Writer
 
 from mems_sim.bag.schema import GAP_CHECKED_TYPES, normalize_type_name, peek_frame_index
+from mems_sim.stream_index import GAP, SequenceIndex, StreamIndex
 
 _COMPRESSION = {
     "zstd": CompressionType.ZSTD,
@@ -412,73 +414,6 @@ class _WriteThroughFile:
             self._fd = -1
 
 
-class FrameGapCounter:
-    """Counts frame-index gaps of one frame stream.
-
-    A gap is a frame whose ``first_sample_index`` is larger than the expected
-    one (``first + num_samples`` of the previous frame): samples were dropped.
-    A smaller index (device restarted, or replayed data) is counted as a
-    ``reset``, not a gap.
-    """
-
-    def __init__(self):
-        self.expected: int | None = None
-        self.gaps = 0
-        self.missing_samples = 0
-        self.resets = 0
-        self.frames = 0
-        self.samples = 0
-
-    def update(self, first: int, num: int) -> int:
-        """Account one frame; return the number of missing samples before it (0 = contiguous)."""
-        missing = 0
-        if self.expected is not None and first != self.expected:
-            if first > self.expected:
-                missing = first - self.expected
-                self.gaps += 1
-                self.missing_samples += missing
-            else:
-                self.resets += 1
-        self.expected = first + num
-        self.frames += 1
-        self.samples += num
-        return missing
-
-
-class SequenceGapCounter:
-    """Counts gaps of one publisher's message sequence numbers.
-
-    Every publisher numbers its messages 1, 2, 3, ...; a number larger than the one
-    expected (the previous plus one) is a gap: messages were lost in between. A number
-    that is not larger than the previous one (the publisher restarted, or the numbers
-    of several publishers are interleaved) is counted as a ``reset``. ``first`` is the
-    first number seen (larger than 1 when recording started after the publisher).
-    """
-
-    def __init__(self):
-        self.first: int | None = None
-        self.last: int | None = None
-        self.gaps = 0
-        self.missing_messages = 0
-        self.resets = 0
-        self.messages = 0
-
-    def update(self, sequence: int) -> int:
-        """Account one message; return the number of messages missing before it."""
-        missing = 0
-        if self.last is None:
-            self.first = sequence
-        elif sequence > self.last + 1:
-            missing = sequence - self.last - 1
-            self.gaps += 1
-            self.missing_messages += missing
-        elif sequence <= self.last:
-            self.resets += 1
-        self.last = sequence
-        self.messages += 1
-        return missing
-
-
 class McapBagWriter:
     """Write serialised ROS 2 messages into an MCAP file that rosbag2, rosbags,
     Foxglove and PlotJuggler read.
@@ -574,8 +509,8 @@ class McapBagWriter:
         self._channels: dict[str, int] = {}
         self._types: dict[str, str] = {}
         self._counts: dict[str, int] = {}
-        self._gap_counters: dict[str, FrameGapCounter] = {}
-        self._seq_counters: dict[tuple[str, bytes | None], SequenceGapCounter] = {}
+        self._gap_counters: dict[str, StreamIndex] = {}
+        self._seq_counters: dict[tuple[str, bytes | None], SequenceIndex] = {}
         self._on_gap = on_gap
         self._closed = False
         self._wlock = threading.Lock()  # serialises every call into mcap's Writer
@@ -847,7 +782,7 @@ class McapBagWriter:
             self._types[topic] = type_name
             self._counts[topic] = 0
             if type_name in GAP_CHECKED_TYPES:
-                self._gap_counters[topic] = FrameGapCounter()
+                self._gap_counters[topic] = StreamIndex.recording(start=0)
             return channel_id
 
     # ---------------------------------------------------------------- data
@@ -886,7 +821,7 @@ class McapBagWriter:
                 peek = peek_frame_index(data)
                 if peek is not None:
                     expected = counter.expected
-                    if counter.update(*peek):
+                    if counter.update(*peek)[0] == GAP:
                         gap = (expected, peek[0])
             if sequence is None:
                 sequence = self._counts[topic]
@@ -894,7 +829,7 @@ class McapBagWriter:
                 key = (topic, publisher)
                 seq_counter = self._seq_counters.get(key)
                 if seq_counter is None:
-                    seq_counter = self._seq_counters[key] = SequenceGapCounter()
+                    seq_counter = self._seq_counters[key] = SequenceIndex()
                 seq_counter.update(int(sequence))
             self._queue.put(
                 (

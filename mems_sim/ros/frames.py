@@ -17,7 +17,6 @@ import numpy as np
 from builtin_interfaces.msg import Time
 
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
-from mems_sim.bag.writer import FrameGapCounter as IndexTracker  # noqa: F401 (re-export)
 
 
 class FrameError(ValueError):
