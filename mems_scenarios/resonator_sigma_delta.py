@@ -17,14 +17,18 @@ Four device instances run side by side in one graph (Colinet et al., Sec. 6):
 ``/sd_overload``    observer loop at 0.5 V with output noise 0.5 V and state noise: the
                     modulator overloads (reported, not judged).
 
-Every figure is computed from the recorded MCAP, after the run; the consistency figures
-run the exact-model steady-state observer again on the recorded streams (Anderson & Moore
-1979: white innovations, NIS, NEES, the predicted error autocorrelation; Ljung & Box 1978).
+Every figure is computed from the recorded MCAP alone (:func:`analyse`, also
+``run_scenario sd_resonator --analyse BAG``); the consistency figures run the exact-model
+steady-state observer again on the recorded streams (Anderson & Moore 1979: white
+innovations, NIS, NEES, the predicted error autocorrelation; Ljung & Box 1978); the
+comparator input is replayed from the devices' seeds in the run record (:func:`oracle`).
+Contract: docs/scenarios.md.
 """
 
 from __future__ import annotations
 
 import math
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -34,10 +38,9 @@ from mems_estimation.filters.resonator_consistency import (
     analyse_stream,
     ljung_box_pooled,
     pooled_acf,
+    replay_comparator_input,
 )
-from mems_estimation.nodes.resonator_observer_node import SdObserverNode
 from mems_scenarios.base import (
-    NOT_RECORDED,
     Progress,
     ScenarioError,
     ScenarioOptions,
@@ -47,10 +50,18 @@ from mems_scenarios.base import (
     run_recorded,
     topics_frames,
 )
+from mems_scenarios.contract import (
+    RUN_INFO_TOPIC,
+    AnalysisError,
+    GraphSpec,
+    NodeEntry,
+    ScenarioResult,
+    node_parameters,
+    read_run_info,
+)
 from mems_scenarios.figures import Figure, cell, is_finite, met_cell
 from mems_sim.devices.resonator import default_pulse_amplitude
 from mems_sim.kernels.resonator_observer import observer_model, predicted_error_acf
-from mems_sim.nodes.resonator_node import SdResonatorNode
 
 NAME = "sd_resonator"
 DESCRIPTION = (
@@ -118,24 +129,61 @@ def observer_cases() -> dict[str, tuple[str, dict]]:
     }
 
 
-def build_graph(options: ScenarioOptions, out: Path, duration: float):
-    """Devices, observer nodes and the recorder in one context."""
-    graph = graph_for(options)
-    devices = {}
-    for k, (ns, params) in enumerate(device_cases(duration).items()):
+#: Node names of the device and observer executables (their classes' NODE_NAME).
+DEVICE_NODE, OBSERVER_NODE = "resonator", "resonator_observer"
+
+
+def device_fqn(ns: str) -> str:
+    """Fully qualified name of the device node in namespace ``ns``."""
+    return f"/{ns}/{DEVICE_NODE}"
+
+
+def device_topics(ns: str, params: dict) -> list[str]:
+    """Topics the device in ``ns`` publishes (the loop estimate in observer mode)."""
+    names = ["adc", "drive", "truth", "end_of_stream"]
+    names += ["loop_estimate"] if params.get("mode") == "observer" else []
+    return [f"/{ns}/{t}" for t in names]
+
+
+def graph(options: ScenarioOptions, duration_s: float) -> GraphSpec:
+    """The scenario's graph: the six devices (:func:`device_cases`), then the four observer
+    nodes (:func:`observer_cases`), each in its own namespace; recorded: every device topic,
+    every estimate and the run record."""
+    readers = Counter(ns for ns, _ in observer_cases().values())
+    devices, recorded = [], []
+    for k, (ns, params) in enumerate(device_cases(duration_s).items()):
         p = dict(
             params,
             seed=device_seed(options.seed, k),
-            duration_s=float(duration),
+            duration_s=float(duration_s),
             frame_size=10000,
         )
-        devices[ns] = graph.add_device(SdResonatorNode, p, realtime=options.realtime, namespace=ns)
-    observers = {}
+        # a process graph's device starts once its observers and the recorder subscribed
+        consumers = f"adc:{readers[ns] + 1}"
+        devices.append(NodeEntry("resonator_node", DEVICE_NODE, ns, p, consumers=consumers))
+        recorded += device_topics(ns, p)
+    observers = []
     for name, (ns, params) in observer_cases().items():
-        p = dict(params, device_namespace=f"/{ns}", output_topic=f"/{ns}/{name}/estimate")
-        observers[name] = graph.node(SdObserverNode, p, namespace=f"{ns}/{name}")
-    rec = graph.recorder(str(out), regex=r"^/sd_", exclude=NOT_RECORDED)
-    return graph, devices, observers, rec
+        topic = f"/{ns}/{name}/estimate"
+        p = dict(params, device_namespace=f"/{ns}", output_topic=topic)
+        observers.append(NodeEntry("resonator_observer_node", OBSERVER_NODE, f"{ns}/{name}", p))
+        recorded.append(topic)
+    return GraphSpec(NAME, (*devices, *observers), (*recorded, RUN_INFO_TOPIC))
+
+
+def build_graph(options: ScenarioOptions, out: Path, duration: float):
+    """Devices, observer nodes (:func:`graph`) and the recorder in one context; the run
+    record published."""
+    spec = graph(options, duration)
+    g = graph_for(options)
+    nodes = g.build(spec, realtime=options.realtime)
+    devices = {ns: nodes[device_fqn(ns)] for ns in device_cases(duration)}
+    observers = {
+        name: nodes[f"/{ns}/{name}/{OBSERVER_NODE}"] for name, (ns, _) in observer_cases().items()
+    }
+    rec = g.recorder(str(out), topics=spec.recorded)
+    g.publish_run_info(spec, options, nodes, duration_s=duration)
+    return g, devices, observers, rec
 
 
 def _delivered(rec, observers):
@@ -187,6 +235,7 @@ def run_graph(options: ScenarioOptions, out: Path, duration: float, progress: Pr
             60.0,
             "the last estimates",
         )
+        graph.wait_run_info(rec)
         published = {ns: d.frames_published for ns, d in devices.items()}
     finally:
         rec.close()
@@ -209,11 +258,95 @@ def _settling(rel: np.ndarray, k0: int, tol: float) -> int | None:
 
 #: devices whose recorded streams the consistency figures re-run the observer on
 CONSISTENCY_STREAMS = ("sd_standin", "sd_noisy", "sd_overload")
+#: Device namespaces, in the order of :func:`device_cases` (their seeds' order).
+DEVICES = tuple(device_cases(DEFAULT_DURATION_S))
+#: Estimate topic of each downstream observer node.
+ESTIMATES = {name: f"/{ns}/{name}/estimate" for name, (ns, _) in observer_cases().items()}
 
 
-def _stream(frames: dict, ns: str, noise: float, state: float, seed: int, **kw):
-    """Consistency statistics of one recorded device stream (exact-model observer re-run);
-    ``frames``: topic -> frames of the recording (:func:`topics_frames`)."""
+def _streams(ns: str) -> list[str]:
+    return [f"/{ns}/{t}" for t in ("adc", "drive", "truth")]
+
+
+#: Figure groups: label -> (topics they need, the figures' names). The oracle's group
+#: (:data:`ORACLE`) needs the run record too.
+GROUPS = {
+    "observer loop (exact.*, observer.*, comparator.*, pulse.*)": (
+        [
+            "/sd_observer/truth",
+            "/sd_observer/drive",
+            "/sd_observer/loop_estimate",
+            "/sd_comparator/truth",
+        ],
+        (
+            "exact.rms_error_rel",
+            "observer.amplitude",
+            "comparator.amplitude",
+            "comparator_observer.amplitude_ratio",
+            "pulse.x_rel_mean",
+            "pulse.x_rel_max",
+            "pulse.center_x_rel_max",
+            "pulse.count",
+            "pulse.per_half_period",
+            "pulse.between_samples",
+            "pulse.estimate_error_rel_max",
+        ),
+    ),
+    "observer nodes on sd_noisy (exact_noisy.error_*, f0_error.*, adaptive.*)": (
+        ["/sd_noisy/truth", ESTIMATES["exact"], ESTIMATES["f0_error"], ESTIMATES["adaptive"]],
+        (
+            "exact_noisy.error_variance_ratio",
+            "exact_noisy.error_corr_x",
+            "f0_error.error_corr_x",
+            "f0_error.error_ratio",
+            "adaptive.error_ratio",
+            "adaptive.f0_error",
+        ),
+    ),
+    "stand-in re-run (standin.*)": (
+        _streams("sd_standin"),
+        ("standin.innovations_ljung_box_p", "standin.nis", "standin.nees"),
+    ),
+    "one-bit re-run (exact_noisy.nees, .nis, .error_acf*, .*corr_estimate, .innovation_acf1)": (
+        _streams("sd_noisy"),
+        (
+            "exact_noisy.nees",
+            "exact_noisy.error_acf1",
+            "exact_noisy.error_acf_max_dev",
+            "exact_noisy.error_corr_estimate",
+            "exact_noisy.innovation_acf1",
+            "exact_noisy.nis",
+        ),
+    ),
+    "overload re-run (overload.nees)": (_streams("sd_overload"), ("overload.nees",)),
+    "f0 tracking (tracking.*)": (
+        ["/sd_step/truth", ESTIMATES["tracking"]],
+        ("tracking.settle_periods", "tracking.tail_mean_error"),
+    ),
+}
+#: The oracle's figure group: the comparator input replayed from the devices' seeds.
+ORACLE = "comparator input replayed (exact_noisy.quantizer_overload, overload.quantizer_*)"
+ORACLE_FIGURES = (
+    "exact_noisy.quantizer_overload",
+    "overload.quantizer_overload",
+    "overload.comparator_input_std",
+)
+#: Every number :func:`analyse` reports (``values``), NaN until its group is computed.
+KEYS = (
+    "amp_observer amp_comparator amp_ratio exact_err_rel pulses pulses_per_half_period "
+    "pulse_x_rel_max pulse_x_rel_mean pulse_center_rel_max pulse_sub_sample pulse_est_err_rel "
+    "consistency exact_noisy_rel standin_lb_q standin_lb_p standin_nis standin_nees "
+    "one_bit_nees one_bit_nis error_acf1 error_acf1_pred error_acf_max_dev corr_err_est "
+    "innov_acf1 one_bit_q_overload overload_q overload_q_std overload_nees error_corr_x "
+    "f0_error_corr_x f0_error_ratio adaptive_ratio adaptive_f0_ppm settle_periods "
+    "tracking_tail_ppm"
+).split()
+
+
+def _stream(frames: dict, ns: str, noise: float, state: float, **kw):
+    """Consistency statistics of one recorded device stream (exact-model observer re-run,
+    Anderson & Moore 1979); ``frames``: topic -> frames of the recording
+    (:func:`topics_frames`)."""
     bits = frames[f"/{ns}/adc"]["data"][:, 0]
     drive = frames[f"/{ns}/drive"]["data"]
     tr = frames[f"/{ns}/truth"]["data"]
@@ -227,75 +360,31 @@ def _stream(frames: dict, ns: str, noise: float, state: float, seed: int, **kw):
         noise,
         state,
         skip=int(SKIP_S * FS),
-        seed=seed,
         **kw,
     )
 
 
-def consistency_figures(frames: dict, duration: float, seed: int) -> dict:
-    """Restated consistency figures: (i) stand-in quantiser: white innovations (Ljung-Box,
-    lags 1-50), NIS, NEES; (ii) one-bit in range: NEES, error autocorrelation against the
-    filter's prediction, corr(error, estimate), innovation autocorrelation; (iv) overload."""
-    ks = {ns: k for k, ns in enumerate(device_cases(duration))}
-    f: dict = {}
-    st = _stream(
-        frames,
-        "sd_standin",
-        NOISE_NOISY,
-        STATE_NOISE,
-        device_seed(seed, ks["sd_standin"]),
-        linear_output=True,
-    )
-    q, p_lb, _ = ljung_box_pooled([st.innov], 50)
-    f.update(standin_lb_q=q, standin_lb_p=p_lb, standin_nis=st.nis, standin_nees=st.nees)
-    ob = _stream(frames, "sd_noisy", NOISE_NOISY, STATE_NOISE, device_seed(seed, ks["sd_noisy"]))
-    r_err, _ = pooled_acf([ob.err], ACF_LAGS)
-    pred = predicted_error_acf(observer_model(F0, Q, FS, NOISE_NOISY, STATE_NOISE), ACF_LAGS)
-    r_inn, _ = pooled_acf([ob.innov], 3)
-    f.update(
-        one_bit_nees=ob.nees,
-        one_bit_nis=ob.nis,
-        error_acf1=float(r_err[0]),
-        error_acf1_pred=float(pred[0]),
-        error_acf_max_dev=float(np.max(np.abs(r_err - pred))),
-        corr_err_est=ob.corr_err_est,
-        innov_acf1=float(r_inn[0]),
-        one_bit_q_overload=ob.q_overload,
-    )
-    ov = _stream(
-        frames, "sd_overload", NOISE_OVER, STATE_NOISE_OVER, device_seed(seed, ks["sd_overload"])
-    )
-    f.update(overload_q=ov.q_overload, overload_q_std=ov.q_std, overload_nees=ov.nees)
-    return f
-
-
-def figures(path: Path, duration: float, seed: int = 1) -> dict:
-    """Every acceptance figure of the scenario, from the recorded MCAP."""
+def loop_figures(frames: dict) -> tuple[dict, dict]:
+    """The observer loop against the comparator loop (Colinet Sec. 6): amplitudes, the
+    in-loop estimate's error, the pulses' timing against the recorded truth; and the
+    plot's series."""
     skip = int(SKIP_S * FS)
-    est_topics = {name: f"/{ns}/{name}/estimate" for name, (ns, _) in observer_cases().items()}
-    frames = topics_frames(
-        path,
-        [f"/{ns}/truth" for ns in device_cases(duration)]
-        + ["/sd_observer/drive", "/sd_observer/loop_estimate", *est_topics.values()]
-        + [f"/{ns}/{t}" for ns in CONSISTENCY_STREAMS for t in ("adc", "drive", "truth")],
-    )
-    tr = {ns: frames[f"/{ns}/truth"]["data"] for ns in device_cases(duration)}
+    x_obs = frames["/sd_observer/truth"]["data"][:, 0]
+    tr_obs = frames["/sd_observer/truth"]["data"]
     drive = frames["/sd_observer/drive"]["data"]
-    pulses = {"sd_observer": drive[:, 0]}
     loop = frames["/sd_observer/loop_estimate"]["data"][:, 0]
-    est = {name: frames[t] for name, t in est_topics.items()}
+    x_cmp = frames["/sd_comparator/truth"]["data"][:, 0]
     f: dict = {}
-    x_obs = tr["sd_observer"][:, 0]
     a_obs = _amp(x_obs[skip:])
-    f["amp_observer"], f["amp_comparator"] = a_obs, _amp(tr["sd_comparator"][skip:, 0])
+    f["amp_observer"], f["amp_comparator"] = a_obs, _amp(x_cmp[skip:])
     f["amp_ratio"] = f["amp_comparator"] / a_obs
     f["exact_err_rel"] = float(np.sqrt(np.mean((loop - x_obs)[skip:] ** 2)) / a_obs)
     # truth at each pulse's firing instant (start sample) and centre (sample containing it)
-    k = np.flatnonzero(pulses["sd_observer"][skip:]) + skip
+    k = np.flatnonzero(drive[skip:, 0]) + skip
     kc = k + np.floor((drive[k, 1] + 0.5 * drive[k, 2]) * FS).astype(int)
     k, kc = k[kc < x_obs.size], kc[kc < x_obs.size]
-    x_start = np.abs(tr["sd_observer"][k, 3]) / a_obs
-    x_center = np.abs(tr["sd_observer"][kc, 4]) / a_obs
+    x_start = np.abs(tr_obs[k, 3]) / a_obs
+    x_center = np.abs(tr_obs[kc, 4]) / a_obs
     nan = math.nan
     f["pulses"] = int(k.size)
     f["pulses_per_half_period"] = float(k.size / ((x_obs.size - skip) * 2 * F0 / FS))
@@ -304,45 +393,181 @@ def figures(path: Path, duration: float, seed: int = 1) -> dict:
     f["pulse_center_rel_max"] = float(x_center.max()) if k.size else nan
     f["pulse_sub_sample"] = float(np.mean(drive[k, 1] > 0)) if k.size else nan
     f["pulse_est_err_rel"] = float(np.max(np.abs(loop - x_obs)[skip:]) / a_obs)
-    x_noisy = tr["sd_noisy"][:, 0]
+    fired = drive[:, 0] != 0
+    series = dict(
+        x_obs=x_obs,
+        loop=loop,
+        pulses=drive[:, 0],
+        pulse_t=np.flatnonzero(drive[:, 0]) / FS + drive[fired, 1] + 0.5 * drive[fired, 2],
+        x_center=tr_obs[:, 4],
+        x_cmp=x_cmp,
+    )
+    return f, series
+
+
+def noisy_figures(frames: dict) -> dict:
+    """The observer nodes on ``/sd_noisy``: exact model (measured / predicted error
+    variance), 5 % f0 error and the adaptive observer against the exact model."""
+    skip = int(SKIP_S * FS)
+    x_noisy = frames["/sd_noisy/truth"]["data"][:, 0]
+    est = {n: frames[ESTIMATES[n]] for n in ("exact", "f0_error", "adaptive")}
     a_noisy = _amp(x_noisy[skip:])
     half = x_noisy.size // 2
-    err = {n: est[n]["data"][:, 0] - x_noisy for n in ("exact", "f0_error", "adaptive")}
+    err = {n: est[n]["data"][:, 0] - x_noisy for n in est}
+    f: dict = {}
     f["consistency"] = float(
         np.var(err["exact"][skip:]) / np.mean(est["exact"]["variances"][skip:, 0])
     )
     f["exact_noisy_rel"] = float(np.std(err["exact"][half:]) / a_noisy)
-    f.update(consistency_figures(frames, duration, seed))
     f["error_corr_x"] = float(np.corrcoef(err["exact"][skip:], x_noisy[skip:])[0, 1])
     f["f0_error_corr_x"] = float(np.corrcoef(err["f0_error"][skip:], x_noisy[skip:])[0, 1])
     f["f0_error_ratio"] = float(np.std(err["f0_error"][half:]) / np.std(err["exact"][half:]))
     f["adaptive_ratio"] = float(np.std(err["adaptive"][half:]) / np.std(err["exact"][half:]))
     f["adaptive_f0_ppm"] = float((est["adaptive"]["data"][-1, 1] / F0 - 1) * 1e6)
-    f0_true = tr["sd_step"][:, 2]
-    f0_est = est["tracking"]["data"][:, 1]
+    return f
+
+
+def standin_figures(frames: dict) -> dict:
+    """Stand-in quantiser: white innovations (Ljung & Box 1978, lags 1-50), NIS, NEES."""
+    st = _stream(frames, "sd_standin", NOISE_NOISY, STATE_NOISE, linear_output=True)
+    q, p_lb, _ = ljung_box_pooled([st.innov], 50)
+    return dict(standin_lb_q=q, standin_lb_p=p_lb, standin_nis=st.nis, standin_nees=st.nees)
+
+
+def one_bit_figures(frames: dict) -> dict:
+    """One-bit in range: NEES, the error autocorrelation against the filter's prediction,
+    corr(error, estimate), innovation autocorrelation and NIS."""
+    ob = _stream(frames, "sd_noisy", NOISE_NOISY, STATE_NOISE)
+    r_err, _ = pooled_acf([ob.err], ACF_LAGS)
+    pred = predicted_error_acf(observer_model(F0, Q, FS, NOISE_NOISY, STATE_NOISE), ACF_LAGS)
+    r_inn, _ = pooled_acf([ob.innov], 3)
+    return dict(
+        one_bit_nees=ob.nees,
+        one_bit_nis=ob.nis,
+        error_acf1=float(r_err[0]),
+        error_acf_max_dev=float(np.max(np.abs(r_err - pred))),
+        corr_err_est=ob.corr_err_est,
+        innov_acf1=float(r_inn[0]),
+    )
+
+
+def overload_figures(frames: dict) -> dict:
+    """The overloaded case (0.5 V + 0.5 V): the exact-model observer's NEES there."""
+    ov = _stream(frames, "sd_overload", NOISE_OVER, STATE_NOISE_OVER)
+    return dict(overload_nees=ov.nees)
+
+
+def tracking_figures(frames: dict) -> tuple[dict, dict]:
+    """The adaptive observer on ``/sd_step``: settling within 100 ppm after the +2 % f0
+    step, mean error over the last 50 ms; and the plot's series."""
+    f0_true = frames["/sd_step/truth"]["data"][:, 2]
+    f0_est = frames[ESTIMATES["tracking"]]["data"][:, 1]
     rel = f0_est / f0_true - 1.0
     k0 = int(np.flatnonzero(np.diff(f0_true) != 0)[0]) + 1
     s = _settling(rel, k0, 100e-6)
-    f["settle_periods"] = None if s is None else s * f0_true[-1] / FS
-    f["tracking_tail_ppm"] = float(np.mean(rel[-int(0.05 * FS) :]) * 1e6)
-    f["series"] = dict(
-        x_obs=x_obs,
-        loop=loop,
-        pulses=pulses["sd_observer"],
-        pulse_t=np.flatnonzero(drive[:, 0]) / FS
-        + drive[drive[:, 0] != 0, 1]
-        + 0.5 * drive[drive[:, 0] != 0, 2],
-        x_center=tr["sd_observer"][:, 4],
-        x_cmp=tr["sd_comparator"][:, 0],
-        rel=rel,
-        k0=k0,
+    f = dict(
+        settle_periods=None if s is None else s * f0_true[-1] / FS,
+        tracking_tail_ppm=float(np.mean(rel[-int(0.05 * FS) :]) * 1e6),
     )
-    return f
+    return f, dict(rel=rel, k0=k0)
+
+
+def oracle(record: dict | None, frames: dict) -> dict:
+    """The oracle step: the modulator's comparator input q(k), replayed from each device's
+    run seed (in the run record) by :func:`replay_comparator_input` (the device's noise
+    layout, Colinet eqs. 10-12), on ``/sd_noisy`` and ``/sd_overload``: the fraction of
+    samples with |q| > 2 V (quantiser overloaded) and the std of q [V] after the start-up.
+    NaN where the replay does not reproduce the recorded bits."""
+    skip = int(SKIP_S * FS)
+    out = {}
+    for ns, noise, keys in (
+        ("sd_noisy", NOISE_NOISY, ("one_bit_q_overload", None)),
+        ("sd_overload", NOISE_OVER, ("overload_q", "overload_q_std")),
+    ):
+        seed = node_parameters(record, device_fqn(ns), "the devices' seeds")["seed"]
+        position = frames[f"/{ns}/truth"]["data"][:, 0]
+        bits = frames[f"/{ns}/adc"]["data"][:, 0]
+        q = replay_comparator_input(seed, position, bits, noise)
+        overload = math.nan if q is None else float(np.mean(np.abs(q[skip:]) > 2.0))
+        out[keys[0]] = overload
+        if keys[1] is not None:
+            out[keys[1]] = math.nan if q is None else float(q[skip:].std())
+    return out
+
+
+def _needed_topics() -> list[str]:
+    topics = [t for needs, _ in GROUPS.values() for t in needs]
+    return list(dict.fromkeys(topics))
+
+
+def figures(bag: Path) -> tuple[dict, dict, list[tuple[str, str]]]:
+    """Every acceptance figure of the scenario that the recording ``bag`` allows: (numbers
+    by :data:`KEYS`, plot series, (group, reason) of each group it does not allow)."""
+    frames = topics_frames(bag, _needed_topics(), missing_ok=True)
+    f: dict = dict.fromkeys(KEYS, math.nan)
+    f["error_acf1_pred"] = float(
+        predicted_error_acf(observer_model(F0, Q, FS, NOISE_NOISY, STATE_NOISE), ACF_LAGS)[0]
+    )
+    series: dict = {}
+    unavailable = []
+    compute = (
+        loop_figures,
+        noisy_figures,
+        standin_figures,
+        one_bit_figures,
+        overload_figures,
+        tracking_figures,
+    )
+    for (group, (needs, _)), fn in zip(GROUPS.items(), compute, strict=True):
+        absent = [t for t in needs if t not in frames]
+        if absent:
+            unavailable.append((group, f"{bag}: no frames on {', '.join(absent)}"))
+            continue
+        got = fn(frames)
+        if isinstance(got, tuple):
+            got, more = got
+            series.update(more)
+        f.update(got)
+    absent = [t for ns in ("sd_noisy", "sd_overload") for t in _streams(ns) if t not in frames]
+    try:
+        if absent:
+            raise AnalysisError(f"{ORACLE}: no frames on {', '.join(absent)}")
+        f.update(oracle(read_run_info(bag), frames))
+    except AnalysisError as exc:
+        unavailable.append((ORACLE, str(exc)))
+    return f, series, unavailable
+
+
+def analyse(bag, pngs=None) -> ScenarioResult:
+    """The scenario's figures from its recording ``bag`` alone (:func:`figures`; the
+    replayed comparator input through :func:`oracle`, from the run record); ``pngs``: the
+    figure's PNG path in a 1-tuple (None: no plot)."""
+    f, series, unavailable = figures(bag)
+    missing = {
+        name
+        for group, _ in unavailable
+        for name in (ORACLE_FIGURES if group == ORACLE else GROUPS[group][1])
+    }
+    if len(missing) == sum(len(g[1]) for g in GROUPS.values()) + len(ORACLE_FIGURES):
+        raise AnalysisError("; ".join(reason for _, reason in unavailable))
+    paths = []
+    if pngs and {"x_obs", "rel"} <= set(series):
+        plot(dict(f, series=series), pngs[0])
+        paths.append(Path(pngs[0]))
+    return ScenarioResult(
+        NAME,
+        [r for r in records(f) if r.name not in missing],
+        table(f),
+        paths,
+        unavailable,
+        oracle_only=[ORACLE],
+        values=f,
+    )
 
 
 def records(f: dict) -> list[Figure]:
     """The scenario's figures as data (ratios as fractions, unit "1")."""
-    settled = f["settle_periods"] is not None
+    settled = is_finite(f["settle_periods"])  # None: never settles; NaN: not computed
     return [
         Figure(
             "exact.rms_error_rel", f["exact_err_rel"], "1", "<= 1e-9", f["exact_err_rel"] <= 1e-9
@@ -457,7 +682,9 @@ def table(f: dict) -> str:
         v = F[name].value
         return cell(v * scale if is_finite(v) else v, spec, suffix)
 
-    settle = "never" if f["settle_periods"] is None else f"{f['settle_periods']:.0f} periods"
+    settle = (
+        "never" if f["settle_periods"] is None else f"{c('tracking.settle_periods', '.0f')} periods"
+    )
     settle += f" (last 50 ms: mean {c('tracking.tail_mean_error', '+.0f')} ppm)"
     rows = [
         [
@@ -486,7 +713,7 @@ def table(f: dict) -> str:
             "observer loop: |x| at the pulse centre / amplitude (max)",
             "0",
             "-",
-            f"{c('pulse.center_x_rel_max', '.4f', 100, ' %')} ({f['pulses']} pulses, "
+            f"{c('pulse.center_x_rel_max', '.4f', 100, ' %')} ({cell(f['pulses'], 'd')} pulses, "
             f"{c('pulse.per_half_period', '.4f')} per half period, "
             f"{c('pulse.between_samples', '.0f', 100, ' %')} between samples; max estimate "
             f"error {c('pulse.estimate_error_rel_max', '.0e')} of A)",
@@ -503,7 +730,7 @@ def table(f: dict) -> str:
             "stand-in quantiser: innovations Ljung-Box p (lags 1-50)",
             "white",
             "> 0.01",
-            f"{c('standin.innovations_ljung_box_p', '.3f')} (Q {f['standin_lb_q']:.1f}, 50 dof)",
+            f"{c('standin.innovations_ljung_box_p', '.3f')} (Q {cell(f['standin_lb_q'], '.1f')}, 50 dof)",
             met_cell(F["standin.innovations_ljung_box_p"]),
         ],
         [
@@ -650,15 +877,13 @@ def _check_duration(duration: float) -> None:
 
 
 def run(options: ScenarioOptions) -> dict:
-    """Run the scenario; return the table, figures and paths."""
+    """Run the scenario and analyse its recording (:func:`analyse`); return the table,
+    figures and paths."""
     return run_recorded(
         options,
         name=NAME,
         default_duration_s=DEFAULT_DURATION_S,
         check_duration=_check_duration,
         run_graph=run_graph,
-        figures=lambda out, _res, duration: figures(out, duration, options.seed),
-        records=records,
-        table=table,
-        plot=plot,
+        analyse=analyse,
     )

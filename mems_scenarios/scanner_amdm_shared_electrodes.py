@@ -11,7 +11,10 @@ Chen 2018 chapter 5 (Table 5.3).  Two device instances in one graph:
                        rings down from 0.02 rad and stays at rest; its estimator must report
                        low signal instead of diverging.
 
-Every figure is computed from the recorded MCAP after the run: Table 5.3 (RMSE of the
+Every figure is computed from the recorded MCAP alone (:func:`analyse`, also
+``run_scenario scanner_shared_electrodes --analyse BAG``; the chain delay of the device as
+built by :func:`oracle` from the run record, the estimators' end state from /diagnostics;
+contract: docs/scenarios.md): Table 5.3 (RMSE of the
 per-extremum amplitude and phase shift, eqs. (109)-(110), after ``T_EVAL``), consistency
 (NEES of theta against the sign-aligned truth, covariance positive definite over the whole
 run), and the off-resonance check.  PNGs in the form of Figs. 5.8 and 5.9.
@@ -31,6 +34,7 @@ stays below 1 mrad is reported.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -38,9 +42,7 @@ from scipy.interpolate import CubicSpline
 
 from mems_estimation.filters import scanner_amdm_model as sam
 from mems_estimation.filters import scanner_amdm_tracking as su
-from mems_estimation.nodes.scanner_amdm_estimator_node import ScannerAmdmEstimatorNode
 from mems_scenarios.base import (
-    NOT_RECORDED,
     Progress,
     ScenarioError,
     ScenarioOptions,
@@ -50,9 +52,17 @@ from mems_scenarios.base import (
     run_recorded,
     topics_frames,
 )
+from mems_scenarios.contract import (
+    RUN_INFO_TOPIC,
+    AnalysisError,
+    GraphSpec,
+    NodeEntry,
+    ScenarioResult,
+    node_parameters,
+    read_run_info,
+)
 from mems_scenarios.figures import Figure, cell, met_cell
 from mems_sim.devices import scanner_amdm as sa
-from mems_sim.nodes.scanner_amdm_node import ScannerAmdmNode
 
 NAME = "scanner_shared_electrodes"
 DESCRIPTION = (
@@ -102,25 +112,90 @@ def cases() -> dict[str, dict]:
     return {"scanner_amdm": DEVICE, "scanner_amdm_off": OFF}
 
 
-def build_graph(options: ScenarioOptions, out: Path, duration: float):
-    """Devices, estimator nodes and the recorder in one context."""
-    graph = graph_for(options)
-    devices, estimators = {}, {}
+#: Node names of the device and estimator executables (their classes' NODE_NAME).
+DEVICE_NODE, ESTIMATOR_NODE = "scanner_amdm", "scanner_amdm_estimator"
+KINDS = ("ekf", "ukf")
+
+
+def device_fqn(ns: str) -> str:
+    """Fully qualified name of the device node in namespace ``ns``."""
+    return f"/{ns}/{DEVICE_NODE}"
+
+
+def estimator_fqn(ns: str) -> str:
+    """Fully qualified name of the estimator node of the device in ``ns``."""
+    return f"/{ns}/estimator/{ESTIMATOR_NODE}"
+
+
+def nominal_delay(params: dict) -> float:
+    """Envelope delay [s] of the AMDM chain of a device with the scenario's ``params``
+    (nominal values; :func:`mems_sim.devices.scanner_amdm.design_chain`)."""
+    names = {s.name for s in sa.AMDM_SPECS}
+    return sa.design_chain(sa.resolve_amdm({k: v for k, v in params.items() if k in names})).delay
+
+
+def recorded_topics(ns: str) -> list[str]:
+    """The topics of device ``ns`` and its estimator that the recorder writes."""
+    names = ["adc", "drive", "truth", "end_of_stream"]
+    names += [f"{k}/{t}" for k in KINDS for t in ("estimate", "phase_amplitude")]
+    return [f"/{ns}/{t}" for t in names]
+
+
+def graph(options: ScenarioOptions, duration_s: float) -> GraphSpec:
+    """The scenario's graph: both devices (:func:`cases`), then their estimators (the
+    chain delay of the nominal device, :func:`nominal_delay`); recorded: every topic of
+    both, /diagnostics (the estimators' end state) and the run record."""
+    devices, estimators, recorded = [], [], []
     for k, (ns, dev) in enumerate(cases().items()):
-        p = dict(dev, seed=int(options.seed) * 10 + k, duration_s=float(duration), frame_size=10000)
-        devices[ns] = graph.add_device(ScannerAmdmNode, p, realtime=options.realtime, namespace=ns)
-        delay = devices[ns].device.delay
-        estimators[ns] = graph.node(
-            ScannerAmdmEstimatorNode,
-            dict(device_namespace=f"/{ns}", chain_delay_s=delay),
-            namespace=f"{ns}/estimator",
+        p = dict(
+            dev, seed=int(options.seed) * 10 + k, duration_s=float(duration_s), frame_size=10000
         )
-    rec = graph.recorder(str(out), regex=r"^/scanner_amdm", exclude=NOT_RECORDED)
-    return graph, devices, estimators, rec
+        # a process graph's device starts once its estimator and the recorder subscribed
+        devices.append(NodeEntry("scanner_amdm_node", DEVICE_NODE, ns, p, consumers="adc:2"))
+        estimators.append(
+            NodeEntry(
+                "scanner_amdm_estimator_node",
+                ESTIMATOR_NODE,
+                f"{ns}/estimator",
+                dict(device_namespace=f"/{ns}", chain_delay_s=nominal_delay(p)),
+            )
+        )
+        recorded += recorded_topics(ns)
+    return GraphSpec(NAME, (*devices, *estimators), (*recorded, "/diagnostics", RUN_INFO_TOPIC))
+
+
+def build_graph(options: ScenarioOptions, out: Path, duration: float):
+    """Devices, then estimator nodes told the delay of their device's chain as built (its
+    ``device_seed``, ``temperature_c`` and the user's values), and the recorder in one
+    context; the run record published (with the parameters the user set on each device,
+    for :func:`oracle`)."""
+    spec = graph(options, duration)
+    g = graph_for(options)
+    emulators = tuple(n for n in spec.nodes if n.executable == "scanner_amdm_node")
+    nodes = g.build(replace(spec, nodes=emulators), realtime=options.realtime)
+    devices = {e.namespace: nodes[e.fqn] for e in emulators}
+    consumers = tuple(
+        replace(
+            n,
+            parameters=dict(
+                n.parameters, chain_delay_s=devices[n.namespace.split("/")[0]].device.delay
+            ),
+        )
+        for n in spec.nodes
+        if n not in emulators
+    )
+    spec = replace(spec, nodes=emulators + consumers)
+    nodes.update(g.build(replace(spec, nodes=consumers), realtime=options.realtime))
+    estimators = {ns: nodes[estimator_fqn(ns)] for ns in devices}
+    rec = g.recorder(str(out), topics=spec.recorded)
+    fixed = {device_fqn(ns): sorted(d.fixed_parameters) for ns, d in devices.items()}
+    g.publish_run_info(spec, options, nodes, duration_s=duration, fixed_parameters=fixed)
+    return g, devices, estimators, rec
 
 
 def run_graph(options: ScenarioOptions, out: Path, duration: float, progress: Progress) -> dict:
-    """Run the graph until both devices published ``duration``; return counts and node state."""
+    """Run the graph until both devices published ``duration`` and the recorder holds the
+    estimators' end state (their diagnostics published once more); return counts."""
     graph, devices, estimators, rec = build_graph(options, out, duration)
 
     def delivered(device) -> int:
@@ -138,7 +213,7 @@ def run_graph(options: ScenarioOptions, out: Path, duration: float, progress: Pr
             ) and all(
                 e.pub_est[k].get_subscription_count() >= 1
                 for e in estimators.values()
-                for k in ("ekf", "ukf")
+                for k in KINDS
             )
 
         graph.spin_until(matched, 30.0, "the recorder and estimators to subscribe")
@@ -154,7 +229,7 @@ def run_graph(options: ScenarioOptions, out: Path, duration: float, progress: Pr
             lambda: all(
                 rec.received(f"/{ns}/{k}/estimate") >= e.frames_done
                 for ns, e in estimators.items()
-                for k in ("ekf", "ukf")
+                for k in KINDS
             ),
             60.0,
             "the last estimates",
@@ -163,27 +238,26 @@ def run_graph(options: ScenarioOptions, out: Path, duration: float, progress: Pr
             lambda: all(
                 rec.received(f"/{ns}/{k}/phase_amplitude") >= _evt_msgs(e, k)
                 for ns, e in estimators.items()
-                for k in ("ekf", "ukf")
+                for k in KINDS
             ),
             60.0,
             "the last phase/amplitude messages",
         )
-        state = {
-            ns: dict(
-                tracking={k: f.tracking for k, f in e.filters.items()},
-                pd_failures={k: f.pd_failures for k, f in e.filters.items()},
-                acquisitions={k: f.acquisitions for k, f in e.filters.items()},
-                warnings=list(e.diag.warnings),
-                delay=devices[ns].device.delay,
-            )
-            for ns, e in estimators.items()
-        }
+        before = rec.received("/diagnostics")
+        for e in estimators.values():  # their end state, for the analysis of the recording
+            e.diag.publish()
+        graph.spin_until(
+            lambda: rec.received("/diagnostics") >= before + len(estimators),
+            20.0,
+            "the recorder to take the estimators' diagnostics",
+        )
+        graph.wait_run_info(rec)
         published = {ns: d.frames_published for ns, d in devices.items()}
     finally:
         rec.close()
         summary = dict(counts=rec.counts(), gaps=rec.gaps(), losses=rec.losses())
         graph.close()
-    return dict(published=published, recorder=summary, state=state)
+    return dict(published=published, recorder=summary)
 
 
 def _evt_msgs(est, kind) -> int:
@@ -214,29 +288,97 @@ def _events(frames: dict, topic: str) -> su.PeriodEvents:
     return su.PeriodEvents(s[:, 0], s[:, 1], s[:, 2], v[:, 0], v[:, 1], v[:, 2])
 
 
-def figures(path: Path, state: dict) -> dict:
-    """Every acceptance figure of the scenario, from the recorded MCAP (+ node end state)."""
+def node_diagnostics(bag) -> dict[str, dict]:
+    """Per node (its fully qualified name, the statuses' ``hardware_id``) on /diagnostics of
+    the recording: ``values``, the counters of its last status, and ``messages``, the
+    message of every status it published."""
+    from mems_sim.bag.player import read_messages
+
+    out: dict[str, dict] = {}
+    for _, _, _, msg in read_messages(str(bag), ["/diagnostics"]):
+        for st in msg.status:
+            d = out.setdefault(st.hardware_id, dict(values={}, messages=[]))
+            d["values"] = {kv.key: kv.value for kv in st.values}
+            d["messages"].append(st.message)
+    return out
+
+
+def oracle(record: dict | None) -> dict[str, float]:
+    """The oracle step: the envelope delay [s] of each device's AMDM chain as built (the
+    calibrated phase shift of Chen 2018 Sec. 5.3.3, :func:`~mems_sim.devices.scanner_amdm.
+    design_chain`), from the device's parameters in the run record drawn for its
+    ``device_seed`` and moved to its ``temperature_c`` as the emulator node draws them
+    (:func:`~mems_sim.params.draw_device`; the parameters the user set left as given)."""
+    from mems_scenarios.contract import node_class
+    from mems_sim.params import draw_device, spec_table
+
+    specs = sa.AMDM_SPECS
+    t_ref = float(spec_table(node_class("scanner_amdm_node").SPECS)["temperature_c"].default)
+    out = {}
+    for ns in cases():
+        fqn = device_fqn(ns)
+        p = node_parameters(record, fqn, "the AMDM chain's delay")
+        drawn = draw_device(
+            specs,
+            {s.name: p[s.name] for s in specs},
+            p["device_seed"],
+            p["temperature_c"] - t_ref,
+            fixed=record.get("fixed_parameters", {}).get(fqn, ()),
+        )
+        out[ns] = sa.design_chain(sa.resolve_amdm(drawn)).delay
+    return out
+
+
+#: Figure groups that need more than the estimates and the truth: the oracle's (the
+#: chain delay: theta against the delayed truth, the acquisition study) and the
+#: estimators' end state on /diagnostics.
+ORACLE = "theta RMSE, NEES, acquisition study (*.theta_rmse, *.nees, stress.*, acquire_0p1rad.*)"
+DIAGNOSTICS = "estimators' end state (*.pd_failures, off.tracking, off.low_signal_warned)"
+
+
+def _group_of(name: str) -> str | None:
+    """The figure group (:data:`ORACLE`, :data:`DIAGNOSTICS`) of figure ``name``, if any."""
+    if name.endswith((".theta_rmse", ".nees", ".theta_rmse_ratio")) or (
+        name.startswith(tuple(f"{c}." for c in STRESS_CASES)) and name != "stress.truth_amplitude"
+    ):
+        return ORACLE
+    if name.endswith(".pd_failures") or name in ("off.tracking", "off.low_signal_warned"):
+        return DIAGNOSTICS
+    return None
+
+
+def figures(path: Path) -> tuple[dict, list[tuple[str, str]]]:
+    """Every acceptance figure of the scenario that the recording ``path`` allows: (figures,
+    (group, reason) of each group it does not allow). The estimates and the truth are
+    needed (:class:`AnalysisError` without them); the chain delay comes from
+    :func:`oracle`, the estimators' end state from /diagnostics."""
     f: dict = {}
-    events = [
-        f"/{ns}/{k}/phase_amplitude"
-        for ns in ("scanner_amdm", "scanner_amdm_off")
-        for k in ("ekf", "ukf")
-    ]
+    unavailable = []
+    events = [f"/{ns}/{k}/phase_amplitude" for ns in cases() for k in KINDS]
     fr = topics_frames(path, _required_topics() + events, missing_ok=True)
     absent = [t for t in _required_topics() if t not in fr]
     if absent:
-        raise ScenarioError(f"{path}: no frames on {', '.join(absent)}")
+        raise AnalysisError(f"{path}: no frames on {', '.join(absent)}")
+    try:
+        delay = oracle(read_run_info(path))["scanner_amdm"]
+    except AnalysisError as exc:
+        delay = None
+        unavailable.append((ORACLE, str(exc)))
+    diag = node_diagnostics(path)
+    state = {ns: diag.get(estimator_fqn(ns)) for ns in cases()}
+    if None in state.values():
+        unavailable.append((DIAGNOSTICS, f"{path}: no /diagnostics of the estimators"))
     tr = fr["/scanner_amdm/truth"]["data"]
     drive = fr["/scanner_amdm/drive"]["data"][:, 0]
     y = fr["/scanner_amdm/adc"]["data"][:, 0]
     tk = su.PhaseAmplitudeTracker(0.03, FS)
     tk.push_drive(0, drive)
     ref = tk.push_theta(0, tr[:, 0])
-    delay = state["scanner_amdm"]["delay"]
     t = np.arange(tr.shape[0]) / FS
     k_eval = int(T_EVAL * FS)
+    nan = math.nan
     est, ev = {}, {}
-    for k in ("ekf", "ukf"):
+    for k in KINDS:
         e = fr[f"/scanner_amdm/{k}/estimate"]
         est[k] = e
         ev[k] = _events(fr, f"/scanner_amdm/{k}/phase_amplitude")
@@ -246,48 +388,54 @@ def figures(path: Path, state: dict) -> dict:
             math.degrees(ra),
             n,
         )
-        # theta RMSE (eq. (110)) against the sign-aligned truth at t_k - delay, and NEES
-        th_true = CubicSpline(t, tr[:, 0])(np.maximum(t - delay, 0.0))
-        th = e["data"][:, 0]
         sel = slice(k_eval, None)
-        s = np.sign(np.sum(th[sel] * th_true[sel])) or 1.0
-        err = th[sel] - s * th_true[sel]
-        f[f"{k}_theta_rmse_deg"] = math.degrees(float(np.sqrt(np.mean(err**2))))
-        f[f"{k}_nees"] = float(np.mean(err**2 / e["variances"][sel, 0]))
+        f[f"{k}_theta_rmse_deg"] = f[f"{k}_nees"] = nan
+        if delay is not None:
+            # theta RMSE (eq. (110)) against the sign-aligned truth at t_k - delay, and NEES
+            th_true = CubicSpline(t, tr[:, 0])(np.maximum(t - delay, 0.0))
+            th = e["data"][:, 0]
+            s = np.sign(np.sum(th[sel] * th_true[sel])) or 1.0
+            err = th[sel] - s * th_true[sel]
+            f[f"{k}_theta_rmse_deg"] = math.degrees(float(np.sqrt(np.mean(err**2))))
+            f[f"{k}_nees"] = float(np.mean(err**2 / e["variances"][sel, 0]))
         var = e["variances"]
         f[f"{k}_min_var"] = float(np.min(var))
         f[f"{k}_max_var_theta_eval"] = float(np.max(var[sel, 0]))
-        f[f"{k}_pd_failures"] = state["scanner_amdm"]["pd_failures"][k]
-        f[f"{k}_acquisitions"] = state["scanner_amdm"]["acquisitions"][k]
+        main = state["scanner_amdm"]
+        counter = (lambda name: int(main["values"][name])) if main else (lambda _: nan)
+        f[f"{k}_pd_failures"] = counter(f"{k}_pd_failures")
+        f[f"{k}_acquisitions"] = counter(f"{k}_acquisitions")
         t_e, dph, dam = su.match_events(ev[k], ref, 0.25 / 31.3e3)
         f[f"{k}_phase_bias_deg"] = (
-            math.degrees(float(np.mean(dph[t_e >= T_EVAL]))) if np.any(t_e >= T_EVAL) else math.nan
+            math.degrees(float(np.mean(dph[t_e >= T_EVAL]))) if np.any(t_e >= T_EVAL) else nan
         )
     f["ukf_ekf_within_1pct"] = all(
         abs(_ratio(f[f"ukf_{q}_deg"], f[f"ekf_{q}_deg"]) - 1.0) <= RATIO_TOL
         for q in ("amp", "phase")
     )
-    f["stress"] = _stress(y, drive, tr, t, delay)
+    f["stress"] = _stress(y, drive, tr, t, delay) if delay is not None else None
     k0 = int(STRESS_START_S * FS)
     f["stress_motion_rad"] = float(np.max(np.abs(tr[k0 : k0 + STRESS_N + STRESS_SPACING * 4, 0])))
     late = ref.t >= T_EVAL  # empty if the drive missed the parametric resonance
     f["amplitude_range_deg"], f["phase_range_deg"] = (
         (math.degrees(float(a[late].min())), math.degrees(float(a[late].max())))
         if np.any(late)
-        else (math.nan, math.nan)
+        else (nan, nan)
         for a in (ref.amplitude, ref.phase)
     )
     # off resonance
     off_tr = fr["/scanner_amdm_off/truth"]["data"][:, 0]
     f["off_final_amplitude"] = float(np.max(np.abs(off_tr[-5000:])))
     f["off_events"] = sum(
-        _events(fr, f"/scanner_amdm_off/{k}/phase_amplitude").t.size for k in ("ekf", "ukf")
+        _events(fr, f"/scanner_amdm_off/{k}/phase_amplitude").t.size for k in KINDS
     )
-    st = state["scanner_amdm_off"]
-    f["off_tracking"] = any(st["tracking"].values())
-    f["off_low_signal_warned"] = any("low signal" in w for w in st["warnings"])
-    f["off_pd_failures"] = sum(st["pd_failures"].values())
-    off_est = [fr[f"/scanner_amdm_off/{k}/estimate"] for k in ("ekf", "ukf")]
+    off = state["scanner_amdm_off"]
+    f["off_tracking"] = any(off["values"][f"{k}_tracking"] == "True" for k in KINDS) if off else nan
+    f["off_low_signal_warned"] = any("low signal" in m for m in off["messages"]) if off else nan
+    f["off_pd_failures"] = (
+        sum(int(off["values"][f"{k}_pd_failures"]) for k in KINDS) if off else nan
+    )
+    off_est = [fr[f"/scanner_amdm_off/{k}/estimate"] for k in KINDS]
     f["off_finite"] = all(
         np.all(np.isfinite(e["data"])) and np.all(np.isfinite(e["variances"])) for e in off_est
     )
@@ -302,7 +450,29 @@ def figures(path: Path, state: dict) -> dict:
         ev=ev,
         ref=ref,
     )
-    return f
+    return f, unavailable
+
+
+def analyse(bag, pngs=None) -> ScenarioResult:
+    """The scenario's figures from its recording ``bag`` alone (:func:`figures`; the chain
+    delay through :func:`oracle`, from the run record); ``pngs``: the PNG paths of the
+    Fig. 5.8 and Fig. 5.9 forms (None: no plots; they need the oracle's delay)."""
+    f, unavailable = figures(bag)
+    missing = {group for group, _ in unavailable}
+    paths = []
+    if pngs and ORACLE not in missing:
+        plot(f, *pngs)
+        paths = [Path(p) for p in pngs]
+    values = {k: v for k, v in f.items() if k != "series"}
+    return ScenarioResult(
+        NAME,
+        [r for r in records(f) if _group_of(r.name) not in missing],
+        table(f),
+        paths,
+        unavailable,
+        oracle_only=[ORACLE],
+        values=values,
+    )
 
 
 def _ratio(a: float, b: float) -> float:
@@ -335,12 +505,16 @@ def _pooled(rmse: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.asarray(rmse) ** 2))) if np.size(rmse) else math.nan
 
 
+#: The acquisition study of a recording without the oracle's delay: no starts.
+_NO_STUDY = su.AcquisitionStudy(*(np.zeros(0) for _ in su.AcquisitionStudy._fields))
+
+
 def _stress_records(f: dict) -> list[Figure]:
     # without motion (the drive missed the parametric resonance) there is nothing to acquire
     moving = f["stress_motion_rad"] >= 0.03
     out = [Figure("stress.truth_amplitude", f["stress_motion_rad"], "rad", ">= 0.03 rad", moving)]
     for case, dth in STRESS_CASES.items():
-        st = f["stress"][case]
+        st = f["stress"][case] if f["stress"] is not None else dict.fromkeys(KINDS, _NO_STUDY)
         for k in ("ekf", "ukf"):
             a = st[k]
             ok = np.isfinite(a.time)
@@ -351,7 +525,7 @@ def _stress_records(f: dict) -> list[Figure]:
                 Figure(f"{case}.{k}.acquired", frac, "1", "== 1", frac == 1.0),
                 Figure(
                     f"{case}.{k}.acquire_time_median",
-                    float(np.median(a.time)) * 1e6 if ok.all() else math.nan,
+                    float(np.median(a.time)) * 1e6 if ok.size and ok.all() else math.nan,
                     "us",
                 ),
                 Figure(f"{case}.{k}.acquire_time_max", tmax, "us"),
@@ -612,16 +786,14 @@ def _check_duration(duration: float) -> None:
 
 
 def run(options: ScenarioOptions) -> dict:
-    """Run the scenario; return the table, figures and paths."""
+    """Run the scenario and analyse its recording (:func:`analyse`); return the table,
+    figures and paths."""
     return run_recorded(
         options,
         name=NAME,
         default_duration_s=DEFAULT_DURATION_S,
         check_duration=_check_duration,
         run_graph=run_graph,
-        figures=lambda out, res, _d: figures(out, res["state"]),
-        records=records,
-        table=table,
-        plot=plot,
+        analyse=analyse,
         png_suffixes=("-fig5_8", "-fig5_9"),
     )

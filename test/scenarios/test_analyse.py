@@ -20,7 +20,7 @@ from mems_scenarios.contract import RUN_INFO_TOPIC
 #: Short runs of each scenario for ``make test`` (the defaults run in ``make acceptance``).
 SHORT = {
     "imu_noise": ["--duration", "300"],
-    "sd_resonator": ["--duration", "0.02"],
+    "sd_resonator": ["--duration", "0.2"],  # the shortest it allows (f0 step at mid-run)
     "scanner_shared_electrodes": ["--duration", "0.05"],
     "scanner_threshold": ["--duration", "0.2"],
     "accelerometer_snr": ["--duration", "0.3"],

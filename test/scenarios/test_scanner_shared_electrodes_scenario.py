@@ -99,3 +99,20 @@ def test_figures_as_data_and_every_miss_flagged(result):
         assert figs[f"{k}.amplitude_rmse"]["target"] == "<= 0.63 deg"
     assert figs["ukf_ekf.amplitude_rmse_ratio"]["target"] == "0.99-1.01"
     assert figs["stress.ukf.acquired"]["target"] == "== 1"
+
+
+def test_oracle_delay_is_the_one_the_estimators_ran_with(result):
+    """The oracle step (the AMDM chain's delay of each device as built, from the run
+    record) gives the delay the run handed its estimators (their recorded
+    ``chain_delay_s``, taken from the built devices), and the end state of the estimators
+    comes from the recorded /diagnostics."""
+    from mems_scenarios.contract import read_run_info
+
+    record = read_run_info(result["mcap"])
+    delays = sse.oracle(record)
+    for ns, delay in delays.items():
+        ran = record["nodes"][sse.estimator_fqn(ns)]["parameters"]["chain_delay_s"]
+        assert delay == ran > 0
+    diag = sse.node_diagnostics(result["mcap"])
+    assert {sse.estimator_fqn(ns) for ns in sse.cases()} <= set(diag)
+    assert result["result"].oracle_only == [sse.ORACLE] and not result["result"].unavailable

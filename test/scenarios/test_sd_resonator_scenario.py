@@ -91,3 +91,26 @@ def test_restated_consistency_figures(result):
     assert f["overload_q"] > 0.05 and f["one_bit_q_overload"] < 0.05
     assert figs["overload.nees"]["pass"] is None  # reported, not judged
     assert met_of(result["table"], "0.5 V + 0.5 V") == "overload"
+
+
+def test_oracle_replays_the_comparator_input_from_the_recorded_seeds(result):
+    """The oracle step takes the devices' seeds from the run record: the replayed
+    comparator input reproduces the recorded bits (figures finite), and a recording
+    without the run record lists the oracle's figures as not computed."""
+    from mems_scenarios.contract import read_run_info
+
+    record = read_run_info(result["mcap"])
+    assert record["nodes"][sd_resonator.device_fqn("sd_noisy")]["parameters"]["seed"] == 3 * 10 + 2
+    assert result["result"].oracle_only == [sd_resonator.ORACLE]
+    for name in ("one_bit_q_overload", "overload_q", "overload_q_std"):
+        assert result["values"][name] == result["values"][name]  # replay accepted: not NaN
+    assert (
+        sd_resonator.oracle(
+            record,
+            sd_resonator.topics_frames(
+                result["mcap"],
+                sd_resonator._streams("sd_noisy") + sd_resonator._streams("sd_overload"),
+            ),
+        )["overload_q"]
+        == result["values"]["overload_q"]
+    )
