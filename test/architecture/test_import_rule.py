@@ -30,9 +30,6 @@ and for ``mems_estimation``::
 (:func:`is_ros_module`), neither itself nor through any project module it imports, at any
 depth. :func:`test_the_layering_catches_a_wrong_import` feeds deliberate wrong imports (a
 kernel importing a device module, a filter importing ``rclpy``) to the checkers.
-
-Temporary exception (:data:`LAYERING_EXCEPTIONS`): ``mems_sim.ros.frames`` re-exports
-``mems_sim.bag.writer.FrameGapCounter`` until the stream-index module replaces it.
 """
 
 from __future__ import annotations
@@ -82,11 +79,6 @@ SUBPACKAGE_RULE = {
         "nodes": {"filters", "identification"},
         "tools": {"filters", "identification", "nodes"},
     },
-}
-#: (module, imported module) -> why: imports against :data:`SUBPACKAGE_RULE` allowed for
-#: now, each named in the module docstring; remove an entry with its import.
-LAYERING_EXCEPTIONS = {
-    ("mems_sim.ros.frames", "mems_sim.bag.writer"): "FrameGapCounter re-export (temporary)",
 }
 #: The ROS-free numerical core: no ROS import, directly or through a project module.
 ROS_FREE = (
@@ -187,8 +179,6 @@ def layering_violations(source: str, module: str, is_package: bool = False) -> l
         if target.split(".")[0] != pkg or target == pkg:
             continue
         other = subpackage(target)
-        if any(module == m and (target + ".").startswith(x + ".") for m, x in LAYERING_EXCEPTIONS):
-            continue
         if other not in allowed and (line, other) not in seen:  # once per statement
             seen.add((line, other))
             out.append(
