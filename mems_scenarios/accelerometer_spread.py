@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from mems_scenarios import accelerometer_snr as _snr
 from mems_scenarios.base import ScenarioOptions
+from mems_scenarios.contract import GraphSpec, ScenarioResult
 
 NAME = _snr.NAME_SPREAD
 DESCRIPTION = (
@@ -22,6 +23,16 @@ DESCRIPTION = (
     "drawn device, filter on the nominal model (for campaigns over --device-seeds)"
 )
 DEFAULT_DURATION_S = _snr.DEFAULT_DURATION_S
+
+
+def graph(options: ScenarioOptions, duration_s: float) -> GraphSpec:
+    """The scenario's graph: the four devices of :func:`~accelerometer_snr.spread_cases`."""
+    return _snr.graph(options, duration_s, spread=True)
+
+
+def analyse(bag, pngs=None) -> ScenarioResult:
+    """The scenario's figures from its recording alone (:func:`accelerometer_snr.analyse`)."""
+    return _snr.analyse(bag, pngs, spread=True)
 
 
 def run(options: ScenarioOptions) -> dict:

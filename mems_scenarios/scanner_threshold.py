@@ -24,6 +24,7 @@ Results, from the recording:
 from __future__ import annotations
 
 import math
+import re
 import time
 from pathlib import Path
 
@@ -36,10 +37,7 @@ from mems_estimation.filters.scanner_threshold_detector import (
     detect_offline,
 )
 from mems_estimation.filters.scanner_threshold_ekf import model_from_device, run_ekf
-from mems_estimation.nodes.scanner_threshold_ekf_node import (
-    ScannerThresholdNode,
-    detections_from_rows,
-)
+from mems_estimation.nodes.scanner_threshold_ekf_node import detections_from_rows
 from mems_estimation.studies.scanner_threshold import (
     DRIFTED_SENSOR,
     detection_errors,
@@ -58,6 +56,14 @@ from mems_scenarios.base import (
     run_recorded,
     topics_frames,
 )
+from mems_scenarios.contract import (
+    RUN_INFO_TOPIC,
+    GraphSpec,
+    NodeEntry,
+    ScenarioResult,
+    node_parameters,
+    read_run_info,
+)
 from mems_scenarios.figures import Figure, cell, is_finite
 from mems_sim.devices.scanner import (
     SCANNER_SPECS,
@@ -65,7 +71,6 @@ from mems_sim.devices.scanner import (
     resolve_scanner,
     scanner_params,
 )
-from mems_sim.nodes.scanner_node import MicroScannerNode
 
 NAME = "scanner_threshold"
 DESCRIPTION = (
@@ -91,6 +96,39 @@ def device_overrides(duration: float) -> dict:
     return p
 
 
+#: Fully qualified names of the emulator and the estimator.
+EMULATOR = f"/{NS}/scanner"
+ESTIMATOR = f"/{NS}/threshold/scanner_threshold_ekf"
+#: The recorded data topics (each device topic's end-of-stream record besides).
+TOPICS = tuple(
+    f"/{NS}/{t}"
+    for t in ("adc", "drive", "truth", "psd", "estimate", "estimate_plain", "threshold_detections")
+)
+
+
+def graph(options: ScenarioOptions, duration_s: float, frame: int = FRAME) -> GraphSpec:
+    """The scenario's graph: the drifted device in ``/scanner`` and the threshold/EKF node
+    in ``/scanner/threshold``, recorded. ``frame``: samples per frame."""
+    device = NodeEntry(
+        "scanner_node",
+        "scanner",
+        NS,
+        dict(
+            device_overrides(duration_s),
+            seed=int(options.seed),
+            duration_s=float(duration_s),
+            frame_size=int(frame),
+        ),
+    )
+    estimator = NodeEntry(
+        "scanner_threshold_ekf_node",
+        "scanner_threshold_ekf",
+        f"{NS}/threshold",
+        dict(device_namespace=f"/{NS}", dog_sigma=DOG_SIGMA),
+    )
+    return GraphSpec(NAME, (device, estimator), (*TOPICS, f"/{NS}/end_of_stream", RUN_INFO_TOPIC))
+
+
 def run_graph(
     options: ScenarioOptions,
     out: Path,
@@ -99,24 +137,18 @@ def run_graph(
     frame: int = FRAME,
     record: bool = True,
 ) -> dict:
-    """Device + threshold/EKF node + recorder; returns publish counts and recorder summary.
-
-    ``frame``: samples per frame; ``record``: False leaves the recorder out (benchmark).
-    """
-    graph = graph_for(options)
-    p = dict(
-        device_overrides(duration),
-        seed=int(options.seed),
-        duration_s=float(duration),
-        frame_size=int(frame),
-    )
-    dev = graph.add_device(MicroScannerNode, p, realtime=options.realtime, namespace=NS)
-    est = graph.node(
-        ScannerThresholdNode,
-        dict(device_namespace=f"/{NS}", dog_sigma=DOG_SIGMA),
-        namespace=f"{NS}/threshold",
-    )
-    rec = graph.recorder(str(out), regex=rf"^/{NS}/", exclude=NOT_RECORDED) if record else None
+    """Device + threshold/EKF node + recorder (:func:`graph`); returns publish counts and
+    recorder summary. ``frame``: samples per frame; ``record``: False leaves the recorder
+    out (benchmark)."""
+    spec = graph(options, duration, frame)
+    graph_ = graph_for(options)
+    nodes = graph_.build(spec, realtime=options.realtime)
+    dev, est = nodes[EMULATOR], nodes[ESTIMATOR]
+    rec = None
+    if record:
+        regex = rf"^/{NS}/|^{re.escape(RUN_INFO_TOPIC)}$"
+        rec = graph_.recorder(str(out), regex=regex, exclude=NOT_RECORDED)
+        graph_.publish_run_info(spec, options, nodes, duration_s=duration)
 
     def delivered(_d) -> int:
         """Frames the estimator took; the recorder counts for the device's topics in the
@@ -127,7 +159,7 @@ def run_graph(
 
     try:
         nsub = 2 if rec is not None else 1
-        graph.spin_until(
+        graph_.spin_until(
             lambda: (
                 dev.pub_adc.get_subscription_count() >= nsub
                 and dev.pub_drive.get_subscription_count() >= nsub
@@ -146,7 +178,7 @@ def run_graph(
         )
         t_start = time.perf_counter()
         publish_all(
-            graph,
+            graph_,
             [dev],
             delivered,
             progress,
@@ -156,7 +188,7 @@ def run_graph(
         t_run = time.perf_counter() - t_start
         est.flush()
         n_est = est.frames_done + 1
-        graph.spin_until(
+        graph_.spin_until(
             lambda: (
                 rec is None
                 or (
@@ -168,7 +200,9 @@ def run_graph(
             "the last estimates",
         )
         for _ in range(20):
-            graph.executor.spin_once(timeout_sec=0.01)
+            graph_.executor.spin_once(timeout_sec=0.01)
+        if rec is not None:
+            graph_.wait_run_info(rec)
         published = dev.frames_published
         counts = est.hybrid.counts
     finally:
@@ -176,7 +210,7 @@ def run_graph(
         if rec is not None:
             rec.close()
             summary = dict(counts=rec.counts(), gaps=rec.gaps(), losses=rec.losses())
-        graph.close()
+        graph_.close()
     return dict(published=published, recorder=summary, detector_counts=counts, wall_s=t_run)
 
 
@@ -230,17 +264,17 @@ def sampling_rate_study(
     return res
 
 
-def figures(path: Path, duration: float, seed: int, applied: dict | None = None) -> dict:
-    """Every result of the scenario from the recorded MCAP (plus the offline studies).
+def configured_device(record: dict | None) -> dict:
+    """The device's parameters (:data:`SCANNER_SPECS`, validated) as the emulator ran with
+    them: the scenario's values and the user's overrides, from the run record."""
+    params = node_parameters(record, EMULATOR, "the device's parameters")
+    return resolve_scanner({s.name: params[s.name] for s in SCANNER_SPECS})
 
-    ``applied``: the user's overrides as applied (``--set scanner.PARAM=...``); those of the
-    device node move the device the figures are computed for."""
-    dev_over = device_overrides(duration)
-    names = {sp.name for sp in SCANNER_SPECS}
-    for (node, name), (value, _) in (applied or {}).items():
-        if node == f"/{NS}/{NS}" and name in names:
-            dev_over[name] = value
-    dp = resolve_scanner(dev_over)
+
+def figures(path: Path, dp: dict, seed: int) -> dict:
+    """Every result of the scenario from the recorded MCAP (plus the offline studies):
+    ``dp``: the device's parameters (:func:`configured_device`); ``seed``: the run seed
+    (the sampling-rate study's noise)."""
     sp = scanner_params(dp)
     fs = dp["sample_rate_hz"]
     fr = topics_frames(
@@ -611,19 +645,34 @@ def _check_duration(duration: float) -> None:
         )
 
 
+def analyse(bag, pngs=None) -> ScenarioResult:
+    """The scenario's figures from its recording ``bag`` alone: the device's topics and
+    the estimates, with the device's parameters and the run seed from the run record (an
+    :class:`AnalysisError` without it). ``pngs``: the two PNG paths (Fig. 4.10 analogue,
+    detection study), or one path (the second named ``<stem>-detection.png``), or None."""
+    record = read_run_info(bag)
+    dp = configured_device(record)
+    f = figures(Path(bag), dp, int(record["options"]["seed"]))
+    paths = []
+    if pngs is not None:
+        if isinstance(pngs, str | Path):
+            first = Path(pngs)
+            pngs = (first, first.with_name(first.stem + "-detection.png"))
+        paths = [Path(q) for q in pngs]
+        plot(f, *paths)
+    values = {k: v for k, v in f.items() if k != "series"}
+    return ScenarioResult(NAME, records(f), table(f), paths, values=values)
+
+
 def run(options: ScenarioOptions) -> dict:
-    """Run the scenario; return the table, figures and paths."""
+    """Run the scenario and analyse its recording (:func:`analyse`); return the table,
+    figures and paths."""
     return run_recorded(
         options,
         name=NAME,
         default_duration_s=DEFAULT_DURATION_S,
         check_duration=_check_duration,
         run_graph=run_graph,
-        figures=lambda out, _res, duration: figures(
-            out, duration, int(options.seed), options.applied
-        ),
-        records=records,
-        table=table,
-        plot=plot,
+        analyse=analyse,
         png_suffixes=("", "-detection"),
     )

@@ -22,9 +22,9 @@ SHORT = {
     "imu_noise": ["--duration", "300"],
     "sd_resonator": ["--duration", "0.2"],  # the shortest it allows (f0 step at mid-run)
     "scanner_shared_electrodes": ["--duration", "0.05"],
-    "scanner_threshold": ["--duration", "0.2"],
-    "accelerometer_snr": ["--duration", "0.3"],
-    "accelerometer_spread": ["--duration", "0.3"],
+    "scanner_threshold": ["--duration", "0.38"],
+    "accelerometer_snr": ["--duration", "0.12"],
+    "accelerometer_spread": ["--duration", "0.12"],
     "gyro_calibration": [],
     "imu_calibration": [],
     "imu_thermal_calibration": [],
