@@ -117,10 +117,11 @@ setup(
             "imu_calibration_node = mems_estimation.nodes.imu_calibration_node:main",
             "imu_corrector_node = mems_estimation.nodes.imu_corrector_node:main",
             "mcap_record = mems_sim.bag.record_cli:main",
-            "mcap_play = mems_sim.bag.player:main",
+            "mcap_play = mems_sim.bag.play_cli:main",
             "mcap_info = mems_sim.bag.info:main",
             "live_view = mems_sim.nodes.live_view:main",
             "component_container = mems_scenarios.container:main",
+            "scenario_run_record = mems_scenarios.run_record_node:main",
         ],
         # scenarios of run_scenario (another package adds its own to the same group)
         "mems_emulator.scenarios": [

@@ -118,6 +118,23 @@ def _parser() -> argparse.ArgumentParser:
         "a replay, a process graph's or your own recording with the scenario's topics); "
         "figures it cannot compute are listed, one line each, and the exit status is then 2",
     )
+    p.add_argument(
+        "--write-launch",
+        type=Path,
+        default=None,
+        metavar="FILE.launch.yaml",
+        help="run nothing: write the scenario's graph, with these options, as a launch file "
+        "for run_graph (emulators paced at --realtime-factor that start when their consumers "
+        "and the recorder are matched and exit when acknowledged; the run record for "
+        "--analyse included)",
+    )
+    p.add_argument(
+        "--realtime-factor",
+        type=float,
+        default=1.0,
+        metavar="F",
+        help="with --write-launch: simulated seconds per wall-clock second (default 1)",
+    )
     p.add_argument("--no-plots", action="store_true", help="do not write PNG figures")
     p.add_argument(
         "--json",
@@ -248,6 +265,8 @@ def _main(args) -> int:
     error = validate(args)
     if error:
         return _fail(error)
+    if args.write_launch is not None:
+        return write_launch_main(args)
     apply_defaults()
     problem = None if args.domain_id is not None else domain_id_problem()
     if problem is not None:
@@ -325,6 +344,56 @@ def _main(args) -> int:
             file=sys.stderr,
         )
         return 1
+    return 0
+
+
+def write_launch_main(args) -> int:
+    """``run_scenario NAME --write-launch FILE``: the scenario's graph as a launch file for
+    a runner of processes (:meth:`~mems_scenarios.contract.GraphSpec.as_processes`)."""
+    import math
+
+    from mems_scenarios.base import options_record
+    from mems_scenarios.contract import full_parameters, run_info
+
+    module = load(args.name)
+    if not hasattr(module, "graph"):
+        return _fail(f"scenario {args.name} has no graph as data yet")
+    if not (math.isfinite(args.realtime_factor) and 0 < args.realtime_factor <= 1000):
+        return _fail(f"--realtime-factor = {args.realtime_factor!r} is invalid: allowed (0, 1000]")
+    if args.write_launch.exists() or args.write_launch.is_symlink():
+        return _fail(f"--write-launch: {args.write_launch} exists; refusing to overwrite it")
+    if not args.write_launch.name.endswith(".yaml"):
+        return _fail(f"--write-launch = {str(args.write_launch)!r}: the name must end in .yaml")
+    duration = module.DEFAULT_DURATION_S if args.duration is None else args.duration
+    options = ScenarioOptions(
+        duration_s=duration,
+        seed=args.seed,
+        overrides=args.overrides,
+        device_seed=args.device_seed,
+        temperature_c=args.temperature,
+    )
+    spec = module.graph(options, duration)
+    variation = dict(device_seed=args.device_seed, temperature_c=args.temperature)
+    try:
+        nodes = {
+            e.fqn: dict(
+                executable=e.executable,
+                parameters=full_parameters(e, args.overrides, variation),
+            )
+            for e in spec.nodes
+        }
+    except ParameterError as exc:
+        return _fail(str(exc))
+    record = run_info(spec.scenario, options_record(options), nodes, duration_s=duration)
+    record_file = args.write_launch.with_name(
+        args.write_launch.name.removesuffix(".yaml").removesuffix(".launch") + ".run_record.json"
+    )
+    text = spec.as_processes(args.realtime_factor, str(record_file.resolve())).to_launch_yaml()
+    args.write_launch.write_text(text)
+    record_file.write_text(record + "\n")
+    print(
+        f"wrote {args.write_launch} ({len(spec.nodes)} nodes) and its run record {record_file}"
+    )
     return 0
 
 

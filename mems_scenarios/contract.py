@@ -82,6 +82,9 @@ class NodeEntry:
         parameters: the scenario's parameter values (``param``), name -> value.
         remaps: topic remappings (``remap``), from -> to.
         package: the ROS package (``pkg``).
+        consumers: for an emulator run as a process, the subscriptions its topics need
+            before it starts, ``TOPIC:N,...`` (its ``wait_for_subscribers``; the recorder
+            counts), e.g. ``adc:2`` for an estimator and the recorder.
     """
 
     executable: str
@@ -90,6 +93,7 @@ class NodeEntry:
     parameters: dict = field(default_factory=dict)
     remaps: dict = field(default_factory=dict)
     package: str = PACKAGE
+    consumers: str = ""
 
     @property
     def fqn(self) -> str:
@@ -130,6 +134,31 @@ class GraphSpec:
                 return n
         raise KeyError(fqn)
 
+    def as_processes(self, realtime_factor: float, record: str | None = None) -> GraphSpec:
+        """The graph for a runner of processes (``run_graph``): every emulator paces itself
+        at ``realtime_factor``, starts once its consumers and the recorder are matched
+        (``start_when_matched``, its :attr:`NodeEntry.consumers`) and exits once they
+        acknowledged its last sample (``exit_when_acknowledged``); ``record``: the path of
+        the run record (JSON), published by a ``scenario_run_record`` node."""
+        from dataclasses import replace
+
+        nodes = []
+        for n in self.nodes:
+            if issubclass(node_class(n.executable), _emulator_base()):
+                lifecycle = dict(
+                    realtime_factor=float(realtime_factor),
+                    start_when_matched=True,
+                    exit_when_acknowledged=True,
+                    wait_for_subscribers=n.consumers,
+                )
+                n = replace(n, parameters={**n.parameters, **lifecycle})
+            nodes.append(n)
+        if record is not None:
+            nodes.append(
+                NodeEntry("scenario_run_record", "run_record", "", {"record_file": record})
+            )
+        return replace(self, nodes=tuple(nodes))
+
     def to_launch_yaml(self) -> str:
         """The graph as a ROS 2 launch file (YAML) that ``run_graph`` and ``ros2 launch``
         run; the recorder's topics are named in its header comment (``run_graph --record``
@@ -144,6 +173,32 @@ class GraphSpec:
             default_flow_style=False,
         )
         return head + body
+
+
+def _emulator_base() -> type:
+    from mems_sim.ros.node_base import EmulatorNode
+
+    return EmulatorNode
+
+
+def full_parameters(entry: NodeEntry, overrides=(), variation: dict | None = None) -> dict:
+    """Every parameter value node ``entry`` runs with, without making the node: its
+    table's defaults, the entry's values, then ``variation`` (``device_seed``,
+    ``temperature_c`` of an emulator) and the matching ``overrides``
+    (:class:`~mems_sim.ros.params_file.Override`), each validated against the table."""
+    from mems_sim.params import spec_table
+    from mems_sim.ros.params_file import node_matches
+
+    cls = node_class(entry.executable)
+    specs = spec_table(cls.SPECS)
+    values = {name: spec.default for name, spec in specs.items()}
+    values.update(entry.parameters)
+    if variation and issubclass(cls, _emulator_base()):
+        values.update({k: v for k, v in variation.items() if v is not None and k in specs})
+    for o in overrides:
+        if node_matches(o.node, entry.fqn) and o.name in specs:
+            values[o.name] = o.value
+    return {name: specs[name].validate(v) if name in specs else v for name, v in values.items()}
 
 
 def _jsonable(value):
@@ -186,15 +241,20 @@ def run_info(scenario: str, options: dict, nodes: dict[str, dict], **extra) -> s
 
 
 def read_run_info(path) -> dict | None:
-    """The run record of the recording ``path`` (the last message on :data:`RUN_INFO_TOPIC`),
-    or None when the recording has none (a user's own recording)."""
+    """The run record of the recording ``path`` (its message on :data:`RUN_INFO_TOPIC`), or
+    None when the recording has none (a user's own recording); :class:`AnalysisError` when
+    it holds two different ones (it mixes runs)."""
     from mems_sim.bag.player import read_messages
 
-    text = None
-    for _, _, _, msg in read_messages(str(path), [RUN_INFO_TOPIC]):
-        text = msg.data
-    if text is None:
+    texts = {msg.data for _, _, _, msg in read_messages(str(path), [RUN_INFO_TOPIC])}
+    if not texts:
         return None
+    if len(texts) > 1:
+        raise AnalysisError(
+            f"{path}: {len(texts)} different run records on {RUN_INFO_TOPIC}: the recording "
+            "mixes runs (another graph on its ROS domain?)"
+        )
+    text = texts.pop()
     try:
         record = json.loads(text)
     except ValueError:

@@ -82,6 +82,7 @@ def graph(options: ScenarioOptions, duration_s: float) -> GraphSpec:
             "frame_size": REALTIME_FRAME if options.realtime else FAST_FRAME,
             "publish_imu": bool(options.realtime),
         },
+        consumers="adc:2",  # the identifier and the recorder
     )
     identifier = NodeEntry(
         "imu_noise_identifier_node",
