@@ -18,11 +18,11 @@ from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
-from std_msgs.msg import UInt64
 
 from mems_msgs.msg import AdcFrame
 from mems_sim.params import ParamSpec
 from mems_sim.ros.end_of_stream import END_OF_STREAM, END_OF_STREAM_QOS, parse_end_of_stream
+from mems_sim.ros.flow import ProgressReporter
 from mems_sim.ros.frames import (
     FrameError,
     adc_codes,
@@ -33,7 +33,7 @@ from mems_sim.ros.frames import (
     time_to_ns,
 )
 from mems_sim.ros.node_base import MemsNode
-from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS, PROGRESS_QOS
+from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS
 from mems_sim.stream_index import (
     DEVICE_GAP,
     GAP,
@@ -268,10 +268,10 @@ class EstimatorNode(MemsNode):
         self._formats: dict[str, FormatPin] = {}
         self._indices: dict[str, StreamIndex] = {}
         self.primary: str | None = None
-        self.progress: int | None = None
         #: (AdcFrame, its validated codes) while :meth:`take_frame` decodes it
         self._adc_checked: tuple | None = None
-        self.progress_pub = self.create_publisher(UInt64, "~/progress", PROGRESS_QOS)
+        #: Progress of the primary input on ``~/progress`` (:mod:`mems_sim.ros.flow`).
+        self.progress_reporter = ProgressReporter(self, self._limit("max_gap_samples"))
         #: End sample index of the input announced by the device, until reached.
         self.announced_end: int | None = None
         self._end_topic: str | None = None
@@ -314,15 +314,16 @@ class EstimatorNode(MemsNode):
 
     # ------------------------------------------------------------------ progress
 
+    @property
+    def progress(self) -> int | None:
+        """One past the last sample index of the primary input finished with (None
+        before the first frame)."""
+        return self.progress_reporter.value
+
     def report_progress(self, end: int, follow: bool = False) -> None:
         """Publish the progress ``end`` (one past a sample index of the primary input):
         the largest so far, or ``end`` itself if ``follow`` (a stream reset)."""
-        end = int(end)
-        if self.progress is None or follow:
-            self.progress = end
-        elif abs(end - self.progress) <= self._limit("max_gap_samples"):
-            self.progress = max(self.progress, end)
-        self.progress_pub.publish(UInt64(data=min(max(self.progress, 0), 2**64 - 1)))
+        self.progress_reporter.report(end, follow)
         if self.announced_end is not None:
             self._check_input_end()
 

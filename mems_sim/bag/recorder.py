@@ -49,7 +49,6 @@ from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import UInt64
 
 from mems_sim.bag.schema import (
     SchemaError,
@@ -74,7 +73,8 @@ from mems_sim.ros.end_of_stream import (
     missing_tail,
     parse_end_of_stream,
 )
-from mems_sim.ros.qos import FRAME_DEPTH, PROGRESS_QOS
+from mems_sim.ros.flow import ProgressReporter
+from mems_sim.ros.qos import FRAME_DEPTH
 
 _BEST_EFFORT = ReliabilityPolicy.BEST_EFFORT
 
@@ -225,9 +225,8 @@ class RecorderNode(Node):
         self._rec_closed = False
         self._graph_clock_ns: int | None = None
         self._progress_topic = progress_topic
-        self._progress_pub = (
-            self.create_publisher(UInt64, "~/progress", PROGRESS_QOS) if progress_topic else None
-        )
+        #: ``~/progress`` of ``progress_topic`` (:mod:`mems_sim.ros.flow`); None without one.
+        self.progress_reporter = ProgressReporter(self) if progress_topic else None
         self._clock_sub = self.create_subscription(
             Clock, "/clock", self._on_clock, QoSProfile(depth=10, reliability=_BEST_EFFORT)
         )
@@ -364,10 +363,10 @@ class RecorderNode(Node):
             topic, data, log_time, sent or time.time_ns(), sequence=sequence, publisher=publisher
         )
         self._rx_counts[topic] += 1
-        if self._progress_pub is not None and topic == self._progress_topic:
+        if self.progress_reporter is not None and topic == self._progress_topic:
             peek = peek_frame_index(data)
-            if peek is not None:
-                self._progress_pub.publish(UInt64(data=peek[0] + peek[1]))
+            if peek is not None:  # what it last wrote (a replay that loops starts again)
+                self.progress_reporter.report(peek[0] + peek[1], follow=True)
         if topic in self._eos_topics:
             self._take_end_of_stream(topic, data)
 

@@ -925,7 +925,10 @@ def test_progress_reports_the_end_of_every_frame_taken(graph):
     probe.create_subscription(UInt64, topic, got.append, PROGRESS_QOS)
     assert spin_until(
         ex,
-        lambda: pub_a.get_subscription_count() == 1 and node.progress_pub.get_subscription_count(),
+        lambda: (
+            pub_a.get_subscription_count() == 1
+            and node.progress_reporter.publisher.get_subscription_count()
+        ),
     )
     (info,) = probe.get_publishers_info_by_topic(topic)
     assert info.topic_type == "std_msgs/msg/UInt64"
