@@ -97,9 +97,11 @@ class ProgressSubscriber:
             self._on_progress(self.value)
 
 
-def may_send(sent_end: int, progress: int | None, credit: int, start: int = 0) -> bool:
-    """True while a producer whose output reached sample ``sent_end`` (exclusive) may
-    send more: less than ``credit`` samples beyond the consumer's ``progress`` (``start``,
-    the first sample sent, before its first report)."""
-    base = start if progress is None else progress
-    return sent_end - base < credit
+def may_send(first: int, num: int, progress: int | None, credit: int, start=None) -> bool:
+    """True if a frame of samples [first, first + num) may be sent to a consumer that
+    reported ``progress`` and is granted ``credit`` samples beyond it: the frame ends
+    within the credit, or starts at or before the progress (a repeat, a paired frame).
+    Before the first report the credit counts from ``start`` (the first sample sent);
+    None: nothing sent yet, any frame may go."""
+    base = progress if progress is not None else start
+    return base is None or first <= base or first + num <= base + credit

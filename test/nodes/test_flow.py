@@ -36,7 +36,9 @@ def test_progress_is_the_largest_end_within_the_jump_and_follows_a_reset(graph):
 def test_may_send_keeps_a_credit_of_samples():
     from mems_sim.ros.flow import may_send
 
-    assert may_send(400, None, 500, start=0)
-    assert not may_send(500, None, 500, start=0)
-    assert may_send(1400, 1000, 500)
-    assert not may_send(1500, 1000, 500)
+    assert may_send(0, 100, None, 500)  # nothing sent yet
+    assert may_send(400, 100, None, 500, start=0)
+    assert not may_send(500, 100, None, 500, start=0)
+    assert may_send(1400, 100, 1000, 500)
+    assert not may_send(1500, 100, 1000, 500)
+    assert may_send(900, 100, 1000, 0)  # at or before the progress: a repeat
