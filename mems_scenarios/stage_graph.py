@@ -2,13 +2,16 @@
 ``stage_node`` (stage at 625 kHz with its on-stage gyro), a ``stage_ekf_node`` loading an
 identified parameter YAML (eqs. 48-53; optionally in its in-situ mode, eqs. 44-47) and a
 ``stage_gyro_calibration_node`` publishing ``/<ns>/gyro_scale_factor`` (eq. 27), one
-recorder for every instance, driven by the scenario skeleton (fast or paced).
-Used by ``gyro_calibration`` and the SF(T) study."""
+recorder for every instance, driven by the scenario skeleton (fast or paced); the graph as
+data (:func:`graph`, a GraphSpec) and the nodes' last /diagnostics counters of a recording
+(:func:`recorded_counters`). Used by ``gyro_calibration`` and the SF(T) study."""
 
 from __future__ import annotations
 
 import time
 from pathlib import Path
+
+from mems_scenarios.contract import RUN_INFO_TOPIC, GraphSpec, NodeEntry
 
 #: the topics of each instance recorded (besides its end-of-stream record and /diagnostics)
 RECORDED = ("adc", "drive", "truth", "estimate", "gyro/adc", "gyro_scale_factor", "temperature")
@@ -16,8 +19,66 @@ RECORDED = ("adc", "drive", "truth", "estimate", "gyro/adc", "gyro_scale_factor"
 FRAME = 20000
 
 
+def graph(options, layout: dict, name: str, run_info: bool = False) -> GraphSpec:
+    """The graph of ``layout`` (namespace -> (stage node parameters, parameter YAML path
+    of its EKF, further EKF parameters)): per namespace its stage node, its EKF and its
+    calibration node, in that order; the recorder's topics (``run_info``: with the run
+    record)."""
+    nodes = []
+    for ns, (stage, yaml_path, ekf_params) in layout.items():
+        nodes += [
+            NodeEntry(
+                "stage_node",
+                "stage",
+                ns,
+                dict(stage, frame_size=FRAME, frame_id=ns, publish_imu=bool(options.realtime)),
+            ),
+            NodeEntry(
+                "stage_ekf_node",
+                "stage_ekf",
+                ns,
+                dict(device_namespace=f"/{ns}", params_yaml=str(yaml_path), **ekf_params),
+            ),
+            NodeEntry(
+                "stage_gyro_calibration_node",
+                "stage_gyro_calibration",
+                ns,
+                dict(device_namespace=f"/{ns}", n_trials=stage["n_trials"]),
+            ),
+        ]
+    topics = [f"/{ns}/{t}" for ns in layout for t in (*RECORDED, "end_of_stream")]
+    topics.append("/diagnostics")
+    return GraphSpec(name, tuple(nodes), (*topics, *([RUN_INFO_TOPIC] if run_info else ())))
+
+
+def recorded_counters(bag, topic: str = "/diagnostics") -> dict[str, dict]:
+    """The last diagnostics counters of every node in the recording ``bag``: hardware_id
+    (the node's fully qualified name) -> counter -> value (int or float, as published)."""
+    from mems_sim.bag.player import read_messages
+
+    out: dict[str, dict] = {}
+    for _, _, _, msg in read_messages(str(bag), [topic]):
+        for status in msg.status:
+            values = {}
+            for kv in status.values:
+                try:
+                    values[kv.key] = int(kv.value)
+                except ValueError:
+                    try:
+                        values[kv.key] = float(kv.value)
+                    except ValueError:
+                        values[kv.key] = kv.value
+            out[status.hardware_id] = values
+    return out
+
+
 def run_stage_graph(
-    options, layout: dict, out: Path, name: str, shielded: dict | None = None
+    options,
+    layout: dict,
+    out: Path,
+    name: str,
+    shielded: dict | None = None,
+    run_info: dict | None = None,
 ) -> dict:
     """Run the graph of ``layout`` (namespace -> (stage node parameters, parameter YAML
     path of its EKF, further EKF parameters such as ``insitu``)), recorded to ``out``, until
@@ -26,49 +87,31 @@ def run_stage_graph(
     Returns the published results (eq. 27, with their peak-to-peak pairs) and the true
     gyro scale factor per namespace, the recorder's summary (counts, gaps, losses), frames
     published and rejected, the in-situ corrections (in-situ instances), simulated and wall
-    time [s]."""
-    from mems_estimation.nodes.stage_ekf_node import StageEkfNode
-    from mems_estimation.nodes.stage_gyro_calibration_node import GyroCalibrationNode
+    time [s]. ``run_info``: extra keys of the run record (None: no run record); it is
+    published once the graph ran, with the graph's simulated and wall time
+    (``simulated_s``, ``wall_s``), after every EKF's final diagnostics."""
     from mems_scenarios.base import Progress, graph_for, publish_all
-    from mems_sim.nodes.stage_node import MicroStageNode
 
     shielded = shielded or {}
-    graph = graph_for(options)
-    devs, ekfs, cals = {}, {}, {}
-    topics = [f"/{ns}/{t}" for ns in layout for t in (*RECORDED, "end_of_stream")]
-    topics.append("/diagnostics")
+    spec = graph(options, layout, name, run_info is not None)
+    g = graph_for(options)
     rec = None
     try:
-        for ns, (stage, yaml_path, ekf_params) in layout.items():
-            devs[ns] = graph.add_device(
-                MicroStageNode,
-                dict(
-                    stage,
-                    frame_size=FRAME,
-                    frame_id=ns,
-                    publish_imu=bool(options.realtime),
-                ),
-                realtime=options.realtime,
-                namespace=ns,
-                shielded=shielded.get(ns, frozenset()),
-            )
-            ekfs[ns] = graph.node(
-                StageEkfNode,
-                dict(device_namespace=f"/{ns}", params_yaml=str(yaml_path), **ekf_params),
-                namespace=ns,
-            )
-            cals[ns] = graph.node(
-                GyroCalibrationNode,
-                dict(device_namespace=f"/{ns}", n_trials=stage["n_trials"]),
-                namespace=ns,
-            )
-        rec = graph.recorder(str(out), topics=topics)
+        nodes = g.build(
+            spec,
+            realtime=options.realtime,
+            shielded={f"/{ns}/stage": v for ns, v in shielded.items()},
+        )
+        devs = {ns: nodes[f"/{ns}/stage"] for ns in layout}
+        ekfs = {ns: nodes[f"/{ns}/stage_ekf"] for ns in layout}
+        cals = {ns: nodes[f"/{ns}/stage_gyro_calibration"] for ns in layout}
+        rec = g.recorder(str(out), topics=list(spec.recorded))
 
         def delivered(d) -> int:
             """Frames the device's EKF took (the recorder counts in the skeleton)."""
             return ekfs[d.get_namespace().lstrip("/")].frames_done
 
-        graph.spin_until(
+        g.spin_until(
             lambda: (
                 all(
                     d.pub_adc.get_subscription_count() >= 2
@@ -87,7 +130,7 @@ def run_stage_graph(
         progress = Progress(total, options.progress, name)
         wall0 = time.monotonic()
         publish_all(
-            graph,
+            g,
             list(devs.values()),
             delivered,
             progress,
@@ -99,7 +142,7 @@ def run_stage_graph(
         wall = time.monotonic() - wall0
         progress.close()
         # every estimate published (in-situ: once the sweep is processed) and taken
-        graph.spin_until(
+        g.spin_until(
             lambda: all(
                 ekfs[ns].estimates_published >= ekfs[ns].frames_done
                 and cals[ns].estimates_received >= ekfs[ns].estimates_published
@@ -111,16 +154,29 @@ def run_stage_graph(
         )
         for ns, c in cals.items():
             c.close()
-        graph.spin_until(
+        g.spin_until(
             lambda: all(rec.received(f"/{ns}/gyro_scale_factor") >= 1 for ns in layout),
             30.0,
             "the calibration results",
         )
-        graph.spin_until(
+        g.spin_until(
             lambda: all(rec.received(f"/{ns}/estimate") >= ekfs[ns].frames_done for ns in layout),
             60.0,
             "the last estimates",
         )
+        if run_info is not None:  # the EKFs' final counters, then the run record
+            before = rec.received("/diagnostics")
+            for e in ekfs.values():
+                e.diag.publish()
+            g.spin_until(
+                lambda: rec.received("/diagnostics") >= before + len(ekfs),
+                20.0,
+                "the recorder to take the final diagnostics",
+            )
+            for _ in range(10):  # and those of the other nodes' timers sent before them
+                g.executor.spin_once(timeout_sec=0.01)
+            g.publish_run_info(spec, options, nodes, simulated_s=total, wall_s=wall, **run_info)
+            g.wait_run_info(rec)
         k_true = {ns: devs[ns].gyro.scale_factor() for ns in layout}
         results = {ns: cals[ns].results[-1] for ns in layout}
         rejected = {ns: ekfs[ns].diag.counters.get("rejected_frames", 0) for ns in layout}
@@ -138,7 +194,7 @@ def run_stage_graph(
         if rec is not None:  # None when building the graph failed
             rec.close()
             summary = dict(counts=rec.counts(), gaps=rec.gaps(), losses=rec.losses())
-        graph.close()
+        g.close()
     return dict(
         k_true=k_true,
         results=results,

@@ -16,7 +16,7 @@ gain +0.1 %/K, readout gain; damping and stator registration drawn from the devi
 :mod:`mems_sim.devices.stage`); the thesis' procedure above identifies at 22.9 C and
 re-identifies only D_n and eta at 35.7 C. Steps 1-3 run on the ``idealised`` (drift-free)
 stage, whose figures are those this scenario always printed; unless the scenario is run
-``idealised`` (``options.extra['idealised']``, or ``--set stage.idealised=true``), the same
+``idealised`` (``options.idealised``, or ``--set stage.idealised=true``), the same
 procedure then runs on the default drifting device (same seeds) with the in-situ
 correction of the stage model (Chen 2018 eqs. 44-47) and its rows follow, marked against
 the targets of the drifting case (scale-factor error <= 300 ppm RMS, the thesis 286 ppm;
@@ -33,10 +33,12 @@ device's calibration joins the same graph (:data:`DRIFTING`: ``/stage_d1`` at 22
 re-identified there; each stage seeded as the cores' calibration sweep, its EKF in the
 in-situ mode, which processes the sweep once the stage announced its end, as the thesis
 processes a sweep after its acquisition). Everything is recorded to one MCAP file and the
-tables are computed from the recording and the published results; only the drifting
-table's context row (the thesis' procedure without the in-situ correction) and ablation
-row run on the cores, labelled so. :func:`run_pipeline` is the drift-free scenario on the
-cores only (no ROS).
+tables are an analysis of the recording (:func:`analyse`: the recorded streams, the
+published results, the EKFs' /diagnostics and the run record, which holds the plan and the
+identified models); the gyro's true scale factor, the drifting device as built and the
+drifting table's context row (the thesis' procedure without the in-situ correction) and
+ablation row, which run on the cores, are its :func:`oracle` (labelled so).
+:func:`run_pipeline` is the drift-free scenario on the cores only (no ROS).
 """
 
 from __future__ import annotations
@@ -46,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mems_estimation.filters.stage_ekf import save_model
+from mems_estimation.filters.stage_ekf import model_from_dict, model_to_dict, save_model
 from mems_estimation.identification.stage_gyro_calibration import (
     INSITU_PERIODS,
     T1,
@@ -60,10 +62,17 @@ from mems_estimation.identification.stage_gyro_calibration import (
     retrain_at,
 )
 from mems_estimation.identification.stage_identification import evaluate, fold_period
+from mems_scenarios.contract import RUN_INFO_TOPIC, AnalysisError, ScenarioResult, read_run_info
 from mems_scenarios.figures import Figure, cell, is_finite, met_cell
-from mems_scenarios.stage_graph import FRAME, RECORDED, run_stage_graph  # noqa: F401  (FRAME, RECORDED: public names of the scenario)
+from mems_scenarios.stage_graph import (  # noqa: F401  (FRAME, RECORDED: public names of the scenario)
+    FRAME,
+    RECORDED,
+    recorded_counters,
+    run_stage_graph,
+)
 from mems_sim.devices.stage import STAGE_SPECS, MicroStage, off_axis_rejection_worst
 from mems_sim.devices.stage_gyro import GYRO_SPECS
+from mems_sim.table import format_table
 
 NAME = "gyro_calibration"
 DESCRIPTION = (
@@ -75,10 +84,10 @@ DESCRIPTION = (
 DEFAULT_DURATION_S = round(7 * 400 / 1700.0, 3)
 
 
-def write_plots(out: Path, runs: dict, seed: int) -> list[Path]:
+def write_plots(out: Path, runs: dict, seed: int, paths: tuple | None = None) -> list[Path]:
     """Fig. 3.14-like averaged period and Fig. 3.15-like peak-to-peak plot, beside the MCAP
     file ``out`` and named with the run seed (``<stem>-seed<N>-period.png``,
-    ``-peak_to_peak.png``)."""
+    ``-peak_to_peak.png``), or at ``paths`` (period, peak-to-peak)."""
     import matplotlib
 
     from mems_scenarios.base import output_path
@@ -86,7 +95,7 @@ def write_plots(out: Path, runs: dict, seed: int) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    paths = []
+    written = []
     r = runs[T1]
     rec = r["rec"]
     last = rec["segment"] == rec["segment"].max()
@@ -110,10 +119,12 @@ def write_plots(out: Path, runs: dict, seed: int) -> list[Path]:
     ae.set_ylabel("EKF - truth [mrad/s]")
     ae.set_title(f"error, RMS {1e3 * np.sqrt(np.mean(err**2)):.2f} mrad/s", fontsize=9)
     fig.tight_layout()
-    p = output_path(out, seed, "-period.png")
+    if paths is None:
+        paths = (output_path(out, seed, "-period.png"), output_path(out, seed, "-peak_to_peak.png"))
+    p = paths[0]
     fig.savefig(p, dpi=100)
     plt.close(fig)
-    paths.append(p)
+    written.append(p)
     fig, ax = plt.subplots(figsize=(6, 3.5))
     for (T, r), color in zip(runs.items(), ("tab:blue", "tab:red")):
         s = np.array([q["stage_pp"] for q in r["cal"]["pairs"]])
@@ -133,18 +144,18 @@ def write_plots(out: Path, runs: dict, seed: int) -> list[Path]:
     ax.set_title("gyro vs stage peak-to-peak rate per trial")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    p = output_path(out, seed, "-peak_to_peak.png")
+    p = paths[1]
     fig.savefig(p, dpi=100)
     plt.close(fig)
-    paths.append(p)
-    return paths
+    written.append(p)
+    return written
 
 
 def run_pipeline(
     seed: int = 0, plan: Plan | None = None, out_dir: Path | None = None, plots: bool = True
 ) -> dict:
     """Whole scenario without ROS; returns figures, table text and file paths."""
-    from mems_scenarios.base import format_table, output_path
+    from mems_scenarios.base import output_path
 
     plan = plan or Plan()
     sp = IDEALISED  # the scenario's drift-free stage (:func:`drifting_device`: the other)
@@ -315,6 +326,7 @@ def run_graph(
     out: Path,
     instances: dict | None = None,
     drifting: dict | None = None,
+    run_info: dict | None = None,
 ) -> dict:
     """Calibration phase through the node graph: per temperature one stage_node
     (+ gyro), stage_ekf_node (identified YAML) and stage_gyro_calibration_node; one recorder.
@@ -324,7 +336,8 @@ def run_graph(
     join the same graph and recording, each a drifting stage_node seeded as the cores'
     calibration sweep, a stage_ekf_node in its in-situ mode (Chen 2018 eqs. 44-47: the
     sweep processed once complete) and a calibration node. The drift-free stage nodes take
-    none of the user's overrides of :data:`DEVICE_PARAMETERS` (the drifting ones do)."""
+    none of the user's overrides of :data:`DEVICE_PARAMETERS` (the drifting ones do).
+    ``run_info``: extra keys of the run record (None: none recorded)."""
     INSTANCES = instances or globals()["INSTANCES"]
 
     from mems_scenarios.base import output_path
@@ -360,36 +373,92 @@ def run_graph(
             )
             layout[ns] = (stage, yaml_path, {"insitu": True})
 
-    return run_stage_graph(options, layout, out, NAME, shielded)
+    return run_stage_graph(options, layout, out, NAME, shielded, run_info)
 
 
-def _recorded_run(out: Path, g: dict, ns: str) -> dict:
-    """One instance's figures from the recorded MCAP (estimate, truth, drive: omega RMSE,
-    alpha, beta over one averaged period) and its published calibration result (eq. 27),
-    with the true gyro scale factor and the error [ppm]."""
+def published_calibration(bag, ns: str) -> dict:
+    """The last result instance ``ns``'s calibration node published
+    (``/<ns>/gyro_scale_factor``, eq. 27): scale_factor, bias, their standard errors
+    (``*_se``), pairs ``n`` and ``residual_rms``."""
+    from mems_sim.bag.player import read_messages
+
+    msg = None
+    for _, _, _, m in read_messages(str(bag), [f"/{ns}/gyro_scale_factor"]):
+        msg = m
+    if msg is None:
+        raise AnalysisError(f"{ns}: no message on /{ns}/gyro_scale_factor in {bag}")
+    (sf, bias), (sf_se, bias_se) = msg.values, msg.standard_errors
+    return dict(
+        scale_factor=sf,
+        bias=bias,
+        scale_factor_se=sf_se,
+        bias_se=bias_se,
+        n=int(msg.num_points),
+        residual_rms=msg.residual_rms,
+    )
+
+
+def recorded_run(bag, ns: str, k_true: float) -> dict:
+    """One instance's figures from the recording ``bag`` (estimate, truth, drive: omega
+    RMSE, alpha, beta over one averaged period) and its published calibration result
+    (:func:`published_calibration`), with the true gyro scale factor ``k_true``
+    (:func:`oracle`) and the error [ppm]."""
     from mems_scenarios.base import topics_frames
 
-    fr = topics_frames(out, [f"/{ns}/{t}" for t in ("estimate", "truth", "drive")])
+    fr = topics_frames(bag, [f"/{ns}/{t}" for t in ("estimate", "truth", "drive")])
     est, tru, drv = (fr[f"/{ns}/{t}"]["data"] for t in ("estimate", "truth", "drive"))
     n = min(len(est), len(tru), len(drv))
     ev = evaluate(est[:n, 1], tru[:n, 1], drv[:n, 3], drv[:n, 4].astype(int))
-    r = g["results"][ns]
-    k = g["k_true"][ns]
+    r = published_calibration(bag, ns)
     return dict(
         eval=ev,
         cal=r,
-        k_true=k,
-        ppm=(r["scale_factor"] / k - 1) * 1e6,
-        se_ppm=r["scale_factor_se"] / k * 1e6,
+        k_true=k_true,
+        ppm=(r["scale_factor"] / k_true - 1) * 1e6,
+        se_ppm=r["scale_factor_se"] / k_true * 1e6,
         est=est[:n],
         truth=tru[:n],
         drive=drv[:n],
     )
 
 
-def graph_figures(out: Path, g: dict) -> dict:
-    """RMSE/alpha/beta per temperature from the recorded MCAP and the calibration results."""
-    return {T: _recorded_run(out, g, ns) for ns, T in INSTANCES.items()}
+def recorded_pairs(bag, ns: str, run: dict) -> list[dict]:
+    """The peak-to-peak pairs of instance ``ns`` (for the Fig. 3.15-like plot), paired
+    again from the recording as the calibration node pairs them (Chen 2018 eq. 27:
+    :class:`~mems_estimation.identification.stage_gyro_calibration.StreamingCalibrator`;
+    gyro samples placed on the stage index through their frames' stamps). ``run``: the
+    instance's :func:`recorded_run`."""
+    from mems_estimation.identification.stage_gyro_calibration import StreamingCalibrator
+    from mems_sim.bag.player import read_messages
+    from mems_sim.ros.frames import adc_physical, time_to_ns
+
+    fs = t0 = None
+    cal = None
+    for topic, _, _, msg in read_messages(str(bag), [f"/{ns}/drive", f"/{ns}/gyro/adc"]):
+        if topic.endswith("/drive"):
+            if t0 is None:
+                fs = float(msg.sample_rate_hz)
+                first = int(msg.first_sample_index)
+                t0 = time_to_ns(msg.header.stamp) - round(first * 1e9 / fs)
+                cal = StreamingCalibrator(fs)
+                drv = run["drive"]
+                names = list(msg.channel_names)
+                cols = [names.index(c) for c in ("phase", "f_drive", "trial")]
+                om = run["est"][:, 1]
+                cal.add_stage(
+                    0, om, drv[:, cols[0]], drv[:, cols[1]], drv[:, cols[2]].astype(np.int64)
+                )
+            continue
+        if cal is None:
+            continue
+        v = adc_physical(msg)[:, 0]
+        rate = float(msg.sample_rate_hz)
+        k = ((time_to_ns(msg.header.stamp) - t0) / 1e9 + np.arange(v.size) / rate) * fs
+        cal.add_gyro(k, v)
+    if cal is None:
+        return []
+    cal.finish()
+    return list(cal.pairs)
 
 
 def figure_records(off_axis: list, figs: dict, rms: float, g: dict) -> list[Figure]:
@@ -430,37 +499,112 @@ def figure_records(off_axis: list, figs: dict, rms: float, g: dict) -> list[Figu
     return out
 
 
-def run(options) -> dict:
-    """``run_scenario gyro_calibration``: identification (ROS-free cores), then the
-    calibration at both temperatures through the node graph, recorded to MCAP.
-    ``options.extra['short']`` selects the short plan (tests)."""
-    from mems_scenarios.base import ScenarioError, format_table
+def oracle(record: dict) -> dict:
+    """What only the simulation knows, from the run record: per stage instance the gyro's
+    true scale factor k_I(T) (:class:`~mems_sim.devices.stage_gyro.MemsGyro` of the stage
+    node's parameters); with the drifting device, its rows that run on the ROS-free cores
+    beside the graph (:func:`drifting_cores`: the thesis' procedure without the in-situ
+    correction, the ablation, the device's off-axis rejection as built)."""
+    from mems_sim.devices.stage_gyro import MemsGyro
 
-    if options.duration_s not in (None, 0.0):
-        raise ScenarioError(
-            "gyro_calibration: the duration follows from the drive schedules "
-            "(7 trials x 400 periods at 1700 Hz); omit --duration"
+    k_true = {}
+    for fqn, node in record["nodes"].items():
+        if node["executable"] == "stage_node":
+            p = node["parameters"]
+            gyro = MemsGyro(
+                {s.name: p[s.name] for s in GYRO_SPECS}, temperature_c=p["temperature_c"]
+            )
+            k_true[fqn.strip("/").split("/")[0]] = gyro.scale_factor()
+    out = {"k_true": k_true, "drifting": None}
+    if record.get("drifting_models") is not None:
+        models = {T: model_from_dict(record["drifting_models"][str(T)]) for T in (T1, T2)}
+        out["drifting"] = drifting_cores(
+            int(record["options"]["seed"]),
+            Plan(**record["plan"]),
+            record["device"]["stage"],
+            record["device"]["gyro"],
+            models,
         )
-    plan = Plan.short() if options.extra.get("short") else Plan()
-    out = Path(options.out or Path("runs") / f"{NAME}-{options.seed}.mcap")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    seed = int(options.seed)
-    # the drift-free stage: as its graph nodes, with --device-seed only (no device override)
-    ideal = dict(IDEALISED)
-    if options.device_seed is not None:
-        ideal["device_seed"] = int(options.device_seed)
-    drifting = not idealised_only(options)
-    # the drifting device as its stage nodes take it (the user's device parameters)
-    sp, gp = device_parameters(options, drifting)
-    model, rep = identify_stage(seed, plan, ideal)
-    models = {T1: model, T2: retrain_at(model, T2, seed, plan, ideal)}
-    # the drifting device's identification (cores); its calibration joins the graph
-    drift_models = drifting_models(seed, plan, sp) if drifting else None
-    g = run_graph(options, plan, models, out, drifting=drift_models)
-    figs = graph_figures(out, g)
+    return out
+
+
+#: figure groups :func:`oracle` gives (the simulation's knowledge)
+ORACLE_ONLY = [
+    "*.scale_factor_true, *.scale_factor_error, *scale_factor_error_rms* (the gyro's truth)",
+    "drifting.off_axis_*, drifting.stator_offset_y (the drifting device as built)",
+    "drifting.scale_factor_error_rms.thesis_procedure, drifting.ablation_no_channels_35.7C "
+    "(ROS-free cores)",
+]
+
+
+def analyse(bag, pngs=None) -> ScenarioResult:
+    """The scenario's figures from its recording ``bag``: per instance the recorded
+    estimate, truth and drive and the published ``gyro_scale_factor``; the identified
+    models, the plan and the graph's times from the run record; the EKFs' in-situ
+    counters from ``/diagnostics``; the gyro's truth and the cores' rows from
+    :func:`oracle`. ``pngs``: the period and peak-to-peak PNG paths (one path: both named
+    after it; None: no plots)."""
+    record = read_run_info(bag)
+    if record is None or "models" not in record:
+        raise AnalysisError(
+            f"{bag}: no run record of {NAME} ({RUN_INFO_TOPIC}): the identified models, "
+            "the plan and the graph's layout are in it"
+        )
+    ora = oracle(record)
+    models = {T: model_from_dict(record["models"][str(T)]) for T in (T1, T2)}
+    model = models[T1]
     off_axis = off_axis_table(float(np.mean(model.gap)), model.limits)
+    figs = {T: recorded_run(bag, ns, ora["k_true"][ns]) for ns, T in INSTANCES.items()}
     rms = math.sqrt(np.mean([figs[T]["ppm"] ** 2 for T in (T1, T2)]))
+    g = dict(simulated_s=record["simulated_s"], wall_s=record["wall_s"])
     figures = figure_records(off_axis, figs, rms, g)
+    table = main_table(figures, off_axis, figs, rms, g, bool(record["options"]["realtime"]))
+    counters = recorded_counters(bag)
+    drift = None
+    if ora["drifting"] is not None:
+        graph_runs = {}
+        for ns in DRIFTING:
+            c = counters.get(f"/{ns}/stage_ekf", {})
+            graph_runs[ns] = dict(
+                recorded_run(bag, ns, ora["k_true"][ns]),
+                **{k: c.get(k) for k in ("insitu_wn_ratio", "insitu_b_c_ratio", "insitu_sweeps")},
+            )
+        drift = drifting_table(ora["drifting"], graph_runs)
+        figures += drift["figures"]
+        device = record["device"]
+        table += "\n\n" + format_table(
+            [
+                "drifting device ("
+                + ("parameters set" if device["stage"] or device["gyro"] else "default physics")
+                + ")",
+                "condition",
+                "value",
+                "target / note",
+                "met",
+            ],
+            drift["rows"],
+        )
+    plots = []
+    if pngs:
+        if isinstance(pngs, str | Path):
+            p = Path(pngs)
+            pngs = (p.with_name(p.stem + "-period.png"), p.with_name(p.stem + "-peak_to_peak.png"))
+        plots = _graph_plots(bag, pngs, figs)
+    layout = [fqn.strip("/").split("/")[0] for fqn in ora["k_true"]]
+    rejected = {ns: counters.get(f"/{ns}/stage_ekf", {}).get("rejected_frames", 0) for ns in layout}
+    return ScenarioResult(
+        NAME,
+        figures,
+        table,
+        list(plots),
+        oracle_only=ORACLE_ONLY[: 3 if drift is not None else 1],
+        values=dict(figs=figs, drifting=drift, rejected=rejected, sf_rms_ppm=rms, model=model),
+    )
+
+
+def main_table(figures: list, off_axis: list, figs: dict, rms: float, g: dict, realtime: bool):
+    """The drift-free stage's table in the form of Tables 3.4-3.6."""
+
     F = {r.name: r for r in figures}
     rows = [
         [
@@ -513,74 +657,99 @@ def run(options) -> dict:
     rows.append(
         [
             "graph",
-            "fast" if not options.realtime else "realtime",
+            "fast" if not realtime else "realtime",
             f"{g['simulated_s']:.2f} s sim in {g['wall_s']:.1f} s wall",
             f"RTF {g['simulated_s'] / g['wall_s']:.2f}",
             "-",
         ]
     )
-    table = format_table(["quantity", "condition", "value", "target / note", "met"], rows)
-    drift = None
-    if drift_models is not None:
-        # the drifting device in a table of its own: the table above stays as it always was
-        graph_runs = {ns: dict(_recorded_run(out, g, ns), **g["insitu"][ns]) for ns in DRIFTING}
-        drift = drifting_device(
-            seed,
-            plan,
-            stage_params=sp,
-            gyro_params=gp,
-            models=drift_models,
-            graph_runs=graph_runs,
+    return format_table(["quantity", "condition", "value", "target / note", "met"], rows)
+
+
+def run(options) -> dict:
+    """``run_scenario gyro_calibration``: identification (ROS-free cores), then the
+    calibration at both temperatures through the node graph, recorded to MCAP with the
+    identified models in the run record, then :func:`analyse` of the recording.
+    ``options.short`` selects the short plan (tests)."""
+    import dataclasses
+
+    from mems_scenarios.base import ScenarioError, output_path
+
+    if options.duration_s not in (None, 0.0):
+        raise ScenarioError(
+            "gyro_calibration: the duration follows from the drive schedules "
+            "(7 trials x 400 periods at 1700 Hz); omit --duration"
         )
-        figures += drift["figures"]
-        table += "\n\n" + format_table(
-            [
-                "drifting device (" + ("parameters set" if sp or gp else "default physics") + ")",
-                "condition",
-                "value",
-                "target / note",
-                "met",
-            ],
-            drift["rows"],
-        )
-    plots = []
+    plan = Plan.short() if options.short else Plan()
+    out = Path(options.out or Path("runs") / f"{NAME}-{options.seed}.mcap")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    seed = int(options.seed)
+    # the drift-free stage: as its graph nodes, with --device-seed only (no device override)
+    ideal = dict(IDEALISED)
+    if options.device_seed is not None:
+        ideal["device_seed"] = int(options.device_seed)
+    drifting = not idealised_only(options)
+    # the drifting device as its stage nodes take it (the user's device parameters)
+    sp, gp = device_parameters(options, drifting)
+    model, _ = identify_stage(seed, plan, ideal)
+    models = {T1: model, T2: retrain_at(model, T2, seed, plan, ideal)}
+    # the drifting device's identification (cores); its calibration joins the graph
+    drift_models = drifting_models(seed, plan, sp) if drifting else None
+    run_info = dict(
+        plan=dataclasses.asdict(plan),
+        models={str(T): model_to_dict(m) for T, m in models.items()},
+        drifting_models=None
+        if drift_models is None
+        else {str(T): model_to_dict(m) for T, m in drift_models.items()},
+        device=dict(stage=sp, gyro=gp),
+    )
+    g = run_graph(options, plan, models, out, drifting=drift_models, run_info=run_info)
+    pngs = None
     if options.plots:
-        plots = _graph_plots(out, options.seed, figs)
+        pngs = tuple(
+            output_path(out, options.seed, s) for s in ("-period.png", "-peak_to_peak.png")
+        )
+    result = analyse(out, pngs)
+    v = result.values
     return {
-        "drifting": drift,
-        "table": table,
+        "drifting": v["drifting"],
+        "table": result.table,
         "duration_s": g["simulated_s"],
         "mcap": str(out),
         "recorder": g["recorder"],
-        "figure": ", ".join(str(p) for p in plots),
-        "figures": figures,
-        "values": figs,
-        "sf_rms_ppm": rms,
-        "rejected": g["rejected"],
+        "figure": ", ".join(str(p) for p in result.plots),
+        "figures": result.figures,
+        "values": v["figs"],
+        "sf_rms_ppm": v["sf_rms_ppm"],
+        "rejected": v["rejected"],
         "published": g["published"],
         "model": model,
+        "result": result,
     }
 
 
-def _graph_plots(out: Path, seed: int, figs: dict) -> list:
-    """PNG figures from the graph run (Fig. 3.14 / 3.15 forms)."""
+def _graph_plots(bag, pngs: tuple, figs: dict) -> list:
+    """PNG figures from the recording (Fig. 3.14 / 3.15 forms) at ``pngs`` (period,
+    peak-to-peak)."""
     runs = {}
-    for T, f in figs.items():
+    for ns, T in INSTANCES.items():
+        f = figs[T]
         rec = {
             "segment": f["drive"][:, 4].astype(int),
             "phase": f["drive"][:, 3],
             "omega": f["truth"][:, [1, 3]],
         }
-        runs[T] = {"rec": rec, "x": f["est"], "cal": f["cal"]}
-    return write_plots(out, runs, seed)
+        cal = dict(f["cal"], pairs=recorded_pairs(bag, ns, f))
+        runs[T] = {"rec": rec, "x": f["est"], "cal": cal}
+    return write_plots(Path(bag), runs, 0, paths=pngs)
 
 
 def idealised_only(options) -> bool:
-    """The scenario's ``idealised`` switch: ``options.extra['idealised']`` or a ``--set`` of
+    """The scenario's ``idealised`` switch: ``options.idealised`` or a ``--set`` of
     ``idealised`` true on its stage nodes: only the drift-free stage (the historical run)."""
     from mems_scenarios.base import ScenarioError
 
-    if options.extra.get("idealised"):
+    if options.idealised:
         return True
     if any(o.name == "idealised" and o.value is False for o in options.overrides):
         raise ScenarioError(
@@ -620,13 +789,33 @@ def drifting_device(
     rows, runs, rms_ppm, off_axis)."""
     sp = dict(stage_params or {})
     models = models or drifting_models(seed, plan, sp)
+    cores = drifting_cores(seed, plan, sp, gyro_params, models, graph_runs is not None)
+    return drifting_table(cores, graph_runs)
+
+
+def drifting_cores(
+    seed: int,
+    plan: Plan,
+    stage_params: dict | None,
+    gyro_params: dict | None,
+    models: dict,
+    on_graph: bool = True,
+) -> dict:
+    """The drifting device's rows on the ROS-free cores (:func:`drifting_device`): per
+    temperature the calibration sweep evaluated without the in-situ correction (the
+    thesis' procedure) and, at T2, with the capacitive channels removed (ablation);
+    ``on_graph`` False: the in-situ rows too (else the graph gives them). The device as
+    built: off-axis rejection in the RMS reading, worst over the off-axis phase, on the
+    design layout and with its stator misregistration [um]. Returns dict(runs, off,
+    misreg, dy_um)."""
+    sp = dict(stage_params or {})
     model = models[T1]
     cal_plan = drifting_plan(plan)
     on_cores = {
         T1: {"thesis": (model, "plain")},
         T2: {"thesis": (models[T2], "plain"), "no_channels": (models[T2], "no_channels")},
     }
-    if graph_runs is None:
+    if not on_graph:
         on_cores[T1]["ref_t1"] = (model, "insitu")
         on_cores[T2].update(ref_t1=(model, "insitu"), ref_t2=(models[T2], "insitu"))
     runs = {
@@ -634,6 +823,24 @@ def drifting_device(
     }
     for r in runs.values():
         r.pop("rec")  # the raw record is not kept (memory)
+    dev = MicroStage(dict(sp, temperature_c=T1))
+    gap = float(np.mean(model.gap))
+    off = {
+        r: off_axis_rejection_worst(3e-3, 1700.0, r, gap, dev.design_limits)
+        for r in OFF_AXIS_WORST_TARGETS
+    }
+    misreg = off_axis_rejection_worst(3e-3, 1700.0, 0.1, gap, dev.limits)
+    dy_um = 1e6 * dev.params["stator_offset_y_m"]
+    return dict(runs=runs, off=off, misreg=misreg, dy_um=dy_um)
+
+
+def drifting_table(cores: dict, graph_runs: dict | None = None) -> dict:
+    """The drifting device's figures and rows (:func:`drifting_device`) from its cores'
+    rows (:func:`drifting_cores`) and, with ``graph_runs``, the in-situ rows of the node
+    graph (namespace of :data:`DRIFTING` -> :func:`recorded_run` with the EKF's in-situ
+    counters). Returns dict(figures, rows, runs, rms_ppm, off_axis)."""
+    runs = {T: dict(r) for T, r in cores["runs"].items()}
+    off, misreg, dy_um = cores["off"], cores["misreg"], cores["dy_um"]
     for ns, (T, _) in DRIFTING.items() if graph_runs is not None else ():
         r = {k: v for k, v in graph_runs[ns].items() if k not in ("est", "truth", "drive")}
         runs[T][DRIFTING_ROW[ns]] = dict(r, namespace=ns)
@@ -649,14 +856,6 @@ def drifting_device(
         runs[T2]["no_channels"]["cal"]["scale_factor"] / runs[T2]["ref_t2"]["cal"]["scale_factor"]
         - 1.0
     ) * 1e6
-    dev = MicroStage(dict(sp, temperature_c=T1))
-    gap = float(np.mean(model.gap))
-    off = {
-        r: off_axis_rejection_worst(3e-3, 1700.0, r, gap, dev.design_limits)
-        for r in OFF_AXIS_WORST_TARGETS
-    }
-    misreg = off_axis_rejection_worst(3e-3, 1700.0, 0.1, gap, dev.limits)
-    dy_um = 1e6 * dev.params["stator_offset_y_m"]
     figures, rows = [], []
     for r, (v, phi) in off.items():
         t = OFF_AXIS_WORST_TARGETS[r]
