@@ -121,9 +121,9 @@ def graph_topics(domain_id: int, settle_s: float = 1.5) -> dict[str, list[int]]:
         rclpy.shutdown(context=ctx)
 
 
-def _end_of_stream(path, namespace: str) -> dict:
+def _end_of_stream(path, namespace: str) -> tuple[dict, str]:
     """The device's end-of-stream record in the recording (per topic: messages, samples,
-    end_sample_index); {} without one."""
+    end_sample_index; {} without one) and the node that sent it ("" without one)."""
     from diagnostic_msgs.msg import DiagnosticArray
     from mcap.reader import make_reader
     from rclpy.serialization import deserialize_message
@@ -132,10 +132,13 @@ def _end_of_stream(path, namespace: str) -> dict:
 
     topic = f"{namespace.rstrip('/')}/{END_OF_STREAM}"
     record: dict = {}
+    node = ""
     with open(path, "rb") as f:
         for _, _, m in make_reader(f).iter_messages(topics=[topic]):
-            record = parse_end_of_stream(deserialize_message(m.data, DiagnosticArray))
-    return record
+            msg = deserialize_message(m.data, DiagnosticArray)
+            record = parse_end_of_stream(msg)
+            node = next((st.hardware_id for st in msg.status), node)
+    return record, node
 
 
 def device_timing(path, namespace: str, pace: float, topic: str = "adc") -> dict:
@@ -144,7 +147,8 @@ def device_timing(path, namespace: str, pace: float, topic: str = "adc") -> dict
     'wall': the epoch t0 is the wall time at which the pacing started, sample k was due
     at t0 + k / fs / pace).
 
-    Keys: frames (published, by the end-of-stream record), samples, fs, frame_size, pace,
+    Keys: node (its name), executor (``MEMS_EXECUTOR``), frames (published, by the
+    end-of-stream record), samples, fs, frame_size, pace,
     t_first/t_last (publication of the first and last recorded frame, time.monotonic and
     as t_first_ns/t_last_ns the wall clock), sim_span_s, wall_span_s, rtf = simulated
     span / wall span between them, rtf_steady = the same from the first frame published
@@ -154,14 +158,15 @@ def device_timing(path, namespace: str, pace: float, topic: str = "adc") -> dict
     import numpy as np
     from mcap.reader import make_reader
     from rclpy.serialization import deserialize_message
-    from rosidl_runtime_py.utilities import get_message
+
+    from mems_sim.bag.schema import message_class
 
     topic = f"{namespace.rstrip('/')}/{topic}"
     rows = []  # (publish time, first sample index, samples)
     fs, t0_ns = None, None
     with open(path, "rb") as f:
         for schema, _, m in make_reader(f).iter_messages(topics=[topic]):
-            msg = deserialize_message(m.data, get_message(schema.name))
+            msg = deserialize_message(m.data, message_class(schema.name))
             if t0_ns is None:
                 if msg.first_sample_index != 0:
                     raise RuntimeError(f"{path}: {topic} does not start at sample 0")
@@ -170,7 +175,7 @@ def device_timing(path, namespace: str, pace: float, topic: str = "adc") -> dict
             rows.append((m.publish_time, int(msg.first_sample_index), int(msg.num_samples)))
     if not rows:
         raise RuntimeError(f"{path}: no frame on {topic}")
-    record = _end_of_stream(path, namespace)
+    record, node = _end_of_stream(path, namespace)
     pt = np.array([r[0] for r in rows], dtype=np.int64)
     end = np.array([r[1] + r[2] for r in rows], dtype=np.int64)
     due = t0_ns + end / fs / pace * 1e9
@@ -183,6 +188,8 @@ def device_timing(path, namespace: str, pace: float, topic: str = "adc") -> dict
         rtf_steady = (end[-1] - end[k]) / fs / ((pt[-1] - pt[k]) / 1e9)
     to_monotonic = time.monotonic() - time.time()
     return dict(
+        node=node,
+        executor=os.environ.get("MEMS_EXECUTOR", "events"),  # the node executables' choice
         frames=record.get(topic, {}).get("messages", len(rows)),
         samples=int(end[-1]),
         fs=fs,
