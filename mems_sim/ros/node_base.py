@@ -387,6 +387,8 @@ class EmulatorNode(PacedEmulator, MemsNode):
         (:meth:`missing_subscribers`), polled on the steady clock."""
         self._match_started = time.monotonic()
         self._match_timer = self.create_timer(0.02, self._on_match_poll, clock=self._steady)
+        wanted = ", ".join(f"{t} ({n})" for t, n in self.wait_for.items())
+        self.get_logger().info(f"start_when_matched: waiting for the subscribers of {wanted}")
 
     def _on_match_poll(self) -> None:
         if self._match_timer is None or self.missing_subscribers():
