@@ -87,11 +87,16 @@ CALIBRATOR = "/imu/imu_calibration"
 
 
 def graph(
-    options: ScenarioOptions, duration_s: float | None, *, profile: str = PROFILE, out=None
+    options: ScenarioOptions,
+    duration_s: float | None,
+    *,
+    profile: str = PROFILE,
+    out=None,
+    name: str = NAME,
 ) -> GraphSpec:
-    """The scenario's graph on ``profile``: the emulator and the calibration node in
-    ``/imu`` (``duration_s`` None: the profile's), recorded; the calibration node writes its
-    YAML beside the MCAP file ``out``."""
+    """The graph of scenario ``name`` on ``profile``: the emulator and the calibration node
+    in ``/imu`` (``duration_s`` None: the profile's), recorded; the calibration node writes
+    its YAML beside the MCAP file ``out``."""
     emu_params = {
         "seed": int(options.seed),
         "preset": "adis16350",
@@ -102,7 +107,7 @@ def graph(
     }
     if duration_s is not None:
         emu_params["duration_s"] = float(duration_s)
-    out = Path(out or Path("runs") / f"{NAME}-{options.seed}.mcap")
+    out = Path(out or Path("runs") / f"{name}-{options.seed}.mcap")
     cal_params = {
         "profile": profile,
         "noise_model": "adis16350",
@@ -111,7 +116,7 @@ def graph(
     }
     emulator = NodeEntry("imu_node", "imu", "imu", emu_params)
     calibrator = NodeEntry("imu_calibration_node", "imu_calibration", "imu", cal_params)
-    return GraphSpec(NAME, (emulator, calibrator), (*TOPICS, RUN_INFO_TOPIC))
+    return GraphSpec(name, (emulator, calibrator), (*TOPICS, RUN_INFO_TOPIC))
 
 
 def build_graph(
@@ -119,8 +124,7 @@ def build_graph(
 ):
     """Context, the nodes of :func:`graph` and the recorder; the run record names the
     emulator's parameters given explicitly (:func:`oracle`: its nominal device)."""
-    spec = graph(options, duration_s, profile=profile, out=out)
-    spec = GraphSpec(name, spec.nodes, spec.recorded)
+    spec = graph(options, duration_s, profile=profile, out=out, name=name)
     g = graph_for(options)
     nodes = g.build(spec, realtime=options.realtime)
     rec = g.recorder(str(out), topics=list(spec.recorded))

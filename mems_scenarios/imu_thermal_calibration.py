@@ -11,6 +11,7 @@ tempco carries b_T,z + g C_zz sf_T,z and the x/y scale-factor tempcos are not ob
 
 from __future__ import annotations
 
+from mems_scenarios import imu_calibration
 from mems_scenarios.base import ScenarioOptions
 from mems_scenarios.imu_calibration import analyse_profile, run_profile
 
@@ -21,6 +22,11 @@ DESCRIPTION = (
 )
 PROFILE = "thermal_ramp"
 DEFAULT_DURATION_S = 2400.0
+
+
+def graph(options: ScenarioOptions, duration_s: float | None = None):
+    """The scenario's graph (:func:`mems_scenarios.imu_calibration.graph` on thermal_ramp)."""
+    return imu_calibration.graph(options, duration_s, profile=PROFILE, name=NAME)
 
 
 def run(options: ScenarioOptions) -> dict:
