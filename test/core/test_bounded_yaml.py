@@ -105,17 +105,25 @@ def test_fuzzed_yaml_gets_one_line_errors_in_bounded_time(tmp_path):
     """A few hundred generated inputs per consumer: each is loaded or refused with the
     consumer's error (never a traceback class of its own), each in well under a second."""
     consumers = _consumers()
+    warm = tmp_path / "warm.yaml"
+    warm.write_text("a: 1\n")
+    for _, load, errors in consumers:  # imports on the first call are not the input's cost
+        try:
+            load(str(warm))
+        except errors:
+            pass
     worst = 0.0
     for k, text in enumerate(_fuzz_texts(seed=2026, n=250)):
         path = tmp_path / f"case{k}.yaml"
         path.write_bytes(text)
         for name, load, errors in consumers:
-            t0 = time.monotonic()
+            # CPU time of this process: the bound is the reader's work, not the host's load
+            t0 = time.process_time()
             try:
                 load(str(path))
             except errors as exc:
                 assert "\n" not in str(exc).strip(), (name, k, str(exc))
-            worst = max(worst, time.monotonic() - t0)
+            worst = max(worst, time.process_time() - t0)
     assert worst < 2.0, worst
 
 
