@@ -461,6 +461,49 @@ def recorded_pairs(bag, ns: str, run: dict) -> list[dict]:
     return list(cal.pairs)
 
 
+def instance_figures(ns: str, T: float, ev: dict, cal: dict) -> list[Figure]:
+    """The figures of stage instance ``ns`` at ``T`` [C] that its recording gives: omega
+    RMSE [rad/s], alpha, beta [rad/s] (``ev``) and the published scale factor with its
+    standard error (``cal``)."""
+    return [
+        Figure(f"{ns}.temperature", T, "C"),
+        Figure(f"{ns}.omega_rmse", ev["rmse"], "rad/s", "<= 0.114 rad/s", ev["rmse"] <= 0.114),
+        Figure(
+            f"{ns}.alpha", ev["alpha"], "1", "|alpha - 1| <= 8e-4", abs(ev["alpha"] - 1) <= 8e-4
+        ),
+        Figure(f"{ns}.beta", ev["beta"], "rad/s"),
+        Figure(f"{ns}.scale_factor", cal["scale_factor"], "1"),
+        Figure(f"{ns}.scale_factor_se", cal["scale_factor_se"], "1"),
+    ]
+
+
+def without_run_record(bag) -> ScenarioResult:
+    """The figures a recording without the scenario's run record gives (a user's own
+    recording of the drift-free instances): :func:`instance_figures` of each instance
+    whose topics it holds, one line for the rest."""
+    from mems_scenarios.base import ScenarioError
+    from mems_scenarios.figures import figure_table
+
+    figures, unavailable = [], []
+    for ns, T in INSTANCES.items():
+        try:
+            f = recorded_run(bag, ns, math.nan)
+        except (AnalysisError, ScenarioError) as exc:
+            unavailable.append((f"{ns}.*", str(exc)))
+            continue
+        figures += instance_figures(ns, T, f["eval"], f["cal"])
+    why = (
+        f"{bag}: no run record of {NAME} ({RUN_INFO_TOPIC}): it holds the identified "
+        "models, the plan and the stage nodes' parameters"
+    )
+    if not figures:
+        raise AnalysisError(why)
+    unavailable.append(
+        ("off_axis_*, *.scale_factor_true, *.scale_factor_error, *_rms, graph.*, drifting.*", why)
+    )
+    return ScenarioResult(NAME, figures, figure_table(figures), unavailable=unavailable)
+
+
 def figure_records(off_axis: list, figs: dict, rms: float, g: dict) -> list[Figure]:
     """The scenario's figures as data: off-axis rejection (fraction) per off-axis share, per
     stage instance omega RMSE [rad/s], alpha, beta [rad/s], the gyro scale factor, its
@@ -478,16 +521,7 @@ def figure_records(off_axis: list, figs: dict, rms: float, g: dict) -> list[Figu
     ]
     for ns, T in INSTANCES.items():
         f = figs[T]
-        ev = f["eval"]
-        out += [
-            Figure(f"{ns}.temperature", T, "C"),
-            Figure(f"{ns}.omega_rmse", ev["rmse"], "rad/s", "<= 0.114 rad/s", ev["rmse"] <= 0.114),
-            Figure(
-                f"{ns}.alpha", ev["alpha"], "1", "|alpha - 1| <= 8e-4", abs(ev["alpha"] - 1) <= 8e-4
-            ),
-            Figure(f"{ns}.beta", ev["beta"], "rad/s"),
-            Figure(f"{ns}.scale_factor", f["cal"]["scale_factor"], "1"),
-            Figure(f"{ns}.scale_factor_se", f["cal"]["scale_factor_se"], "1"),
+        out += instance_figures(ns, T, f["eval"], f["cal"]) + [
             Figure(f"{ns}.scale_factor_true", f["k_true"], "1"),
             Figure(f"{ns}.scale_factor_error", f["ppm"], "ppm"),
         ]
@@ -546,10 +580,7 @@ def analyse(bag, pngs=None) -> ScenarioResult:
     after it; None: no plots)."""
     record = read_run_info(bag)
     if record is None or "models" not in record:
-        raise AnalysisError(
-            f"{bag}: no run record of {NAME} ({RUN_INFO_TOPIC}): the identified models, "
-            "the plan and the graph's layout are in it"
-        )
+        return without_run_record(bag)
     ora = oracle(record)
     models = {T: model_from_dict(record["models"][str(T)]) for T in (T1, T2)}
     model = models[T1]
