@@ -54,6 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mems_scenarios.figures import figures_of
 from mems_sim.cli_values import OneLineParser, number, positive
 
 #: Figure columns of a result row, in the order ``run_scenario --json`` gives them.
@@ -291,8 +292,8 @@ def run_one(spec: RunSpec, out_dir: str, keep_bag: bool = False, timeout_s: floa
     figures: list[dict] = []
     if stdout.strip():
         try:
-            figures = json.loads(stdout)
-        except json.JSONDecodeError:
+            figures = figures_of(json.loads(stdout))
+        except (json.JSONDecodeError, ValueError):
             code = code or 1
             error = error or "run_scenario printed no JSON figures"
     status = "ok" if code == 0 else ("lost data" if code == 1 and figures else "failed")

@@ -139,9 +139,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--json",
         action="store_true",
-        help="print the scenario's figures as a JSON list of {name, value, unit, target, pass} "
-        "records on stdout (the table and the other lines go to stderr); a missed target does "
-        "not change the exit status",
+        help="print the scenario's figures as one JSON object on stdout: {schema_version, "
+        "scenario, figures: [{name, value, unit, target, pass}], unavailable, oracle_only} "
+        "(the table and the other lines go to stderr); a missed target does not change the "
+        "exit status",
     )
     p.add_argument(
         "--progress",
@@ -240,12 +241,20 @@ def main(argv: list[str] | None = None) -> int:
         return _main(args)
     import contextlib
 
-    from mems_scenarios.figures import to_json
+    from mems_scenarios.figures import result_json
 
     with contextlib.redirect_stdout(sys.stderr):  # stdout carries the JSON only
         status = _main(args)
     if args.result is not None:
-        print(to_json(args.result["figures"]))
+        r = args.result.get("result")
+        print(
+            result_json(
+                args.name,
+                args.result["figures"],
+                r.unavailable if r is not None else (),
+                r.oracle_only if r is not None else (),
+            )
+        )
     return status
 
 
@@ -391,9 +400,7 @@ def write_launch_main(args) -> int:
     text = spec.as_processes(args.realtime_factor, str(record_file.resolve())).to_launch_yaml()
     args.write_launch.write_text(text)
     record_file.write_text(record + "\n")
-    print(
-        f"wrote {args.write_launch} ({len(spec.nodes)} nodes) and its run record {record_file}"
-    )
+    print(f"wrote {args.write_launch} ({len(spec.nodes)} nodes) and its run record {record_file}")
     return 0
 
 
@@ -421,7 +428,7 @@ def analyse_main(args) -> int:
         result = module.analyse(args.analyse, png)
     except (AnalysisError, BagReadError, ScenarioError) as exc:
         return _fail(" ".join(str(exc).split()))
-    args.result = {"figures": result.figures}
+    args.result = {"figures": result.figures, "result": result}
     print(f"scenario {args.name}: analysis of {args.analyse}\n")
     if result.table:
         print(result.table)

@@ -1,8 +1,9 @@
 """A scenario's figures as data: one :class:`Figure` record per reported number.
 
 Every scenario returns its figures as a list of records (``result["figures"]``) besides the
-printed table; ``run_scenario --json`` prints them as a JSON list of objects
-``{"name", "value", "unit", "target", "pass"}``:
+printed table; ``run_scenario --json`` prints one JSON object (:func:`result_json`):
+``{"schema_version", "scenario", "figures", "unavailable", "oracle_only"}``, ``figures``
+being a list of objects ``{"name", "value", "unit", "target", "pass"}``:
 
 * ``name``: stable and unique within the scenario, dotted (e.g. ``gyro_x.N.rel_error``);
 * ``value``: a number, a string or ``null`` (a value that is not finite, NaN or infinite, is
@@ -108,6 +109,44 @@ def to_json(figures: list[Figure]) -> str:
     if twice:
         raise ValueError(f"figure names used more than once: {', '.join(twice)}")
     return json.dumps([f.record() for f in figures], indent=1, allow_nan=False)
+
+
+#: Version of the ``run_scenario --json`` object (the scenario contract's schema version).
+JSON_SCHEMA_VERSION = 1
+
+
+def result_json(
+    scenario: str,
+    figures: list[Figure],
+    unavailable: list[tuple[str, str]] = (),
+    oracle_only: list[str] = (),
+) -> str:
+    """The ``run_scenario --json`` object: schema version, scenario, the figures
+    (:func:`to_json`'s records), the figures not computed (``{"figures", "reason"}``) and
+    the figure groups of the scenario's oracle step."""
+    records = json.loads(to_json(figures))
+    return json.dumps(
+        {
+            "schema_version": JSON_SCHEMA_VERSION,
+            "scenario": scenario,
+            "figures": records,
+            "unavailable": [{"figures": w, "reason": r} for w, r in unavailable],
+            "oracle_only": list(oracle_only),
+        },
+        indent=1,
+        allow_nan=False,
+    )
+
+
+def figures_of(document) -> list[dict]:
+    """The figure records of a parsed ``run_scenario --json`` document (the object of
+    :func:`result_json`, or a bare list of records as schema-less references hold).
+    Raises ValueError for anything else or another schema version."""
+    if isinstance(document, list):
+        return document
+    if isinstance(document, dict) and document.get("schema_version") == JSON_SCHEMA_VERSION:
+        return document["figures"]
+    raise ValueError("not a run_scenario --json document of schema 1")
 
 
 def cell(value, spec: str = ".4g", suffix: str = "") -> str:

@@ -519,7 +519,7 @@ def main(argv: list[str] | None = None) -> int:
     import sys
 
     from mems_scenarios.base import ScenarioError, ScenarioOptions
-    from mems_scenarios.figures import to_json
+    from mems_scenarios.figures import result_json
     from mems_sim.params import ParameterError
     from mems_sim.ros.params_file import ParamsFileError, parse_set
 
@@ -548,7 +548,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"stage_sf_curve: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
     if args.json:
-        print(to_json(result["figures"]))
+        print(result_json(NAME, result["figures"]))
     else:
         print(result["table"])
     return 0

@@ -26,6 +26,7 @@ import pytest
 from reference_rule import figures_difference
 
 from mems_scenarios import SCENARIOS
+from mems_scenarios.figures import figures_of
 
 HERE = Path(__file__).resolve().parent
 REFERENCE = HERE / "reference"
@@ -84,12 +85,14 @@ def test_scenario_table_matches_reference(name, tmp_path, domain_id):
     cmd += ["--out", str(tmp_path / f"{name}-1.mcap"), "--domain-id", str(domain_id), "--json"]
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=1800, cwd=tmp_path)
     assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-3000:]
-    figures = json.loads(run.stdout)
+    document = json.loads(run.stdout)
+    assert document["schema_version"] == 1 and document["scenario"] == name
+    figures = figures_of(document)
     text = comparable(run.stderr)
     if os.environ.get("MEMS_UPDATE_REFERENCE") == "1":
         ref_json.write_text(json.dumps(figures, indent=1) + "\n")
         ref_text.write_text("\n".join(text) + "\n")
-    found = figures_difference(figures, json.loads(ref_json.read_text()))
+    found = figures_difference(figures, figures_of(json.loads(ref_json.read_text())))
     assert found is None, found
     expected = [" ".join(line.split()) for line in ref_text.read_text().splitlines()]
     assert recorded_lines(text) == recorded_lines(expected)

@@ -16,6 +16,7 @@ from mcap.writer import Writer
 from mems_scenarios import SCENARIOS, load
 from mems_scenarios.cli import main as run_scenario
 from mems_scenarios.contract import RUN_INFO_TOPIC
+from mems_scenarios.figures import figures_of
 
 #: Short runs of each scenario for ``make test`` (the defaults run in ``make acceptance``).
 SHORT = {
@@ -45,14 +46,14 @@ def ran(name: str, bag, seed: int = 1) -> list[dict]:
     argv += ["--no-progress", "--domain-id", str(next_domain_id())]
     status, out, err = cli(argv + SHORT[name])
     assert status == 0, err[-2000:]
-    return json.loads(out)
+    return figures_of(json.loads(out))
 
 
 def analysed(name: str, bag, expect: int = 0) -> tuple[list[dict], str]:
     """The figures and stderr of ``run_scenario name --analyse bag --json``."""
     status, out, err = cli([name, "--analyse", str(bag), "--json", "--no-plots"])
     assert status == expect, err[-2000:]
-    return json.loads(out), err
+    return figures_of(json.loads(out)), err
 
 
 def without(src, dst, topics: set[str]) -> None:

@@ -38,6 +38,7 @@ from mems_scenarios.base import (
     lease_domain,
 )
 from mems_scenarios.cli import main as run_scenario
+from mems_scenarios.figures import figures_of
 from mems_sim.bag import info as info_mod
 from mems_sim.bag.player import read_messages
 
@@ -136,7 +137,7 @@ def test_second_graph_on_a_domain_is_refused_and_the_first_is_unchanged(
     finally:
         out, err = proc.communicate(timeout=120)
     assert proc.returncode == 0, err
-    figures = json.loads(out)  # nothing but the JSON on stdout
+    figures = figures_of(json.loads(out))  # nothing but the JSON on stdout
     assert isinstance(figures, list) and figures
     assert all(set(f) == {"name", "value", "unit", "target", "pass"} for f in figures)
     assert len({f["name"] for f in figures}) == len(figures)

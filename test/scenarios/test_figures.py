@@ -111,3 +111,16 @@ def test_figure_table_rows():
     assert lines[3].split() == ["ekf.theta_rmse", "0.035", "deg", "-", "-"]
     assert lines[4].split()[-1] == "NO" and NOT_FINITE in lines[4]
     assert "nan" not in text
+
+
+def test_result_json_carries_its_schema():
+    from mems_scenarios.figures import JSON_SCHEMA_VERSION, figures_of, result_json
+
+    figs = [Figure("a.b", 1.5, "m", "<= 2 m", True)]
+    doc = json.loads(result_json("imu_noise", figs, [("c.*", "no /c")], ["d.*"]))
+    assert doc["schema_version"] == JSON_SCHEMA_VERSION == 1 and doc["scenario"] == "imu_noise"
+    assert figures_of(doc) == json.loads(to_json(figs)) == figures_of(doc["figures"])
+    assert doc["unavailable"] == [{"figures": "c.*", "reason": "no /c"}]
+    assert doc["oracle_only"] == ["d.*"]
+    with pytest.raises(ValueError, match="schema"):
+        figures_of(dict(doc, schema_version=2))
