@@ -75,7 +75,6 @@ from __future__ import annotations
 import errno
 import os
 import queue
-import re
 import stat
 import threading
 import time
@@ -83,6 +82,16 @@ import time
 import mcap.writer as _mcap_writer
 from mcap.writer import CompressionType, Writer
 
+from mems_sim.bag.output_paths import (
+    METADATA_FILE,
+    BagWriteError,
+    bag_directory_path,
+    bag_directory_problem,  # noqa: F401 (re-export)
+    bag_file_name,
+    describe_error,
+    output_problem,  # noqa: F401 (re-export)
+    prepare_directory,
+)
 from mems_sim.bag.schema import GAP_CHECKED_TYPES, normalize_type_name, peek_frame_index
 from mems_sim.stream_index import GAP, SequenceIndex, StreamIndex
 
@@ -187,172 +196,8 @@ class _zstd_level:
             _ZSTD._local.level = self._saved
 
 
-class BagWriteError(OSError):
-    """The output cannot be written (message is one line and names the path)."""
-
-
-def _describe(path: str, exc: OSError) -> str:
-    """One line for an OSError of opening or writing ``path``."""
-    reason = {
-        errno.EEXIST: "exists (give --overwrite to replace it)",
-        errno.ELOOP: "is a symbolic link; refusing to write through it",
-        errno.EISDIR: "is a directory",
-        errno.ENOENT: "cannot create it (no such file or directory)",
-        errno.ENOTDIR: "a part of the path is not a directory",
-        errno.ENOSPC: "no space left on device",
-        errno.EDQUOT: "disk quota exceeded",
-        errno.EROFS: "read-only file system",
-    }.get(exc.errno)
-    if reason is None:
-        reason = exc.strerror or str(exc)
-    return f"{path}: {reason}"
-
-
-def _lstat_output(path: str) -> tuple[os.stat_result | None, str | None]:
-    """``(lstat of path or None if absent, problem)``: a symbolic link (never followed) or
-    an unreadable path is a problem (one line naming the path)."""
-    try:
-        info = os.lstat(path)
-    except FileNotFoundError:
-        return None, None
-    except OSError as exc:
-        return None, _describe(path, exc)
-    if stat.S_ISLNK(info.st_mode):
-        return info, f"{path}: is a symbolic link; refusing to write through it"
-    return info, None
-
-
-def output_problem(path: str, overwrite: bool = False, probe: bool = True) -> str | None:
-    """Why ``path`` cannot be used as a bag output, or None (one line naming the path).
-
-    Refused: a symbolic link (never followed), a directory, an existing regular file
-    unless ``overwrite``, special files other than character devices, a path whose
-    directory is missing or not writable. With ``probe``, a file that does not exist
-    yet is created and removed again (the only reliable test for root, to whom
-    ``access()`` grants everything, e.g. in ``/proc``); nothing else is modified.
-    """
-    path = str(path)
-    info, problem = _lstat_output(path)
-    if problem is not None:
-        return problem
-    if info is not None:
-        if stat.S_ISDIR(info.st_mode):
-            return f"{path}: is a directory"
-        if stat.S_ISCHR(info.st_mode):
-            return None
-        if not stat.S_ISREG(info.st_mode):
-            return f"{path}: not a regular file"
-        if not overwrite:
-            return f"{path}: exists (give --overwrite to replace it)"
-        if not os.access(path, os.W_OK):
-            return f"{path}: not writable"
-        return None
-    parent = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(parent):
-        return f"{path}: directory {parent} does not exist"
-    if not os.access(parent, os.W_OK | os.X_OK):
-        return f"{path}: directory {parent} is not writable"
-    if probe:
-        try:
-            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644)
-        except FileExistsError:
-            return None  # appeared meanwhile: the real open decides
-        except OSError as exc:
-            return _describe(path, exc)
-        os.close(fd)
-        try:
-            os.unlink(path)
-        except OSError:
-            pass
-    return None
-
-
-#: rosbag2 metadata file of a bag directory and the version written (rosbag2_storage).
-METADATA_FILE = "metadata.yaml"
+#: rosbag2 metadata version written (rosbag2_storage).
 METADATA_VERSION = 9
-
-
-def bag_directory_path(path: str) -> str:
-    """The bag directory a split recording of ``path`` is written to: ``path`` without a
-    trailing separator and without a ``.mcap`` suffix (``run.mcap`` -> ``run``)."""
-    path = str(path)
-    stripped = path.rstrip(os.sep) or path
-    return stripped[: -len(".mcap")] if stripped.endswith(".mcap") else stripped
-
-
-def bag_file_name(directory: str, index: int) -> str:
-    """File name of split ``index`` in bag ``directory`` (rosbag2's ``<name>_<index>``)."""
-    return f"{os.path.basename(directory)}_{index}.mcap"
-
-
-def _foreign_entries(directory: str) -> list[str]:
-    """Entries of ``directory`` that are not parts of a bag written here (split files
-    ``<name>_<n>.mcap`` and ``metadata.yaml``)."""
-    own = re.compile(rf"^{re.escape(os.path.basename(directory))}_\d+\.mcap$")
-    names = sorted(os.listdir(directory))
-    return [n for n in names if n != METADATA_FILE and not own.match(n)]
-
-
-def bag_directory_problem(path: str, overwrite: bool = False, probe: bool = True) -> str | None:
-    """Why ``path`` cannot be used as a bag directory, or None (one line naming the path).
-
-    Refused: a symbolic link, an existing file that is not a directory, an existing directory
-    unless ``overwrite`` (rosbag2 refuses one always), and even with ``overwrite`` a directory
-    holding anything but a bag written here (nothing else is ever deleted); a parent directory
-    that is missing or not writable. With ``probe`` a new directory is created and removed.
-    """
-    path = str(path)
-    info, problem = _lstat_output(path)
-    if problem is not None:
-        return problem
-    if info is not None:
-        if not stat.S_ISDIR(info.st_mode):
-            return f"{path}: exists and is not a directory (a split recording is a directory)"
-        if not overwrite:
-            return f"{path}: exists (give --overwrite to replace it)"
-        try:
-            foreign = _foreign_entries(path)
-        except OSError as exc:
-            return _describe(path, exc)
-        if foreign:
-            shown = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
-            return f"{path}: holds files that are not part of a bag ({shown}); not replacing it"
-        if not os.access(path, os.W_OK | os.X_OK):
-            return f"{path}: not writable"
-        return None
-    parent = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(parent):
-        return f"{path}: directory {parent} does not exist"
-    if not os.access(parent, os.W_OK | os.X_OK):
-        return f"{path}: directory {parent} is not writable"
-    if probe:
-        try:
-            os.mkdir(path, 0o755)
-        except FileExistsError:
-            return None  # appeared meanwhile: the real creation decides
-        except OSError as exc:
-            return _describe(path, exc)
-        try:
-            os.rmdir(path)
-        except OSError:
-            pass
-    return None
-
-
-def _prepare_directory(path: str, overwrite: bool) -> None:
-    """Create the bag directory, or with ``overwrite`` empty an existing bag directory of
-    its split files and metadata (anything else in it: refused). Raises BagWriteError."""
-    problem = bag_directory_problem(path, overwrite=overwrite, probe=False)
-    if problem is not None:
-        raise BagWriteError(problem)
-    try:
-        if os.path.isdir(path):
-            for name in os.listdir(path):
-                os.unlink(os.path.join(path, name))
-        else:
-            os.mkdir(path, 0o755)
-    except OSError as exc:
-        raise BagWriteError(_describe(path, exc)) from None
 
 
 class _WriteThroughFile:
@@ -384,7 +229,7 @@ class _WriteThroughFile:
         try:
             self._fd = os.open(path, flags, 0o644)
         except OSError as exc:
-            raise BagWriteError(_describe(path, exc)) from None
+            raise BagWriteError(describe_error(path, exc)) from None
         self._pos = 0
 
     def write(self, data) -> int:
@@ -499,7 +344,7 @@ class McapBagWriter:
         self._stream = None
         if self._directory:
             self.path = bag_directory_path(path)
-            _prepare_directory(self.path, overwrite)
+            prepare_directory(self.path, overwrite)
             self._open_file()
             self._write_metadata()
         else:
@@ -564,7 +409,7 @@ class McapBagWriter:
             writer.start(profile="ros2", library="mems_sim.bag/mcap-python")
         except OSError as exc:
             stream.close()
-            raise BagWriteError(_describe(path, exc)) from None
+            raise BagWriteError(describe_error(path, exc)) from None
         self._stream, self._writer = stream, writer
         self._file_ids, self._file_schema_ids, self._file_counts = {}, {}, {}
         self._file_first = self._file_last = self._file_start_hw = None
@@ -718,7 +563,7 @@ class McapBagWriter:
                 os.unlink(tmp)
             except OSError:
                 pass
-            raise BagWriteError(_describe(final, exc)) from None
+            raise BagWriteError(describe_error(final, exc)) from None
 
     def files(self) -> list[str]:
         """Paths of the output files so far (one file, or a bag directory's split files)."""
@@ -980,7 +825,7 @@ class McapBagWriter:
         if isinstance(exc, BagWriteError):
             return exc
         if isinstance(exc, OSError):
-            return BagWriteError(_describe(self.path, exc))
+            return BagWriteError(describe_error(self.path, exc))
         return BagWriteError(f"{self.path}: writing failed: {exc}")
 
     def _check_open(self) -> None:

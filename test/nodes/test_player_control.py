@@ -22,7 +22,8 @@ from sensor_msgs.msg import Imu
 
 from mems_msgs.msg import AdcFrame
 from mems_sim.bag.info import bag_info, losses
-from mems_sim.bag.player import iter_messages, read_messages, recorded_topics, split_ros_args
+from mems_sim.bag.play_cli import split_ros_args
+from mems_sim.bag.player import iter_messages, read_messages, recorded_topics
 from mems_sim.bag.reader import BagReadError, bag_files
 from mems_sim.bag.schema import qos_profiles_yaml, schema_text
 from mems_sim.bag.writer import McapBagWriter
