@@ -18,7 +18,7 @@ extra family ``_libm`` (glibc's exp, log, pow, sin, cos, tan, atan2 called from 
 loop) digests the C library's results, which follow glibc's FMA or non-FMA variant.
 
 Imports only the ROS-free core (mems_sim.devices, mems_sim.kernels, mems_estimation.filters,
-mems_estimation.identification) and numpy; no rclpy, no mems_msgs.
+mems_estimation.identification, mems_estimation.studies) and numpy; no rclpy, no mems_msgs.
 
 Every ``numba.njit`` function of the kernel modules is reached by at least one family
 (checked after a run of every family with an empty NUMBA_CACHE_DIR: each dispatcher has a
@@ -30,7 +30,7 @@ in a compiled kernel), except:
   code; the kernels use only ``_gauss_dc``).
 
 The private ``scanner_amdm_ukf._sigma`` is called directly, as test/core/test_scanner_ukf.py
-does (``ukf_run`` has its arithmetic written out on scalars); ``resonator_observer.
+does (``ukf_run`` has its arithmetic written out on scalars); ``resonator_observer_model.
 _riccati_iterate`` is reached through ``KalmanObserver(..., steady_state=True)`` on a
 noise-free model for which scipy's DARE solution fails its residual check.
 """

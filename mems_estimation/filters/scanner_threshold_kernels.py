@@ -6,7 +6,9 @@ algorithm (ZOH model, Joseph form, late detections, peak-slope angle) is describ
 :mod:`mems_estimation.filters.scanner_threshold_ekf`.  The constants travel as NamedTuples:
 the model (:class:`~mems_estimation.filters.scanner_threshold_specs.ScannerModel`), the
 detection options (:class:`DetectionOptions`), the detections (:class:`DetectionArrays`),
-the fixed-lag buffer (:class:`LagBuffer`) and the outputs (:class:`RunOutputs`).
+the fixed-lag buffer (:class:`LagBuffer`) and the outputs (:class:`RunOutputs`).  Numba
+re-validates a cached kernel on its own file only: after editing :func:`scalar_update`,
+clear the cache of :mod:`mems_estimation.studies.scanner_threshold` (its PCRB kernel).
 """
 
 from __future__ import annotations

@@ -167,7 +167,8 @@ def cov_predict(P, A, F, L, S, AP):
 # loops (a call with array arguments costs more than the arithmetic).  Numba invalidates a
 # cached kernel only when the text of its own source file changes, not when a function it
 # inlines or calls from another file does: after editing these, clear the cached kernels
-# of mems_sim/devices/resonator.py and mems_estimation/filters/resonator_adaptive_observer.py
+# of mems_sim/kernels/resonator_observer.py, resonator_observer_model.py,
+# mems_sim/devices/resonator.py and mems_estimation/filters/resonator_adaptive_observer.py
 # (their files under NUMBA_CACHE_DIR), or the old code stays in use.
 
 
