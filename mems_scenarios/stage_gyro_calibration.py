@@ -50,14 +50,12 @@ import numpy as np
 
 from mems_estimation.filters.stage_ekf import model_from_dict, model_to_dict, save_model
 from mems_estimation.identification.stage_gyro_calibration import (
-    INSITU_PERIODS,
     T1,
     T2,
     Plan,
     calibration_run,
     calibration_seeds,
     identify_stage,
-    insitu_calibration,
     off_axis_table,
     retrain_at,
 )
@@ -70,7 +68,15 @@ from mems_scenarios.stage_graph import (  # noqa: F401  (FRAME, RECORDED: public
     recorded_counters,
     run_stage_graph,
 )
-from mems_sim.devices.stage import STAGE_SPECS, MicroStage, off_axis_rejection_worst
+from mems_scenarios.stage_gyro_drifting import (
+    DRIFTING,
+    INSTANCES,
+    drifting_cores,
+    drifting_models,
+    drifting_plan,
+    drifting_table,
+)
+from mems_sim.devices.stage import STAGE_SPECS
 from mems_sim.devices.stage_gyro import GYRO_SPECS
 from mems_sim.table import format_table
 
@@ -212,21 +218,6 @@ def run_pipeline(
 
 #: the drift-free stage the scenario's graph runs (its historical figures)
 IDEALISED = {"idealised": True}
-#: off-axis targets of the RMS reading, worst over the off-axis phase (share -> R_off)
-OFF_AXIS_WORST_TARGETS = {0.01: 0.9998, 0.1: 0.9997, 0.5: 0.9985}
-#: off-axis target at 10 % with the device's stator misregistration (|dy| <= 0.5 um)
-OFF_AXIS_MISREG_TARGET = 0.999
-#: scale-factor error target of the drifting device [ppm RMS over T1/T2] (thesis 286 ppm)
-DRIFT_SF_TARGET_PPM = 300.0
-
-INSTANCES = {"stage_t1": T1, "stage_t2": T2}
-#: the drifting device's instances: namespace -> (temperature of use [C], temperature whose
-#: identified model the in-situ EKF loads [C]): at T1 the model of T1; at T2 the model of T1
-#: (row 1) and the one with D_n, eta re-identified at T2 (row 2); the two at T2 emulate the
-#: same sweep (same seeds)
-DRIFTING = {"stage_d1": (T1, T1), "stage_d2": (T2, T1), "stage_d2r": (T2, T2)}
-#: row of the drifting device's table each instance gives
-DRIFTING_ROW = {"stage_d1": "ref_t1", "stage_d2": "ref_t1", "stage_d2r": "ref_t2"}
 #: the stage node's parameters that describe the device: the stage's physics, spreads and
 #: temperature coefficients (``freq_tempco_per_k`` of wn, ``b_c_tempco_per_k`` of the
 #: actuator gain b_c of eq. 33, ``damping_ratio`` zeta, ...) and its gyro's. A ``--set
@@ -240,23 +231,6 @@ DEVICE_PARAMETERS = frozenset(s.name for s in STAGE_SPECS + GYRO_SPECS) - {
 }
 #: the name under which ``options.applied`` records the overrides the cores took
 CORES = "(cores) drifting device: identification, context and ablation rows"
-
-
-def drifting_models(seed: int, plan: Plan, stage_params: dict | None = None) -> dict:
-    """The drifting device's identification (ROS-free cores, step 1): the model identified
-    at T1 and the one with D_n, eta re-identified at T2 with the LDV-like reference, by
-    temperature."""
-    sp = dict(stage_params or {})
-    model, _ = identify_stage(seed, plan, sp)
-    return {T1: model, T2: retrain_at(model, T2, seed, plan, sp)}
-
-
-def drifting_plan(plan: Plan) -> Plan:
-    """The calibration sweep of the drifting device (at least :data:`INSITU_PERIODS` periods
-    per trial)."""
-    import dataclasses
-
-    return dataclasses.replace(plan, cal_periods=max(plan.cal_periods, INSITU_PERIODS))
 
 
 def device_parameters(options, drifting: bool = True) -> tuple[dict, dict]:
@@ -810,7 +784,7 @@ def drifting_device(
     temperature (reference at T1 only) and, at T2, those re-identified there with the
     LDV-like reference (the thesis' procedure; a separate, labelled row). ``graph_runs``:
     those rows from the node graph (namespace of :data:`DRIFTING` -> the figures of
-    :func:`_recorded_run`: the recording and the published ``gyro_scale_factor``); None:
+    :func:`recorded_run`: the recording and the published ``gyro_scale_factor``); None:
     from the cores. For context, on the cores (labelled so), the thesis' procedure
     without the in-situ correction (model-driven EKF, output correction of T1) and the
     ablation (every capacitive channel removed at T2). Off-axis rejection in the RMS
@@ -822,199 +796,3 @@ def drifting_device(
     models = models or drifting_models(seed, plan, sp)
     cores = drifting_cores(seed, plan, sp, gyro_params, models, graph_runs is not None)
     return drifting_table(cores, graph_runs)
-
-
-def drifting_cores(
-    seed: int,
-    plan: Plan,
-    stage_params: dict | None,
-    gyro_params: dict | None,
-    models: dict,
-    on_graph: bool = True,
-) -> dict:
-    """The drifting device's rows on the ROS-free cores (:func:`drifting_device`): per
-    temperature the calibration sweep evaluated without the in-situ correction (the
-    thesis' procedure) and, at T2, with the capacitive channels removed (ablation);
-    ``on_graph`` False: the in-situ rows too (else the graph gives them). The device as
-    built: off-axis rejection in the RMS reading, worst over the off-axis phase, on the
-    design layout and with its stator misregistration [um]. Returns dict(runs, off,
-    misreg, dy_um)."""
-    sp = dict(stage_params or {})
-    model = models[T1]
-    cal_plan = drifting_plan(plan)
-    on_cores = {
-        T1: {"thesis": (model, "plain")},
-        T2: {"thesis": (models[T2], "plain"), "no_channels": (models[T2], "no_channels")},
-    }
-    if not on_graph:
-        on_cores[T1]["ref_t1"] = (model, "insitu")
-        on_cores[T2].update(ref_t1=(model, "insitu"), ref_t2=(models[T2], "insitu"))
-    runs = {
-        T: insitu_calibration(on_cores[T], T, seed, cal_plan, sp, gyro_params) for T in (T1, T2)
-    }
-    for r in runs.values():
-        r.pop("rec")  # the raw record is not kept (memory)
-    dev = MicroStage(dict(sp, temperature_c=T1))
-    gap = float(np.mean(model.gap))
-    off = {
-        r: off_axis_rejection_worst(3e-3, 1700.0, r, gap, dev.design_limits)
-        for r in OFF_AXIS_WORST_TARGETS
-    }
-    misreg = off_axis_rejection_worst(3e-3, 1700.0, 0.1, gap, dev.limits)
-    dy_um = 1e6 * dev.params["stator_offset_y_m"]
-    return dict(runs=runs, off=off, misreg=misreg, dy_um=dy_um)
-
-
-def drifting_table(cores: dict, graph_runs: dict | None = None) -> dict:
-    """The drifting device's figures and rows (:func:`drifting_device`) from its cores'
-    rows (:func:`drifting_cores`) and, with ``graph_runs``, the in-situ rows of the node
-    graph (namespace of :data:`DRIFTING` -> :func:`recorded_run` with the EKF's in-situ
-    counters). Returns dict(figures, rows, runs, rms_ppm, off_axis)."""
-    runs = {T: dict(r) for T, r in cores["runs"].items()}
-    off, misreg, dy_um = cores["off"], cores["misreg"], cores["dy_um"]
-    for ns, (T, _) in DRIFTING.items() if graph_runs is not None else ():
-        r = {k: v for k, v in graph_runs[ns].items() if k not in ("est", "truth", "drive")}
-        runs[T][DRIFTING_ROW[ns]] = dict(r, namespace=ns)
-
-    def rms_of(label_t2):
-        return math.sqrt(np.mean([runs[T1]["ref_t1"]["ppm"] ** 2, runs[T2][label_t2]["ppm"] ** 2]))
-
-    rms1, rms2 = rms_of("ref_t1"), rms_of("ref_t2")
-    rms_thesis = math.sqrt(
-        np.mean([runs[T1]["thesis"]["ppm"] ** 2, runs[T2]["thesis"]["ppm"] ** 2])
-    )
-    ablation = (
-        runs[T2]["no_channels"]["cal"]["scale_factor"] / runs[T2]["ref_t2"]["cal"]["scale_factor"]
-        - 1.0
-    ) * 1e6
-    figures, rows = [], []
-    for r, (v, phi) in off.items():
-        t = OFF_AXIS_WORST_TARGETS[r]
-        f = Figure(f"drifting.off_axis_{100 * r:g}pct.rejection_worst", v, "1", f">= {t:g}", v >= t)
-        figures += [f, Figure(f"drifting.off_axis_{100 * r:g}pct.worst_phase", phi, "deg")]
-        rows.append(
-            [
-                "R_off (RMS, worst phase)",
-                f"{100 * r:g} %, design layout",
-                f"{cell(100 * v, '.3f')} % at {phi:g} deg",
-                f">= {100 * t:g} %",
-                met_cell(f),
-            ]
-        )
-    v, phi = misreg
-    f = Figure(
-        "drifting.off_axis_10pct.rejection_misregistered",
-        v,
-        "1",
-        f">= {OFF_AXIS_MISREG_TARGET:g}",
-        v >= OFF_AXIS_MISREG_TARGET,
-    )
-    figures += [f, Figure("drifting.stator_offset_y", dy_um, "um")]
-    rows.append(
-        [
-            "R_off (RMS, worst phase)",
-            f"10 %, stator dy {dy_um:+.2f} um",
-            f"{cell(100 * v, '.3f')} % at {phi:g} deg",
-            f">= {100 * OFF_AXIS_MISREG_TARGET:g} %",
-            met_cell(f),
-        ]
-    )
-    labels = {
-        "ref_t1": "ref. at 22.9 C only",
-        "ref_t2": "D_n, eta re-id. at 35.7 C (LDV)",
-    }
-    for ns, T in INSTANCES.items():
-        for label in ("ref_t1", "ref_t2") if T == T2 else ("ref_t1",):
-            r = runs[T][label]
-            ev = r["eval"]
-            key = f"drifting.{ns}" if label == "ref_t1" else f"drifting.{ns}.{label}"
-            fr = Figure(
-                f"{key}.omega_rmse", ev["rmse"], "rad/s", "<= 0.114 rad/s", ev["rmse"] <= 0.114
-            )
-            fa = Figure(
-                f"{key}.alpha",
-                ev["alpha"],
-                "1",
-                "|alpha - 1| <= 8e-4",
-                abs(ev["alpha"] - 1) <= 8e-4,
-            )
-            figures += [
-                fr,
-                fa,
-                Figure(f"{key}.scale_factor", r["cal"]["scale_factor"], "1"),
-                Figure(f"{key}.scale_factor_true", runs[T]["k_true"], "1"),
-                Figure(f"{key}.scale_factor_error", r["ppm"], "ppm"),
-            ]
-            if "insitu_wn_ratio" in r:  # the graph's in-situ EKF (its /diagnostics)
-                figures += [
-                    Figure(f"{key}.insitu_wn_ratio", r["insitu_wn_ratio"], "1"),
-                    Figure(f"{key}.insitu_b_c_ratio", r["insitu_b_c_ratio"], "1"),
-                ]
-            cond = f"{T} C" + (f", {labels[label]}" if T == T2 else "")
-            rows += [
-                [
-                    "in-situ EKF omega RMSE / alpha",
-                    cond,
-                    f"{cell(ev['rmse'], '.4f')} rad/s / {cell(ev['alpha'], '.5f')}",
-                    "<= 0.114 / |a-1| <= 8e-4",
-                    "yes" if (fr.passed and fa.passed) else "NO",
-                ],
-                [
-                    f"SF_IMU by stage (true {cell(runs[T]['k_true'], '.5f')})",
-                    cond,
-                    f"{cell(r['cal']['scale_factor'], '.5f')} +- "
-                    f"{cell(r['cal']['scale_factor_se'], '.5f')}",
-                    f"{cell(r['ppm'], '+.0f')} ppm",
-                    "-",
-                ],
-            ]
-    f1 = Figure(
-        "drifting.scale_factor_error_rms.ref_t1_only",
-        rms1,
-        "ppm",
-        f"<= {DRIFT_SF_TARGET_PPM:g} ppm",
-        rms1 <= DRIFT_SF_TARGET_PPM,
-    )
-    fr = Figure(
-        "drifting.scale_factor_error_rms",
-        rms2,
-        "ppm",
-        f"<= {DRIFT_SF_TARGET_PPM:g} ppm",
-        rms2 <= DRIFT_SF_TARGET_PPM,
-    )
-    ft = Figure("drifting.scale_factor_error_rms.thesis_procedure", rms_thesis, "ppm")
-    fab = Figure(
-        "drifting.ablation_no_channels_35.7C", ablation, "ppm", ">= 3000 ppm", abs(ablation) >= 3000
-    )
-    figures += [f1, fr, ft, fab]
-    rows += [
-        [
-            "SF error RMS (row 2: D_n/eta re-id.)",
-            f"{T1}/{T2} C",
-            f"{cell(rms2, '.0f')} ppm",
-            f"<= {DRIFT_SF_TARGET_PPM:g} ppm (paper 286)",
-            met_cell(fr),
-        ],
-        [
-            "row 1: SF error RMS, ref. 22.9 C only",
-            f"{T1}/{T2} C",
-            f"{cell(rms1, '.0f')} ppm",
-            "D_n drift unobservable w/o ref.",
-            met_cell(f1),
-        ],
-        [
-            "context (cores): thesis w/o in-situ, RMS",
-            f"{T1}/{T2} C",
-            f"{cell(rms_thesis, '.0f')} ppm",
-            "model-driven EKF (context)",
-            "-",
-        ],
-        [
-            "ablation (cores): channels removed",
-            f"{T2} C",
-            f"SF moves {cell(ablation, '+.0f')} ppm",
-            ">= 3000 ppm (sensor carries it)",
-            met_cell(fab),
-        ],
-    ]
-    return {"figures": figures, "rows": rows, "runs": runs, "rms_ppm": rms2, "off_axis": off}
