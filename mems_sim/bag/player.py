@@ -13,33 +13,12 @@ import time
 from collections.abc import Iterable
 
 from mems_sim.bag.playback_control import PlaybackControl
-from mems_sim.bag.reading import (
-    BagMessage,
-    BagReadError,
-    bag_start_time_ns,
-    iter_messages,
-    iter_raw,
-    iter_stream_records,
-    open_bag,
-    playable_topics,
-    read_messages,
-    recorded_topics,
-)
+from mems_sim.bag.reading import *  # noqa: F403 (the reading API, re-exported)
+from mems_sim.bag.reading import __all__ as _READING
+from mems_sim.bag.reading import iter_messages, playable_topics
 from mems_sim.ros.qos_yaml import playback_profile
 
-__all__ = [
-    "BagMessage",
-    "BagReadError",
-    "Player",
-    "bag_start_time_ns",
-    "iter_messages",
-    "iter_raw",
-    "iter_stream_records",
-    "open_bag",
-    "playable_topics",
-    "read_messages",
-    "recorded_topics",
-]
+__all__ = ["Player", *_READING]
 
 
 def parse_remaps(remaps: Iterable[str]) -> dict[str, str]:
