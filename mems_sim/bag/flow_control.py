@@ -9,6 +9,7 @@ import bisect
 import re
 import time
 
+from mems_sim.ros.flow import ProgressSubscriber, may_send, progress_topic
 from mems_sim.stream_index import StallTimer
 
 #: Credit of a consumer unless ``--credit`` says otherwise: frames published ahead of its
@@ -112,8 +113,7 @@ class Consumer(StallTimer):
         if unit == "frames":
             # a frame whose partner (same indices, another input topic) is out goes too
             return len(self.outstanding) < credit or first + num in self.outstanding
-        base = self.progress if self.progress is not None else self.first_sent
-        return base is None or first <= base or first + num <= base + credit
+        return may_send(first, num, self.progress, credit, self.first_sent)
 
     def sent(self, first: int, num: int) -> None:
         """Record a frame published to it (frames of its paired topics share an end)."""
@@ -182,21 +182,19 @@ class FlowControl:
 
     def _subscribe_progress(self, c: Consumer) -> bool:
         from rclpy.qos import HistoryPolicy
-        from std_msgs.msg import UInt64
 
         from mems_sim.bag.recorder import adapt_qos
         from mems_sim.ros.qos import FRAME_DEPTH
 
-        topic = c.fqn + "/progress"
+        topic = progress_topic(c.fqn)
         offered = [p.qos_profile for p in self.node.get_publishers_info_by_topic(topic)]
         if not offered:
             return False
         c.exact_jumps = all(
             q.history == HistoryPolicy.KEEP_ALL or int(q.depth) >= FRAME_DEPTH for q in offered
         )
-        c.subscription = self.node.create_subscription(
-            UInt64, topic, lambda msg, c=c: c.on_progress(msg.data), adapt_qos(offered)
-        )
+        reader = ProgressSubscriber(self.node, c.fqn, c.on_progress, adapt_qos(offered))
+        c.subscription = reader.subscription
         return True
 
     def wait_ready(self, player, timeout_s: float, stop=lambda: False) -> str | None:

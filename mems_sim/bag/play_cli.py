@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import sys
 import time
 
@@ -47,7 +46,8 @@ from mems_sim.bag.player import Player, parse_remaps
 from mems_sim.bag.reader import BagReadError, closed_pipe_exit, one_line, shown
 from mems_sim.bag.reading import playable_topics
 from mems_sim.cli_values import OneLineParser, non_negative, number, positive
-from mems_sim.ros.env import apply_defaults, domain_id_problem, install_stop_request
+from mems_sim.ros.env import apply_defaults, domain_id_problem
+from mems_sim.ros.stop import StopRequest
 
 
 def _parse_args(argv: list[str]) -> argparse.Namespace:
@@ -233,7 +233,7 @@ def _main(argv: list[str] | None) -> int:
     from rosgraph_msgs.msg import Clock
 
     rclpy.init(args=["mcap_play"] + ros_args, signal_handler_options=SignalHandlerOptions.NO)
-    stop, previous = install_stop_request()
+    stop = StopRequest().install()
     node = None
     code = 0
     try:
@@ -258,18 +258,18 @@ def _main(argv: list[str] | None) -> int:
             flow = FlowControl(
                 node, executor, args.consumers, args.credit, stall_s=args.consumer_timeout
             )
-            why = flow.wait_ready(player, args.wait_timeout, lambda: stop["flag"])
+            why = flow.wait_ready(player, args.wait_timeout, lambda: bool(stop))
             if why is not None:
                 print(one_line(f"mcap_play: error: consumer not ready: {why}"), file=sys.stderr)
                 return 3
         if args.wait_for_subscribers > 0 and not player.wait_for_subscribers(
-            args.wait_for_subscribers, args.wait_timeout, lambda: stop["flag"]
+            args.wait_for_subscribers, args.wait_timeout, lambda: bool(stop)
         ):
             node.get_logger().warning("not every topic has its subscribers; playing anyway")
         delay_end = time.monotonic() + args.delay
-        while not stop["flag"] and time.monotonic() < delay_end:
+        while not stop and time.monotonic() < delay_end:
             player._wait(min(0.05, delay_end - time.monotonic()))
-        while not stop["flag"]:
+        while not stop:
             player.play(
                 rate=args.rate,
                 fast=args.as_fast_as_possible,
@@ -277,7 +277,7 @@ def _main(argv: list[str] | None) -> int:
                 duration_s=args.duration,
                 clock_publisher=clock_pub,
                 clock_hz=args.clock or 0.0,
-                stop=lambda: stop["flag"],
+                stop=lambda: bool(stop),
                 flow=flow,
             )
             if not args.loop:
@@ -286,7 +286,7 @@ def _main(argv: list[str] | None) -> int:
         if player.played_log_s > 0:
             lines[0] += f", {player.played_log_s:.3f} s of log time in {player.played_wall_s:.3f} s"
         if flow is not None:
-            flow.finish(lambda: stop["flag"])
+            flow.finish(lambda: bool(stop))
             lines += flow.report(player)
             if flow.lost() or any(c.diag_gaps for c in flow.consumers):
                 code = 3
@@ -298,8 +298,7 @@ def _main(argv: list[str] | None) -> int:
         print(f"mcap_play: error: {one_line(exc)}", file=sys.stderr)
         return 2
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        stop.restore()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

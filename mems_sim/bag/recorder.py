@@ -557,11 +557,3 @@ class RecorderNode(Node):
             self.close()
         finally:
             super().destroy_node()
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``mcap_record`` of an install made before the CLI moved (its entry point is this
-    function until ``make setup`` installs again): :func:`mems_sim.bag.record_cli.main`."""
-    from mems_sim.bag.record_cli import main as record_main
-
-    return record_main(argv)

@@ -33,9 +33,7 @@ install their ament index, so that message definitions are found without sourcin
 setup script.
 """
 
-import contextlib
 import os
-import signal
 import sys
 from pathlib import Path
 
@@ -138,53 +136,3 @@ def localhost_only() -> bool:
     if env.get(MARKER_VARIABLE) and env.get(PROFILE_VARIABLE) == env[MARKER_VARIABLE]:
         return True
     return env.get(RANGE_VARIABLE, "").strip().upper() == "LOCALHOST"
-
-
-#: The signals that ask a program to stop and finalise what it writes: Ctrl-C, ``kill`` and
-#: a closed terminal or SSH session.
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-
-
-def install_stop_request(on_signal=None) -> tuple[dict, dict]:
-    """Turn the stop signals (:data:`STOP_SIGNALS`) into a flag (``stop["flag"]``, and the
-    signal numbers in ``stop["signals"]``) that a main loop polls; ``on_signal(signum)`` is
-    called too if given.
-
-    Returns:
-        (stop, previous handlers); restore with ``signal.signal(sig, h)`` for each item.
-    """
-    stop = {"flag": False, "signals": []}
-
-    def request_stop(signum, _frame):
-        stop["flag"] = True
-        stop["signals"].append(signum)
-        if on_signal is not None:
-            on_signal(signum)
-
-    previous = {s: signal.signal(s, request_stop) for s in STOP_SIGNALS}
-    return stop, previous
-
-
-class StopSignal(KeyboardInterrupt):
-    """A stop signal raised where the program was, as Python raises KeyboardInterrupt for
-    SIGINT (so ``finally`` blocks close recordings for SIGTERM and SIGHUP too)."""
-
-    def __init__(self, signum: int):
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
-@contextlib.contextmanager
-def stop_signals_raise():
-    """Within the block, every stop signal raises :class:`StopSignal`; the previous
-    handlers come back after it."""
-
-    def raise_stop(signum, _frame):
-        raise StopSignal(signum)
-
-    previous = {s: signal.signal(s, raise_stop) for s in STOP_SIGNALS}
-    try:
-        yield
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)

@@ -10,17 +10,14 @@ beyond it (:func:`may_send`). The same number is read two ways:
 * across processes, from its ``~/progress`` topic (std_msgs/UInt64,
   :data:`~mems_sim.ros.qos.PROGRESS_QOS`): :class:`ProgressSubscriber`.
 
-Lossless replay with this protocol: docs/recording.md ("Lossless replay into other
-processes").
+The module imports ROS only when a reporter or subscriber is made (:func:`may_send` is
+plain arithmetic). Lossless replay with this protocol: docs/recording.md ("Lossless
+replay into other processes").
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-
-from std_msgs.msg import UInt64
-
-from mems_sim.ros.qos import PROGRESS_QOS
 
 #: The topic (relative to the node) a consumer reports its progress on.
 PROGRESS_TOPIC = "~/progress"
@@ -44,6 +41,11 @@ class ProgressReporter:
     """
 
     def __init__(self, node, max_jump: int | None = None) -> None:
+        from std_msgs.msg import UInt64
+
+        from mems_sim.ros.qos import PROGRESS_QOS
+
+        self._msg = UInt64
         self.value: int | None = None
         self.max_jump = max_jump
         self.publisher = node.create_publisher(UInt64, PROGRESS_TOPIC, PROGRESS_QOS)
@@ -57,7 +59,7 @@ class ProgressReporter:
             self.value = end
         elif self.max_jump is None or abs(end - self.value) <= self.max_jump:
             self.value = max(self.value, end)
-        self.publisher.publish(UInt64(data=min(max(self.value, 0), _UINT64_MAX)))
+        self.publisher.publish(self._msg(data=min(max(self.value, 0), _UINT64_MAX)))
         return self.value
 
 
@@ -73,7 +75,7 @@ class ProgressSubscriber:
     ``node`` (the producer's node); ``on_progress(value)`` is called for every report.
 
     Args:
-        qos: the subscription's QoS (default :data:`~mems_sim.ros.qos.PROGRESS_QOS`; a
+        qos: the subscription's QoS (None: :data:`~mems_sim.ros.qos.PROGRESS_QOS`; a
             player adapts it to the publisher it found).
     """
 
@@ -82,15 +84,21 @@ class ProgressSubscriber:
         node,
         node_fqn: str,
         on_progress: Callable[[int], object] | None = None,
-        qos=PROGRESS_QOS,
+        qos=None,
     ) -> None:
+        from std_msgs.msg import UInt64
+
+        from mems_sim.ros.qos import PROGRESS_QOS
+
         self.value: int | None = None
         self.reports = 0
         self.topic = progress_topic(node_fqn)
         self._on_progress = on_progress
-        self.subscription = node.create_subscription(UInt64, self.topic, self._on_msg, qos)
+        self.subscription = node.create_subscription(
+            UInt64, self.topic, self._on_msg, PROGRESS_QOS if qos is None else qos
+        )
 
-    def _on_msg(self, msg: UInt64) -> None:
+    def _on_msg(self, msg) -> None:
         self.value = int(msg.data)
         self.reports += 1
         if self._on_progress is not None:
