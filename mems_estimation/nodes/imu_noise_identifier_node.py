@@ -199,6 +199,7 @@ class NoiseIdentifierNode(EstimatorNode):
         self.results: list[NoiseModel] = []
         self._next_publish_s = self.p["publish_period_s"]
         self._finalised = False
+        self._final: NoiseModel | None = None
         self.pub = self.create_publisher(NoiseModel, self.p["output_topic"], RESULT_QOS)
         self.sub = self.subscribe_single(
             ("input", AdcFrame, adc_physical), check_rate=False, topic=self.p["input_topic"]
@@ -237,11 +238,17 @@ class NoiseIdentifierNode(EstimatorNode):
         self.pub.publish(msg)
         return msg
 
-    def close(self) -> None:
-        """Publish the final model (once)."""
+    def finish(self) -> NoiseModel | None:
+        """End of input: publish the final model (once; the first call's model is returned
+        again) and return it; None if there was too little data."""
         if not self._finalised:
             self._finalised = True
-            self.publish_result(final=True)
+            self._final = self.publish_result(final=True)
+        return self._final
+
+    def close(self) -> None:
+        """Publish the final model (once)."""
+        self.finish()
 
 
 def main(argv: list[str] | None = None) -> int:
