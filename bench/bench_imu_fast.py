@@ -17,7 +17,7 @@ from pathlib import Path
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")))
 
 from mems_estimation.nodes.imu_noise_identifier_node import NoiseIdentifierNode
-from mems_scenarios.base import Graph, drive_fast, finish_delivery, parameters
+from mems_scenarios.base import Graph, consumed, drive_fast, finish_delivery, parameters
 from mems_sim.bag.recorder import RecorderNode
 from mems_sim.nodes.imu_node import ImuNoiseNode
 
@@ -50,8 +50,8 @@ def rtf(record: bool, tmp: Path, split: dict | None = None) -> float:
             "subscribers",
         )
         t0 = time.perf_counter()
-        drive_fast(graph, [emu], lambda _d: ident.frames_received, None, 50)
-        finish_delivery(graph, [emu], lambda _d: ident.frames_received)
+        drive_fast(graph, [emu], consumed(ident), None, 50)
+        finish_delivery(graph, [emu], consumed(ident))
         wall = time.perf_counter() - t0
     finally:
         graph.close()

@@ -285,7 +285,7 @@ def run_family(family: str, tmp: Path, domain_id: int | None, scale: float = 1.0
         publish_all(
             graph,
             [dev],
-            lambda _d: taken(),
+            lambda d: taken() * d.p["frame_size"],  # frames -> samples
             None,
             realtime=False,
             realtime_timeout_s=0.0,

@@ -60,6 +60,7 @@ from mems_scenarios.figures import Figure, cell
 from mems_sim.devices import accelerometer as fra
 from mems_sim.nodes.accelerometer_node import REFERENCE_TEMPERATURE_C
 from mems_sim.params import draw_device
+from mems_sim.ros.flow import progress_of
 
 NAME = "accelerometer_snr"
 NAME_SPREAD = "accelerometer_spread"
@@ -229,9 +230,9 @@ def run_graph(
     n_topics = sum(len(_topics(d)) for d in devices.values()) + (ekf is not None)
 
     def delivered(device) -> int | None:
-        """Frames the downstream EKF took (the recorder counts in the skeleton)."""
+        """Progress [samples] of the downstream EKF (the recorder counts in the skeleton)."""
         if ekf is not None and device.get_namespace() == "/acc_pi_1g":
-            return ekf.frames_done
+            return progress_of(ekf) or 0
         return None
 
     try:

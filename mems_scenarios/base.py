@@ -42,8 +42,10 @@ from mems_scenarios.domain import (  # noqa: F401  (DEFAULT_DOMAINS, DomainLease
 from mems_sim.bag.recorder import RecorderNode
 from mems_sim.params import ParameterError, spec_table
 from mems_sim.ros.env import MAX_DOMAIN_ID, apply_defaults, domain_id_problem
+from mems_sim.ros.flow import may_send, progress_of
 from mems_sim.ros.frames import index_to_ns
-from mems_sim.ros.node_base import EmulatorNode, PacedEmulator
+from mems_sim.ros.node_base import EmulatorNode
+from mems_sim.ros.pacing import PacedEmulator
 from mems_sim.ros.params_file import Override, node_matches
 from mems_sim.table import format_table  # noqa: F401  (scenarios print with it)
 
@@ -683,10 +685,9 @@ def _lagging(devices: list, delivered, streams: list) -> str:
     ]
     for d in devices:
         n = delivered(d) if delivered is not None else None
-        if n is not None and n < d.frames_published:
+        if n is not None and n < d.next_index:
             parts.append(
-                f"{d.get_fully_qualified_name()}: its consumers took {n} of "
-                f"{d.frames_published} frames"
+                f"{d.get_fully_qualified_name()}: its consumers took {n} of {d.next_index} samples"
             )
     return "; ".join(parts) or "nothing outstanding"
 
@@ -756,7 +757,7 @@ def finish_delivery(graph: Graph, devices: list, delivered=None, timeout_s: floa
         if delivered is not None:
             for d in devices:
                 n = delivered(d)
-                if n is not None and n < d.frames_published:
+                if n is not None and n < d.next_index:
                     return False
         return all(rec.received(acc.topic) >= acc.sent for rec, acc, _ in streams) and all(
             rec.received(t) >= 1 for rec, d, t in ends if d.end_of_stream_sent
@@ -771,7 +772,7 @@ def _all_taken(devices: list, delivered, streams: list) -> bool:
     if delivered is not None:
         for d in devices:
             n = delivered(d)
-            if n is not None and n < d.frames_published:
+            if n is not None and n < d.next_index:
                 return False
     return all(rec.received(acc.topic) >= acc.sent for rec, acc, _ in streams)
 
@@ -793,8 +794,9 @@ def drive_fast(
     Args:
         devices: emulator nodes with ``step()``, ``finished``, ``frames_published``,
             ``next_index``, ``fs`` and ``streams``.
-        delivered: frames of ``device`` taken by its slowest consumer besides the
-            recorders so far (None, or returning None: no such consumer).
+        delivered: progress of ``device``'s slowest consumer besides the recorders (one
+            past the last sample index it finished with, :mod:`mems_sim.ros.flow`; see
+            :func:`consumed`), None, or returning None: no such consumer.
         window: frames (messages per topic) a device may run ahead of its consumers.
     """
     prepare_delivery(graph, devices)
@@ -804,8 +806,10 @@ def drive_fast(
     def caught_up() -> bool:
         if delivered is not None:
             for d in devices:
-                n = delivered(d)
-                if n is not None and d.frames_published - n >= window:
+                n, f = delivered(d), d.p["frame_size"]
+                # the next frame is within ``window`` frames of the slowest consumer's
+                # progress: the player's credit rule (one flow-control protocol)
+                if n is not None and not may_send(d.next_index, f, n, window * f):
                     return False
         return all(acc.sent - rec.received(acc.topic) < w for rec, acc, w in streams)
 
@@ -868,6 +872,17 @@ def publish_all(
         drive_fast(graph, devices, delivered, progress, window)
     finish_delivery(graph, devices, delivered, drain_timeout_s)
     THROUGHPUT.end(devices)
+
+
+def consumed(*nodes) -> Callable[[object], int]:
+    """``delivered`` of :func:`drive_fast` for consumers ``nodes`` of every device: the
+    slowest one's progress in samples (:func:`~mems_sim.ros.flow.progress_of`; 0 before its
+    first report)."""
+
+    def delivered(_device) -> int:
+        return min(progress_of(n) or 0 for n in nodes)
+
+    return delivered
 
 
 def topics_frames(path, topics, missing_ok: bool = False) -> dict[str, dict]:
@@ -934,9 +949,8 @@ def run_recorded(
     default_duration_s: float,
     check_duration: Callable[[float], None],
     run_graph: Callable[..., dict],
-    analyse: Callable[..., ScenarioResult] | None = None,
+    analyse: Callable[..., ScenarioResult],
     png_suffixes: tuple[str, ...] = ("",),
-    **legacy,
 ) -> dict:
     """The common shape of a scenario's ``run``: graph -> MCAP -> ``analyse(MCAP)``.
 
@@ -968,18 +982,7 @@ def run_recorded(
     pngs = None
     if options.plots:
         pngs = tuple(output_path(out, options.seed, s + ".png") for s in png_suffixes)
-    if analyse is None:  # TEMPORARY: scenarios not yet on the contract (issue in progress)
-        f = legacy["figures"](out, ran, duration)
-        if pngs:
-            analyse_quietly(legacy["plot"], f, *pngs)
-        result = ScenarioResult(
-            name,
-            legacy["records"](f),
-            legacy["table"](f),
-            values={k: v for k, v in f.items() if k != "series"},
-        )
-    else:
-        result = analyse_quietly(analyse, out, pngs)
+    result = analyse_quietly(analyse, out, pngs)
     return dict(
         table=result.table,
         figures=result.figures,

@@ -11,7 +11,7 @@ noise model, temperature from the paired temperature_sensor frames) publishes
 ``/imu/calibration`` at the profile's end and writes the calibration YAML next to the MCAP;
 the recorder writes everything. The figures are an analysis of the recording
 (:func:`analyse`: the published calibration against ``/imu/truth_calibration``); the
-emulator's nominal B comes from the run record (:func:`oracle`). See docs/scenarios.md.
+emulator's nominal B comes from the run record (:func:`oracle`). The contract: docs/scenarios.md.
 
 Figures (targets of the multi-position calibration, per sensor): RMS scale-factor error
 (diagonal of C) [ppm] <= 300; RMS misalignment error (off-diagonal of C, small angles)
@@ -34,6 +34,7 @@ from mems_scenarios.base import (
     Progress,
     ScenarioError,
     ScenarioOptions,
+    consumed,
     format_table,
     graph_for,
     output_path,
@@ -359,7 +360,7 @@ def run_profile(options: ScenarioOptions, name: str, profile: str, thermal: bool
         publish_all(
             graph,
             [emu],
-            lambda _: cal.frames_done,
+            consumed(cal),
             progress,
             realtime=options.realtime,
             realtime_timeout_s=total * 2 + 60,

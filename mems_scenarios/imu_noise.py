@@ -21,6 +21,7 @@ from mems_scenarios.base import (
     Progress,
     ScenarioError,
     ScenarioOptions,
+    consumed,
     drive_fast,
     finish_delivery,
     format_table,
@@ -126,7 +127,7 @@ def run_fast(graph: Graph, emu, ident, rec, progress: Progress) -> None:
     # the recorder counts for every topic the emulator publishes (the skeleton's flow
     # control): a reader that falls more than the publisher's history behind would lose
     # frames (reliable KEEP_LAST overwrites them)
-    drive_fast(graph, [emu], lambda _: ident.frames_received, progress, WINDOW)
+    drive_fast(graph, [emu], consumed(ident), progress, WINDOW)
 
 
 def run_realtime(graph: Graph, emu, progress: Progress) -> None:
@@ -143,7 +144,7 @@ def drain(graph: Graph, emu, ident, rec) -> None:
     """Wait until every message reached the identifier and the recorder (a loss raises
     ScenarioError naming the topic); have the identifier publish its final model (its
     end-of-input service, as at shutdown) and wait until the recorder holds it."""
-    finish_delivery(graph, [emu], lambda _: ident.frames_received)
+    finish_delivery(graph, [emu], consumed(ident))
     before = rec.received("/imu/noise_model")
     if ident.finish() is None:
         raise ScenarioError(

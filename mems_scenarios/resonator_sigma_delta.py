@@ -62,6 +62,7 @@ from mems_scenarios.contract import (
 from mems_scenarios.figures import Figure, cell, is_finite, met_cell
 from mems_sim.devices.resonator import default_pulse_amplitude
 from mems_sim.kernels.resonator_observer import observer_model, predicted_error_acf
+from mems_sim.ros.flow import progress_of
 
 NAME = "sd_resonator"
 DESCRIPTION = (
@@ -192,8 +193,9 @@ def _delivered(rec, observers):
         by_ns.setdefault(ns, []).append(observers[name])
 
     def delivered(device) -> int | None:
-        """Frames the device's slowest observer took (the recorder counts in the skeleton)."""
-        counts = [o.frames_done for o in by_ns.get(device.get_namespace().lstrip("/"), [])]
+        """Progress [samples] of the device's slowest observer (the recorder counts in the
+        skeleton)."""
+        counts = [progress_of(o) or 0 for o in by_ns.get(device.get_namespace().lstrip("/"), [])]
         return min(counts) if counts else None
 
     return delivered

@@ -63,6 +63,7 @@ from mems_scenarios.contract import (
 )
 from mems_scenarios.figures import Figure, cell, met_cell
 from mems_sim.devices import scanner_amdm as sa
+from mems_sim.ros.flow import progress_of
 
 NAME = "scanner_shared_electrodes"
 DESCRIPTION = (
@@ -199,8 +200,9 @@ def run_graph(options: ScenarioOptions, out: Path, duration: float, progress: Pr
     graph, devices, estimators, rec = build_graph(options, out, duration)
 
     def delivered(device) -> int:
-        """Frames the device's estimator took (the recorder counts in the skeleton)."""
-        return estimators[device.get_namespace().lstrip("/")].frames_done
+        """Progress [samples] of the device's estimator (the recorder counts in the
+        skeleton)."""
+        return progress_of(estimators[device.get_namespace().lstrip("/")]) or 0
 
     try:
 

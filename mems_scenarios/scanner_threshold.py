@@ -71,6 +71,7 @@ from mems_sim.devices.scanner import (
     resolve_scanner,
     scanner_params,
 )
+from mems_sim.ros.flow import progress_of
 
 NAME = "scanner_threshold"
 DESCRIPTION = (
@@ -150,12 +151,13 @@ def run_graph(
         rec = graph_.recorder(str(out), regex=regex, exclude=NOT_RECORDED)
         graph_.publish_run_info(spec, options, nodes, duration_s=duration)
 
-    def delivered(_d) -> int:
-        """Frames the estimator took; the recorder counts for the device's topics in the
-        skeleton, and here for the detections the estimator publishes per frame."""
+    def delivered(d) -> int:
+        """Progress [samples] of the estimator; the recorder counts for the device's topics
+        in the skeleton, and here for the detections the estimator publishes per frame."""
+        done = progress_of(est) or 0
         if rec is None:
-            return est.frames_done
-        return min(rec.received(f"/{NS}/threshold_detections"), est.frames_done)
+            return done
+        return min(rec.received(f"/{NS}/threshold_detections") * d.p["frame_size"], done)
 
     try:
         nsub = 2 if rec is not None else 1

@@ -91,6 +91,7 @@ def run_stage_graph(
     published once the graph ran, with the graph's simulated and wall time
     (``simulated_s``, ``wall_s``), after every EKF's final diagnostics."""
     from mems_scenarios.base import Progress, graph_for, publish_all
+    from mems_sim.ros.flow import progress_of
 
     shielded = shielded or {}
     spec = graph(options, layout, name, run_info is not None)
@@ -108,8 +109,8 @@ def run_stage_graph(
         rec = g.recorder(str(out), topics=list(spec.recorded))
 
         def delivered(d) -> int:
-            """Frames the device's EKF took (the recorder counts in the skeleton)."""
-            return ekfs[d.get_namespace().lstrip("/")].frames_done
+            """Progress [samples] of the device's EKF (the recorder counts in the skeleton)."""
+            return progress_of(ekfs[d.get_namespace().lstrip("/")]) or 0
 
         g.spin_until(
             lambda: (

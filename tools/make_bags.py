@@ -328,10 +328,13 @@ def run_family(graph: Graph, family: Family, dev, est, rec: RecorderNode) -> Non
     device_topics = [family.topic(t) for t in family.inputs + family.extra_recorded]
 
     def delivered(_dev) -> int:
-        return min([rec.received(t) for t in device_topics] + [family.consumed(est)])
+        """Samples taken by the slowest of the recorder and the estimator (frames of
+        ``frame_size`` samples each)."""
+        frames = min([rec.received(t) for t in device_topics] + [family.consumed(est)])
+        return frames * dev.p["frame_size"]
 
     drive_fast(graph, [dev], delivered, window=family.window)
-    graph.spin_until(lambda: delivered(dev) >= dev.frames_published, 60.0, "the last frames")
+    graph.spin_until(lambda: delivered(dev) >= dev.next_index, 60.0, "the last frames")
     finish(est)
     expected = family.expected(est)
     graph.spin_until(

@@ -34,10 +34,11 @@ from mems_msgs.msg import AdcFrame, NoiseModel
 from mems_sim.bag.info import bag_info
 from mems_sim.bag.player import iter_messages, read_messages
 from mems_sim.bag.recorder import RecorderNode
-from mems_sim.bag.schema import peek_header_stamp_ns, qos_profiles_yaml, schema_text
+from mems_sim.bag.schema import peek_header_stamp_ns, schema_text
 from mems_sim.bag.writer import McapBagWriter
 from mems_sim.ros.frames import index_to_ns, time_to_ns
 from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
+from mems_sim.ros.qos_yaml import profiles_yaml as qos_profiles_yaml
 
 BIN = Path(sys.executable).parent
 FS = 100.0
@@ -64,7 +65,7 @@ def _fast_run(path: Path, domain_id: int, duration_s: float, frame: int = 10) ->
             20.0,
             "the recorder",
         )
-        drive_fast(graph, [emu], lambda _: rec.received("/imu/adc"))
+        drive_fast(graph, [emu], lambda d: rec.received("/imu/adc") * d.p["frame_size"])
         graph.spin_until(
             lambda: rec.received("/imu/adc") >= emu.frames_published, 20.0, "the last frames"
         )

@@ -224,7 +224,7 @@ def test_scenario_graph_is_on_one_timeline(realtime, tmp_path, domain_id):
         publish_all(
             graph,
             [emu],
-            lambda _: min(rec.received("/imu/adc"), rec.received("/imu/truth")),
+            lambda d: min(rec.received("/imu/adc"), rec.received("/imu/truth")) * d.p["frame_size"],
             None,
             realtime=realtime,
             realtime_timeout_s=30.0,
