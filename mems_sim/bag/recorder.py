@@ -57,7 +57,6 @@ from mems_sim.bag.schema import (
     normalize_type_name,
     peek_frame_index,
     peek_header_stamp_ns,
-    qos_profiles_yaml,
     schema_text,
     type_hash,
 )
@@ -75,6 +74,7 @@ from mems_sim.ros.end_of_stream import (
 )
 from mems_sim.ros.flow import ProgressReporter
 from mems_sim.ros.qos import FRAME_DEPTH
+from mems_sim.ros.qos_yaml import profiles_yaml
 
 _BEST_EFFORT = ReliabilityPolicy.BEST_EFFORT
 
@@ -279,9 +279,7 @@ class RecorderNode(Node):
         except SchemaError as exc:
             self._mark_unusable(topic, str(exc))
             return
-        self._bag.add_topic(
-            topic, type_name, text, qos_profiles_yaml(offered), type_hash(type_name)
-        )
+        self._bag.add_topic(topic, type_name, text, profiles_yaml(offered), type_hash(type_name))
         self._rx_counts[topic] = 0
         if is_end_of_stream_topic(topic, type_name):
             self._eos_topics.add(topic)

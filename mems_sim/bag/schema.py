@@ -7,8 +7,8 @@ bytes themselves:
   the top-level ``.msg`` text, then every dependency once (depth first),
   each preceded by a line of exactly 80 ``=`` and a line ``MSG: pkg/msg/Type``
   (rosbag2's ``LocalMessageDefinitionSource`` layout).
-* :func:`qos_profiles_yaml` / :func:`qos_profiles_from_yaml` -- the
-  ``offered_qos_profiles`` channel metadata, from :mod:`mems_sim.ros.qos_yaml`.
+* the ``offered_qos_profiles`` channel metadata is written and read by
+  :mod:`mems_sim.ros.qos_yaml`.
 * :func:`type_hash` -- the ``RIHS01_...`` type hash that rosbag2 stores as
   ``topic_type_hash``, read from the ``Type.json`` that rosidl installs next to
   the ``.msg`` file.
@@ -28,10 +28,6 @@ import os
 import re
 import struct
 import sys
-
-from mems_sim.ros.qos_yaml import profile_dict as qos_profile_dict  # noqa: F401 (re-export)
-from mems_sim.ros.qos_yaml import profiles_from_yaml as qos_profiles_from_yaml  # noqa: F401
-from mems_sim.ros.qos_yaml import profiles_yaml as qos_profiles_yaml  # noqa: F401
 
 #: Line that separates definitions in a ``ros2msg`` schema (exactly 80 '=').
 SEPARATOR = "=" * 80

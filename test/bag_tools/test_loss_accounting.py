@@ -9,7 +9,7 @@ from std_msgs.msg import String
 
 from mems_msgs.msg import SignalFrame
 from mems_sim.bag import info as info_mod
-from mems_sim.bag.schema import qos_profiles_yaml, schema_text
+from mems_sim.bag.schema import schema_text
 from mems_sim.bag.writer import McapBagWriter
 from mems_sim.ros.end_of_stream import (
     END_OF_STREAM_TYPE,
@@ -18,6 +18,7 @@ from mems_sim.ros.end_of_stream import (
     parse_end_of_stream,
 )
 from mems_sim.ros.qos import FRAME_QOS
+from mems_sim.ros.qos_yaml import profiles_yaml as qos_profiles_yaml
 
 
 class _Account:

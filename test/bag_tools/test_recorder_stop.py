@@ -129,8 +129,9 @@ def test_writer_close_deadline_drops_and_counts(tmp_path):
     finalised file; what was still queued is dropped and counted, never lost silently."""
     from mcap.reader import make_reader
 
-    from mems_sim.bag.schema import qos_profiles_yaml, schema_text
+    from mems_sim.bag.schema import schema_text
     from mems_sim.bag.writer import McapBagWriter
+    from mems_sim.ros.qos_yaml import profiles_yaml as qos_profiles_yaml
 
     path = tmp_path / "slow.mcap"
     writer = McapBagWriter(str(path), queue_size=1000)

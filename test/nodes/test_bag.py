@@ -36,13 +36,13 @@ from mems_sim.bag.schema import (
     SEPARATOR,
     peek_frame_index,
     peek_header_stamp_ns,
-    qos_profiles_from_yaml,
-    qos_profiles_yaml,
     schema_text,
     split_schema,
 )
 from mems_sim.bag.writer import McapBagWriter
 from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
+from mems_sim.ros.qos_yaml import profiles_from_yaml as qos_profiles_from_yaml
+from mems_sim.ros.qos_yaml import profiles_yaml as qos_profiles_yaml
 
 BIN = Path(sys.executable).parent
 

@@ -25,9 +25,10 @@ from mems_sim.bag.info import bag_info, losses
 from mems_sim.bag.play_cli import split_ros_args
 from mems_sim.bag.player import iter_messages, read_messages, recorded_topics
 from mems_sim.bag.reader import BagReadError, bag_files
-from mems_sim.bag.schema import qos_profiles_yaml, schema_text
+from mems_sim.bag.schema import schema_text
 from mems_sim.bag.writer import McapBagWriter
 from mems_sim.ros.qos import FRAME_QOS
+from mems_sim.ros.qos_yaml import profiles_yaml as qos_profiles_yaml
 
 BIN = Path(sys.executable).parent
 FRAMES = 60  # /s/adc: 100 samples at 1 kHz each, log time k * 0.1 s
