@@ -205,10 +205,21 @@ def data_difference(new, ref, path: str = "") -> str | None:
     return None
 
 
+#: Figures that measure the host, not the run (wall-clock seconds): their values are not
+#: compared, only their presence, unit and place.
+HOST_FIGURES = ("wall_time",)
+
+
+def is_host_figure(name: str) -> bool:
+    """True for a figure of :data:`HOST_FIGURES` (its last dotted part)."""
+    return name.rsplit(".", 1)[-1] in HOST_FIGURES
+
+
 def figures_difference(new: list[dict], ref: list[dict]) -> str | None:
     """Where two ``--json`` figure lists differ under the rule (None: equal): the same names
     in the same order; name, unit, target and verdict exact; values by the fitted rule (a
-    record's own ``ci_low``/``ci_high`` give its half-width where it has them)."""
+    record's own ``ci_low``/``ci_high`` give its half-width where it has them), except the
+    values of :data:`HOST_FIGURES`."""
     names = [r.get("name") for r in new], [r.get("name") for r in ref]
     if names[0] != names[1]:
         return f"figure names: {names[0]} vs {names[1]}"
@@ -216,6 +227,8 @@ def figures_difference(new: list[dict], ref: list[dict]) -> str | None:
         where = f"figure {b['name']!r}"
         for key in sorted(set(a) | set(b)):
             x, y = a.get(key), b.get(key)
+            if key == "value" and is_host_figure(b["name"]):
+                continue
             if key == "value" and isinstance(y, float) and isinstance(x, (int, float)):
                 lo, hi = b.get("ci_low"), b.get("ci_high")
                 width = 0.5 * (hi - lo) if isinstance(lo, float) and isinstance(hi, float) else None

@@ -98,3 +98,13 @@ def test_cpus_without_fma_are_out_of_scope():
     fma = probe("_libm")
     no_fma = probe("_libm", GLIBC_TUNABLES=GLIBC_NO_FMA)
     assert fma["_libm"] != no_fma["_libm"]
+
+
+def test_host_figures_are_compared_by_place_not_value():
+    from reference_rule import figures_difference
+
+    ref = [{"name": "graph.wall_time", "value": 7.6, "unit": "s", "target": None, "pass": None}]
+    assert figures_difference([dict(ref[0], value=11.2)], ref) is None
+    assert figures_difference([dict(ref[0], unit="ms")], ref) is not None
+    moved = [dict(ref[0], name="graph.omega_rmse", value=11.2)]
+    assert figures_difference(moved, [dict(moved[0], value=7.6)]) is not None
