@@ -5,7 +5,7 @@ A scenario module provides ``graph(options) -> GraphSpec`` (:class:`GraphSpec`: 
 entries of a ROS 2 launch file plus the recorder's topics) and ``analyse(bag) ->
 ScenarioResult`` (:class:`ScenarioResult`, computed from the MCAP file alone); what needs
 the simulation is its named ``oracle`` step. The run records :data:`RUN_INFO_TOPIC`, so
-``run_scenario NAME --analyse BAG`` needs no side file. See docs/scenarios.md.
+``run_scenario NAME --analyse BAG`` needs no side file. The contract: docs/scenarios.md.
 """
 
 from __future__ import annotations
@@ -48,6 +48,7 @@ NODE_MODULES = {
     "imu_calibration_node": "mems_estimation.nodes.imu_calibration_node",
     "imu_corrector_node": "mems_estimation.nodes.imu_corrector_node",
     "view_node": "mems_sim.nodes.view_node",
+    "live_view": "mems_sim.nodes.live_view",
 }
 
 

@@ -5,7 +5,7 @@ The node publishes the file its ``record_file`` parameter names (the JSON run re
 :func:`mems_scenarios.contract.run_info`; at most 16 MiB) once on
 :data:`~mems_scenarios.contract.RUN_INFO_TOPIC`, reliable and transient-local, and exits with
 status 0 once a subscriber (the recorder) acknowledged it, so that ``run_graph`` ends when
-the emulators have. See docs/scenarios.md.
+the emulators have. The contract: docs/scenarios.md.
 """
 
 from __future__ import annotations
@@ -20,6 +20,8 @@ ACK_TIMEOUT_S = 120.0
 def main(argv: list[str] | None = None) -> int:
     """Entry point ``scenario_run_record``: 0 once the record is acknowledged, 1 if no
     subscriber took it within :data:`ACK_TIMEOUT_S`, 130 on SIGINT."""
+    import argparse
+
     import rclpy
     from rclpy.duration import Duration
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -28,7 +30,14 @@ def main(argv: list[str] | None = None) -> int:
     from mems_scenarios.contract import RUN_INFO_TOPIC
     from mems_sim.bounded_yaml import YamlLimitError, read_text
 
-    rclpy.init(args=sys.argv if argv is None else ["scenario_run_record", *argv])
+    args = sys.argv[1:] if argv is None else list(argv)
+    ours = args[: args.index("--ros-args")] if "--ros-args" in args else args
+    argparse.ArgumentParser(
+        prog="scenario_run_record",
+        description=__doc__.splitlines()[0],
+        epilog="parameters: record_file (path of the JSON run record); --ros-args as any node",
+    ).parse_args(ours)
+    rclpy.init(args=["scenario_run_record", *args])
     node = rclpy.create_node("run_record")
     try:
         path = node.declare_parameter("record_file", "").value

@@ -4,7 +4,8 @@ Imports go one way: ``mems_sim`` (devices, kernels, ROS plumbing, emulator nodes
 tools) imports nothing from ``mems_estimation`` or ``mems_scenarios``; ``mems_estimation``
 imports from ``mems_sim`` only; ``mems_scenarios`` imports both. No module-level import
 cycle between modules, and tests and benchmarks import scenarios only through their
-public entry (``run``, ``NAME``, ``DESCRIPTION``, ``DEFAULT_DURATION_S``; ``run_graph`` and
+public entry (``run``, ``NAME``, ``DESCRIPTION``, ``DEFAULT_DURATION_S``; the contract's
+``graph``, ``analyse``, ``oracle`` and its figure group ``ORACLE``; ``run_graph`` and
 the graph layout constants ``INSTANCES``, ``RECORDED``, ``FRAME`` for benchmarks); the
 skeleton (``base``), the contract (``contract``), the figure records (``figures``) and the
 command line are library.
@@ -51,6 +52,10 @@ ALLOWED = {
 #: the graph-only entry with the graph's documented layout (benchmarks run the graph alone).
 SCENARIO_PUBLIC = {
     "run",
+    "graph",
+    "analyse",
+    "oracle",
+    "ORACLE",
     "NAME",
     "DESCRIPTION",
     "DEFAULT_DURATION_S",

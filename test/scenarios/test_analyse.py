@@ -145,3 +145,34 @@ def test_analyse_a_process_graph(name, tmp_path):
     assert "gaps: 0 (0 samples missing)" in done.stdout + done.stderr
     again, _ = analysed(name, bag)
     assert again == figures
+
+
+def test_analyse_a_replay(tmp_path):
+    """``mcap_play`` of a run into another process's ``mcap_record`` (flow-controlled by its
+    progress): the re-recorded bag gives the run's figures, run record included."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    figures = ran("imu_noise", tmp_path / "run.mcap")
+    binary = Path(sys.executable).parent
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    env["ROS_DOMAIN_ID"] = str(next_domain_id())
+    copy = tmp_path / "replayed.mcap"
+    record = [str(binary / "mcap_record"), "-o", str(copy), "-a", "--report-progress", "/imu/adc"]
+    recorder = subprocess.Popen(record, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        play = [str(binary / "mcap_play"), str(tmp_path / "run.mcap"), "--as-fast-as-possible"]
+        play += ["--wait-for-consumer", "/mcap_recorder:/imu/adc", "--wait-timeout", "60"]
+        done = subprocess.run(play, env=env, capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, done.stdout + done.stderr
+        time.sleep(1.0)  # the last messages after the last acknowledged frame
+    finally:
+        recorder.send_signal(signal.SIGINT)
+        log = recorder.communicate(timeout=60)[0].decode()
+    assert recorder.returncode in (0, 130), log
+    again, _ = analysed("imu_noise", copy)
+    assert again == figures

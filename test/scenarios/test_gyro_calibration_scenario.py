@@ -19,9 +19,7 @@ def result(tmp_path_factory):
     out = tmp_path_factory.mktemp("gc") / "gyro_calibration-2.mcap"
     # the drift-free stage only (the drifting device's rows: the slow test below)
     return gyro_calibration.run(
-        ScenarioOptions(
-            seed=2, out=out, domain_id=next_domain_id(), progress=False, idealised=True
-        )
+        ScenarioOptions(seed=2, out=out, domain_id=next_domain_id(), progress=False, idealised=True)
     )
 
 
@@ -230,7 +228,5 @@ def test_stage_sf_curve_scenario_short(tmp_path):
         stage_sf_curve.run(ScenarioOptions(temperature_c=30.0))
     with pytest.raises(ScenarioError, match="all alike"):
         stage_sf_curve.run(
-            ScenarioOptions(
-                short=True, overrides=[parse_set("stage_20C/stage.damping_ratio=0.01")]
-            )
+            ScenarioOptions(short=True, overrides=[parse_set("stage_20C/stage.damping_ratio=0.01")])
         )
