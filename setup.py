@@ -95,7 +95,7 @@ setup(
     entry_points={
         "console_scripts": [
             "run_scenario = mems_scenarios.cli:main",
-            "run_graph = mems_scenarios.launch_graph:main",
+            "run_graph = mems_scenarios.run_graph:main",
             "run_campaign = mems_scenarios.campaign:main",
             "imu_node = mems_sim.nodes.imu_node:main",
             "imu_noise_identifier_node = mems_estimation.nodes.imu_noise_identifier_node:main",
@@ -120,18 +120,18 @@ setup(
             "mcap_play = mems_sim.bag.play_cli:main",
             "mcap_info = mems_sim.bag.info:main",
             "live_view = mems_sim.nodes.live_view:main",
-            "component_container = mems_scenarios.container:main",
+            "component_container = mems_scenarios.component_container:main",
             "scenario_run_record = mems_scenarios.run_record_node:main",
         ],
         # scenarios of run_scenario (another package adds its own to the same group)
         "mems_emulator.scenarios": [
             "imu_noise = mems_scenarios.imu_noise",
-            "sd_resonator = mems_scenarios.resonator_sigma_delta",
-            "scanner_shared_electrodes = mems_scenarios.scanner_amdm_shared_electrodes",
+            "sd_resonator = mems_scenarios.sd_resonator",
+            "scanner_shared_electrodes = mems_scenarios.scanner_shared_electrodes",
             "scanner_threshold = mems_scenarios.scanner_threshold",
             "accelerometer_snr = mems_scenarios.accelerometer_snr",
             "accelerometer_spread = mems_scenarios.accelerometer_spread",
-            "gyro_calibration = mems_scenarios.stage_gyro_calibration",
+            "gyro_calibration = mems_scenarios.gyro_calibration",
             "imu_calibration = mems_scenarios.imu_calibration",
             "imu_thermal_calibration = mems_scenarios.imu_thermal_calibration",
         ],

@@ -16,7 +16,7 @@ sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 from mems_estimation.filters.accelerometer_ekf import HybridEkf
-from mems_sim.devices import accelerometer as fra
+from mems_sim.devices import accelerometer
 
 FS = 1e6
 FRAME = 10_000
@@ -30,7 +30,7 @@ def _rate(fn, n):
 
 
 def bench_device(mode: str, n: int) -> float:
-    d = fra.ForceRebalanceAccelerometer({"mode": mode}, seed=0)
+    d = accelerometer.ForceRebalanceAccelerometer({"mode": mode}, seed=0)
     return _rate(lambda m: [d.step(FRAME) for _ in range(max(1, m // FRAME))], n)
 
 
@@ -39,14 +39,14 @@ def bench_node(n: int) -> float:
     from rclpy.context import Context
     from rclpy.parameter import Parameter
 
-    from mems_sim.nodes.accelerometer_node import FrAccelerometerNode
+    from mems_sim.nodes.accelerometer_node import AccelerometerNode
     from mems_sim.ros.env import apply_defaults
 
     apply_defaults()
     ctx = Context()
     rclpy.init(context=ctx, domain_id=int(os.environ.get("ROS_DOMAIN_ID", "62")))
     try:
-        node = FrAccelerometerNode(
+        node = AccelerometerNode(
             context=ctx,
             drive_externally=True,
             parameter_overrides=[
@@ -63,7 +63,7 @@ def bench_node(n: int) -> float:
 
 def main() -> None:
     n = int(sys.argv[1]) if len(sys.argv) > 1 else 2_000_000
-    for mode in fra.MODES:
+    for mode in accelerometer.MODES:
         r = bench_device(mode, n)
         print(
             f"device core, {mode:13}: {r / 1e6:6.2f} Msamples/s = {r / FS:5.2f} x real time "
@@ -74,7 +74,7 @@ def main() -> None:
         f"device node (publishing adc/drive/truth/loop_estimate), ekf_rebalance: "
         f"{r / 1e6:6.2f} Msamples/s = {r / FS:5.2f} x real time"
     )
-    d = fra.ForceRebalanceAccelerometer({"mode": "pi_rebalance"}, seed=1)
+    d = accelerometer.ForceRebalanceAccelerometer({"mode": "pi_rebalance"}, seed=1)
     f = d.step(n)
     y = f.code * d.lsb
     ekf = HybridEkf(d.ekf_config)

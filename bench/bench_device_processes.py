@@ -478,7 +478,14 @@ def _commands(
     }
     for name, nodes in consumer_processes(g, compose).items():
         if name == COMPOSED:
-            cmds[name] = [py, "-m", "mems_scenarios.container", "--ros-args", "--log-level", "warn"]
+            cmds[name] = [
+                py,
+                "-m",
+                "mems_scenarios.component_container",
+                "--ros-args",
+                "--log-level",
+                "warn",
+            ]
             for c in nodes:
                 plugin = c.module.rsplit(".", 1)[1]  # the node's executable
                 cmds[name] += ["--node", plugin, "--ros-args", *_ros_section(c.namespace, c.params)]

@@ -16,10 +16,10 @@ from pathlib import Path
 
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")))
 
-from mems_estimation.nodes.imu_noise_identifier_node import NoiseIdentifierNode
+from mems_estimation.nodes.imu_noise_identifier_node import ImuNoiseIdentifierNode
 from mems_scenarios.base import Graph, consumed, drive_fast, finish_delivery, parameters
 from mems_sim.bag.recorder import RecorderNode
-from mems_sim.nodes.imu_node import ImuNoiseNode
+from mems_sim.nodes.imu_node import ImuNode
 
 DURATION_S = 2000.0
 FRAME = 100  # samples per frame at 100 Hz, as the scenario's fast runs
@@ -31,12 +31,12 @@ def rtf(record: bool, tmp: Path, split: dict | None = None) -> float:
     graph = Graph()
     try:
         emu = graph.add_device(
-            ImuNoiseNode,
+            ImuNode,
             {"seed": 1, "duration_s": DURATION_S, "frame_size": FRAME, "publish_imu": False},
             realtime=False,
         )
         ident = graph.add(
-            NoiseIdentifierNode(
+            ImuNoiseIdentifierNode(
                 context=graph.context, namespace="imu", parameter_overrides=parameters({})
             )
         )

@@ -12,16 +12,16 @@ took the first frame (numba kernels loaded, start-up excluded) to the last frame
 
 The graphs (device parameters as the scenarios set them, shorter durations):
 
-- imu: ``ImuNoiseNode`` (100 Hz) + Allan noise identifier.
-- accelerometer: ``FrAccelerometerNode`` (1 MHz, PI rebalance loop at 1 g, 10,000-sample
+- imu: ``ImuNode`` (100 Hz) + Allan noise identifier.
+- accelerometer: ``AccelerometerNode`` (1 MHz, PI rebalance loop at 1 g, 10,000-sample
   frames) + the downstream hybrid EKF node.
-- resonator: ``SdResonatorNode`` (1 MHz, observer-mode loop, noisy) + one observer set
+- resonator: ``ResonatorNode`` (1 MHz, observer-mode loop, noisy) + one observer set
   (exact model, 5 % f0 error, adaptive), 10,000-sample frames (the node's default).
-- scanner: ``MicroScannerNode`` (500 kHz, drifted sensing comb, the whole drive programme)
+- scanner: ``ScannerNode`` (500 kHz, drifted sensing comb, the whole drive programme)
   + threshold detector / hybrid EKF node, 5000-sample frames.
 - scanner_amdm: ``ScannerAmdmNode`` (1 MHz out, 10 MHz internal, driven into parametric
   resonance) + EKF/UKF estimator node, 10,000-sample frames.
-- stage: ``MicroStageNode`` (625 kHz, calibration sweep of 3 trials) + stage EKF (model of
+- stage: ``StageNode`` (625 kHz, calibration sweep of 3 trials) + stage EKF (model of
   the nominal device) + gyro calibration node, 20,000-sample frames.
 
 Prints one summary line per family (with the load average) and a table; ~15 s with
@@ -55,33 +55,33 @@ FAMILIES = ("imu", "accelerometer", "resonator", "scanner", "scanner_amdm", "sta
 
 
 def _imu(graph, duration):
-    from mems_estimation.nodes.imu_noise_identifier_node import NoiseIdentifierNode
-    from mems_sim.nodes.imu_node import ImuNoiseNode
+    from mems_estimation.nodes.imu_noise_identifier_node import ImuNoiseIdentifierNode
+    from mems_sim.nodes.imu_node import ImuNode
 
     dev = graph.add_device(
-        ImuNoiseNode,
+        ImuNode,
         dict(seed=1, duration_s=duration, frame_size=100, publish_imu=False),
         realtime=False,
     )
-    est = graph.node(NoiseIdentifierNode, {}, namespace="imu")
+    est = graph.node(ImuNoiseIdentifierNode, {}, namespace="imu")
     return dev, [est], lambda: est.frames_received, r"^/imu/"
 
 
 def _accelerometer(graph, duration):
-    from mems_estimation.nodes.accelerometer_ekf_node import HybridEkfNode
+    from mems_estimation.nodes.accelerometer_ekf_node import AccelerometerEkfNode
     from mems_sim.devices.accelerometer import G0
-    from mems_sim.nodes.accelerometer_node import FrAccelerometerNode
+    from mems_sim.nodes.accelerometer_node import AccelerometerNode
 
     ns = "acc_pi_1g"
     case = dict(mode="pi_rebalance", accel_amplitude=1.0 * G0)
     dev = graph.add_device(
-        FrAccelerometerNode,
+        AccelerometerNode,
         dict(case, seed=1, duration_s=duration, frame_size=10000),
         realtime=False,
         namespace=ns,
     )
     est = graph.node(
-        HybridEkfNode,
+        AccelerometerEkfNode,
         dict(case, device_namespace=f"/{ns}", output_topic=f"/{ns}/hybrid_ekf/estimate"),
         namespace=ns,
     )
@@ -89,13 +89,13 @@ def _accelerometer(graph, duration):
 
 
 def _resonator(graph, duration):
-    from mems_estimation.nodes.resonator_observer_node import SdObserverNode
+    from mems_estimation.nodes.resonator_observer_node import ResonatorObserverNode
     from mems_sim.devices.resonator import default_pulse_amplitude
-    from mems_sim.nodes.resonator_node import SdResonatorNode
+    from mems_sim.nodes.resonator_node import ResonatorNode
 
     ns, f0, noise, state = "sd_noisy", 5.0e4, 0.25, 5e-4
     dev = graph.add_device(
-        SdResonatorNode,
+        ResonatorNode,
         dict(
             mode="observer",
             output_noise_std=noise,
@@ -119,7 +119,7 @@ def _resonator(graph, duration):
     ):
         observers.append(
             graph.node(
-                SdObserverNode,
+                ResonatorObserverNode,
                 dict(base, output_topic=f"/{ns}/{name}/estimate", **extra),
                 namespace=f"{ns}/{name}",
             )
@@ -128,13 +128,13 @@ def _resonator(graph, duration):
 
 
 def _scanner(graph, duration):
-    from mems_estimation.nodes.scanner_threshold_ekf_node import ScannerThresholdNode
+    from mems_estimation.nodes.scanner_threshold_ekf_node import ScannerThresholdEkfNode
     from mems_estimation.studies.scanner_threshold import DRIFTED_SENSOR
-    from mems_sim.nodes.scanner_node import MicroScannerNode
+    from mems_sim.nodes.scanner_node import ScannerNode
 
     ns = "scanner"
     dev = graph.add_device(
-        MicroScannerNode,
+        ScannerNode,
         dict(
             DRIFTED_SENSOR,
             ringdown_time_s=round(duration - 0.25 - 0.05, 9),
@@ -146,7 +146,7 @@ def _scanner(graph, duration):
         namespace=ns,
     )
     est = graph.node(
-        ScannerThresholdNode,
+        ScannerThresholdEkfNode,
         dict(device_namespace=f"/{ns}", dog_sigma=45.0),
         namespace=f"{ns}/threshold",
     )
@@ -192,9 +192,9 @@ def _stage(graph, duration, tmp: Path):
 
     from mems_estimation.filters.stage_ekf import StageModel, save_model
     from mems_estimation.nodes.stage_ekf_node import StageEkfNode
-    from mems_estimation.nodes.stage_gyro_calibration_node import GyroCalibrationNode
+    from mems_estimation.nodes.stage_gyro_calibration_node import StageGyroCalibrationNode
     from mems_sim.devices.stage import MicroStage
-    from mems_sim.nodes.stage_node import MicroStageNode
+    from mems_sim.nodes.stage_node import StageNode
 
     ns, n_trials = "stage_t1", 3
     periods = max(2, 2 * round(duration * 1700.0 / n_trials / 2))  # even, at 1.7 kHz
@@ -213,7 +213,7 @@ def _stage(graph, duration, tmp: Path):
     yaml_path = tmp / "stage_model.yaml"
     save_model(model, str(yaml_path))
     dev = graph.add_device(
-        MicroStageNode,
+        StageNode,
         dict(
             seed=150,
             idealised=True,
@@ -230,7 +230,7 @@ def _stage(graph, duration, tmp: Path):
         StageEkfNode, dict(device_namespace=f"/{ns}", params_yaml=str(yaml_path)), namespace=ns
     )
     cal = graph.node(
-        GyroCalibrationNode, dict(device_namespace=f"/{ns}", n_trials=n_trials), namespace=ns
+        StageGyroCalibrationNode, dict(device_namespace=f"/{ns}", n_trials=n_trials), namespace=ns
     )
     return dev, [ekf, cal], lambda: ekf.frames_done, rf"^/{ns}/"
 

@@ -462,7 +462,7 @@ def graph_rtf(
     import tempfile
     from pathlib import Path
 
-    from mems_scenarios import stage_gyro_calibration as gc
+    from mems_scenarios import gyro_calibration as gc
     from mems_scenarios.base import ScenarioOptions
 
     inst = gc.INSTANCES if two else {"stage_t1": T1}
@@ -527,7 +527,7 @@ def graph_processes(
     from mcap.reader import make_reader
 
     from mems_estimation.filters.stage_ekf import save_model
-    from mems_scenarios import stage_gyro_calibration as gc
+    from mems_scenarios import gyro_calibration as gc
     from mems_sim.bag.info import bag_info
 
     plan = plan or BENCH_PLAN

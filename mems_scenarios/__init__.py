@@ -16,12 +16,12 @@ ENTRY_POINT_GROUP = "mems_emulator.scenarios"
 #: This package's scenarios, in the order ``run_scenario --list`` shows them.
 BUILTIN = {
     "imu_noise": "mems_scenarios.imu_noise",
-    "sd_resonator": "mems_scenarios.resonator_sigma_delta",
-    "scanner_shared_electrodes": "mems_scenarios.scanner_amdm_shared_electrodes",
+    "sd_resonator": "mems_scenarios.sd_resonator",
+    "scanner_shared_electrodes": "mems_scenarios.scanner_shared_electrodes",
     "scanner_threshold": "mems_scenarios.scanner_threshold",
     "accelerometer_snr": "mems_scenarios.accelerometer_snr",
     "accelerometer_spread": "mems_scenarios.accelerometer_spread",
-    "gyro_calibration": "mems_scenarios.stage_gyro_calibration",
+    "gyro_calibration": "mems_scenarios.gyro_calibration",
     "imu_calibration": "mems_scenarios.imu_calibration",
     "imu_thermal_calibration": "mems_scenarios.imu_thermal_calibration",
 }

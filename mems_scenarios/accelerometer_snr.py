@@ -57,7 +57,7 @@ from mems_scenarios.contract import (
     read_run_info,
 )
 from mems_scenarios.figures import Figure, cell
-from mems_sim.devices import accelerometer as fra
+from mems_sim.devices import accelerometer
 from mems_sim.nodes.accelerometer_node import REFERENCE_TEMPERATURE_C
 from mems_sim.params import draw_device
 from mems_sim.ros.flow import progress_of
@@ -72,7 +72,7 @@ DEFAULT_DURATION_S = 0.12
 FS = 1.0e6
 F_IN = 10.0
 SKIP_S = 0.02
-G = fra.G0
+G = accelerometer.G0
 AMPS = {"0g1": 0.1, "1g": 1.0, "5g": 5.0, "10g": 10.0}
 MODES = {"open": "open_loop", "pi": "pi_rebalance", "ekf": "ekf_rebalance"}
 QR_CASES = {
@@ -142,7 +142,7 @@ def device_cases() -> dict[str, dict]:
             )
     for m, a, amp in T3_CASES:
         cases[f"acc_t3_{m}_{a}"] = dict(
-            fra.TABLE_III_VARIANT, mode=MODES[m], accel_amplitude=amp * G
+            accelerometer.TABLE_III_VARIANT, mode=MODES[m], accel_amplitude=amp * G
         )
     return cases
 
@@ -350,10 +350,14 @@ def device_as_built(params: dict, fixed=()) -> dict:
     and moved to ``temperature_c`` (:func:`~mems_sim.params.draw_device`, as
     :meth:`~mems_sim.ros.node_base.EmulatorNode.device_values` does; ``fixed``: the values
     the user set, left as given) as ``p``, and as designed (``nominal``), validated."""
-    nominal = {s.name: params[s.name] for s in fra.ACCEL_SPECS}
+    nominal = {s.name: params[s.name] for s in accelerometer.ACCEL_SPECS}
     delta_k = params["temperature_c"] - REFERENCE_TEMPERATURE_C
-    drawn = draw_device(fra.ACCEL_SPECS, nominal, params["device_seed"], delta_k, fixed=fixed)
-    return dict(p=fra.validate_params(drawn), nominal=fra.validate_params(nominal))
+    drawn = draw_device(
+        accelerometer.ACCEL_SPECS, nominal, params["device_seed"], delta_k, fixed=fixed
+    )
+    return dict(
+        p=accelerometer.validate_params(drawn), nominal=accelerometer.validate_params(nominal)
+    )
 
 
 def oracle(record: dict, cases: dict) -> dict:
@@ -364,12 +368,12 @@ def oracle(record: dict, cases: dict) -> dict:
     fqn = emulator(next(iter(cases)))
     params = node_parameters(record, fqn, "the device as built")
     values = device_as_built(params, record.get("fixed_parameters", {}).get(fqn, ()))
-    p = fra.validate_params(values["p"] | {"mode": "open_loop"})
-    p3 = dict(p, **fra.TABLE_III_VARIANT)
+    p = accelerometer.validate_params(values["p"] | {"mode": "open_loop"})
+    p3 = dict(p, **accelerometer.TABLE_III_VARIANT)
     return dict(
         mismatch=mismatch(values),
-        pull_in_g=fra.pull_in_acceleration(p)[0] / G,
-        pull_in_t3_g=fra.pull_in_acceleration(p3)[0] / G,
+        pull_in_g=accelerometer.pull_in_acceleration(p)[0] / G,
+        pull_in_t3_g=accelerometer.pull_in_acceleration(p3)[0] / G,
     )
 
 
@@ -381,7 +385,9 @@ def mismatch(values: dict) -> dict:
     dev, nom = values["p"], values["nominal"]
 
     def k_eff(p):
-        return p["stiffness"] - fra.eps_area(p) * p["carrier_amplitude"] ** 2 / p["gap"] ** 3
+        return (
+            p["stiffness"] - accelerometer.eps_area(p) * p["carrier_amplitude"] ** 2 / p["gap"] ** 3
+        )
 
     out = {name: dev[name] / nom[name] for name in ("mass", "stiffness", "damping", "gap")}
     out["k_eff"] = k_eff(dev) / k_eff(nom) - 1.0

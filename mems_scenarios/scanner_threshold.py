@@ -1,10 +1,10 @@
 """Scenario ``scanner_threshold``: comb-drive micro-scanner, causal threshold detection and the
 hybrid EKF of Table 4.1 (Chen 2018, chapter 4, Table 4.3).
 
-Graph: ``/scanner`` (:class:`mems_sim.nodes.scanner_node.MicroScannerNode`, ``dc_transimpedance``:
+Graph: ``/scanner`` (:class:`mems_sim.nodes.scanner_node.ScannerNode`, ``dc_transimpedance``:
 0-60 V sweep 1600 -> 1250 Hz into parametric resonance, 50 ms hold, cut-off, 100 ms ring-down,
 fs 500 kHz, sigma_n 0.0435 V) and ``/scanner`` estimator
-(:class:`mems_estimation.nodes.scanner_threshold_ekf_node.ScannerThresholdNode`: online DOG + NMS, hybrid
+(:class:`mems_estimation.nodes.scanner_threshold_ekf_node.ScannerThresholdEkfNode`: online DOG + NMS, hybrid
 and plain EKF), recorded to MCAP.  The emulated sensing comb has drifted from the identified
 analog map (gain +20 %, width +10 %: :data:`mems_estimation.filters.scanner_threshold_ekf.DRIFTED_SENSOR`, the
 temperature effect that motivates chapter 4, Sec. 4.2.1); theta_th is unchanged.  The filters

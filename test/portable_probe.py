@@ -211,11 +211,13 @@ def imu_device() -> list[np.ndarray]:
 def accelerometer_device() -> list[np.ndarray]:
     """ForceRebalanceAccelerometer.step in its three modes (run_block, _plant_rhs; the
     in-loop hybrid EKF kernels of mems_sim.kernels.accelerometer_ekf in ekf_rebalance)."""
-    from mems_sim.devices import accelerometer as fra
+    from mems_sim.devices import accelerometer
 
     out = []
     for mode, amp in (("open_loop", 0.1), ("pi_rebalance", 1.0), ("ekf_rebalance", 1.0)):
-        d = fra.ForceRebalanceAccelerometer({"mode": mode, "accel_amplitude": amp * fra.G0}, seed=2)
+        d = accelerometer.ForceRebalanceAccelerometer(
+            {"mode": mode, "accel_amplitude": amp * accelerometer.G0}, seed=2
+        )
         for n in (3000, 2000):
             f = d.step(n)
             out += _arrays(
@@ -238,11 +240,11 @@ def accelerometer_ekf() -> list[np.ndarray]:
     """HybridEkf.run on the device's ADC and drive samples (_run), and the kernel functions
     of mems_sim.kernels.accelerometer_ekf as test/core/test_hybrid_ekf.py calls them."""
     from mems_estimation.filters.accelerometer_ekf import HybridEkf
-    from mems_sim.devices import accelerometer as fra
+    from mems_sim.devices import accelerometer
     from mems_sim.kernels import accelerometer_ekf as he
 
-    d = fra.ForceRebalanceAccelerometer(
-        {"mode": "ekf_rebalance", "accel_amplitude": fra.G0}, seed=2
+    d = accelerometer.ForceRebalanceAccelerometer(
+        {"mode": "ekf_rebalance", "accel_amplitude": accelerometer.G0}, seed=2
     )
     f = d.step(5000)
     ekf = HybridEkf(d.ekf_config)

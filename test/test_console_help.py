@@ -104,5 +104,5 @@ def test_node_help_does_not_start_ros(capsys):
     from mems_sim.nodes import imu_node
 
     assert imu_node.main(["imu_node", "--help"]) == 0
-    assert capsys.readouterr().out == node_help(imu_node.ImuNoiseNode)
+    assert capsys.readouterr().out == node_help(imu_node.ImuNode)
     assert not rclpy.ok()

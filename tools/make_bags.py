@@ -55,20 +55,20 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from mems_estimation.nodes.accelerometer_ekf_node import HybridEkfNode
-from mems_estimation.nodes.imu_noise_identifier_node import NoiseIdentifierNode
-from mems_estimation.nodes.resonator_observer_node import SdObserverNode
+from mems_estimation.nodes.accelerometer_ekf_node import AccelerometerEkfNode
+from mems_estimation.nodes.imu_noise_identifier_node import ImuNoiseIdentifierNode
+from mems_estimation.nodes.resonator_observer_node import ResonatorObserverNode
 from mems_estimation.nodes.scanner_amdm_estimator_node import ScannerAmdmEstimatorNode
-from mems_estimation.nodes.scanner_threshold_ekf_node import ScannerThresholdNode
+from mems_estimation.nodes.scanner_threshold_ekf_node import ScannerThresholdEkfNode
 from mems_estimation.nodes.stage_ekf_node import StageEkfNode
 from mems_scenarios.base import Graph, default_domain_id, drive_fast, parameters
 from mems_sim.bag.recorder import RecorderNode
-from mems_sim.nodes.accelerometer_node import FrAccelerometerNode
-from mems_sim.nodes.imu_node import ImuNoiseNode
-from mems_sim.nodes.resonator_node import SdResonatorNode
+from mems_sim.nodes.accelerometer_node import AccelerometerNode
+from mems_sim.nodes.imu_node import ImuNode
+from mems_sim.nodes.resonator_node import ResonatorNode
 from mems_sim.nodes.scanner_amdm_node import ScannerAmdmNode
-from mems_sim.nodes.scanner_node import MicroScannerNode
-from mems_sim.nodes.stage_node import MicroStageNode
+from mems_sim.nodes.scanner_node import ScannerNode
+from mems_sim.nodes.stage_node import StageNode
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = REPO / "bags"
@@ -189,9 +189,9 @@ FAMILIES: dict[str, Family] = {
         Family(
             name="imu",
             namespace="imu",
-            device=ImuNoiseNode,
+            device=ImuNode,
             device_params=dict(seed=11, duration_s=600.0, frame_size=100, publish_imu=False),
-            estimator=NoiseIdentifierNode,
+            estimator=ImuNoiseIdentifierNode,
             estimator_params=dict(publish_period_s=120.0),
             inputs=("adc",),
             outputs=("noise_model",),
@@ -203,9 +203,9 @@ FAMILIES: dict[str, Family] = {
         Family(
             name="accelerometer",
             namespace="accelerometer",
-            device=FrAccelerometerNode,
+            device=AccelerometerNode,
             device_params=dict(seed=12, mode="pi_rebalance", duration_s=0.04, frame_size=5000),
-            estimator=HybridEkfNode,
+            estimator=AccelerometerEkfNode,
             estimator_params={},
             inputs=("adc", "drive"),
             outputs=("estimate",),
@@ -214,7 +214,7 @@ FAMILIES: dict[str, Family] = {
         Family(
             name="stage",
             namespace="stage",
-            device=MicroStageNode,
+            device=StageNode,
             # the drift-free stage of Table 3.3 (nominal damping and registration)
             device_params=dict(
                 seed=13, duration_s=0.08, frame_size=10000, gyro_enabled=False, idealised=True
@@ -229,7 +229,7 @@ FAMILIES: dict[str, Family] = {
         Family(
             name="scanner",
             namespace="scanner",
-            device=MicroScannerNode,
+            device=ScannerNode,
             device_params=dict(
                 seed=14,
                 sweep_time_s=0.05,
@@ -238,7 +238,7 @@ FAMILIES: dict[str, Family] = {
                 duration_s=0.1,
                 frame_size=5000,
             ),
-            estimator=ScannerThresholdNode,
+            estimator=ScannerThresholdEkfNode,
             estimator_params={},
             inputs=("adc", "drive"),
             outputs=("estimate", "estimate_plain", "threshold_detections"),
@@ -270,11 +270,11 @@ FAMILIES: dict[str, Family] = {
         Family(
             name="resonator",
             namespace="resonator",
-            device=SdResonatorNode,
+            device=ResonatorNode,
             device_params=dict(
                 seed=16, mode="observer", output_noise_std=0.5, duration_s=0.03, frame_size=1000
             ),
-            estimator=SdObserverNode,
+            estimator=ResonatorObserverNode,
             estimator_params=dict(output_noise_std=0.5),
             inputs=("adc", "drive"),
             outputs=("estimate",),

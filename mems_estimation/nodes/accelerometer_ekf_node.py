@@ -30,7 +30,7 @@ from mems_estimation.nodes.frame_input import (
     output_frame,
 )
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
-from mems_sim.devices import accelerometer as fra
+from mems_sim.devices import accelerometer
 from mems_sim.kernels.accelerometer_ekf import STATE_NAMES, STATE_UNITS
 from mems_sim.kernels.divergence import state_ok
 from mems_sim.params import ParamSpec
@@ -44,22 +44,22 @@ NODE_SPECS: tuple[ParamSpec, ...] = (
 )
 
 
-class HybridEkfNode(EstimatorNode):
+class AccelerometerEkfNode(EstimatorNode):
     """Hybrid EKF on an accelerometer's readout and feedback-voltage frames."""
 
     GAP_NOTE = "the filter continues without them"
 
     NODE_NAME = "accelerometer_ekf"
     DEFAULT_NAMESPACE = "accelerometer"
-    SPECS = fra.ACCEL_SPECS + NODE_SPECS + input_specs()
+    SPECS = accelerometer.ACCEL_SPECS + NODE_SPECS + input_specs()
     DIAGNOSTICS_TITLE = "hybrid EKF"
 
     def __init__(self, **node_kwargs) -> None:
         super().__init__(**node_kwargs)
         p = self.p
-        model = fra.validate_params(self.values_of(fra.ACCEL_SPECS))
-        v_b = fra.bias_voltage(model) if model["mode"] != "open_loop" else 0.0
-        self.filter = HybridEkf(fra.ekf_config(model, v_b))
+        model = accelerometer.validate_params(self.values_of(accelerometer.ACCEL_SPECS))
+        v_b = accelerometer.bias_voltage(model) if model["mode"] != "open_loop" else 0.0
+        self.filter = HybridEkf(accelerometer.ekf_config(model, v_b))
         self.fs = model["sample_rate_hz"]
         self.pub = self.create_publisher(
             StateEstimate, p["output_topic"] or self.device_topic("estimate"), FRAME_QOS
@@ -101,7 +101,7 @@ class HybridEkfNode(EstimatorNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point ``accelerometer_ekf_node``."""
-    return run_node(HybridEkfNode, argv)
+    return run_node(AccelerometerEkfNode, argv)
 
 
 if __name__ == "__main__":

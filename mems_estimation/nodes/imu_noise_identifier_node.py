@@ -185,7 +185,7 @@ def identify_message(
     )
 
 
-class NoiseIdentifierNode(EstimatorNode):
+class ImuNoiseIdentifierNode(EstimatorNode):
     """Accumulates AdcFrames and publishes identified noise models."""
 
     NODE_NAME = "imu_noise_identifier"
@@ -253,7 +253,7 @@ class NoiseIdentifierNode(EstimatorNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point ``imu_noise_identifier_node``."""
-    return run_node(NoiseIdentifierNode, argv)
+    return run_node(ImuNoiseIdentifierNode, argv)
 
 
 if __name__ == "__main__":

@@ -168,7 +168,7 @@ def bits_of(msg: AdcFrame) -> np.ndarray:
     return codes.astype(np.float64)
 
 
-class SdObserverNode(EstimatorNode):
+class ResonatorObserverNode(EstimatorNode):
     """Kalman / adaptive observer on the bit stream and pulses of a sigma-delta resonator."""
 
     GAP_NOTE = "the estimate continues without those samples"
@@ -256,7 +256,7 @@ class SdObserverNode(EstimatorNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point ``resonator_observer_node``."""
-    return run_node(SdObserverNode, argv)
+    return run_node(ResonatorObserverNode, argv)
 
 
 if __name__ == "__main__":

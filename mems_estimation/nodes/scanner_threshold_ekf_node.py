@@ -142,7 +142,7 @@ def _v_drive(msg: SignalFrame) -> np.ndarray:
     return np.ascontiguousarray(data[:, names.index("v_drive")])
 
 
-class ScannerThresholdNode(EstimatorNode):
+class ScannerThresholdEkfNode(EstimatorNode):
     """Threshold detector + hybrid (and plain) EKF of the chapter-4 micro-scanner."""
 
     GAP_NOTE = "the filters continue as if the samples were consecutive"
@@ -361,7 +361,7 @@ class ScannerThresholdNode(EstimatorNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point ``scanner_threshold_ekf_node``."""
-    return run_node(ScannerThresholdNode, argv)
+    return run_node(ScannerThresholdEkfNode, argv)
 
 
 if __name__ == "__main__":

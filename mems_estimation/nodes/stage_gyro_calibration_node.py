@@ -114,7 +114,7 @@ def _gyro_rate(msg: AdcFrame, codes: np.ndarray | None = None) -> np.ndarray:
     return adc_columns(msg, [0], codes)[:, 0]
 
 
-class GyroCalibrationNode(EstimatorNode):
+class StageGyroCalibrationNode(EstimatorNode):
     """Peak-to-peak pairing + least squares eq. (27) (see module doc)."""
 
     NODE_NAME = "stage_gyro_calibration"
@@ -325,7 +325,7 @@ class GyroCalibrationNode(EstimatorNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point ``stage_gyro_calibration_node``."""
-    return run_node(GyroCalibrationNode, argv)
+    return run_node(StageGyroCalibrationNode, argv)
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mems_sim.devices import accelerometer as fra
+from mems_sim.devices import accelerometer
 from mems_sim.kernels.accelerometer_ekf import STATE_NAMES, STATE_UNITS
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import make_adc_frame, make_state_estimate
@@ -36,7 +36,7 @@ TRUTH_CHANNELS = ("acceleration", "displacement", "velocity", "contact", "satura
 TRUTH_UNITS = ("m/s^2", "m", "m/s", "1", "1")
 
 
-class FrAccelerometerNode(EmulatorNode):
+class AccelerometerNode(EmulatorNode):
     """Emulated force-rebalance accelerometer publishing readout codes, drive and truth.
 
     Keyword arguments: those of :class:`~mems_sim.ros.node_base.EmulatorNode`.
@@ -44,13 +44,15 @@ class FrAccelerometerNode(EmulatorNode):
 
     NODE_NAME = "accelerometer"
     DEFAULT_NAMESPACE = "accelerometer"
-    SPECS = fra.ACCEL_SPECS + variation_specs(REFERENCE_TEMPERATURE_C) + NODE_SPECS
-    DEVICE_SPECS = fra.ACCEL_SPECS
+    SPECS = accelerometer.ACCEL_SPECS + variation_specs(REFERENCE_TEMPERATURE_C) + NODE_SPECS
+    DEVICE_SPECS = accelerometer.ACCEL_SPECS
     DIAGNOSTICS_TITLE = "force-rebalance accelerometer"
 
     def make_device(self) -> float:
-        self.device = fra.ForceRebalanceAccelerometer(
-            self.device_values(), seed=self.p["seed"], nominal=self.values_of(fra.ACCEL_SPECS)
+        self.device = accelerometer.ForceRebalanceAccelerometer(
+            self.device_values(),
+            seed=self.p["seed"],
+            nominal=self.values_of(accelerometer.ACCEL_SPECS),
         )
         self.ekf_mode = self.p["mode"] == "ekf_rebalance"
         self.pub_adc, self.pub_drive, self.pub_truth = self.create_frame_publishers(
@@ -61,7 +63,7 @@ class FrAccelerometerNode(EmulatorNode):
         )
         return self.device.fs
 
-    def _report(self, f: fra.AccelFrame, first: int) -> None:
+    def _report(self, f: accelerometer.AccelFrame, first: int) -> None:
         """Count and warn about contact, saturation, over-range input, lost definiteness."""
         d, dr = self.device, self.p["dynamic_range"]
         checks = (
@@ -151,7 +153,7 @@ class FrAccelerometerNode(EmulatorNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point ``accelerometer_node``."""
-    return run_node(FrAccelerometerNode, argv)
+    return run_node(AccelerometerNode, argv)
 
 
 if __name__ == "__main__":

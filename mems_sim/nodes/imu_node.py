@@ -39,8 +39,7 @@ from rclpy.qos import QoSProfile
 from sensor_msgs.msg import Imu
 
 from mems_msgs.msg import CalibrationResult
-from mems_sim.devices import imu as imu_noise
-from mems_sim.devices import imu_profiles
+from mems_sim.devices import imu, imu_profiles
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.frames import index_to_ns, make_adc_frame, ns_to_time
 from mems_sim.ros.imu_msg import ImuSerializer
@@ -95,7 +94,7 @@ CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 UNITS = ("rad/s",) * 3 + ("m/s^2",) * 3
 
 
-class ImuNoiseNode(EmulatorNode):
+class ImuNode(EmulatorNode):
     """Emulated 3-axis gyro + 3-axis accelerometer publishing ADC frames and truth.
 
     Keyword arguments: those of :class:`~mems_sim.ros.node_base.EmulatorNode`
@@ -104,8 +103,8 @@ class ImuNoiseNode(EmulatorNode):
 
     NODE_NAME = "imu"
     DEFAULT_NAMESPACE = "imu"
-    SPECS = imu_noise.IMU_SPECS + variation_specs() + EMULATOR_SPECS + MOTION_SPECS
-    DEVICE_SPECS = imu_noise.IMU_SPECS
+    SPECS = imu.IMU_SPECS + variation_specs() + EMULATOR_SPECS + MOTION_SPECS
+    DEVICE_SPECS = imu.IMU_SPECS
     DIAGNOSTICS_TITLE = "IMU emulator"
 
     def make_device(self) -> float:
@@ -124,12 +123,12 @@ class ImuNoiseNode(EmulatorNode):
                 f"parameter 'motion_frequency' = {self.p['motion_frequency']!r} is out of range: "
                 f"allowed [0.0, {fs / 2!r}) Hz (below Nyquist of sample_rate_hz)"
             )
-        self.model = imu_noise.ImuNoiseModel(
+        self.model = imu.ImuNoiseModel(
             self.device_values(), seed=self.p["seed"], temperature_c=self.p["temperature_c"]
         )
-        gyro_var, accel_var = imu_noise.imu_covariances(self.nominal)
-        self._gyro_cov = imu_noise.covariance9(gyro_var)
-        self._accel_cov = imu_noise.covariance9(accel_var)
+        gyro_var, accel_var = imu.imu_covariances(self.nominal)
+        self._gyro_cov = imu.covariance9(gyro_var)
+        self._accel_cov = imu.covariance9(accel_var)
         v = self.nominal
         bits = v["bits"]
         self._adc_static = dict(
@@ -168,10 +167,10 @@ class ImuNoiseNode(EmulatorNode):
         given = set(self._parameter_overrides) | set(self.fixed_parameters)
         values = {
             name: self.p[name]
-            for name in (s.name for s in imu_noise.IMU_SPECS)
+            for name in (s.name for s in imu.IMU_SPECS)
             if name in given or name == "preset"
         }
-        return imu_noise.imu_values(values)
+        return imu.imu_values(values)
 
     def device_values(self) -> dict:
         """The device this node emulates: the preset's nominal device
@@ -179,7 +178,7 @@ class ImuNoiseNode(EmulatorNode):
         tolerances (:func:`~mems_sim.devices.imu.draw_imu_device`; parameters set
         explicitly are not drawn). The temperature acts in the model per sample (eq. (1)
         of mems_sim.devices.imu), not on these values."""
-        self.drawn = imu_noise.draw_imu_device(
+        self.drawn = imu.draw_imu_device(
             self.preset_values(), self.p["device_seed"], fixed=self.fixed_parameters
         )
         return dict(self.drawn)
@@ -201,7 +200,7 @@ class ImuNoiseNode(EmulatorNode):
         if self.profile is not None:
             t = imu_profiles.profile_truth(self.profile, first, n, fs, p["temperature_c"])
             return t.gyro, t.accel, t.temperature_c
-        gyro, accel = imu_noise.truth_motion(
+        gyro, accel = imu.truth_motion(
             p["motion"],
             first,
             n,
@@ -271,7 +270,7 @@ class ImuNoiseNode(EmulatorNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point ``imu_node`` (``ros2 run mems_emulator imu_node``)."""
-    return run_node(ImuNoiseNode, argv)
+    return run_node(ImuNode, argv)
 
 
 if __name__ == "__main__":

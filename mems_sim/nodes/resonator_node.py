@@ -49,7 +49,7 @@ STANDIN_LSB = 2.0**-20
 DRIVE_UNITS = ("V", "s", "s")
 
 
-class SdResonatorNode(EmulatorNode):
+class ResonatorNode(EmulatorNode):
     """Emulated resonator + sigma-delta + pulse loop publishing the bit stream and truth.
 
     Keyword arguments: those of :class:`~mems_sim.ros.node_base.EmulatorNode`.
@@ -128,7 +128,7 @@ class SdResonatorNode(EmulatorNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point ``resonator_node``."""
-    return run_node(SdResonatorNode, argv)
+    return run_node(ResonatorNode, argv)
 
 
 if __name__ == "__main__":

@@ -83,7 +83,7 @@ def quantize(y: np.ndarray, bits: int, full_scale: float) -> tuple[np.ndarray, f
     return np.clip(c, lo, hi).astype(np.int32), lsb, sat
 
 
-class MicroScannerNode(EmulatorNode):
+class ScannerNode(EmulatorNode):
     """Emulated micro-scanner publishing ADC, drive, truth (and PSD reference) frames.
 
     Keyword arguments: those of :class:`~mems_sim.ros.node_base.EmulatorNode`.
@@ -185,7 +185,7 @@ class MicroScannerNode(EmulatorNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point ``scanner_node``."""
-    return run_node(MicroScannerNode, argv)
+    return run_node(ScannerNode, argv)
 
 
 if __name__ == "__main__":

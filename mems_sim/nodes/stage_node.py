@@ -154,7 +154,7 @@ def make_schedule(p: dict) -> micro_stage.DriveSchedule:
     )
 
 
-class MicroStageNode(EmulatorNode):
+class StageNode(EmulatorNode):
     """Emulated micro-stage + gyro + LDV publishing raw frames and truth.
 
     Keyword arguments: those of :class:`~mems_sim.ros.node_base.EmulatorNode`.
@@ -313,7 +313,7 @@ class MicroStageNode(EmulatorNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point ``stage_node``."""
-    return run_node(MicroStageNode, argv)
+    return run_node(StageNode, argv)
 
 
 if __name__ == "__main__":

@@ -353,7 +353,7 @@ def test_the_rule_catches_a_wrong_import():
     relative = "from ...mems_estimation import filters\n"
     assert violations(relative, "mems_sim.devices.stage")  # relative imports are resolved
     ok = "from mems_sim.devices import stage\nfrom mems_estimation.filters import stage_ekf\n"
-    assert violations(ok, "mems_scenarios.stage_gyro_calibration") == []
+    assert violations(ok, "mems_scenarios.gyro_calibration") == []
     assert violations(ok, "mems_estimation.nodes.stage_ekf_node") == []
 
 
@@ -438,8 +438,8 @@ def test_tests_and_benches_use_scenarios_only_through_their_entry(folder):
                     "mems_scenarios.cli",
                     "mems_scenarios.figures",
                     "mems_scenarios.campaign",
-                    "mems_scenarios.container",
-                    "mems_scenarios.launch_graph",
+                    "mems_scenarios.component_container",
+                    "mems_scenarios.run_graph",
                 }:
                     # the skeleton, the contract, figure records, command lines, campaigns, the node
                     # container, run_graph's launch reader: tools, not scenarios; public

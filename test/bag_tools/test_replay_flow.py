@@ -48,12 +48,12 @@ def _fast_run(path: Path, domain_id: int, duration_s: float, frame: int = 10) ->
     """An IMU emulator stepped as fast as the recorder takes its frames (the scenario
     runner's machinery), /clock recorded too."""
     from mems_scenarios.base import Graph, drive_fast
-    from mems_sim.nodes.imu_node import ImuNoiseNode
+    from mems_sim.nodes.imu_node import ImuNode
 
     graph = Graph(domain_id)
     try:
         emu = graph.add_device(
-            ImuNoiseNode,
+            ImuNode,
             dict(seed=5, duration_s=duration_s, frame_size=frame, publish_imu=False),
             realtime=False,
         )

@@ -62,7 +62,7 @@ def _consumers():
     from mems_estimation.filters.stage_ekf import load_model
     from mems_estimation.identification.imu_calibration import CalibrationError
     from mems_estimation.identification.imu_calibration import load_yaml as load_calibration
-    from mems_scenarios.launch_graph import GraphError, load_graph
+    from mems_scenarios.run_graph import GraphError, load_graph
     from mems_sim.devices.imu_profiles import ProfileError, load_profile
     from mems_sim.ros.params_file import ParamsFileError, load_params_file
     from mems_sim.ros.qos_yaml import load_overrides as load_qos_overrides
@@ -141,7 +141,7 @@ def test_an_alias_bomb_is_refused_by_the_executables(where, tmp_path, subprocess
             "launch:\n- node: {pkg: mems_emulator, exec: imu_node, name: imu, "
             f"param: [{{from: {bomb}}}]}}\n"
         )
-        cmd = [sys.executable, "-m", "mems_scenarios.launch_graph", str(launch)]
+        cmd = [sys.executable, "-m", "mems_scenarios.run_graph", str(launch)]
     # the child reports its own peak resident memory (VmHWM of its address space; rusage's
     # maxrss would include this test process's size, inherited through fork)
     report = (

@@ -7,17 +7,19 @@ import numpy as np
 import pytest
 
 from mems_estimation.identification.signal_metrics import coherent_snr_db
-from mems_sim.devices import accelerometer as fra
+from mems_sim.devices import accelerometer
 from mems_sim.params import ParameterError
 
-G = fra.G0
-P = fra.validate_params({})
+G = accelerometer.G0
+P = accelerometer.validate_params({})
 SKIP = 20_000  # 20 ms start-up at 1 MHz
 N = 120_000  # 0.12 s: start-up + one 10 Hz period
 
 
 def run(mode, amp_g, seed=1, n=N, **kw):
-    d = fra.ForceRebalanceAccelerometer(dict(mode=mode, accel_amplitude=amp_g * G, **kw), seed=seed)
+    d = accelerometer.ForceRebalanceAccelerometer(
+        dict(mode=mode, accel_amplitude=amp_g * G, **kw), seed=seed
+    )
     return d, d.step(n)
 
 
@@ -41,38 +43,40 @@ def test_table1_derived_numbers():
 
 
 def test_readout_is_eq_2_9_and_linearises_to_2_10():
-    h = fra.readout_gain(P)
-    assert h == pytest.approx(2 * fra.EPS0 * 4 * 1.86e-6 * 0.6 / (20e-12 * 2.3e-6**2))
+    h = accelerometer.readout_gain(P)
+    assert h == pytest.approx(2 * accelerometer.EPS0 * 4 * 1.86e-6 * 0.6 / (20e-12 * 2.3e-6**2))
     x = 1e-10
-    assert fra.readout_voltage(x, P) == pytest.approx(-h * x, rel=1e-8)
+    assert accelerometer.readout_voltage(x, P) == pytest.approx(-h * x, rel=1e-8)
     x = 0.3 * P["gap"]
-    assert fra.readout_voltage(x, P) == pytest.approx(-h * x / (1 - 0.09), rel=1e-12)
+    assert accelerometer.readout_voltage(x, P) == pytest.approx(-h * x / (1 - 0.09), rel=1e-12)
 
 
 def test_electrostatic_force_forms():
     """(2-12) with v_F = V_B = 0; small-signal (2-16) with the factor 2 on the bias terms."""
-    ea, d0, v1 = fra.eps_area(P), P["gap"], P["carrier_amplitude"]
+    ea, d0, v1 = accelerometer.eps_area(P), P["gap"], P["carrier_amplitude"]
     x = 0.2 * d0
     f212 = ea * v1**2 / 4 * (1 / (d0 - x) ** 2 - 1 / (d0 + x) ** 2)  # <sin^2> = 1/2
-    assert fra.electrostatic_force(x, 0.0, 0.0, P) == pytest.approx(f212, rel=1e-12)
+    assert accelerometer.electrostatic_force(x, 0.0, 0.0, P) == pytest.approx(f212, rel=1e-12)
     vb, vf, x = 0.17, 0.01, 1e-11
     lin = -2 * ea * vb * vf / d0**2 + ea * x * (v1**2 + 2 * vb**2 + 2 * vf**2) / d0**3
-    assert fra.electrostatic_force(x, vf, vb, P) == pytest.approx(lin, rel=1e-6)
+    assert accelerometer.electrostatic_force(x, vf, vb, P) == pytest.approx(lin, rel=1e-6)
     # a positive v_F pushes the mass to negative x (sign convention of the module)
-    assert fra.electrostatic_force(0.0, 0.01, vb, P) < 0
+    assert accelerometer.electrostatic_force(0.0, 0.01, vb, P) < 0
 
 
 def test_bias_voltage_eq_2_18_balances_half_range_at_half_bias():
-    vb = fra.bias_voltage(P)
-    assert vb == pytest.approx(math.sqrt(P["mass"] * 10 * G * P["gap"] ** 2 / fra.eps_area(P)))
+    vb = accelerometer.bias_voltage(P)
+    assert vb == pytest.approx(
+        math.sqrt(P["mass"] * 10 * G * P["gap"] ** 2 / accelerometer.eps_area(P))
+    )
     # (2-17) at v_F = V_B / 2 balances the full 10 g range
-    f = 2 * fra.eps_area(P) * vb * (vb / 2) / P["gap"] ** 2
+    f = 2 * accelerometer.eps_area(P) * vb * (vb / 2) / P["gap"] ** 2
     assert f == pytest.approx(P["mass"] * 10 * G, rel=1e-12)
 
 
 def test_squeeze_film_damping_is_even_and_table1_at_rest():
     x = np.array([-0.3, -0.1, 0.0, 0.1, 0.3]) * P["gap"]
-    b = fra.damping(x, P)
+    b = accelerometer.damping(x, P)
     assert b[2] == pytest.approx(P["damping"])
     np.testing.assert_allclose(b, b[::-1])
     assert b[0] > b[1] > b[2]
@@ -90,28 +94,28 @@ def test_squeeze_film_damping_is_even_and_table1_at_rest():
 )
 def test_invalid_physical_parameters_refused(name, value):
     with pytest.raises(ParameterError, match=name):
-        fra.ForceRebalanceAccelerometer({name: value})
+        accelerometer.ForceRebalanceAccelerometer({name: value})
 
 
 def test_profile_file_missing_or_bad(tmp_path):
     with pytest.raises(ParameterError, match="profile_file"):
-        fra.validate_params({"profile": "file"})
+        accelerometer.validate_params({"profile": "file"})
     bad = tmp_path / "p.csv"
     bad.write_text("0, 1\n0, 2\n")
     with pytest.raises(ParameterError, match="increase"):
-        fra.ForceRebalanceAccelerometer({"profile": "file", "profile_file": str(bad)})
+        accelerometer.ForceRebalanceAccelerometer({"profile": "file", "profile_file": str(bad)})
 
 
 def test_input_profiles(tmp_path):
     f = tmp_path / "a.csv"
     f.write_text("# t, a\n0, 0\n1e-3, 9.8\n2e-3, 9.8\n")
-    d = fra.ForceRebalanceAccelerometer({"profile": "file", "profile_file": str(f)})
+    d = accelerometer.ForceRebalanceAccelerometer({"profile": "file", "profile_file": str(f)})
     np.testing.assert_allclose(d.input_at(np.array([0.0, 5e-4, 1.5e-3, 5.0])), [0.0, 4.9, 9.8, 9.8])
-    d = fra.ForceRebalanceAccelerometer(
+    d = accelerometer.ForceRebalanceAccelerometer(
         {"profile": "step", "step_time": 1e-3, "accel_amplitude": 2.0}
     )
     np.testing.assert_array_equal(d.input_at(np.array([0.0, 0.999e-3, 1e-3])), [0, 0, 2.0])
-    d = fra.ForceRebalanceAccelerometer(
+    d = accelerometer.ForceRebalanceAccelerometer(
         {
             "profile": "chirp",
             "accel_frequency": 10.0,
@@ -129,8 +133,8 @@ def test_input_profiles(tmp_path):
 
 def test_blocks_are_seamless():
     """Ten blocks of 1000 samples equal one block of 10000 (state and noise carried over)."""
-    a = fra.ForceRebalanceAccelerometer({"mode": "ekf_rebalance"}, seed=3)
-    b = fra.ForceRebalanceAccelerometer({"mode": "ekf_rebalance"}, seed=3)
+    a = accelerometer.ForceRebalanceAccelerometer({"mode": "ekf_rebalance"}, seed=3)
+    b = accelerometer.ForceRebalanceAccelerometer({"mode": "ekf_rebalance"}, seed=3)
     one = a.step(10_000)
     parts = [b.step(1000) for _ in range(10)]
     np.testing.assert_array_equal(one.code, np.concatenate([p.code for p in parts]))
@@ -149,19 +153,19 @@ def test_plant_integration_converges():
         electronic_accel_std=0.0,
         mode="open_loop",
     )
-    d4 = fra.ForceRebalanceAccelerometer(kw)
-    d32 = fra.ForceRebalanceAccelerometer(dict(kw, substeps=32))
+    d4 = accelerometer.ForceRebalanceAccelerometer(kw)
+    d32 = accelerometer.ForceRebalanceAccelerometer(dict(kw, substeps=32))
     x4, x32 = d4.step(20_000).x, d32.step(20_000).x
     assert np.max(np.abs(x4 - x32)) <= 1e-7 * np.max(np.abs(x32))
     xs = np.linspace(0, 1e-7, 100001)
-    x_eq = xs[np.argmin(np.abs(fra.static_acceleration(xs, P) - G))]
+    x_eq = xs[np.argmin(np.abs(accelerometer.static_acceleration(xs, P) - G))]
     assert x4[-1] == pytest.approx(x_eq, rel=1e-4)
 
 
 def test_open_loop_pull_in_from_the_physics():
     """The open loop has no static equilibrium above a_pi (eq. 2-12 softening); a sinusoid
     beyond it drives the mass to the stop (contact), one below does not."""
-    a_pi, x_pi = fra.pull_in_acceleration(P)
+    a_pi, x_pi = accelerometer.pull_in_acceleration(P)
     assert 11 * G < a_pi < 13.5 * G  # 12.2 g with Table I
     assert 0.2 < x_pi / P["gap"] < 0.33
     _, f = run("open_loop", a_pi / G * 1.2, n=60_000)
@@ -179,7 +183,7 @@ def test_table_i_open_loop_restated():
     the open loop tracks 10 Hz at 12 g, reaches the stop at 13 g (static pull-in 12.2 g) and
     deflects 1.81e-7 m at 5 g (Zhang 2010 Table III has it fail at 5 g: see the reading
     below)."""
-    assert fra.pull_in_acceleration(P)[0] / G == pytest.approx(12.2, abs=0.05)
+    assert accelerometer.pull_in_acceleration(P)[0] / G == pytest.approx(12.2, abs=0.05)
     _, f = run("open_loop", 12.0)
     assert not f.contact.any()
     _, f = run("open_loop", 13.0)
@@ -193,9 +197,9 @@ def test_table_iii_reading_carrier_0675():
     """The reading that reproduces Zhang 2010 Table III: a 0.675 V carrier leaves
     k_eff = 0.53 N/m, so 1 g deflects 7e-8 m and the open loop (pull-in 4.06 g) tracks 4 g
     but fails at 5 g; the PI and EKF loops still track 10 g without contact."""
-    v = fra.TABLE_III_VARIANT
-    p3 = fra.validate_params(v)
-    assert fra.pull_in_acceleration(p3)[0] / G == pytest.approx(4.06, abs=0.02)
+    v = accelerometer.TABLE_III_VARIANT
+    p3 = accelerometer.validate_params(v)
+    assert accelerometer.pull_in_acceleration(p3)[0] / G == pytest.approx(4.06, abs=0.02)
     _, f = run("open_loop", 1.0, **v)
     assert x_max(f) == pytest.approx(7.0e-8, rel=0.05)
     _, f = run("open_loop", 4.0, **v)
@@ -222,12 +226,14 @@ def test_design_is_nominal_on_a_device_of_the_batch():
     """V_B (eq. 2-18), the in-loop EKF's model and its conversion of the estimate to a
     readout voltage come from the nominal values, the plant from the device as built."""
     dev = corner(-1, -1)
-    d = fra.ForceRebalanceAccelerometer(
+    d = accelerometer.ForceRebalanceAccelerometer(
         dict(dev, mode="ekf_rebalance"), seed=1, nominal=dict(P, mode="ekf_rebalance")
     )
-    assert d.v_b == pytest.approx(fra.bias_voltage(P))
-    np.testing.assert_array_equal(d.ekf_config.model, fra.plant_vector(P, d.v_b))
-    np.testing.assert_array_equal(d.mv, fra.plant_vector(fra.validate_params(dev), d.v_b))
+    assert d.v_b == pytest.approx(accelerometer.bias_voltage(P))
+    np.testing.assert_array_equal(d.ekf_config.model, accelerometer.plant_vector(P, d.v_b))
+    np.testing.assert_array_equal(
+        d.mv, accelerometer.plant_vector(accelerometer.validate_params(dev), d.v_b)
+    )
 
 
 @pytest.mark.parametrize("signs", [(-1, -1), (1, 1)], ids=["soft", "stiff"])
@@ -240,7 +246,9 @@ def test_ekf_loop_gain_holds_at_the_corners_of_the_spread(signs):
         s = {}
         for mode in ("pi_rebalance", "ekf_rebalance"):
             kw = dict(mode=mode, accel_amplitude=amp * G)
-            d = fra.ForceRebalanceAccelerometer(dict(dev, **kw), seed=7, nominal=dict(P, **kw))
+            d = accelerometer.ForceRebalanceAccelerometer(
+                dict(dev, **kw), seed=7, nominal=dict(P, **kw)
+            )
             f = d.step(N)
             assert not f.contact.any()
             s[mode] = snr(d, f)
@@ -250,7 +258,7 @@ def test_ekf_loop_gain_holds_at_the_corners_of_the_spread(signs):
 @pytest.fixture(scope="module")
 def table3():
     """Seeded Table III runs: (amplitude g, mode) -> (device, frame)."""
-    return {(a, m): run(m, a) for a in (0.1, 1.0, 10.0) for m in fra.MODES}
+    return {(a, m): run(m, a) for a in (0.1, 1.0, 10.0) for m in accelerometer.MODES}
 
 
 def test_closed_loops_track_10g_without_contact_and_shrink_displacement(table3):

@@ -8,23 +8,23 @@ import scipy.linalg
 
 from mems_estimation.filters.accelerometer_ekf import HybridEkf
 from mems_estimation.identification.signal_metrics import coherent_snr_db, consistency
-from mems_sim.devices import accelerometer as fra
+from mems_sim.devices import accelerometer
 from mems_sim.kernels import accelerometer_ekf as he
 
-G = fra.G0
+G = accelerometer.G0
 SKIP = 20_000
 
 
 def config(**kw):
-    p = fra.validate_params(dict(mode="ekf_rebalance", **kw))
-    return p, fra.ekf_config(p, fra.bias_voltage(p))
+    p = accelerometer.validate_params(dict(mode="ekf_rebalance", **kw))
+    return p, accelerometer.ekf_config(p, accelerometer.bias_voltage(p))
 
 
 def linear_model(p, c):
     """Continuous (F, L Q L^T) of the model linearised at rest (x = v = 0, v_F = 0)."""
     m, k, b = p["mass"], p["stiffness"], p["damping"]
-    vb = fra.bias_voltage(p)
-    ke = fra.eps_area(p) * (p["carrier_amplitude"] ** 2 + 2 * vb**2) / p["gap"] ** 3
+    vb = accelerometer.bias_voltage(p)
+    ke = accelerometer.eps_area(p) * (p["carrier_amplitude"] ** 2 + 2 * vb**2) / p["gap"] ** 3
     f = np.array([[0, 1, 0], [(-k + ke) / m, -b / m, 1], [0, 0, 0]])
     qc = np.diag([0.0, c.q[0] / m**2, c.q[1]])
     return f, qc
@@ -65,7 +65,7 @@ def test_measurement_update_is_4_55_to_4_57():
     s = np.array([2e-10, 1e-6, 0.3])
     y = -1e-4
     hx, hd = he.measurement(s[0], c.model)
-    assert hx == pytest.approx(fra.readout_voltage(s[0], p), rel=1e-12)
+    assert hx == pytest.approx(accelerometer.readout_voltage(s[0], p), rel=1e-12)
     eps = 1e-14
     assert hd == pytest.approx(
         (he.measurement(s[0] + eps, c.model)[0] - he.measurement(s[0] - eps, c.model)[0])
@@ -84,7 +84,9 @@ def test_measurement_update_is_4_55_to_4_57():
 
 def test_downstream_filter_reproduces_the_in_loop_estimate():
     """The same filter on the device's ADC and drive samples gives the in-loop estimate."""
-    d = fra.ForceRebalanceAccelerometer({"mode": "ekf_rebalance", "accel_amplitude": G}, seed=2)
+    d = accelerometer.ForceRebalanceAccelerometer(
+        {"mode": "ekf_rebalance", "accel_amplitude": G}, seed=2
+    )
     f = d.step(30_000)
     ekf = HybridEkf(d.ekf_config)
     out = ekf.run(f.code * d.lsb, f.v_f)
@@ -98,7 +100,9 @@ def test_downstream_filter_reproduces_the_in_loop_estimate():
 def test_displacement_error_is_consistent(mode, amp_g):
     """Consistency: x_hat - x has zero mean (within 3 standard errors, batch means) and its std
     matches the filter's predicted std within 20 %; P stays positive definite."""
-    d = fra.ForceRebalanceAccelerometer({"mode": mode, "accel_amplitude": amp_g * G}, seed=4)
+    d = accelerometer.ForceRebalanceAccelerometer(
+        {"mode": mode, "accel_amplitude": amp_g * G}, seed=4
+    )
     f = d.step(120_000)
     ekf = HybridEkf(d.ekf_config)
     out = ekf.run(f.code * d.lsb, f.v_f)
@@ -121,7 +125,7 @@ def test_table_iv_tuning_direction():
     }
     snr = {}
     for name, (qs, rs) in cases.items():
-        d = fra.ForceRebalanceAccelerometer(
+        d = accelerometer.ForceRebalanceAccelerometer(
             dict(mode="ekf_rebalance", accel_amplitude=0.1 * G, ekf_q_scale=qs, ekf_r_scale=rs),
             seed=5,
         )

@@ -6,15 +6,15 @@ from conftest import params, spin_until
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
 from mems_estimation.filters.accelerometer_ekf import HybridEkf
-from mems_estimation.nodes.accelerometer_ekf_node import HybridEkfNode
+from mems_estimation.nodes.accelerometer_ekf_node import AccelerometerEkfNode
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
-from mems_sim.devices import accelerometer as fra
-from mems_sim.nodes.accelerometer_node import FrAccelerometerNode
+from mems_sim.devices import accelerometer
+from mems_sim.nodes.accelerometer_node import AccelerometerNode
 from mems_sim.params import ParameterError
 from mems_sim.ros.frames import make_signal_frame
 from mems_sim.ros.qos import FRAME_QOS
 
-G = fra.G0
+G = accelerometer.G0
 
 
 def _collect(probe, ns, names):
@@ -37,7 +37,7 @@ def _cat(frames, field, width):
 
 def test_device_publishes_readout_drive_truth_and_loop_estimate(graph):
     ctx, ex, probe = graph
-    dev = FrAccelerometerNode(
+    dev = AccelerometerNode(
         context=ctx,
         drive_externally=True,
         parameter_overrides=params(
@@ -56,7 +56,7 @@ def test_device_publishes_readout_drive_truth_and_loop_estimate(graph):
     for _ in range(5):
         dev.step()
     assert spin_until(ex, lambda: all(len(v) == 5 for v in got.values()))
-    ref = fra.ForceRebalanceAccelerometer(
+    ref = accelerometer.ForceRebalanceAccelerometer(
         {"mode": "ekf_rebalance", "accel_amplitude": G}, seed=4
     ).step(10_000)
     assert [m.first_sample_index for m in got["adc"]] == list(range(0, 10_000, 2000))
@@ -65,7 +65,9 @@ def test_device_publishes_readout_drive_truth_and_loop_estimate(graph):
     np.testing.assert_array_equal(_cat(got["adc"], "codes", 1)[:, 0], ref.code)
     drive = _cat(got["drive"], "data", 2)
     np.testing.assert_array_equal(drive[:, 0], ref.v_f)
-    assert np.all(drive[:, 1] == pytest.approx(fra.bias_voltage(fra.validate_params({}))))
+    assert np.all(
+        drive[:, 1] == pytest.approx(accelerometer.bias_voltage(accelerometer.validate_params({})))
+    )
     truth = _cat(got["truth"], "data", 5)
     np.testing.assert_array_equal(truth[:, 1], ref.x)
     assert list(got["truth"][0].channel_units) == ["m/s^2", "m", "m/s", "1", "1"]
@@ -76,8 +78,8 @@ def test_ekf_node_on_the_device_topics_matches_the_core(graph):
     """Device (PI loop) -> adc/drive -> hybrid EKF node -> estimate equals the core filter."""
     ctx, ex, probe = graph
     over = params(seed=6, frame_size=5000, mode="pi_rebalance", accel_amplitude=0.5 * G)
-    dev = FrAccelerometerNode(context=ctx, drive_externally=True, parameter_overrides=over)
-    ekf = HybridEkfNode(context=ctx, parameter_overrides=params(mode="pi_rebalance"))
+    dev = AccelerometerNode(context=ctx, drive_externally=True, parameter_overrides=over)
+    ekf = AccelerometerEkfNode(context=ctx, parameter_overrides=params(mode="pi_rebalance"))
     ex.add_node(dev)
     ex.add_node(ekf)
     got = _collect(probe, "/accelerometer", ("estimate",))
@@ -88,7 +90,7 @@ def test_ekf_node_on_the_device_topics_matches_the_core(graph):
     for _ in range(4):
         dev.step()
     assert spin_until(ex, lambda: len(got["estimate"]) == 4)
-    d = fra.ForceRebalanceAccelerometer(
+    d = accelerometer.ForceRebalanceAccelerometer(
         {"mode": "pi_rebalance", "accel_amplitude": 0.5 * G}, seed=6
     )
     f = d.step(20_000)
@@ -103,9 +105,9 @@ def test_ekf_node_on_the_device_topics_matches_the_core(graph):
 
 def test_ekf_node_rejects_non_finite_drive_and_keeps_running(graph):
     ctx, ex, probe = graph
-    ekf = HybridEkfNode(context=ctx, parameter_overrides=params(mode="pi_rebalance"))
+    ekf = AccelerometerEkfNode(context=ctx, parameter_overrides=params(mode="pi_rebalance"))
     ex.add_node(ekf)
-    d = fra.ForceRebalanceAccelerometer({"mode": "pi_rebalance"}, seed=1)
+    d = accelerometer.ForceRebalanceAccelerometer({"mode": "pi_rebalance"}, seed=1)
     pub_a = probe.create_publisher(AdcFrame, "/accelerometer/adc", FRAME_QOS)
     pub_d = probe.create_publisher(SignalFrame, "/accelerometer/drive", FRAME_QOS)
     got = _collect(probe, "/accelerometer", ("estimate",))
@@ -162,7 +164,7 @@ def test_ekf_node_rejects_non_finite_drive_and_keeps_running(graph):
 
 def test_over_range_input_warns_on_diagnostics(graph):
     ctx, ex, probe = graph
-    dev = FrAccelerometerNode(
+    dev = AccelerometerNode(
         context=ctx,
         drive_externally=True,
         parameter_overrides=params(frame_size=20_000, mode="pi_rebalance", accel_amplitude=50 * G),
@@ -189,8 +191,8 @@ def test_over_range_input_warns_on_diagnostics(graph):
 @pytest.mark.parametrize("name,value", [("mass", 0.0), ("gap", 0.0), ("stiffness", -3.0)])
 def test_nodes_refuse_non_physical_parameters(ros_context, name, value):
     with pytest.raises(ParameterError, match=name):
-        FrAccelerometerNode(
+        AccelerometerNode(
             context=ros_context, drive_externally=True, parameter_overrides=params(**{name: value})
         )
     with pytest.raises(ParameterError, match=name):
-        HybridEkfNode(context=ros_context, parameter_overrides=params(**{name: value}))
+        AccelerometerEkfNode(context=ros_context, parameter_overrides=params(**{name: value}))

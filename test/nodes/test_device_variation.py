@@ -10,10 +10,9 @@ import pytest
 from conftest import params, spin_until
 from sensor_msgs.msg import Temperature
 
-from mems_sim.devices import accelerometer as fra
+from mems_sim.devices import accelerometer, scanner_amdm
 from mems_sim.devices import resonator as sd_resonator
 from mems_sim.devices import scanner as micro_scanner
-from mems_sim.devices import scanner_amdm
 from mems_sim.params import draw_device
 from mems_sim.ros.node_base import EmulatorNode
 
@@ -25,21 +24,21 @@ FIXED_SPREADS = {
 
 
 def _nodes():
-    from mems_sim.nodes.accelerometer_node import FrAccelerometerNode
-    from mems_sim.nodes.resonator_node import SdResonatorNode
+    from mems_sim.nodes.accelerometer_node import AccelerometerNode
+    from mems_sim.nodes.resonator_node import ResonatorNode
     from mems_sim.nodes.scanner_amdm_node import ScannerAmdmNode
-    from mems_sim.nodes.scanner_node import MicroScannerNode
+    from mems_sim.nodes.scanner_node import ScannerNode
 
     return {
-        "accelerometer": FrAccelerometerNode,
-        "scanner": MicroScannerNode,
+        "accelerometer": AccelerometerNode,
+        "scanner": ScannerNode,
         "scanner_amdm": ScannerAmdmNode,
-        "resonator": SdResonatorNode,
+        "resonator": ResonatorNode,
     }
 
 
 TABLES = {
-    "accelerometer": fra.ACCEL_SPECS,
+    "accelerometer": accelerometer.ACCEL_SPECS,
     "scanner": micro_scanner.SCANNER_SPECS,
     "scanner_amdm": scanner_amdm.AMDM_SPECS,
     "resonator": sd_resonator.RESONATOR_SPECS,
@@ -137,10 +136,10 @@ def device_value(node, name):
 def test_a_temperature_message_moves_the_device(graph):
     """sensor_msgs/Temperature on the node's ``temperature`` input: temperature_c follows,
     the device moves; a temperature out of range is ignored with a warning."""
-    from mems_sim.nodes.accelerometer_node import FrAccelerometerNode
+    from mems_sim.nodes.accelerometer_node import AccelerometerNode
 
     ctx, ex, probe = graph
-    node = FrAccelerometerNode(context=ctx, drive_externally=True)
+    node = AccelerometerNode(context=ctx, drive_externally=True)
     ex.add_node(node)
     try:
         k0 = node.device.p["stiffness"]
@@ -164,7 +163,7 @@ def test_the_nominal_device_is_todays(ros_context, device):
     makes without them, and the device made from the table's defaults: one frame equal."""
     cls = _nodes()[device]
     makers = {
-        "accelerometer": lambda: fra.ForceRebalanceAccelerometer({}, seed=0),
+        "accelerometer": lambda: accelerometer.ForceRebalanceAccelerometer({}, seed=0),
         "scanner": lambda: micro_scanner.MicroScannerDevice({}, seed=0),
         "scanner_amdm": lambda: scanner_amdm.AmdmScannerDevice({}, seed=0),
         "resonator": lambda: sd_resonator.SdResonatorDevice({}, seed=0),
@@ -194,22 +193,22 @@ def arrays(frame) -> list:
 def test_the_in_loop_filters_keep_the_nominal_model(ros_context):
     """The accelerometer's V_B and in-loop EKF, and the resonator's in-loop observer, are
     designed from the nominal device, the plant is the drawn one."""
-    from mems_sim.nodes.accelerometer_node import FrAccelerometerNode
-    from mems_sim.nodes.resonator_node import SdResonatorNode
+    from mems_sim.nodes.accelerometer_node import AccelerometerNode
+    from mems_sim.nodes.resonator_node import ResonatorNode
 
-    acc = FrAccelerometerNode(
+    acc = AccelerometerNode(
         context=ros_context,
         drive_externally=True,
         parameter_overrides=params(device_seed=3, mode="ekf_rebalance"),
     )
-    res = SdResonatorNode(
+    res = ResonatorNode(
         context=ros_context, drive_externally=True, parameter_overrides=params(device_seed=3)
     )
     try:
-        nominal = fra.validate_params({"mode": "ekf_rebalance"})
-        assert acc.device.v_b == fra.bias_voltage(nominal)
+        nominal = accelerometer.validate_params({"mode": "ekf_rebalance"})
+        assert acc.device.v_b == accelerometer.bias_voltage(nominal)
         np.testing.assert_array_equal(
-            acc.device.ekf_config.model, fra.plant_vector(nominal, acc.device.v_b)
+            acc.device.ekf_config.model, accelerometer.plant_vector(nominal, acc.device.v_b)
         )
         assert acc.device.p["stiffness"] != nominal["stiffness"]
         assert res.device.model.f0 == pytest.approx(nominal_of(TABLES["resonator"], "f0_hz"))
@@ -221,23 +220,23 @@ def test_the_in_loop_filters_keep_the_nominal_model(ros_context):
 
 def test_every_emulator_node_has_one_device_seed_and_temperature():
     """No duplicate parameter: the stage keeps its own device_seed and temperature_c."""
-    from mems_sim.nodes.imu_node import ImuNoiseNode
-    from mems_sim.nodes.stage_node import MicroStageNode
+    from mems_sim.nodes.imu_node import ImuNode
+    from mems_sim.nodes.stage_node import StageNode
     from mems_sim.params import spec_table
 
-    for cls in (*_nodes().values(), ImuNoiseNode, MicroStageNode):
+    for cls in (*_nodes().values(), ImuNode, StageNode):
         assert issubclass(cls, EmulatorNode)
         table = spec_table(cls.SPECS)  # refuses duplicates
         assert table["device_seed"].min in (-1, 0)
         assert math.isfinite(table["temperature_c"].default)
-    assert MicroStageNode.TEMPERATURE_INPUT != "temperature"  # its output
+    assert StageNode.TEMPERATURE_INPUT != "temperature"  # its output
 
 
 def test_the_stage_follows_its_temperature_input(graph):
-    from mems_sim.nodes.stage_node import MicroStageNode
+    from mems_sim.nodes.stage_node import StageNode
 
     ctx, ex, probe = graph
-    node = MicroStageNode(context=ctx, drive_externally=True)
+    node = StageNode(context=ctx, drive_externally=True)
     ex.add_node(node)
     try:
         pub = probe.create_publisher(Temperature, "/stage/temperature_input", 10)
@@ -273,7 +272,7 @@ def test_the_scenario_graph_draws_every_emulator_but_not_the_users_values(domain
     are its nominal device (drawn), the user's --set values are fixed; a scenario that sets
     the temperature itself refuses --temperature."""
     from mems_scenarios.base import Graph, ScenarioError
-    from mems_sim.nodes.accelerometer_node import FrAccelerometerNode
+    from mems_sim.nodes.accelerometer_node import AccelerometerNode
     from mems_sim.ros.params_file import parse_set
 
     graph = Graph(
@@ -283,17 +282,19 @@ def test_the_scenario_graph_draws_every_emulator_but_not_the_users_values(domain
         temperature_c=30.0,
     )
     try:
-        node = graph.node(FrAccelerometerNode, {"mass": 4e-9}, drive_externally=True)
+        node = graph.node(AccelerometerNode, {"mass": 4e-9}, drive_externally=True)
         assert node.p["device_seed"] == 4 and node.p["temperature_c"] == 30.0
         assert node.fixed_parameters == {"stiffness"}
         assert node.drawn["stiffness"] == 2.5
-        assert node.drawn["mass"] == draw_device(fra.ACCEL_SPECS, {"mass": 4e-9}, 4)["mass"]
+        assert (
+            node.drawn["mass"] == draw_device(accelerometer.ACCEL_SPECS, {"mass": 4e-9}, 4)["mass"]
+        )
         assert graph.applied[("/accelerometer/accelerometer", "device_seed")] == (
             4,
             "--device-seed",
         )
         with pytest.raises(ScenarioError, match="sets temperature_c of node"):
-            graph.node(FrAccelerometerNode, {"temperature_c": 20.0}, namespace="other")
+            graph.node(AccelerometerNode, {"temperature_c": 20.0}, namespace="other")
     finally:
         graph.close()
 

@@ -47,22 +47,22 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import UInt64
 
-from mems_estimation.nodes.accelerometer_ekf_node import HybridEkfNode
+from mems_estimation.nodes.accelerometer_ekf_node import AccelerometerEkfNode
 from mems_estimation.nodes.frame_input import FormatPin
-from mems_estimation.nodes.imu_noise_identifier_node import NoiseIdentifierNode
-from mems_estimation.nodes.resonator_observer_node import SdObserverNode
+from mems_estimation.nodes.imu_noise_identifier_node import ImuNoiseIdentifierNode
+from mems_estimation.nodes.resonator_observer_node import ResonatorObserverNode
 from mems_estimation.nodes.scanner_amdm_estimator_node import ScannerAmdmEstimatorNode
-from mems_estimation.nodes.scanner_threshold_ekf_node import ScannerThresholdNode
+from mems_estimation.nodes.scanner_threshold_ekf_node import ScannerThresholdEkfNode
 from mems_estimation.nodes.stage_ekf_node import StageEkfNode
-from mems_estimation.nodes.stage_gyro_calibration_node import GyroCalibrationNode
+from mems_estimation.nodes.stage_gyro_calibration_node import StageGyroCalibrationNode
 from mems_msgs.msg import AdcFrame, CalibrationResult, NoiseModel, SignalFrame, StateEstimate
-from mems_sim.devices import accelerometer as fra
-from mems_sim.nodes.accelerometer_node import FrAccelerometerNode
-from mems_sim.nodes.imu_node import ImuNoiseNode
-from mems_sim.nodes.resonator_node import SdResonatorNode
+from mems_sim.devices import accelerometer
+from mems_sim.nodes.accelerometer_node import AccelerometerNode
+from mems_sim.nodes.imu_node import ImuNode
+from mems_sim.nodes.resonator_node import ResonatorNode
 from mems_sim.nodes.scanner_amdm_node import ScannerAmdmNode
-from mems_sim.nodes.scanner_node import MicroScannerNode
-from mems_sim.nodes.stage_node import MicroStageNode
+from mems_sim.nodes.scanner_node import ScannerNode
+from mems_sim.nodes.stage_node import StageNode
 from mems_sim.ros.frames import (
     index_to_ns,
     make_adc_frame,
@@ -131,10 +131,10 @@ CASES = {
     for c in (
         Case(
             "accelerometer_ekf",
-            FrAccelerometerNode,
+            AccelerometerNode,
             dict(seed=3, mode="pi_rebalance", accel_amplitude=0.5 * G0),
             "/accelerometer",
-            HybridEkfNode,
+            AccelerometerEkfNode,
             dict(mode="pi_rebalance"),
             1e6,
             10_000,
@@ -148,7 +148,7 @@ CASES = {
         ),
         Case(
             "stage_ekf",
-            MicroStageNode,
+            StageNode,
             dict(seed=3, n_trials=8, periods_per_trial=400, gyro_enabled=False),
             "/stage",
             StageEkfNode,
@@ -159,10 +159,10 @@ CASES = {
         ),
         Case(
             "stage_gyro_calibration",
-            MicroStageNode,
+            StageNode,
             dict(seed=5, n_trials=14, periods_per_trial=100),
             "/stage",
-            GyroCalibrationNode,
+            StageGyroCalibrationNode,
             dict(n_trials=7),
             625e3,
             10_000,
@@ -173,10 +173,10 @@ CASES = {
         ),
         Case(
             "scanner_threshold_ekf",
-            MicroScannerNode,
+            ScannerNode,
             dict(seed=4, sweep_time_s=0.05, hold_time_s=5.0, ringdown_time_s=0.0),
             "/scanner",
-            ScannerThresholdNode,
+            ScannerThresholdEkfNode,
             {},
             500e3,
             10_000,
@@ -210,10 +210,10 @@ CASES = {
         ),
         Case(
             "resonator_observer",
-            SdResonatorNode,
+            ResonatorNode,
             dict(seed=5, mode="observer", output_noise_std=0.5, state_noise_std=5e-4),
             "/resonator",
-            SdObserverNode,
+            ResonatorObserverNode,
             dict(output_noise_std=0.5, state_noise_std=5e-4),
             1e6,
             10_000,
@@ -221,10 +221,10 @@ CASES = {
         ),
         Case(
             "imu_noise_identifier",
-            ImuNoiseNode,
+            ImuNode,
             dict(seed=11, publish_imu=False),
             "/imu",
-            NoiseIdentifierNode,
+            ImuNoiseIdentifierNode,
             dict(publish_period_s=0.0),
             100.0,
             100,
@@ -496,7 +496,7 @@ def truth_estimate(truth: SignalFrame) -> StateEstimate:
 def counters(node) -> dict:
     c = dict(node.diag.counters)
     c["done"] = node.frames_done + int(c.get("divergences", 0))
-    if isinstance(node, NoiseIdentifierNode):
+    if isinstance(node, ImuNoiseIdentifierNode):
         c["done"] = int(c.get("frames", 0))
     return c
 
@@ -887,7 +887,7 @@ def test_estimator_survives_faults(name, graph):
 
 
 def _acc_frames(first: int, n: int = 1000):
-    d = fra.ForceRebalanceAccelerometer({"mode": "pi_rebalance"}, seed=1)
+    d = accelerometer.ForceRebalanceAccelerometer({"mode": "pi_rebalance"}, seed=1)
     codes = np.zeros((n, 1), dtype=np.int32)
     adc = make_adc_frame(
         codes,
@@ -915,7 +915,7 @@ def test_progress_reports_the_end_of_every_frame_taken(graph):
     dropped --; a late subscriber gets the last value; after a stream reset it follows the
     new stream."""
     ctx, ex, probe = graph
-    node = HybridEkfNode(context=ctx, parameter_overrides=params(mode="pi_rebalance"))
+    node = AccelerometerEkfNode(context=ctx, parameter_overrides=params(mode="pi_rebalance"))
     ex.add_node(node)
     topic = "/accelerometer/accelerometer_ekf/progress"
     assert node.get_fully_qualified_name() + "/progress" == topic
@@ -976,7 +976,7 @@ def test_identifier_is_not_locked_out_by_a_stray_first_frame(graph):
     takes its format, then the stream's own frames replace it after
     ``FormatPin.ADOPT_FRAMES`` frames (the stray frame's data are dropped with it)."""
     ctx, ex, probe = graph
-    node = NoiseIdentifierNode(context=ctx, parameter_overrides=params(min_duration_s=5.0))
+    node = ImuNoiseIdentifierNode(context=ctx, parameter_overrides=params(min_duration_s=5.0))
     ex.add_node(node)
     pub = probe.create_publisher(AdcFrame, "/imu/adc", INJECT_QOS)
     assert spin_until(ex, lambda: pub.get_subscription_count() == 1)

@@ -18,7 +18,7 @@ from mems_estimation.filters.scanner_threshold_ekf import StreamingScannerEkf
 from mems_estimation.filters.stage_ekf import FeedthroughCanceller, StageEkf, load_model
 from mems_estimation.nodes.frame_input import FormatPin, FramePairer, StreamIndex, input_specs
 from mems_msgs.msg import AdcFrame
-from mems_sim.devices import accelerometer as fra
+from mems_sim.devices import accelerometer
 from mems_sim.kernels.divergence import covariance_ok, state_ok
 from mems_sim.kernels.resonator_observer import KalmanObserver
 from mems_sim.ros.frames import FrameError, adc_codes, adc_physical, code_range, frame_format
@@ -162,7 +162,7 @@ def _same_state(a, b):
 
 
 def test_hybrid_ekf_reset_after_an_absurd_frame():
-    d = fra.ForceRebalanceAccelerometer({"mode": "pi_rebalance"}, seed=1)
+    d = accelerometer.ForceRebalanceAccelerometer({"mode": "pi_rebalance"}, seed=1)
     f = d.step(2000)
     y, v = f.code * d.lsb, f.v_f
     ekf = HybridEkf(d.ekf_config)

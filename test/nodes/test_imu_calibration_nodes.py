@@ -14,7 +14,7 @@ from mems_estimation.nodes.imu_calibration_node import ImuCalibrationNode
 from mems_estimation.nodes.imu_corrector_node import ImuCorrectorNode
 from mems_msgs.msg import CalibrationResult
 from mems_sim.devices.imu_profiles import builtin_profile, dump_profile
-from mems_sim.nodes.imu_node import ImuNoiseNode
+from mems_sim.nodes.imu_node import ImuNode
 from mems_sim.params import ParameterError
 from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
 
@@ -31,7 +31,7 @@ def test_calibration_and_corrected_output(graph, tmp_path):
     ctx, ex, probe = graph
     profile = _short_profile(tmp_path / "short.yaml")
     out = tmp_path / "calib.yaml"
-    emu = ImuNoiseNode(
+    emu = ImuNode(
         context=ctx,
         drive_externally=True,
         parameter_overrides=params(
@@ -78,7 +78,7 @@ def test_calibration_and_corrected_output(graph, tmp_path):
     assert loaded.values["accel_matrix_xy"] == pytest.approx(est["accel_matrix_xy"][0])
 
     # corrected output: the calibration applied to the live frames of a second run (static)
-    emu2 = ImuNoiseNode(
+    emu2 = ImuNode(
         context=ctx,
         namespace="imu2",
         drive_externally=True,
@@ -129,7 +129,7 @@ def test_corrector_follows_a_temperature_topic(graph, tmp_path):
     is the truth within the noise; at the parameter's 25 C the accelerometer z would be off
     by b_T,z x 20 K = 0.49 m/s^2 (ADIS16350 preset: 2.5 mg/K)."""
     ctx, ex, probe = graph
-    emu = ImuNoiseNode(
+    emu = ImuNode(
         context=ctx,
         namespace="imu3",
         drive_externally=True,

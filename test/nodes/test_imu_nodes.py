@@ -10,17 +10,17 @@ from conftest import params, spin_until
 from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import Imu
 
-from mems_estimation.nodes.imu_noise_identifier_node import NoiseIdentifierNode
+from mems_estimation.nodes.imu_noise_identifier_node import ImuNoiseIdentifierNode
 from mems_msgs.msg import AdcFrame, NoiseModel, SignalFrame
-from mems_sim.devices import imu as imu_noise
-from mems_sim.nodes.imu_node import ImuNoiseNode
+from mems_sim.devices import imu
+from mems_sim.nodes.imu_node import ImuNode
 from mems_sim.params import ParameterError
 from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
 
 
 def test_emulator_publishes_consecutive_frames_truth_and_imu(graph):
     ctx, ex, probe = graph
-    emu = ImuNoiseNode(
+    emu = ImuNode(
         context=ctx, drive_externally=True, parameter_overrides=params(seed=3, frame_size=20)
     )
     ex.add_node(emu)
@@ -50,19 +50,19 @@ def test_emulator_publishes_consecutive_frames_truth_and_imu(graph):
     truth = np.asarray(got["truth"][0].data).reshape(20, 6)
     assert np.all(truth[:, :5] == 0) and np.all(truth[:, 5] == 9.80665)
     # Imu messages carry the same values as the ADC codes, in SI, with the model covariances
-    imu = got["imu"][20]
-    assert imu.angular_velocity.x == pytest.approx(codes[0, 0] * m.lsb[0], abs=1e-12)
-    assert imu.linear_acceleration.z == pytest.approx(codes[0, 5] * m.lsb[5], abs=1e-12)
-    gyro_var, accel_var = imu_noise.imu_covariances()
-    assert imu.angular_velocity_covariance[0] == pytest.approx(gyro_var[0])
-    assert imu.linear_acceleration_covariance[8] == pytest.approx(accel_var[2])
-    assert imu.orientation_covariance[0] == -1.0
+    sample = got["imu"][20]
+    assert sample.angular_velocity.x == pytest.approx(codes[0, 0] * m.lsb[0], abs=1e-12)
+    assert sample.linear_acceleration.z == pytest.approx(codes[0, 5] * m.lsb[5], abs=1e-12)
+    gyro_var, accel_var = imu.imu_covariances()
+    assert sample.angular_velocity_covariance[0] == pytest.approx(gyro_var[0])
+    assert sample.linear_acceleration_covariance[8] == pytest.approx(accel_var[2])
+    assert sample.orientation_covariance[0] == -1.0
 
 
 def test_emulator_frames_equal_core_model_output(graph):
     """The node adds nothing to the core: its codes are ImuNoiseModel's for the same seed."""
     ctx, ex, probe = graph
-    emu = ImuNoiseNode(
+    emu = ImuNode(
         context=ctx,
         drive_externally=True,
         parameter_overrides=params(seed=11, frame_size=50, publish_imu=False),
@@ -75,13 +75,13 @@ def test_emulator_frames_equal_core_model_output(graph):
         emu.step()
     assert spin_until(ex, lambda: len(got) == 4)
     codes = np.concatenate([np.asarray(m.codes).reshape(-1, 6) for m in got])
-    frame = imu_noise.ImuNoiseModel(seed=11).generate(200)
+    frame = imu.ImuNoiseModel(seed=11).generate(200)
     np.testing.assert_array_equal(codes, np.hstack([frame.gyro_codes, frame.accel_codes]))
 
 
 def test_invalid_parameter_refused_with_name_value_range(ros_context):
     with pytest.raises(ParameterError) as err:
-        ImuNoiseNode(
+        ImuNode(
             context=ros_context,
             drive_externally=True,
             parameter_overrides=params(gyro_correlation_time=-5.0),
@@ -129,7 +129,7 @@ def _frame(first, n=100, fs=100.0, value=0.0):
 
 def test_identifier_rejects_malformed_frames_and_counts_gaps(graph):
     ctx, ex, probe = graph
-    ident = NoiseIdentifierNode(
+    ident = ImuNoiseIdentifierNode(
         context=ctx,
         namespace="imu",
         parameter_overrides=params(min_duration_s=5.0, publish_period_s=0.0),
@@ -196,7 +196,7 @@ def test_profile_run_publishes_truth_temperature_and_truth_calibration(graph, tm
     path = tmp_path / "short.yaml"
     dump_profile(prof, path)
     ctx, ex, probe = graph
-    emu = ImuNoiseNode(
+    emu = ImuNode(
         context=ctx,
         drive_externally=True,
         parameter_overrides=params(
@@ -245,10 +245,9 @@ def test_profile_run_publishes_truth_temperature_and_truth_calibration(graph, tm
     assert values["gyro_sf_tempco_x"] != 0.0 and list(cal.standard_errors) == [0.0] * len(values)
     # the drawn device differs from the preset's nominal one, within its tolerance
     assert (
-        values["gyro_matrix_xy"]
-        != imu_noise.imu_values({"preset": "adis16350"})["gyro_misalignment_xy"]
+        values["gyro_matrix_xy"] != imu.imu_values({"preset": "adis16350"})["gyro_misalignment_xy"]
     )
-    assert abs(values["gyro_matrix_xy"]) <= 0.05 * imu_noise.DEG
+    assert abs(values["gyro_matrix_xy"]) <= 0.05 * imu.DEG
 
 
 def test_profile_parameter_errors(ros_context, tmp_path):
@@ -256,7 +255,7 @@ def test_profile_parameter_errors(ros_context, tmp_path):
     bad.write_text("segments:\n  - {duration_s: 0, up_body: [0, 0, 1]}\n")
     for value, field in (("nope", "nope"), (str(bad), "segments[0].duration_s")):
         with pytest.raises(ParameterError) as err:
-            ImuNoiseNode(
+            ImuNode(
                 context=ros_context,
                 drive_externally=True,
                 parameter_overrides=params(motion="profile", motion_profile=value),

@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 from conftest import params, spin_until
 
-from mems_estimation.nodes.accelerometer_ekf_node import HybridEkfNode
+from mems_estimation.nodes.accelerometer_ekf_node import AccelerometerEkfNode
 from mems_msgs.msg import SignalFrame, StateEstimate
-from mems_sim.devices import accelerometer as fra
-from mems_sim.nodes.accelerometer_node import FrAccelerometerNode
+from mems_sim.devices import accelerometer
+from mems_sim.nodes.accelerometer_node import AccelerometerNode
 from mems_sim.ros.qos import FRAME_QOS
 
-G = fra.G0
+G = accelerometer.G0
 AMPLITUDES = {"a": 1.0 * G, "b": 0.2 * G}  # input acceleration of the device in /a, /b
 FRAMES, FRAME = 4, 5000
 
@@ -27,7 +27,7 @@ def test_estimators_in_device_namespaces_follow_their_own_device(graph):
     ctx, ex, probe = graph
     devices, ekfs, got = {}, {}, {}
     for k, (ns, amp) in enumerate(AMPLITUDES.items()):
-        devices[ns] = FrAccelerometerNode(
+        devices[ns] = AccelerometerNode(
             context=ctx,
             namespace=ns,
             drive_externally=True,
@@ -36,7 +36,7 @@ def test_estimators_in_device_namespaces_follow_their_own_device(graph):
             ),
         )
         # only the namespace: no device_namespace parameter
-        ekfs[ns] = HybridEkfNode(
+        ekfs[ns] = AccelerometerEkfNode(
             context=ctx, namespace=ns, parameter_overrides=params(mode="pi_rebalance")
         )
         assert ekfs[ns].p["device_namespace"] == ""
@@ -84,12 +84,17 @@ def test_estimators_in_device_namespaces_follow_their_own_device(graph):
 @pytest.mark.parametrize(
     "module, cls, namespace, topics",
     [
-        ("accelerometer_ekf_node", "HybridEkfNode", "/accelerometer", ("adc", "drive")),
-        ("scanner_threshold_ekf_node", "ScannerThresholdNode", "/scanner", ("adc", "drive")),
+        ("accelerometer_ekf_node", "AccelerometerEkfNode", "/accelerometer", ("adc", "drive")),
+        ("scanner_threshold_ekf_node", "ScannerThresholdEkfNode", "/scanner", ("adc", "drive")),
         ("scanner_amdm_estimator_node", "ScannerAmdmEstimatorNode", "/scanner_amdm", ("adc",)),
-        ("resonator_observer_node", "SdObserverNode", "/resonator", ("adc", "drive")),
-        ("stage_gyro_calibration_node", "GyroCalibrationNode", "/stage", ("estimate", "gyro/adc")),
-        ("imu_noise_identifier_node", "NoiseIdentifierNode", "/imu", ("adc",)),
+        ("resonator_observer_node", "ResonatorObserverNode", "/resonator", ("adc", "drive")),
+        (
+            "stage_gyro_calibration_node",
+            "StageGyroCalibrationNode",
+            "/stage",
+            ("estimate", "gyro/adc"),
+        ),
+        ("imu_noise_identifier_node", "ImuNoiseIdentifierNode", "/imu", ("adc",)),
     ],
 )
 def test_estimator_defaults_to_its_device_namespace(ros_context, module, cls, namespace, topics):
@@ -103,7 +108,7 @@ def test_estimator_defaults_to_its_device_namespace(ros_context, module, cls, na
         assert {f"{namespace}/{t}" for t in topics} <= subscribed
     finally:
         node.destroy_node()
-    if cls == "NoiseIdentifierNode":
+    if cls == "ImuNoiseIdentifierNode":
         return
     node = node_class(context=ros_context, parameter_overrides=params(device_namespace="/x/"))
     try:

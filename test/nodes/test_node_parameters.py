@@ -19,7 +19,7 @@ from mems_msgs.msg import AdcFrame
 from mems_sim.ros.qos import FRAME_QOS
 
 NS = "/ptest"
-NODE = f"{NS}/imu"  # ImuNoiseNode's name in the namespace given on the command line
+NODE = f"{NS}/imu"  # ImuNode's name in the namespace given on the command line
 
 
 def _call(ex, client, request, timeout=20.0):
@@ -148,9 +148,9 @@ def test_realtime_factor_change_paces_on_from_the_current_index(ros_context):
     from conftest import params
     from rclpy.parameter import Parameter as RclpyParameter
 
-    from mems_sim.nodes.imu_node import ImuNoiseNode
+    from mems_sim.nodes.imu_node import ImuNode
 
-    emu = ImuNoiseNode(
+    emu = ImuNode(
         context=ros_context,
         autostart=False,
         parameter_overrides=params(publish_imu=False, frame_size=100, realtime_factor=10),

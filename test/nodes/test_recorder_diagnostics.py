@@ -98,10 +98,11 @@ def test_burst_of_statuses_from_several_reporters_all_recorded(ros_context, tmp_
 def test_estimator_status_names_its_node(ros_context):
     """Estimators of two devices publish the same status name; the hardware_id is the
     node's fully qualified name, so their statuses are told apart in a recording."""
-    from mems_estimation.nodes.stage_gyro_calibration_node import GyroCalibrationNode
+    from mems_estimation.nodes.stage_gyro_calibration_node import StageGyroCalibrationNode
 
     nodes = [
-        GyroCalibrationNode(context=ros_context, namespace=ns) for ns in ("/stage_d1", "/stage_d2")
+        StageGyroCalibrationNode(context=ros_context, namespace=ns)
+        for ns in ("/stage_d1", "/stage_d2")
     ]
     try:
         statuses = [n.diag.status() for n in nodes]

@@ -8,12 +8,12 @@ from conftest import params, spin_until
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
 from mems_estimation.nodes.scanner_threshold_ekf_node import (
-    ScannerThresholdNode,
+    ScannerThresholdEkfNode,
     detections_from_rows,
 )
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.devices.scanner import MicroScannerDevice
-from mems_sim.nodes.scanner_node import MicroScannerNode, quantize
+from mems_sim.nodes.scanner_node import ScannerNode, quantize
 from mems_sim.params import ParameterError
 from mems_sim.ros.qos import FRAME_QOS
 
@@ -32,7 +32,7 @@ def _subscribe(probe, ns, names):
 
 def test_device_node_publishes_core_frames(graph):
     ctx, ex, probe = graph
-    dev = MicroScannerNode(
+    dev = ScannerNode(
         context=ctx,
         drive_externally=True,
         parameter_overrides=params(seed=7, frame_size=1000, **DECAY),
@@ -64,12 +64,12 @@ def test_device_node_publishes_core_frames(graph):
 
 def test_threshold_node_tracks_through_topics(graph):
     ctx, ex, probe = graph
-    dev = MicroScannerNode(
+    dev = ScannerNode(
         context=ctx,
         drive_externally=True,
         parameter_overrides=params(seed=2, frame_size=1000, **DECAY),
     )
-    est = ScannerThresholdNode(context=ctx, parameter_overrides=params(dog_sigma=45.0))
+    est = ScannerThresholdEkfNode(context=ctx, parameter_overrides=params(dog_sigma=45.0))
     ex.add_node(dev)
     ex.add_node(est)
     got = _subscribe(
@@ -118,14 +118,14 @@ def test_threshold_node_tracks_through_topics(graph):
 
 def test_low_signal_reported_far_from_resonance(graph):
     ctx, ex, probe = graph
-    dev = MicroScannerNode(
+    dev = ScannerNode(
         context=ctx,
         drive_externally=True,
         parameter_overrides=params(
             seed=3, frame_size=1000, initial_angle=0.0, drive_frequency_hz=3000.0
         ),
     )
-    est = ScannerThresholdNode(context=ctx)
+    est = ScannerThresholdEkfNode(context=ctx)
     ex.add_node(dev)
     ex.add_node(est)
     diags = []
@@ -174,7 +174,7 @@ def _y_frame(first, n, fs=500e3, name="y_cap"):
 
 def test_threshold_node_rejects_malformed_frames(graph):
     ctx, ex, probe = graph
-    est = ScannerThresholdNode(context=ctx)
+    est = ScannerThresholdEkfNode(context=ctx)
     ex.add_node(est)
     pub_y = probe.create_publisher(AdcFrame, "/scanner/adc", FRAME_QOS)
     pub_v = probe.create_publisher(SignalFrame, "/scanner/drive", FRAME_QOS)
@@ -198,26 +198,26 @@ def test_threshold_node_rejects_malformed_frames(graph):
 
 def test_invalid_parameters_refused(ros_context):
     with pytest.raises(ParameterError, match="damping_ratio"):
-        MicroScannerNode(
+        ScannerNode(
             context=ros_context,
             drive_externally=True,
             parameter_overrides=params(damping_ratio=-1.0),
         )
     with pytest.raises(ParameterError, match="front_end"):
-        MicroScannerNode(
+        ScannerNode(
             context=ros_context,
             drive_externally=True,
             parameter_overrides=params(front_end="optical"),
         )
     with pytest.raises(ParameterError, match="lag"):
-        ScannerThresholdNode(context=ros_context, parameter_overrides=params(lag=100))
+        ScannerThresholdEkfNode(context=ros_context, parameter_overrides=params(lag=100))
     with pytest.raises(ParameterError, match="dog_width"):
-        ScannerThresholdNode(context=ros_context, parameter_overrides=params(dog_sigma=200.0))
+        ScannerThresholdEkfNode(context=ros_context, parameter_overrides=params(dog_sigma=200.0))
 
 
 def test_shared_amdm_front_end_publishes(graph):
     ctx, ex, probe = graph
-    dev = MicroScannerNode(
+    dev = ScannerNode(
         context=ctx,
         drive_externally=True,
         parameter_overrides=params(front_end="shared_amdm", frame_size=200),
@@ -236,12 +236,12 @@ def test_threshold_node_publishes_its_last_estimates_at_the_end_of_the_stream(gr
     record announces the end and every frame is done, the node publishes the last ``lag``
     (no shutdown, no flush call), once."""
     ctx, ex, probe = graph
-    dev = MicroScannerNode(
+    dev = ScannerNode(
         context=ctx,
         drive_externally=True,
         parameter_overrides=params(seed=3, frame_size=1000, duration_s=0.008, **DECAY),
     )
-    est = ScannerThresholdNode(context=ctx, parameter_overrides=params(dog_sigma=45.0))
+    est = ScannerThresholdEkfNode(context=ctx, parameter_overrides=params(dog_sigma=45.0))
     ex.add_node(dev)
     ex.add_node(est)
     got = _subscribe(probe, "/scanner", ("estimate", "estimate_plain"))

@@ -7,18 +7,18 @@ import pytest
 from conftest import params, spin_until
 from diagnostic_msgs.msg import DiagnosticArray
 
-from mems_estimation.nodes.resonator_observer_node import SdObserverNode
+from mems_estimation.nodes.resonator_observer_node import ResonatorObserverNode
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.devices.resonator import SdResonatorDevice
 from mems_sim.kernels.resonator_observer import KalmanObserver
-from mems_sim.nodes.resonator_node import SdResonatorNode
+from mems_sim.nodes.resonator_node import ResonatorNode
 from mems_sim.params import ParameterError
 from mems_sim.ros.qos import FRAME_QOS
 
 
 def test_device_publishes_bits_pulses_truth_and_loop_estimate(graph):
     ctx, ex, probe = graph
-    dev = SdResonatorNode(
+    dev = ResonatorNode(
         context=ctx,
         drive_externally=True,
         parameter_overrides=params(seed=4, frame_size=500, output_noise_std=0.5),
@@ -65,11 +65,11 @@ def test_device_publishes_bits_pulses_truth_and_loop_estimate(graph):
 
 def test_device_refuses_f0_above_nyquist_and_bad_q(ros_context):
     with pytest.raises(ParameterError, match="f0_hz"):
-        SdResonatorNode(
+        ResonatorNode(
             context=ros_context, drive_externally=True, parameter_overrides=params(f0_hz=6e5)
         )
     with pytest.raises(ParameterError, match="quality_factor"):
-        SdResonatorNode(
+        ResonatorNode(
             context=ros_context,
             drive_externally=True,
             parameter_overrides=params(quality_factor=0.0),
@@ -104,7 +104,7 @@ def _pulse_frame(first, n, fs=1e6):
 
 def test_observer_node_rejects_bad_bit_streams_on_diagnostics(graph):
     ctx, ex, probe = graph
-    obs = SdObserverNode(context=ctx, parameter_overrides=params(output_noise_std=0.5))
+    obs = ResonatorObserverNode(context=ctx, parameter_overrides=params(output_noise_std=0.5))
     ex.add_node(obs)
     pub_b = probe.create_publisher(AdcFrame, "/resonator/adc", FRAME_QOS)
     pub_p = probe.create_publisher(SignalFrame, "/resonator/drive", FRAME_QOS)
@@ -155,7 +155,7 @@ def test_observer_node_uses_sub_sample_pulse_timing(graph):
     frame (its estimate equals the core observer's given them); a drive frame with an
     offset outside [0, T) is rejected and counted."""
     ctx, ex, probe = graph
-    obs = SdObserverNode(context=ctx, parameter_overrides=params(output_noise_std=0.5))
+    obs = ResonatorObserverNode(context=ctx, parameter_overrides=params(output_noise_std=0.5))
     ex.add_node(obs)
     pub_b = probe.create_publisher(AdcFrame, "/resonator/adc", FRAME_QOS)
     pub_p = probe.create_publisher(SignalFrame, "/resonator/drive", FRAME_QOS)

@@ -28,12 +28,12 @@ from conftest import params, spin_until
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 
-from mems_estimation.nodes.imu_noise_identifier_node import NoiseIdentifierNode
+from mems_estimation.nodes.imu_noise_identifier_node import ImuNoiseIdentifierNode
 from mems_msgs.msg import AdcFrame
 from mems_sim.bag.info import bag_info
 from mems_sim.bag.player import read_messages
-from mems_sim.devices import imu as imu_noise
-from mems_sim.nodes.imu_node import ImuNoiseNode
+from mems_sim.devices import imu
+from mems_sim.nodes.imu_node import ImuNode
 from mems_sim.ros.frames import index_to_ns, time_to_ns
 from mems_sim.ros.qos import FRAME_QOS
 
@@ -52,9 +52,9 @@ def test_self_paced_emulator_stamps_from_wall_and_publishes_clock(graph):
     frames, clocks = [], []
     probe.create_subscription(AdcFrame, "/imu/adc", frames.append, FRAME_QOS)
     probe.create_subscription(Clock, "/clock", clocks.append, 10)
-    imu_noise.ImuNoiseModel(seed=0).generate(10)  # compile the kernels before pacing starts
+    imu.ImuNoiseModel(seed=0).generate(10)  # compile the kernels before pacing starts
     before = time.time_ns()
-    emu = ImuNoiseNode(
+    emu = ImuNode(
         context=ctx,
         parameter_overrides=params(
             publish_imu=False, frame_size=10, duration_s=1.0, publish_clock=20.0
@@ -86,7 +86,7 @@ def test_emulator_follows_clock_under_use_sim_time(graph):
     frames = []
     probe.create_subscription(AdcFrame, "/imu/adc", frames.append, FRAME_QOS)
     clock_pub = probe.create_publisher(Clock, "/clock", 10)
-    emu = ImuNoiseNode(
+    emu = ImuNode(
         context=ctx,
         parameter_overrides=[
             *params(publish_imu=False, frame_size=10),
@@ -197,7 +197,7 @@ def test_scenario_graph_is_on_one_timeline(realtime, tmp_path, domain_id):
     diags = []
     try:
         emu = graph.add_device(
-            ImuNoiseNode,
+            ImuNode,
             dict(duration_s=duration, frame_size=10, publish_imu=False),
             realtime=realtime,
         )
@@ -207,7 +207,7 @@ def test_scenario_graph_is_on_one_timeline(realtime, tmp_path, domain_id):
             )
         )
         ident = graph.add(
-            NoiseIdentifierNode(
+            ImuNoiseIdentifierNode(
                 context=graph.context, parameter_overrides=params(publish_period_s=0.0)
             )
         )

@@ -26,7 +26,7 @@ from mems_estimation.nodes.stage_average_node import (
 from mems_msgs.msg import AdcFrame, SignalFrame
 from mems_sim.bag.player import read_messages
 from mems_sim.bag.recorder import RecorderNode
-from mems_sim.nodes.stage_node import MicroStageNode
+from mems_sim.nodes.stage_node import StageNode
 from mems_sim.params import ParameterError
 from mems_sim.ros.frames import adc_physical, signal_data
 from mems_sim.ros.qos import FRAME_QOS
@@ -77,7 +77,7 @@ def test_zero_drive_noise_falls_as_sqrt_n_and_is_recorded(graph, tmp_path):
     tolerance; the node equals the core averager; /stage/adc_averaged recorded to MCAP
     reads back as published."""
     ctx, ex, probe = graph
-    dev = MicroStageNode(
+    dev = StageNode(
         context=ctx,
         drive_externally=True,
         parameter_overrides=params(
@@ -151,8 +151,8 @@ def test_driven_signal_passes_and_noise_averages(graph):
         frame_size=FRAME,
         gyro_enabled=False,
     )
-    noisy = MicroStageNode(context=ctx, drive_externally=True, parameter_overrides=params(**common))
-    clean = MicroStageNode(
+    noisy = StageNode(context=ctx, drive_externally=True, parameter_overrides=params(**common))
+    clean = StageNode(
         context=ctx,
         drive_externally=True,
         namespace="/clean",
@@ -227,7 +227,7 @@ def test_refusals_and_gap(graph):
     with pytest.raises(ParameterError, match="period_step"):
         StageAverageNode(context=ctx, parameter_overrides=params(period_step=0))
     # a gap starts the average again: n_avg counts up from 1 after it
-    dev = MicroStageNode(
+    dev = StageNode(
         context=ctx,
         drive_externally=True,
         parameter_overrides=params(

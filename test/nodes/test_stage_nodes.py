@@ -9,9 +9,9 @@ from conftest import params, spin_until
 from mems_estimation.filters.stage_ekf import FeedthroughCanceller, StageEkf, load_model, save_model
 from mems_estimation.identification.stage_gyro_calibration import Plan, identify_stage
 from mems_estimation.nodes.stage_ekf_node import StageEkfNode
-from mems_estimation.nodes.stage_gyro_calibration_node import GyroCalibrationNode
+from mems_estimation.nodes.stage_gyro_calibration_node import StageGyroCalibrationNode
 from mems_msgs.msg import AdcFrame, CalibrationResult, SignalFrame, StateEstimate
-from mems_sim.nodes.stage_node import MicroStageNode
+from mems_sim.nodes.stage_node import StageNode
 from mems_sim.params import ParameterError
 from mems_sim.ros.frames import adc_physical, signal_data
 from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
@@ -27,13 +27,13 @@ def yaml_path(tmp_path_factory):
 
 def test_graph_estimate_and_calibration(graph, yaml_path):
     ctx, ex, probe = graph
-    dev = MicroStageNode(
+    dev = StageNode(
         context=ctx,
         drive_externally=True,
         parameter_overrides=params(seed=3, n_trials=3, periods_per_trial=120, frame_size=20000),
     )
     ekf = StageEkfNode(context=ctx, parameter_overrides=params(params_yaml=yaml_path))
-    cal = GyroCalibrationNode(context=ctx, parameter_overrides=params(n_trials=3))
+    cal = StageGyroCalibrationNode(context=ctx, parameter_overrides=params(n_trials=3))
     for n in (dev, ekf, cal):
         ex.add_node(n)
     est, res, adc, drv = [], [], [], []
@@ -82,7 +82,7 @@ def test_insitu_mode_equals_core(graph, yaml_path):
     from mems_estimation.identification.stage_insitu import insitu_correct
 
     ctx, ex, probe = graph
-    dev = MicroStageNode(
+    dev = StageNode(
         context=ctx,
         drive_externally=True,
         parameter_overrides=params(
@@ -145,7 +145,7 @@ def _insitu_chain(graph, yaml_path, ns: str, origin: str) -> tuple:
     """Stage (``stamp_origin`` ``origin``), in-situ EKF and calibration node in ``ns``, the
     sweep stepped through; (calibration node, its result after close)."""
     ctx, ex, probe = graph
-    dev = MicroStageNode(
+    dev = StageNode(
         context=ctx,
         namespace=ns,
         drive_externally=True,
@@ -163,7 +163,7 @@ def _insitu_chain(graph, yaml_path, ns: str, origin: str) -> tuple:
         namespace=ns,
         parameter_overrides=params(device_namespace=ns, params_yaml=yaml_path, insitu=True),
     )
-    cal = GyroCalibrationNode(
+    cal = StageGyroCalibrationNode(
         context=ctx, namespace=ns, parameter_overrides=params(device_namespace=ns, n_trials=3)
     )
     for n in (dev, ekf, cal):
@@ -217,11 +217,11 @@ def test_refusals(ros_context, yaml_path, tmp_path):
             context=ros_context, parameter_overrides=params(params_yaml=yaml_path, channels="1A,3C")
         )
     with pytest.raises(ParameterError, match="safe_tilt_rad"):
-        MicroStageNode(
+        StageNode(
             context=ros_context, drive_externally=True, parameter_overrides=params(amp_hi_v=4.0)
         )
     with pytest.raises(ParameterError, match="sample_rate_hz"):
-        MicroStageNode(
+        StageNode(
             context=ros_context,
             drive_externally=True,
             parameter_overrides=params(sample_rate_hz=0.0),
@@ -230,7 +230,7 @@ def test_refusals(ros_context, yaml_path, tmp_path):
 
 def test_nonfinite_frames_rejected_and_counted(graph, yaml_path):
     ctx, ex, probe = graph
-    dev = MicroStageNode(
+    dev = StageNode(
         context=ctx,
         drive_externally=True,
         parameter_overrides=params(
@@ -267,7 +267,7 @@ def test_imu_messages_match_gyro_frames(graph):
     from sensor_msgs.msg import Imu
 
     ctx, ex, probe = graph
-    dev = MicroStageNode(
+    dev = StageNode(
         context=ctx,
         drive_externally=True,
         parameter_overrides=params(

@@ -12,7 +12,12 @@ from pathlib import Path
 import pytest
 from conftest import spin_until
 
-from mems_scenarios.container import ContainerError, node_label, resolve_plugin, split_command_line
+from mems_scenarios.component_container import (
+    ContainerError,
+    node_label,
+    resolve_plugin,
+    split_command_line,
+)
 
 CONTAINER = str(Path(sys.executable).parent / "component_container")
 
@@ -51,12 +56,12 @@ def test_malformed_command_lines_are_refused(argv, text):
 
 
 def test_plugin_names_a_node_executable_or_a_node_class():
-    from mems_estimation.nodes.imu_noise_identifier_node import NoiseIdentifierNode
-    from mems_sim.nodes.imu_node import ImuNoiseNode
+    from mems_estimation.nodes.imu_noise_identifier_node import ImuNoiseIdentifierNode
+    from mems_sim.nodes.imu_node import ImuNode
 
-    assert resolve_plugin("imu_node") is ImuNoiseNode
-    assert resolve_plugin("imu_noise_identifier_node") is NoiseIdentifierNode
-    assert resolve_plugin("mems_sim.nodes.imu_node:ImuNoiseNode") is ImuNoiseNode
+    assert resolve_plugin("imu_node") is ImuNode
+    assert resolve_plugin("imu_noise_identifier_node") is ImuNoiseIdentifierNode
+    assert resolve_plugin("mems_sim.nodes.imu_node:ImuNode") is ImuNode
     for plugin, text in [
         ("imu_nod", "not an executable of mems_emulator"),
         ("mcap_record", "does not run a node"),
@@ -68,11 +73,11 @@ def test_plugin_names_a_node_executable_or_a_node_class():
 
 
 def test_error_lines_name_the_node_by_its_remappings_or_class_defaults():
-    from mems_sim.nodes.imu_node import ImuNoiseNode
+    from mems_sim.nodes.imu_node import ImuNode
 
     args = ["--ros-args", "-r", "__ns:=/a/b", "-r", "__node:=x"]
-    assert node_label("imu_node", args, ImuNoiseNode) == "node /a/b/x (imu_node)"
-    assert node_label("imu_node", [], ImuNoiseNode) == "node /imu/imu (imu_node)"
+    assert node_label("imu_node", args, ImuNode) == "node /a/b/x (imu_node)"
+    assert node_label("imu_node", [], ImuNode) == "node /imu/imu (imu_node)"
 
 
 def _run(args, env) -> subprocess.CompletedProcess:

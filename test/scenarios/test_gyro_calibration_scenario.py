@@ -8,7 +8,7 @@ import pytest
 from figure_checks import assert_figures, met_of, verdict
 
 from mems_estimation.identification.stage_gyro_calibration import T1, T2
-from mems_scenarios import stage_gyro_calibration as gyro_calibration
+from mems_scenarios import gyro_calibration
 from mems_scenarios.base import ScenarioError, ScenarioOptions
 
 

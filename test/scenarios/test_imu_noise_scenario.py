@@ -15,7 +15,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 
-from mems_estimation.nodes.imu_noise_identifier_node import NoiseIdentifierNode
+from mems_estimation.nodes.imu_noise_identifier_node import ImuNoiseIdentifierNode
 from mems_estimation.tools.identify_noise import identify_bag
 from mems_msgs.msg import NoiseModel
 from mems_scenarios import imu_noise
@@ -105,7 +105,7 @@ def test_replayed_bag_through_topics_gives_live_output(two_runs, ros_context):
 
     path = two_runs[0]["mcap"]
     live = _final_model(path)
-    ident = NoiseIdentifierNode(
+    ident = ImuNoiseIdentifierNode(
         context=ros_context,
         namespace="imu",
         parameter_overrides=[Parameter("publish_period_s", value=0.0)],

@@ -193,7 +193,7 @@ def test_node_container_becomes_one_container_command_line(tmp_path, subprocess_
               remap:
               - {from: truth, to: truth_2}
             - pkg: mems_emulator
-              plugin: mems_estimation.nodes.imu_noise_identifier_node:NoiseIdentifierNode
+              plugin: mems_estimation.nodes.imu_noise_identifier_node:ImuNoiseIdentifierNode
         """,
     )
     assert commands(run_graph([f, "--dry-run"], subprocess_env)) == [
@@ -203,7 +203,7 @@ def test_node_container_becomes_one_container_command_line(tmp_path, subprocess_
             # every node of the process
             *("--node", "imu_node", "--ros-args", "-r", "__node:=imu", "-r", "__ns:=/dev"),
             *("-p", "frame_size:=50", "-r", "truth:=truth_2"),
-            *("--node", "mems_estimation.nodes.imu_noise_identifier_node:NoiseIdentifierNode"),
+            *("--node", "mems_estimation.nodes.imu_noise_identifier_node:ImuNoiseIdentifierNode"),
             "--ros-args",
         ]
     ]

@@ -6,7 +6,7 @@ campaign over seeds runs in the acceptance tier."""
 import pytest
 from figure_checks import assert_figures, met_of, verdict
 
-from mems_scenarios import scanner_amdm_shared_electrodes as sse
+from mems_scenarios import scanner_shared_electrodes as sse
 from mems_scenarios.base import ScenarioOptions
 
 

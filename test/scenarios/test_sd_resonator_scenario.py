@@ -3,7 +3,7 @@
 import pytest
 from figure_checks import assert_figures, met_of, verdict
 
-from mems_scenarios import resonator_sigma_delta as sd_resonator
+from mems_scenarios import sd_resonator
 from mems_scenarios.base import ScenarioOptions
 
 

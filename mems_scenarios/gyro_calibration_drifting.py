@@ -1,4 +1,4 @@
-"""The drifting stage of scenario ``gyro_calibration`` (:mod:`mems_scenarios.stage_gyro_calibration`):
+"""The drifting stage of scenario ``gyro_calibration`` (:mod:`mems_scenarios.gyro_calibration`):
 its instances in the node graph, its identification and the rows that run on the ROS-free
 cores (the thesis' procedure without the in-situ correction, the ablation, off-axis
 rejection of the device as built), and its table (Chen 2018 eqs. 27, 44-47). See
@@ -101,7 +101,7 @@ def drifting_table(cores: dict, graph_runs: dict | None = None) -> dict:
     """The drifting device's figures and rows (:func:`drifting_device`) from its cores'
     rows (:func:`drifting_cores`) and, with ``graph_runs``, the in-situ rows of the node
     graph (namespace of :data:`DRIFTING` ->
-    :func:`~mems_scenarios.stage_gyro_calibration.recorded_run` with the EKF's in-situ
+    :func:`~mems_scenarios.gyro_calibration.recorded_run` with the EKF's in-situ
     counters). Returns dict(figures, rows, runs, rms_ppm, off_axis)."""
     runs = {T: dict(r) for T, r in cores["runs"].items()}
     off, misreg, dy_um = cores["off"], cores["misreg"], cores["dy_um"]

@@ -62,19 +62,19 @@ from mems_estimation.identification.stage_gyro_calibration import (
 from mems_estimation.identification.stage_identification import evaluate, fold_period
 from mems_scenarios.contract import RUN_INFO_TOPIC, AnalysisError, ScenarioResult, read_run_info
 from mems_scenarios.figures import Figure, cell, is_finite, met_cell
-from mems_scenarios.stage_graph import (  # noqa: F401  (FRAME, RECORDED: public names of the scenario)
-    FRAME,
-    RECORDED,
-    recorded_counters,
-    run_stage_graph,
-)
-from mems_scenarios.stage_gyro_drifting import (
+from mems_scenarios.gyro_calibration_drifting import (
     DRIFTING,
     INSTANCES,
     drifting_cores,
     drifting_models,
     drifting_plan,
     drifting_table,
+)
+from mems_scenarios.stage_graph import (  # noqa: F401  (FRAME, RECORDED: public names of the scenario)
+    FRAME,
+    RECORDED,
+    recorded_counters,
+    run_stage_graph,
 )
 from mems_sim.devices.stage import STAGE_SPECS
 from mems_sim.devices.stage_gyro import GYRO_SPECS
