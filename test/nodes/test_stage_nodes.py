@@ -25,6 +25,40 @@ def yaml_path(tmp_path_factory):
     return str(p)
 
 
+def _subscribe(probe) -> tuple[list, list, list]:
+    """Lists filled with the stage's ``adc`` and ``drive`` frames and the EKF's estimates."""
+    adc, drv, est = [], [], []
+    probe.create_subscription(AdcFrame, "/stage/adc", adc.append, FRAME_QOS)
+    probe.create_subscription(SignalFrame, "/stage/drive", drv.append, FRAME_QOS)
+    probe.create_subscription(StateEstimate, "/stage/estimate", est.append, FRAME_QOS)
+    return adc, drv, est
+
+
+def _step_through(ex, dev, ekf, each=None) -> int:
+    """Step the stage to its end, spinning after each frame until the EKF has taken it (and
+    calling ``each()`` then); the number of frames."""
+    frames = 0
+    while dev.step():
+        frames += 1
+        spin_until(ex, lambda: ekf.frames_done >= frames, timeout=30)
+        if each is not None:
+            each()
+    return frames
+
+
+def _bad_drive_frame(data: list[float]) -> SignalFrame:
+    """A two-sample drive frame without the sweep's phase/trial channels."""
+    bad = SignalFrame(
+        first_sample_index=10**9,
+        sample_rate_hz=625e3,
+        num_samples=2,
+        channel_names=["u", "v_bias", "f_drive"],
+        channel_units=["V", "V", "Hz"],
+    )
+    bad.data = array.array("d", data)
+    return bad
+
+
 def test_graph_estimate_and_calibration(graph, yaml_path):
     ctx, ex, probe = graph
     dev = StageNode(
@@ -36,10 +70,8 @@ def test_graph_estimate_and_calibration(graph, yaml_path):
     cal = StageGyroCalibrationNode(context=ctx, parameter_overrides=params(n_trials=3))
     for n in (dev, ekf, cal):
         ex.add_node(n)
-    est, res, adc, drv = [], [], [], []
-    probe.create_subscription(AdcFrame, "/stage/adc", adc.append, FRAME_QOS)
-    probe.create_subscription(SignalFrame, "/stage/drive", drv.append, FRAME_QOS)
-    probe.create_subscription(StateEstimate, "/stage/estimate", est.append, FRAME_QOS)
+    adc, drv, est = _subscribe(probe)
+    res = []
     probe.create_subscription(CalibrationResult, "/stage/gyro_scale_factor", res.append, RESULT_QOS)
     assert spin_until(
         ex,
@@ -49,10 +81,7 @@ def test_graph_estimate_and_calibration(graph, yaml_path):
             and ekf.pub.get_subscription_count() >= 2
         ),
     )
-    frames = 0
-    while dev.step():
-        frames += 1
-        spin_until(ex, lambda: ekf.frames_done >= frames, timeout=30)
+    frames = _step_through(ex, dev, ekf)
     assert spin_until(
         ex, lambda: len(est) == frames and len(adc) == frames and len(drv) == frames, timeout=30
     )
@@ -92,10 +121,7 @@ def test_insitu_mode_equals_core(graph, yaml_path):
     ekf = StageEkfNode(context=ctx, parameter_overrides=params(params_yaml=yaml_path, insitu=True))
     for n in (dev, ekf):
         ex.add_node(n)
-    est, adc, drv = [], [], []
-    probe.create_subscription(AdcFrame, "/stage/adc", adc.append, FRAME_QOS)
-    probe.create_subscription(SignalFrame, "/stage/drive", drv.append, FRAME_QOS)
-    probe.create_subscription(StateEstimate, "/stage/estimate", est.append, FRAME_QOS)
+    adc, drv, est = _subscribe(probe)
     assert spin_until(
         ex,
         lambda: (
@@ -104,12 +130,12 @@ def test_insitu_mode_equals_core(graph, yaml_path):
             and ekf.pub.get_subscription_count() >= 1
         ),
     )
-    frames = 0
-    while dev.step():
-        frames += 1
-        spin_until(ex, lambda: ekf.frames_done >= frames, timeout=30)
+
+    def processed_once_complete():
         if not dev.finished:
             assert not est  # the sweep is processed only once complete
+
+    frames = _step_through(ex, dev, ekf, processed_once_complete)
     assert spin_until(ex, lambda: len(est) == frames and len(adc) == frames, timeout=30)
     assert [m.first_sample_index for m in est] == [m.first_sample_index for m in adc]
     assert [(m.header.stamp.sec, m.header.stamp.nanosec) for m in est] == [
@@ -129,15 +155,7 @@ def test_insitu_mode_equals_core(graph, yaml_path):
     # a drive frame without the sweep's phase/trial channels is rejected and counted
     bad_pub = probe.create_publisher(SignalFrame, "/stage/drive", FRAME_QOS)
     assert spin_until(ex, lambda: bad_pub.get_subscription_count() >= 1)
-    bad = SignalFrame(
-        first_sample_index=10**9,
-        sample_rate_hz=625e3,
-        num_samples=2,
-        channel_names=["u", "v_bias", "f_drive"],
-        channel_units=["V", "V", "Hz"],
-    )
-    bad.data = array.array("d", [0.0, 1.0, 1700.0, 0.0, 1.0, 1700.0])
-    bad_pub.publish(bad)
+    bad_pub.publish(_bad_drive_frame([0.0, 1.0, 1700.0, 0.0, 1.0, 1700.0]))
     assert spin_until(ex, lambda: ekf.diag.counters.get("rejected_frames", 0) == 1)
 
 
@@ -177,10 +195,7 @@ def _insitu_chain(graph, yaml_path, ns: str, origin: str) -> tuple:
             and ekf.pub.get_subscription_count() >= 1
         ),
     )
-    frames = 0
-    while dev.step():
-        frames += 1
-        spin_until(ex, lambda: ekf.frames_done >= frames, timeout=30)
+    frames = _step_through(ex, dev, ekf)
     assert spin_until(
         ex,
         lambda: cal.estimates_received == frames and cal.gyro_frames_received == frames,
@@ -245,15 +260,7 @@ def test_nonfinite_frames_rejected_and_counted(graph, yaml_path):
         ex,
         lambda: dev.pub_adc.get_subscription_count() >= 1 and bad_pub.get_subscription_count() >= 1,
     )
-    bad = SignalFrame(
-        first_sample_index=10**9,
-        sample_rate_hz=625e3,
-        num_samples=2,
-        channel_names=["u", "v_bias", "f_drive"],
-        channel_units=["V", "V", "Hz"],
-    )
-    bad.data = array.array("d", [0.0, float("nan"), 0.0, 0.0, 1.0, 1700.0])
-    bad_pub.publish(bad)
+    bad_pub.publish(_bad_drive_frame([0.0, float("nan"), 0.0, 0.0, 1.0, 1700.0]))
     assert spin_until(ex, lambda: ekf.diag.counters.get("rejected_frames", 0) == 1)
     for _ in range(3):
         dev.step()
