@@ -78,6 +78,24 @@ def make_frame(index: int, num: int = 100, channels: int = 3, frame_id: str = "i
     return msg
 
 
+def write_adc_bag(path: str, topic: str, n: int, step_ns: int) -> list[bytes]:
+    """A bag at ``path`` of ``n`` :func:`make_frame` frames on ``topic``, ``step_ns`` apart
+    from now (log and publish time); their serialized payloads."""
+    writer = McapBagWriter(path)
+    writer.add_topic(
+        topic,
+        "mems_msgs/msg/AdcFrame",
+        schema_text("mems_msgs/msg/AdcFrame"),
+        qos_profiles_yaml([FRAME_QOS]),
+    )
+    payloads = [serialize_message(make_frame(k)) for k in range(n)]
+    t0 = time.time_ns()
+    for k, data in enumerate(payloads):
+        writer.write(topic, data, t0 + k * step_ns, t0 + k * step_ns)
+    writer.close()
+    return payloads
+
+
 def make_imu(i: int) -> Imu:
     msg = Imu()
     msg.header.stamp.sec = 100 + i
@@ -384,18 +402,7 @@ def test_transient_local_and_best_effort(ctx, tmp_path):
 def test_player_round_trip(ctx, tmp_path):
     """Write a bag, play it (in-process Player), record the replay; bytes identical."""
     src = str(tmp_path / "src.mcap")
-    writer = McapBagWriter(src)
-    writer.add_topic(
-        "/p/adc",
-        "mems_msgs/msg/AdcFrame",
-        schema_text("mems_msgs/msg/AdcFrame"),
-        qos_profiles_yaml([FRAME_QOS]),
-    )
-    payloads = [serialize_message(make_frame(k)) for k in range(50)]
-    t0 = time.time_ns()
-    for k, data in enumerate(payloads):
-        writer.write("/p/adc", data, t0 + k * 2_000_000, t0 + k * 2_000_000)
-    writer.close()
+    payloads = write_adc_bag(src, "/p/adc", 50, 2_000_000)
 
     out = str(tmp_path / "replay.mcap")
     node = rclpy.create_node("player", context=ctx)
@@ -526,18 +533,7 @@ def test_cli_play_round_trip(ctx, tmp_path):
     unpaced, a recorder behind by more than the 1000-frame history on a loaded machine
     loses frames, and a lossless path in a test uses the project's flow control."""
     src = str(tmp_path / "src.mcap")
-    writer = McapBagWriter(src)
-    writer.add_topic(
-        "/c/adc",
-        "mems_msgs/msg/AdcFrame",
-        schema_text("mems_msgs/msg/AdcFrame"),
-        qos_profiles_yaml([FRAME_QOS]),
-    )
-    payloads = [serialize_message(make_frame(k)) for k in range(2000)]
-    t0 = time.time_ns()
-    for k, data in enumerate(payloads):
-        writer.write("/c/adc", data, t0 + k * 1_000_000, t0 + k * 1_000_000)
-    writer.close()
+    payloads = write_adc_bag(src, "/c/adc", 2000, 1_000_000)
     out = str(tmp_path / "replay.mcap")
     recorder = RecorderNode(out, topics=["/c/adc", "/clock"], progress_topic="/c/adc", context=ctx)
     executor = SingleThreadedExecutor(context=ctx)
