@@ -1,7 +1,5 @@
 """Shared-electrode scanner (AMDM) emulator node and EKF/UKF estimator node through real topics."""
 
-import array
-
 import numpy as np
 import pytest
 from conftest import params, spin_until
@@ -12,6 +10,7 @@ from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.devices.scanner_amdm import AmdmScannerDevice, chain_delay, resolve_amdm
 from mems_sim.nodes.scanner_amdm_node import ScannerAmdmNode
 from mems_sim.params import ParameterError
+from mems_sim.ros.frames import make_adc_frame, make_signal_frame
 from mems_sim.ros.qos import FRAME_QOS
 
 RUN = dict(
@@ -93,30 +92,27 @@ def test_emulator_and_estimators_through_topics(graph):
 
 
 def _adc(first, y, fs=1e6, name="y_cap"):
-    m = AdcFrame(
-        first_sample_index=first,
-        sample_rate_hz=fs,
-        num_samples=len(y),
+    lsb = 20.0 / 65536
+    return make_adc_frame(
+        np.round(np.asarray(y) / lsb).astype(int).reshape(-1, 1),
+        first,
+        fs,
         bits=16,
         channel_names=[name],
         channel_units=["V"],
+        lsb=[lsb],
+        full_scale=[10.0],
     )
-    lsb = 20.0 / 65536
-    m.lsb, m.offset, m.full_scale = (array.array("d", [v]) for v in (lsb, 0.0, 10.0))
-    m.codes = array.array("i", [int(round(v / lsb)) for v in y])
-    return m
 
 
 def _drive(first, v, fs=1e6):
-    m = SignalFrame(
-        first_sample_index=first,
-        sample_rate_hz=fs,
-        num_samples=len(v),
+    return make_signal_frame(
+        np.column_stack([v, np.full(len(v), 25e3)]),
+        first,
+        fs,
         channel_names=["v_drive", "f_drive"],
         channel_units=["V", "Hz"],
     )
-    m.data = array.array("d", np.column_stack([v, np.full(len(v), 25e3)]).ravel().tolist())
-    return m
 
 
 def test_estimator_rejects_bad_frames_and_reports_low_signal(graph):

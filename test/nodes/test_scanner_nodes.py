@@ -1,7 +1,5 @@
 """Micro-scanner device node (dc_transimpedance / shared_amdm) and threshold hybrid-EKF node."""
 
-import array
-
 import numpy as np
 import pytest
 from conftest import params, spin_until
@@ -15,6 +13,7 @@ from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.devices.scanner import MicroScannerDevice
 from mems_sim.nodes.scanner_node import ScannerNode, quantize
 from mems_sim.params import ParameterError
+from mems_sim.ros.frames import make_adc_frame, make_signal_frame
 from mems_sim.ros.qos import FRAME_QOS
 
 # free decay from 0.1 rad: short, with threshold crossings at good SNR
@@ -159,17 +158,16 @@ def test_low_signal_reported_far_from_resonance(graph):
 
 
 def _y_frame(first, n, fs=500e3, name="y_cap"):
-    m = AdcFrame(
-        first_sample_index=first,
-        sample_rate_hz=fs,
-        num_samples=n,
+    return make_adc_frame(
+        np.zeros((n, 1), dtype=int),
+        first,
+        fs,
         bits=16,
         channel_names=[name],
         channel_units=["V"],
+        lsb=[20 / 65536],
+        full_scale=[10.0],
     )
-    m.lsb, m.offset, m.full_scale = (array.array("d", [v]) for v in (20 / 65536, 0.0, 10.0))
-    m.codes = array.array("i", [0] * n)
-    return m
 
 
 def test_threshold_node_rejects_malformed_frames(graph):
@@ -183,14 +181,9 @@ def test_threshold_node_rejects_malformed_frames(graph):
     )
     pub_y.publish(_y_frame(0, 100, fs=1e6))  # wrong rate
     pub_y.publish(_y_frame(0, 100, name="other"))  # wrong channel
-    bad = SignalFrame(
-        first_sample_index=0,
-        sample_rate_hz=500e3,
-        num_samples=2,
-        channel_names=["v_drive"],
-        channel_units=["V"],
+    bad = make_signal_frame(
+        [[0.0], [float("nan")]], 0, 500e3, channel_names=["v_drive"], channel_units=["V"]
     )
-    bad.data = array.array("d", [0.0, float("nan")])
     pub_v.publish(bad)  # non-finite
     assert spin_until(ex, lambda: est.diag.counters.get("rejected_frames", 0) == 3)
     assert est.frames_done == 0

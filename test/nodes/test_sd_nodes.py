@@ -1,7 +1,5 @@
 """Sigma-delta resonator device node and observer node through real topics."""
 
-import array
-
 import numpy as np
 import pytest
 from conftest import params, spin_until
@@ -13,6 +11,7 @@ from mems_sim.devices.resonator import SdResonatorDevice
 from mems_sim.kernels.resonator_observer import KalmanObserver
 from mems_sim.nodes.resonator_node import ResonatorNode
 from mems_sim.params import ParameterError
+from mems_sim.ros.frames import make_adc_frame, make_signal_frame
 from mems_sim.ros.qos import FRAME_QOS
 
 
@@ -77,29 +76,22 @@ def test_device_refuses_f0_above_nyquist_and_bad_q(ros_context):
 
 
 def _bit_frame(first, codes, fs=1e6):
-    m = AdcFrame(
-        first_sample_index=first,
-        sample_rate_hz=fs,
-        num_samples=len(codes),
+    return make_adc_frame(
+        np.asarray(codes).reshape(-1, 1),
+        first,
+        fs,
         bits=1,
         channel_names=["sd_bit"],
         channel_units=["V"],
+        lsb=[1.0],
+        full_scale=[1.0],
     )
-    m.lsb, m.offset, m.full_scale = (array.array("d", [v]) for v in (1.0, 0.0, 1.0))
-    m.codes = array.array("i", [int(c) for c in codes])
-    return m
 
 
 def _pulse_frame(first, n, fs=1e6):
-    m = SignalFrame(
-        first_sample_index=first,
-        sample_rate_hz=fs,
-        num_samples=n,
-        channel_names=["pulse"],
-        channel_units=["V"],
+    return make_signal_frame(
+        np.zeros((n, 1)), first, fs, channel_names=["pulse"], channel_units=["V"]
     )
-    m.data = array.array("d", [0.0] * n)
-    return m
 
 
 def test_observer_node_rejects_bad_bit_streams_on_diagnostics(graph):
@@ -138,16 +130,13 @@ def test_observer_node_rejects_bad_bit_streams_on_diagnostics(graph):
 
 
 def _drive_frame(first, pulses, starts, widths, fs=1e6):
-    n = len(pulses)
-    m = SignalFrame(
-        first_sample_index=first,
-        sample_rate_hz=fs,
-        num_samples=n,
+    return make_signal_frame(
+        np.column_stack([pulses, starts, widths]),
+        first,
+        fs,
         channel_names=["pulse", "pulse_start", "pulse_width"],
         channel_units=["V", "s", "s"],
     )
-    m.data = array.array("d", np.column_stack([pulses, starts, widths]).ravel().tolist())
-    return m
 
 
 def test_observer_node_uses_sub_sample_pulse_timing(graph):

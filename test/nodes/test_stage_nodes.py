@@ -1,7 +1,5 @@
 """Micro-stage, stage EKF and gyro calibration nodes through real topics (Chen 2018 ch. 3)."""
 
-import array
-
 import numpy as np
 import pytest
 from conftest import params, spin_until
@@ -13,7 +11,7 @@ from mems_estimation.nodes.stage_gyro_calibration_node import StageGyroCalibrati
 from mems_msgs.msg import AdcFrame, CalibrationResult, SignalFrame, StateEstimate
 from mems_sim.nodes.stage_node import StageNode
 from mems_sim.params import ParameterError
-from mems_sim.ros.frames import adc_physical, signal_data
+from mems_sim.ros.frames import adc_physical, make_signal_frame, signal_data
 from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
 
 
@@ -48,15 +46,13 @@ def _step_through(ex, dev, ekf, each=None) -> int:
 
 def _bad_drive_frame(data: list[float]) -> SignalFrame:
     """A two-sample drive frame without the sweep's phase/trial channels."""
-    bad = SignalFrame(
-        first_sample_index=10**9,
-        sample_rate_hz=625e3,
-        num_samples=2,
+    return make_signal_frame(
+        np.reshape(data, (2, 3)),
+        10**9,
+        625e3,
         channel_names=["u", "v_bias", "f_drive"],
         channel_units=["V", "V", "Hz"],
     )
-    bad.data = array.array("d", data)
-    return bad
 
 
 def test_graph_estimate_and_calibration(graph, yaml_path):
