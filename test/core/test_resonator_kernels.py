@@ -9,12 +9,9 @@ equal floats (same bits) for finite inputs, so recordings and reference tables d
 move.  Checked here on the 6-state model and on the adaptive observer's Jacobian pattern
 (7 and 8 states), with a covariance that starts with exact zeros (the device's prior) and
 with random positive-definite ones; the frame checks keep their results and messages.
-The whole kernels (device, observers) against the old ones: ``bench/bench_sd_resonator.py
---check-only``, and the slow test below.
+The whole kernels (device, observers) against the old ones (test/resonator_oracles.py):
+``bench/bench_sd_resonator.py --check-only``, and the slow test below.
 """
-
-import importlib
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -213,15 +210,15 @@ def test_frame_checks_accept():
 
 
 @pytest.mark.slow
-def test_kernels_equal_old_reference(monkeypatch):
+def test_kernels_equal_old_reference():
     """Device frames and Kalman observer outputs (with their carried states) equal bit for
-    bit to the old generic-loop kernels kept in bench/bench_sd_resonator.py, the adaptive
+    bit to the old generic-loop kernels kept in test/resonator_oracles.py, the adaptive
     observer's (analytic f0 Jacobian column against the old central difference) within
     1e-6 of each output's scale with the same monitor resets (one seed, 50,000 samples per
     case)."""
-    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2] / "bench"))
-    bench = importlib.import_module("bench_sd_resonator")  # (its cached kernels need the name)
-    assert bench.check_equal(seeds=(5,), n=50_000, frame=1000)
+    from resonator_oracles import check_equal
+
+    assert check_equal(seeds=(5,), n=50_000, frame=1000)
 
 
 # ------------------------------------------------ adaptive observer: analytic f0 Jacobian
