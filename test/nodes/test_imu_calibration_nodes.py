@@ -19,6 +19,13 @@ from mems_sim.params import ParameterError
 from mems_sim.ros.qos import FRAME_QOS, RESULT_QOS
 
 
+def _acc_rate(imu: list) -> tuple[np.ndarray, np.ndarray]:
+    """The (n, 3) linear accelerations [m/s^2] and angular velocities [rad/s] of Imu messages."""
+    acc = [[m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z] for m in imu]
+    rate = [[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z] for m in imu]
+    return np.array(acc), np.array(rate)
+
+
 def _short_profile(path):
     """multi_position with 8 s segments (96 s, 9600 samples at 100 Hz)."""
     prof = builtin_profile("multi_position")
@@ -96,12 +103,7 @@ def test_calibration_and_corrected_output(graph, tmp_path):
     for _ in range(5):
         emu2.step()
     assert spin_until(ex, lambda: len(imu) == 500)
-    acc = np.array(
-        [[m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z] for m in imu]
-    )
-    rate = np.array(
-        [[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z] for m in imu]
-    )
+    acc, rate = _acc_rate(imu)
     # z up at rest: the ADIS16350 device's 0.5 % scale factors and 0.12 deg misalignments
     # leave ~0.05 m/s^2 raw; corrected: the mean is +g within the noise and the bias error
     assert np.abs(acc.mean(0) - [0, 0, 9.80665]).max() < 0.01
@@ -158,12 +160,7 @@ def test_corrector_follows_a_temperature_topic(graph, tmp_path):
     for _ in range(3):
         emu.step()
     assert spin_until(ex, lambda: len(imu) == 300)
-    acc = np.array(
-        [[m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z] for m in imu]
-    )
-    rate = np.array(
-        [[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z] for m in imu]
-    )
+    acc, rate = _acc_rate(imu)
     assert np.abs(acc.mean(0) - [0, 0, 9.80665]).max() < 0.02
     assert np.abs(rate.mean(0)).max() < 3e-3  # b_T x 20 K would leave 0.035 rad/s
 
