@@ -22,13 +22,12 @@ os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 import numpy as np
 import rclpy
 from mcap.reader import make_reader
+from process_tools import keep_all_publisher
 from rclpy.context import Context
 from rclpy.duration import Duration
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from mems_msgs.msg import SignalFrame
 from mems_sim.ros.frames import make_signal_frame
-from mems_sim.ros.qos import FRAME_QOS
 
 TOPIC = "/bench/frames"
 SAMPLES = 1000
@@ -55,17 +54,7 @@ def _publish(rec, topic: str, rate_hz: float, seconds: float, out: Path, domain:
     ctx = Context()
     rclpy.init(context=ctx, domain_id=domain)
     node = rclpy.create_node("bench_pub", context=ctx)
-    # KEEP_ALL: a lagging recorder pushes back on the publisher instead of losing frames,
-    # so the achieved rate is the recorder's sustained rate and any loss is the recorder's.
-    qos = QoSProfile(
-        reliability=ReliabilityPolicy.RELIABLE,
-        history=HistoryPolicy.KEEP_ALL,
-        depth=FRAME_QOS.depth,
-    )
-    pub = node.create_publisher(SignalFrame, topic, qos)
-    deadline = time.monotonic() + 30
-    while pub.get_subscription_count() < 1 and time.monotonic() < deadline:
-        time.sleep(0.05)
+    pub = keep_all_publisher(node, SignalFrame, topic)
     data = np.random.default_rng(0).normal(size=(SAMPLES, 1))
     sent, refused, t0 = 0, 0, time.monotonic()
     while time.monotonic() - t0 < seconds:

@@ -30,13 +30,12 @@ import numpy as np
 import rclpy
 import yaml
 from mcap.reader import make_reader
+from process_tools import keep_all_publisher
 from rclpy.context import Context
 from rclpy.duration import Duration
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from mems_msgs.msg import SignalFrame
 from mems_sim.ros.frames import make_signal_frame
-from mems_sim.ros.qos import FRAME_QOS
 
 SAMPLES = 1000
 SECONDS = 1.5
@@ -88,15 +87,7 @@ def stage(rate_hz: float, extra: list[str], out: Path, domain: int, tag: str) ->
     rclpy.init(context=ctx, domain_id=domain)
     try:
         node = rclpy.create_node("bench_split_pub", context=ctx)
-        qos = QoSProfile(
-            reliability=ReliabilityPolicy.RELIABLE,
-            history=HistoryPolicy.KEEP_ALL,
-            depth=FRAME_QOS.depth,
-        )
-        pub = node.create_publisher(SignalFrame, topic, qos)
-        deadline = time.monotonic() + 30
-        while pub.get_subscription_count() < 1 and time.monotonic() < deadline:
-            time.sleep(0.05)
+        pub = keep_all_publisher(node, SignalFrame, topic)
         blocks = np.random.default_rng(0).normal(size=(BLOCKS, SAMPLES, 1))
         sent, t0 = 0, time.monotonic()
         while time.monotonic() - t0 < SECONDS:

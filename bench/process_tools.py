@@ -1,6 +1,6 @@
 """Helpers of the benches that run a graph as processes (bench_device_processes.py,
 bench_stage_ekf.py --graph-processes): the processes' environment and CPU, and the
-emulator's timing read back from the recording.
+emulator's timing read back from the recording; the recorder benches' KEEP_ALL publisher.
 
 The emulator is its executable with ``start_when_matched`` and ``exit_when_acknowledged``
 (:func:`device_parameters`); what the benches measure of it comes from the MCAP
@@ -211,3 +211,24 @@ def device_timing(path, namespace: str, pace: float, topic: str = "adc") -> dict
             for t, e in record.items()
         },
     )
+
+
+def keep_all_publisher(node, msg_type, topic: str, timeout_s: float = 30.0):
+    """A RELIABLE, KEEP_ALL publisher of ``topic`` (FRAME_QOS's depth), returned once a
+    subscriber matched it or ``timeout_s`` passed. KEEP_ALL: a lagging recorder pushes back on
+    the publisher instead of losing frames, so the achieved rate is the recorder's sustained
+    rate and any loss is the recorder's."""
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    from mems_sim.ros.qos import FRAME_QOS
+
+    qos = QoSProfile(
+        reliability=ReliabilityPolicy.RELIABLE,
+        history=HistoryPolicy.KEEP_ALL,
+        depth=FRAME_QOS.depth,
+    )
+    pub = node.create_publisher(msg_type, topic, qos)
+    deadline = time.monotonic() + timeout_s
+    while pub.get_subscription_count() < 1 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return pub
