@@ -622,7 +622,7 @@ class SdResonatorDevice:
             if standin
             else np.zeros(0)
         )
-        bits, pulses, starts, widths, pos, vel, f0o, est, estv, xs, xc = np.empty((11, n))
+        out = np.empty((11, n))  # rows: the SdFrame fields, in order
         m = self.model
         fs = p["sample_rate_hz"]
         _device_run(
@@ -662,29 +662,8 @@ class SdResonatorDevice:
             m.gam,
             self._pred,
             self._carry,
-            bits,
-            pulses,
-            starts,
-            widths,
-            pos,
-            vel,
-            f0o,
-            est,
-            estv,
-            xs,
-            xc,
+            *out,
         )
         self._next += n
-        return SdFrame(
-            bits if standin else bits.astype(np.int8),
-            pulses,
-            starts,
-            widths,
-            pos,
-            vel,
-            f0o,
-            est,
-            estv,
-            xs,
-            xc,
-        )
+        bits = out[0]
+        return SdFrame(bits if standin else bits.astype(np.int8), *out[1:])
