@@ -22,9 +22,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")))
 
-from mems_estimation.filters import scanner_amdm_ekf as sae
 from mems_estimation.filters import scanner_amdm_tracking as su
-from mems_estimation.filters import scanner_amdm_ukf as sau
 from mems_sim.devices import scanner_amdm as sa
 
 RUN = dict(
@@ -235,53 +233,17 @@ def lean_ukf(y, v2, x_in, P_in, Phi, Gam, Q, m, J, R, T, wm, wc, gamma, out_x, o
 
 
 def kernel(kind, y, v2, x0, P0, f, frame=10_000):
-    md = f.model
-    x, P = x0.copy(), P0.copy()
+    """Samples/s and theta of the ``kind`` kernel (``ScannerFilter.run_frame``) over frames
+    of ``frame`` samples, from (x0, P0)."""
+    g = su.ScannerFilter(kind, f.p)
+    g.x, g.P = x0.copy(), P0.copy()
     th = np.empty(y.size)
     t0 = time.perf_counter()
     for i in range(0, y.size, frame):
         sl = slice(i, i + frame)
         m = y[sl].size
         ox, op, on = np.empty((m, 2)), np.empty((m, 3)), np.empty(m)
-        if kind == "ekf":
-            sae.ekf_run(
-                y[sl],
-                v2[sl],
-                x,
-                P,
-                md.Phi,
-                md.Gam,
-                md.Q,
-                md.meas,
-                md.J,
-                md.R,
-                md.T,
-                True,
-                ox,
-                op,
-                on,
-            )
-        else:
-            sau.ukf_run(
-                y[sl],
-                v2[sl],
-                x,
-                P,
-                md.Phi,
-                md.Gam,
-                md.Q,
-                md.meas,
-                md.J,
-                md.R,
-                md.T,
-                f.wm,
-                f.wc,
-                f.gamma,
-                True,
-                ox,
-                op,
-                on,
-            )
+        g.run_frame(y[sl], v2[sl], True, ox, op, on)
         th[sl] = ox[:, 0]
     return y.size / (time.perf_counter() - t0), th
 
@@ -368,12 +330,9 @@ def lean_vs_kernel(y, v2, x0, P0, f) -> float:
     n = y.size
 
     def run_kernel():
-        x, P = x0.copy(), P0.copy()
+        f.x, f.P = x0.copy(), P0.copy()
         ox, op, on = np.empty((n, 2)), np.empty((n, 3)), np.empty(n)
-        sau.ukf_run(
-            y, v2, x, P, md.Phi, md.Gam, md.Q, md.meas, md.J, md.R, md.T,
-            f.wm, f.wc, f.gamma, True, ox, op, on,
-        )  # fmt: skip
+        f.run_frame(y, v2, True, ox, op, on)
         return ox, op, on
 
     def run_lean():

@@ -56,7 +56,7 @@ from mems_estimation.identification.stage_gyro_calibration import (
     training_record,
 )
 from mems_sim.devices.stage import DriveSchedule, MicroStage, record
-from mems_sim.devices.stage_capacitance import EPS0, dcdtheta_single
+from mems_sim.devices.stage_capacitance import EPS0, GL8_NODES, GL8_WEIGHTS, dcdtheta_single
 
 # the graph's processes and their CPU (bench/process_tools.py, shared with
 # bench_device_processes.py)
@@ -141,30 +141,8 @@ def reference_ekf(model, y, u):
 
 
 #: Gauss-Legendre nodes and weights of dcdtheta_single_tan (8 points).
-_GL_X = np.array(
-    [
-        -0.9602898564975363,
-        -0.7966664774136267,
-        -0.5255324099163290,
-        -0.1834346424956498,
-        0.1834346424956498,
-        0.5255324099163290,
-        0.7966664774136267,
-        0.9602898564975363,
-    ]
-)
-_GL_W = np.array(
-    [
-        0.1012285362903763,
-        0.2223810344533745,
-        0.3137066458778873,
-        0.3626837833783620,
-        0.3626837833783620,
-        0.3137066458778873,
-        0.2223810344533745,
-        0.1012285362903763,
-    ]
-)
+_GL_X = np.array(GL8_NODES)
+_GL_W = np.array(GL8_WEIGHTS)
 
 
 @numba.njit(cache=True)

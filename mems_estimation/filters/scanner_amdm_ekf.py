@@ -14,6 +14,7 @@ from mems_estimation.filters.scanner_amdm_model import (
     _dtorque_u,
     _h,
     _store_posterior,
+    _store_state,
     _torque_u,
 )
 
@@ -49,12 +50,7 @@ def ekf_run(y, v2, x, P, Phi, Gam, Q, m, J, R, T, predict_first, out_x, out_p, o
             p00 = a00 * g00 + a01 * g01 + Q[0, 0]
             p01 = a00 * g10 + a01 * g11 + Q[0, 1]
             p11 = a10 * g10 + a11 * g11 + Q[1, 1]
-            x[0] = x0
-            x[1] = x1
-            P[0, 0] = p00
-            P[0, 1] = p01
-            P[1, 0] = p01
-            P[1, 1] = p11
+            _store_state(x, P, x0, x1, p00, p01, p11)
         hk = _dh(x[0], m)
         nu = y[k] - _h(x[0], m)
         s = hk * hk * P[0, 0] + R

@@ -383,6 +383,17 @@ def _dtorque_u(th, v2, m, J):
     return 2.0 * m[0] / (m[1] * m[1]) * (2.0 * u * u - 1.0) * math.exp(-u * u) * v2 / (2.0 * J)
 
 
+@numba.njit(cache=True, inline="always")
+def _store_state(x, P, x0, x1, p00, p01, p11) -> None:
+    """Write the state (x0, x1) into x (2,) and the symmetric covariance into P (2,2)."""
+    x[0] = x0
+    x[1] = x1
+    P[0, 0] = p00
+    P[0, 1] = p01
+    P[1, 0] = p01
+    P[1, 1] = p11
+
+
 @numba.njit(cache=True)
 def _store_posterior(P, Q, p00, p01, p11, x, k, out_x, out_p) -> int:
     """Write the a-posteriori covariance into P and sample k's outputs; returns 1 if it was

@@ -166,48 +166,18 @@ class ScannerFilter:
         c = np.clip(c, math.exp(-4.0), 1.0)
         return m[1] * np.sqrt(-np.log(c))
 
-    def _run(self, y, v2, predict_first, ox, op, on):
+    def run_frame(self, y, v2, predict_first, ox, op, on) -> int:
+        """One call of the kernel (:func:`ekf_run` or :func:`ukf_run`) on a block: x and P
+        carried in place, outputs into ox (n,2), op (n,3), on (n,). Returns the number of
+        repaired covariances (also added to ``pd_failures``)."""
         md = self.model
+        head = (y, v2, self.x, self.P, md.Phi, md.Gam, md.Q, md.meas, md.J, md.R, md.T)
         if self.kind == "ekf":
-            bad = ekf_run(
-                y,
-                v2,
-                self.x,
-                self.P,
-                md.Phi,
-                md.Gam,
-                md.Q,
-                md.meas,
-                md.J,
-                md.R,
-                md.T,
-                predict_first,
-                ox,
-                op,
-                on,
-            )
+            bad = ekf_run(*head, predict_first, ox, op, on)
         else:
-            bad = ukf_run(
-                y,
-                v2,
-                self.x,
-                self.P,
-                md.Phi,
-                md.Gam,
-                md.Q,
-                md.meas,
-                md.J,
-                md.R,
-                md.T,
-                self.wm,
-                self.wc,
-                self.gamma,
-                predict_first,
-                ox,
-                op,
-                on,
-            )
+            bad = ukf_run(*head, self.wm, self.wc, self.gamma, predict_first, ox, op, on)
         self.pd_failures += int(bad)
+        return int(bad)
 
     def _acquire(self, y, v2, ox, op, on) -> None:
         """Look for the first motion period in the buffered + new samples; start there."""
@@ -240,7 +210,7 @@ class ScannerFilter:
                 tail_y, tail_v = by[rest], bv[rest]
                 k = tail_y.size
                 tx, tp, tn = np.empty((k, 2)), np.empty((k, 3)), np.empty(k)
-                self._run(
+                self.run_frame(
                     np.ascontiguousarray(tail_y), np.ascontiguousarray(tail_v), True, tx, tp, tn
                 )
                 # publish the part that belongs to this frame
@@ -271,7 +241,7 @@ class ScannerFilter:
         on = np.zeros(n)
         if n:
             if self.tracking:
-                self._run(y, v2, True, ox, op, on)
+                self.run_frame(y, v2, True, ox, op, on)
                 W = min(self.window, n)
                 det = op[-W:, 0] * op[-W:, 1] - op[-W:, 2] ** 2
                 q = (

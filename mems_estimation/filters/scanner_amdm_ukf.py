@@ -17,7 +17,7 @@ import math
 import numba
 import numpy as np
 
-from mems_estimation.filters.scanner_amdm_model import _h, _torque_u
+from mems_estimation.filters.scanner_amdm_model import _h, _store_state, _torque_u
 from mems_sim.params import ParameterError
 
 
@@ -77,6 +77,35 @@ def _chol(p00, p01, p11):
     return True, l00, l10, math.sqrt(d)
 
 
+@numba.njit(cache=True, inline="always")
+def _sigma_repaired(x0, x1, p00, p01, p11, q00, q11, gamma, S):
+    """Sigma points of (x, P) on scalars, as :func:`_sigma` (rows flattened: S = (s00, s01,
+    s10, ..., s41)), after repairing a P that is not positive definite (p01 = 0, diagonal
+    at least Q's). Returns (repaired 0/1, p00, p01, p11, S); S unchanged if P stays not PD."""
+    bad = 0
+    ok, l00, l10, l11 = _chol(p00, p01, p11)
+    if not ok:
+        bad = 1
+        p01 = 0.0
+        p00 = max(p00, q00)
+        p11 = max(p11, q11)
+        ok, l00, l10, l11 = _chol(p00, p01, p11)
+    if ok:
+        S = (
+            x0,
+            x1,
+            x0 + gamma * l00,
+            x1 + gamma * l10,
+            x0 - gamma * l00,
+            x1 - gamma * l10,
+            x0,
+            x1 + gamma * l11,
+            x0,
+            x1 - gamma * l11,
+        )
+    return bad, p00, p01, p11, S
+
+
 @numba.njit(cache=True)
 def ukf_run(
     y, v2, x, P, Phi, Gam, Q, m, J, R, T, wm, wc, gamma, predict_first, out_x, out_p, out_nis
@@ -100,23 +129,13 @@ def ukf_run(
     wm0, wm1, wm2, wm3, wm4 = wm[0], wm[1], wm[2], wm[3], wm[4]
     wc0, wc1, wc2, wc3, wc4 = wc[0], wc[1], wc[2], wc[3], wc[4]
     # sigma points (rows 0..4 of _sigma's S), kept between steps like S
-    s00 = s01 = s10 = s11 = s20 = s21 = s30 = s31 = s40 = s41 = 0.0
+    S = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     bad = 0
     for k in range(y.shape[0]):
         if k > 0 or predict_first:
-            ok, l00, l10, l11 = _chol(p00, p01, p11)
-            if not ok:
-                bad += 1
-                p01 = 0.0
-                p00 = max(p00, q00)
-                p11 = max(p11, q11)
-                ok, l00, l10, l11 = _chol(p00, p01, p11)
-            if ok:
-                s00, s01 = x0, x1
-                s10, s11 = x0 + gamma * l00, x1 + gamma * l10
-                s20, s21 = x0 - gamma * l00, x1 - gamma * l10
-                s30, s31 = x0, x1 + gamma * l11
-                s40, s41 = x0, x1 - gamma * l11
+            r, p00, p01, p11, S = _sigma_repaired(x0, x1, p00, p01, p11, q00, q11, gamma, S)
+            bad += r
+            s00, s01, s10, s11, s20, s21, s30, s31, s40, s41 = S
             vk = v2[k]
             u = _torque_u(s00 + 0.5 * T * s01, vk, m, J)
             a0, a1 = f00 * s00 + f01 * s01 + g0 * u, f10 * s00 + f11 * s01 + g1 * u
@@ -152,19 +171,9 @@ def ukf_run(
             p01 += wc4 * dd0 * dd1
             p11 += wc4 * dd1 * dd1
             x0, x1 = m0, m1
-        ok, l00, l10, l11 = _chol(p00, p01, p11)
-        if not ok:
-            bad += 1
-            p01 = 0.0
-            p00 = max(p00, q00)
-            p11 = max(p11, q11)
-            ok, l00, l10, l11 = _chol(p00, p01, p11)
-        if ok:
-            s00, s01 = x0, x1
-            s10, s11 = x0 + gamma * l00, x1 + gamma * l10
-            s20, s21 = x0 - gamma * l00, x1 - gamma * l10
-            s30, s31 = x0, x1 + gamma * l11
-            s40, s41 = x0, x1 - gamma * l11
+        r, p00, p01, p11, S = _sigma_repaired(x0, x1, p00, p01, p11, q00, q11, gamma, S)
+        bad += r
+        s00, s01, s10, s11, s20, s21, s30, s31, s40, s41 = S
         h0 = _h(s00, m)
         h1 = _h(s10, m)
         h2 = _h(s20, m)
@@ -198,10 +207,5 @@ def ukf_run(
         out_p[k, 1] = p11
         out_p[k, 2] = p01
         out_nis[k] = nu * nu / py
-    x[0] = x0
-    x[1] = x1
-    P[0, 0] = p00
-    P[0, 1] = p01
-    P[1, 0] = p01
-    P[1, 1] = p11
+    _store_state(x, P, x0, x1, p00, p01, p11)
     return bad
