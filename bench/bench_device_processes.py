@@ -320,14 +320,7 @@ def _scanner_amdm(pace: float, seconds: float, frame: int | None, tmp: Path) -> 
     from mems_sim.devices import scanner_amdm as sa
 
     ns = "/scanner_amdm"
-    overrides = dict(
-        drive_voltage_max=150.0,
-        sweep_start_hz=31.32e3,
-        sweep_end_hz=31.26e3,
-        sweep_start_s=0.0,
-        sweep_time_s=0.06,
-        initial_angle=0.02,
-    )
+    overrides = dict(sa.SWEEP_STUDY)
     p = sa.resolve_amdm(overrides)
     qa = next(s.default for s in sam.ESTIMATOR_SPECS if s.name == "accel_noise_var")
     overrides["torque_noise_std"] = float(p["inertia"] * math.sqrt(qa * p["output_decimation"]))

@@ -36,26 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from mems_estimation.identification.signal_metrics import coherent_snr_db, consistency
-from mems_scenarios.base import (
-    NOT_RECORDED,
-    Progress,
-    ScenarioError,
-    ScenarioOptions,
-    format_table,
-    graph_for,
-    publish_all,
-    run_recorded,
-    topics_frames,
-)
-from mems_scenarios.contract import (
-    RUN_INFO_TOPIC,
-    AnalysisError,
-    GraphSpec,
-    NodeEntry,
-    ScenarioResult,
-    node_parameters,
-    read_run_info,
-)
+from mems_scenarios import base, contract
 from mems_scenarios.figures import Figure, cell
 from mems_sim.devices import accelerometer
 from mems_sim.nodes.accelerometer_node import REFERENCE_TEMPERATURE_C
@@ -156,7 +137,7 @@ def spread_cases() -> dict[str, dict]:
     }
 
 
-def _seed(options: ScenarioOptions, ns: str) -> int:
+def _seed(options: base.ScenarioOptions, ns: str) -> int:
     """Run seed of one device (its place among :func:`device_cases`, so a device has the
     same noise in both scenarios); the Q/R sweep shares the seed of its exact case."""
     names = list(device_cases())
@@ -179,13 +160,15 @@ def emulator(ns: str) -> str:
     return f"/{ns}/accelerometer"
 
 
-def graph(options: ScenarioOptions, duration_s: float, *, spread: bool = False) -> GraphSpec:
+def graph(
+    options: base.ScenarioOptions, duration_s: float, *, spread: bool = False
+) -> contract.GraphSpec:
     """The scenario's graph: one device per case (:func:`device_cases`, ``spread``:
     :func:`spread_cases`), each in its namespace, the downstream hybrid EKF on the PI loop
     at 1 g (full scenario only), recorded with /diagnostics (the covariance counters)."""
     cases = spread_cases() if spread else device_cases()
     nodes = [
-        NodeEntry(
+        contract.NodeEntry(
             "accelerometer_node",
             "accelerometer",
             ns,
@@ -196,7 +179,7 @@ def graph(options: ScenarioOptions, duration_s: float, *, spread: bool = False) 
     topics = [t for ns, p in cases.items() for t in _device_topics(ns, p["mode"], every=True)]
     if _full(cases):
         nodes.append(
-            NodeEntry(
+            contract.NodeEntry(
                 "accelerometer_ekf_node",
                 "accelerometer_ekf",
                 "acc_pi_1g",
@@ -209,22 +192,24 @@ def graph(options: ScenarioOptions, duration_s: float, *, spread: bool = False) 
         )
         topics.append(DOWNSTREAM_TOPIC)
     name = NAME_SPREAD if spread else NAME
-    return GraphSpec(name, tuple(nodes), (*topics, "/diagnostics", RUN_INFO_TOPIC))
+    return contract.GraphSpec(
+        name, tuple(nodes), (*topics, "/diagnostics", contract.RUN_INFO_TOPIC)
+    )
 
 
 def run_graph(
-    options: ScenarioOptions, out: Path, duration: float, progress: Progress, spread=False
+    options: base.ScenarioOptions, out: Path, duration: float, progress: base.Progress, spread=False
 ) -> dict:
     """Run :func:`graph` until every device published ``duration``; record it with the
     run record (and each device's ``fixed_parameters``, for :func:`oracle`) and, at the
     end, every device's final diagnostics; return counts."""
     spec = graph(options, duration, spread=spread)
-    graph_ = graph_for(options)
+    graph_ = base.graph_for(options)
     nodes = graph_.build(spec, realtime=options.realtime)
     ekf = nodes.get(DOWNSTREAM)
     devices = {n.namespace: nodes[n.fqn] for n in spec.nodes if n.fqn != DOWNSTREAM}
-    regex = rf"^/acc_|^/diagnostics$|^{re.escape(RUN_INFO_TOPIC)}$"
-    rec = graph_.recorder(str(out), regex=regex, exclude=NOT_RECORDED)
+    regex = rf"^/acc_|^/diagnostics$|^{re.escape(contract.RUN_INFO_TOPIC)}$"
+    rec = graph_.recorder(str(out), regex=regex, exclude=base.NOT_RECORDED)
     fixed = {emulator(ns): sorted(d.fixed_parameters) for ns, d in devices.items()}
     graph_.publish_run_info(spec, options, nodes, duration_s=duration, fixed_parameters=fixed)
     n_topics = sum(len(_topics(d)) for d in devices.values()) + (ekf is not None)
@@ -250,7 +235,7 @@ def run_graph(
             30.0,
             "the recorder and the hybrid EKF node to subscribe",
         )
-        publish_all(
+        base.publish_all(
             graph_,
             list(devices.values()),
             delivered,
@@ -366,7 +351,7 @@ def oracle(record: dict, cases: dict) -> dict:
     mismatch against the designer's values (:func:`mismatch`) and its analytic static
     pull-in accelerations [g] (Table I, and the Table III reading)."""
     fqn = emulator(next(iter(cases)))
-    params = node_parameters(record, fqn, "the device as built")
+    params = contract.node_parameters(record, fqn, "the device as built")
     values = device_as_built(params, record.get("fixed_parameters", {}).get(fqn, ()))
     p = accelerometer.validate_params(values["p"] | {"mode": "open_loop"})
     p3 = dict(p, **accelerometer.TABLE_III_VARIANT)
@@ -430,7 +415,9 @@ def figures(path: Path, record: dict | None, cases: dict) -> tuple[dict, list]:
     names = list(cases)
     for i in range(0, len(names), DEVICES_PER_PASS):
         group = {ns: cases[ns]["mode"] for ns in names[i : i + DEVICES_PER_PASS]}
-        frames = topics_frames(path, [t for ns, m in group.items() for t in _device_topics(ns, m)])
+        frames = base.topics_frames(
+            path, [t for ns, m in group.items() for t in _device_topics(ns, m)]
+        )
         for ns, mode in group.items():
             f["devices"][ns] = _device_figures(frames, ns, mode)
         del frames
@@ -442,13 +429,13 @@ def figures(path: Path, record: dict | None, cases: dict) -> tuple[dict, list]:
         unavailable.append(("*.not_pd_samples", f"{path}: no device status on /diagnostics"))
     try:
         f.update(oracle(record, cases))
-    except AnalysisError as exc:
+    except contract.AnalysisError as exc:
         f.update(mismatch=None, pull_in_g=None, pull_in_t3_g=None)
         groups = ORACLE_GROUPS if f["full"] else ORACLE_GROUPS[:1]
         unavailable.append((", ".join(groups), str(exc)))
     if f["full"]:
         k0 = int(SKIP_S * FS)
-        fr = topics_frames(path, ["/acc_pi_1g/truth", DOWNSTREAM_TOPIC])
+        fr = base.topics_frames(path, ["/acc_pi_1g/truth", DOWNSTREAM_TOPIC])
         truth = fr["/acc_pi_1g/truth"]["data"]
         est = fr[DOWNSTREAM_TOPIC]
         f["downstream"] = consistency(est["data"][k0:, 0] - truth[k0:, 1], est["variances"][k0:, 0])
@@ -496,7 +483,7 @@ def table3(f: dict) -> str:
     head = ["input"]
     for m in ("open loop", "PI loop", "EKF loop"):
         head += [f"{m} SNR dB", "max |x| m", "flag", "thesis SNR / x"]
-    return format_table(head, rows)
+    return base.format_table(head, rows)
 
 
 def table4(f: dict) -> str:
@@ -517,7 +504,7 @@ def table4(f: dict) -> str:
                 PAPER_IV[case],
             ]
         )
-    return format_table(
+    return base.format_table(
         [
             "EKF loop, 0.1 g",
             "output SNR dB",
@@ -857,7 +844,7 @@ def records(f: dict) -> list[Figure]:
         names = SPREAD_CHECK_NAMES
     items = f["checks"]
     if len(items) != len(names):
-        raise ScenarioError(f"{len(items)} acceptance items, {len(names)} names")
+        raise base.ScenarioError(f"{len(items)} acceptance items, {len(names)} names")
     for name, (_, _, asked, measured, ok) in zip(names, items):
         if name == "check.table_i.pull_in" and f["pull_in_g"] is None:
             continue  # the oracle's (no run record)
@@ -867,7 +854,7 @@ def records(f: dict) -> list[Figure]:
 
 def _items_table(f: dict) -> str:
     rows = [[i, p, a, m, "yes" if ok else "NO"] for i, p, a, m, ok in f["checks"]]
-    return format_table(["item", "thesis", "asked", "measured", "met"], rows)
+    return base.format_table(["item", "thesis", "asked", "measured", "met"], rows)
 
 
 def table(f: dict) -> str:
@@ -879,7 +866,7 @@ def table(f: dict) -> str:
         ]
         return "\n\n".join(
             [
-                format_table(["device", "output SNR dB", "max |x| m", "flag"], rows),
+                base.format_table(["device", "output SNR dB", "max |x| m", "flag"], rows),
                 "Acceptance items:",
                 _items_table(f),
             ]
@@ -948,20 +935,20 @@ def plot(f: dict, path: Path) -> None:
 
 def _check_duration(duration: float) -> None:
     if duration < SKIP_S + 1.0 / F_IN - 1e-9:
-        raise ScenarioError(
+        raise base.ScenarioError(
             f"--duration = {duration!r} is too short for {NAME}: at least "
             f"{SKIP_S + 1.0 / F_IN:g} s (start-up and one 10 Hz period)"
         )
 
 
-def analyse(bag, pngs=None, *, spread: bool = False) -> ScenarioResult:
+def analyse(bag, pngs=None, *, spread: bool = False) -> contract.ScenarioResult:
     """The scenario's figures from its recording ``bag`` alone (``spread``: scenario
     ``accelerometer_spread``): the devices' topics, their covariance counters on
     /diagnostics, and the device as built from the run record (:func:`oracle`; without
     the record its figures are listed as unavailable). ``pngs``: the PNG path (or a
     one-element sequence of it), None: no plot."""
     cases = spread_cases() if spread else device_cases()
-    f, unavailable = figures(Path(bag), read_run_info(bag), cases)
+    f, unavailable = figures(Path(bag), contract.read_run_info(bag), cases)
     paths = []
     if pngs is not None:
         paths = [Path(pngs)] if isinstance(pngs, str | Path) else [Path(q) for q in pngs]
@@ -977,7 +964,7 @@ def analyse(bag, pngs=None, *, spread: bool = False) -> ScenarioResult:
         checks=f["checks"],
     )
     oracle_only = list(ORACLE_GROUPS if f["full"] else ORACLE_GROUPS[:1])
-    return ScenarioResult(
+    return contract.ScenarioResult(
         NAME_SPREAD if spread else NAME,
         records(f),
         table(f),
@@ -988,11 +975,11 @@ def analyse(bag, pngs=None, *, spread: bool = False) -> ScenarioResult:
     )
 
 
-def run(options: ScenarioOptions, *, spread: bool = False) -> dict:
+def run(options: base.ScenarioOptions, *, spread: bool = False) -> dict:
     """Run the scenario (``spread``: scenario ``accelerometer_spread``, the PI and EKF loops
     at 0.1 g and 1 g only) and analyse its recording (:func:`analyse`); return the tables,
     figures and paths."""
-    return run_recorded(
+    return base.run_recorded(
         options,
         name=NAME_SPREAD if spread else NAME,
         default_duration_s=DEFAULT_DURATION_S,

@@ -200,11 +200,11 @@ def run_pipeline(
     paths = []
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
-        base = out_dir / f"{NAME}.mcap"
-        save_model(model, str(output_path(base, seed, f"-stage_params_{T1}C.yaml")))
-        save_model(models[T2], str(output_path(base, seed, f"-stage_params_{T2}C.yaml")))
+        stem = out_dir / f"{NAME}.mcap"
+        save_model(model, str(output_path(stem, seed, f"-stage_params_{T1}C.yaml")))
+        save_model(models[T2], str(output_path(stem, seed, f"-stage_params_{T2}C.yaml")))
         if plots:
-            paths = write_plots(base, runs, seed)
+            paths = write_plots(stem, runs, seed)
     return {
         "table": table,
         "model": model,

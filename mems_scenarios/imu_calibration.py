@@ -30,25 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from mems_estimation.identification import imu_calibration as ic
-from mems_scenarios.base import (
-    Progress,
-    ScenarioError,
-    ScenarioOptions,
-    consumed,
-    format_table,
-    graph_for,
-    output_path,
-    publish_all,
-)
-from mems_scenarios.contract import (
-    RUN_INFO_TOPIC,
-    AnalysisError,
-    GraphSpec,
-    NodeEntry,
-    ScenarioResult,
-    node_parameters,
-    read_run_info,
-)
+from mems_scenarios import base, contract
 from mems_scenarios.figures import Figure, cell, figure_table
 from mems_sim.devices.imu_profiles import load_profile
 
@@ -88,13 +70,13 @@ CALIBRATOR = "/imu/imu_calibration"
 
 
 def graph(
-    options: ScenarioOptions,
+    options: base.ScenarioOptions,
     duration_s: float | None,
     *,
     profile: str = PROFILE,
     out=None,
     name: str = NAME,
-) -> GraphSpec:
+) -> contract.GraphSpec:
     """The graph of scenario ``name`` on ``profile``: the emulator and the calibration node
     in ``/imu`` (``duration_s`` None: the profile's), recorded; the calibration node writes
     its YAML beside the MCAP file ``out``."""
@@ -113,20 +95,20 @@ def graph(
         "profile": profile,
         "noise_model": "adis16350",
         "temperature_source": "sensor",
-        "output_yaml": str(output_path(out, options.seed, "-calibration.yaml")),
+        "output_yaml": str(base.output_path(out, options.seed, "-calibration.yaml")),
     }
-    emulator = NodeEntry("imu_node", "imu", "imu", emu_params)
-    calibrator = NodeEntry("imu_calibration_node", "imu_calibration", "imu", cal_params)
-    return GraphSpec(name, (emulator, calibrator), (*TOPICS, RUN_INFO_TOPIC))
+    emulator = contract.NodeEntry("imu_node", "imu", "imu", emu_params)
+    calibrator = contract.NodeEntry("imu_calibration_node", "imu_calibration", "imu", cal_params)
+    return contract.GraphSpec(name, (emulator, calibrator), (*TOPICS, contract.RUN_INFO_TOPIC))
 
 
 def build_graph(
-    options: ScenarioOptions, out: Path, profile: str, duration_s: float | None, name: str
+    options: base.ScenarioOptions, out: Path, profile: str, duration_s: float | None, name: str
 ):
     """Context, the nodes of :func:`graph` and the recorder; the run record names the
     emulator's parameters given explicitly (:func:`oracle`: its nominal device)."""
     spec = graph(options, duration_s, profile=profile, out=out, name=name)
-    g = graph_for(options)
+    g = base.graph_for(options)
     nodes = g.build(spec, realtime=options.realtime)
     rec = g.recorder(str(out), topics=list(spec.recorded))
     given = set(spec.node(EMULATOR).parameters)
@@ -233,7 +215,7 @@ def results_table(rows: list[dict]) -> str:
         ]
         for r in rows
     ]
-    return format_table(
+    return base.format_table(
         ["parameter", "unit", "truth", "estimate", "+-95 %", "error", "covered"], body
     )
 
@@ -255,7 +237,7 @@ def oracle(record: dict) -> dict:
     (:func:`mems_sim.devices.imu_specs.imu_values` of the parameters given explicitly)."""
     from mems_sim.devices.imu_specs import IMU_SPECS, imu_values
 
-    params = node_parameters(record, EMULATOR, "gyro.bias_error_rms")
+    params = contract.node_parameters(record, EMULATOR, "gyro.bias_error_rms")
     names = {s.name for s in IMU_SPECS}
     given = set(record.get("emulator_given", ())) | {"preset"}
     nominal = imu_values({n: params[n] for n in sorted(given & names) if n in params})
@@ -293,7 +275,7 @@ def aliases_of(bag, params: dict) -> dict[str, str]:
     return dict(cal.aliases)
 
 
-def analyse_profile(bag, name: str, thermal: bool, pngs=None) -> ScenarioResult:
+def analyse_profile(bag, name: str, thermal: bool, pngs=None) -> contract.ScenarioResult:
     """The figures of ``name`` from its recording ``bag``: the published calibration
     (``/imu/calibration``) against the emulator's realised error terms
     (``/imu/truth_calibration``); the gyro bias in units of B from :func:`oracle` (the
@@ -306,19 +288,19 @@ def analyse_profile(bag, name: str, thermal: bool, pngs=None) -> ScenarioResult:
         if m is None
     ]
     if missing:
-        return ScenarioResult(
+        return contract.ScenarioResult(
             name, [], "", unavailable=[("*", f"{bag}: no message on {', '.join(missing)}")]
         )
     truth = dict(zip(truth_msg.names, truth_msg.values))
     rows = compare(cal, truth)
-    record = read_run_info(bag)
+    record = contract.read_run_info(bag)
     unavailable, oracle_only = [], []
     figures = []
     if not thermal:
         oracle_only.append("gyro.bias_error_rms, gyro.bias_instability_B")
         try:
             gyro_b = oracle(record)["gyro_bias_instability"]
-        except AnalysisError as exc:
+        except contract.AnalysisError as exc:
             gyro_b = None
             unavailable.append((oracle_only[0], str(exc)))
         figures += multi_position_figures(rows, gyro_b)
@@ -327,15 +309,15 @@ def analyse_profile(bag, name: str, thermal: bool, pngs=None) -> ScenarioResult:
     figures += coverage_figures(rows)
     table = results_table(rows) + "\n\n" + figure_table(figures)
     try:
-        params = node_parameters(record, CALIBRATOR, "notes on inseparable parameters")
+        params = contract.node_parameters(record, CALIBRATOR, "notes on inseparable parameters")
         notes = [
             f"{n} {t} (not separable in {params['profile']}: not judged)"
             for n, t in aliases_of(bag, params).items()
         ]
-    except (AnalysisError, ValueError, ic.CalibrationError) as exc:
+    except (contract.AnalysisError, ValueError, ic.CalibrationError) as exc:
         notes = []
         unavailable.append(("notes on inseparable parameters", str(exc)))
-    return ScenarioResult(
+    return contract.ScenarioResult(
         name,
         figures,
         table + ("\n" + "\n".join(notes) if notes else ""),
@@ -345,22 +327,22 @@ def analyse_profile(bag, name: str, thermal: bool, pngs=None) -> ScenarioResult:
     )
 
 
-def run_profile(options: ScenarioOptions, name: str, profile: str, thermal: bool) -> dict:
+def run_profile(options: base.ScenarioOptions, name: str, profile: str, thermal: bool) -> dict:
     """Run the graph on ``profile`` and analyse its recording (:func:`analyse_profile`)."""
     prof = load_profile(profile)
     duration = options.duration_s
     if duration is not None and duration <= 0:
-        raise ScenarioError(f"--duration {duration!r} must be > 0 s")
+        raise base.ScenarioError(f"--duration {duration!r} must be > 0 s")
     out = Path(options.out or Path("runs") / f"{name}-{options.seed}.mcap")
     out.parent.mkdir(parents=True, exist_ok=True)
     graph, emu, cal, rec = build_graph(options, out, profile, duration, name)
     total = duration if duration is not None else prof.duration_s()
-    progress = Progress(total, options.progress, name)
+    progress = base.Progress(total, options.progress, name)
     try:
-        publish_all(
+        base.publish_all(
             graph,
             [emu],
-            consumed(cal),
+            base.consumed(cal),
             progress,
             realtime=options.realtime,
             realtime_timeout_s=total * 2 + 60,
@@ -371,7 +353,7 @@ def run_profile(options: ScenarioOptions, name: str, profile: str, thermal: bool
         if not cal.results:
             cal.publish_result()
         if not cal.results:
-            raise ScenarioError(
+            raise base.ScenarioError(
                 "no calibration: too little data for the profile "
                 f"{prof.name!r} ({prof.duration_s():g} s; give a longer --duration)"
             )
@@ -389,7 +371,7 @@ def run_profile(options: ScenarioOptions, name: str, profile: str, thermal: bool
         )
         graph.close()
     result = analyse_profile(out, name, thermal)
-    yaml_path = output_path(out, options.seed, "-calibration.yaml")
+    yaml_path = base.output_path(out, options.seed, "-calibration.yaml")
     return dict(
         table=result.table,
         figures=result.figures,
@@ -404,11 +386,11 @@ def run_profile(options: ScenarioOptions, name: str, profile: str, thermal: bool
     )
 
 
-def analyse(bag, pngs=None) -> ScenarioResult:
+def analyse(bag, pngs=None) -> contract.ScenarioResult:
     """The figures of ``imu_calibration`` from its recording (:func:`analyse_profile`)."""
     return analyse_profile(bag, NAME, thermal=False, pngs=pngs)
 
 
-def run(options: ScenarioOptions) -> dict:
+def run(options: base.ScenarioOptions) -> dict:
     """Run the scenario (multi_position profile)."""
     return run_profile(options, NAME, PROFILE, thermal=False)

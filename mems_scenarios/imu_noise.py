@@ -16,28 +16,7 @@ from pathlib import Path
 
 from mems_estimation.identification.imu_noise_fit import crb_relative_se
 from mems_estimation.identification.imu_noise_plots import plot_allan
-from mems_scenarios.base import (
-    Graph,
-    Progress,
-    ScenarioError,
-    ScenarioOptions,
-    consumed,
-    drive_fast,
-    finish_delivery,
-    format_table,
-    graph_for,
-    output_path,
-    prepare_delivery,
-)
-from mems_scenarios.contract import (
-    RUN_INFO_TOPIC,
-    AnalysisError,
-    GraphSpec,
-    NodeEntry,
-    ScenarioResult,
-    node_parameters,
-    read_run_info,
-)
+from mems_scenarios import base, contract
 from mems_scenarios.figures import Figure, cell, is_finite
 from mems_sim.ros.frames import index_to_ns
 
@@ -71,9 +50,9 @@ FIELD = {
 }
 
 
-def graph(options: ScenarioOptions, duration_s: float) -> GraphSpec:
+def graph(options: base.ScenarioOptions, duration_s: float) -> contract.GraphSpec:
     """The scenario's graph: the emulator and the identifier in ``/imu``, recorded."""
-    emulator = NodeEntry(
+    emulator = contract.NodeEntry(
         "imu_node",
         "imu",
         "imu",
@@ -85,20 +64,20 @@ def graph(options: ScenarioOptions, duration_s: float) -> GraphSpec:
         },
         consumers="adc:2",  # the identifier and the recorder
     )
-    identifier = NodeEntry(
+    identifier = contract.NodeEntry(
         "imu_noise_identifier_node",
         "imu_noise_identifier",
         "imu",
         {"publish_period_s": 0.0 if duration_s < 7200 else 3600.0},
     )
-    return GraphSpec(NAME, (emulator, identifier), (*TOPICS, RUN_INFO_TOPIC))
+    return contract.GraphSpec(NAME, (emulator, identifier), (*TOPICS, contract.RUN_INFO_TOPIC))
 
 
-def build_graph(options: ScenarioOptions, out: Path, duration_s: float):
+def build_graph(options: base.ScenarioOptions, out: Path, duration_s: float):
     """Create the context, the nodes of :func:`graph` and the recorder; publish the run
     record."""
     spec = graph(options, duration_s)
-    g = graph_for(options)
+    g = base.graph_for(options)
     nodes = g.build(spec, realtime=options.realtime)
     emu, ident = nodes[EMULATOR], nodes[IDENTIFIER]
     # sensor_msgs/Imu (one per sample) whenever the emulator publishes it: on by default in
@@ -110,7 +89,7 @@ def build_graph(options: ScenarioOptions, out: Path, duration_s: float):
     return g, emu, ident, rec
 
 
-def _wait_matched(graph: Graph, emu, ident, rec) -> None:
+def _wait_matched(graph: base.Graph, emu, ident, rec) -> None:
     def matched() -> bool:
         return (
             emu.pub_adc.get_subscription_count() >= 2
@@ -122,17 +101,17 @@ def _wait_matched(graph: Graph, emu, ident, rec) -> None:
     graph.spin_until(matched, 20.0, "the recorder and identifier to subscribe")
 
 
-def run_fast(graph: Graph, emu, ident, rec, progress: Progress) -> None:
+def run_fast(graph: base.Graph, emu, ident, rec, progress: base.Progress) -> None:
     """Step the emulator as fast as the consumers take its frames (no loss, deterministic)."""
     # the recorder counts for every topic the emulator publishes (the skeleton's flow
     # control): a reader that falls more than the publisher's history behind would lose
     # frames (reliable KEEP_LAST overwrites them)
-    drive_fast(graph, [emu], consumed(ident), progress, WINDOW)
+    base.drive_fast(graph, [emu], base.consumed(ident), progress, WINDOW)
 
 
-def run_realtime(graph: Graph, emu, progress: Progress) -> None:
+def run_realtime(graph: base.Graph, emu, progress: base.Progress) -> None:
     """Spin with the emulator's own wall-clock timer until its duration is published."""
-    prepare_delivery(graph, [emu])
+    base.prepare_delivery(graph, [emu])
     emu.start()
     while not emu.finished:
         graph.executor.spin_once(timeout_sec=0.05)
@@ -140,14 +119,14 @@ def run_realtime(graph: Graph, emu, progress: Progress) -> None:
         progress.update_to(emu.next_index / emu.fs)
 
 
-def drain(graph: Graph, emu, ident, rec) -> None:
+def drain(graph: base.Graph, emu, ident, rec) -> None:
     """Wait until every message reached the identifier and the recorder (a loss raises
     ScenarioError naming the topic); have the identifier publish its final model (its
     end-of-input service, as at shutdown) and wait until the recorder holds it."""
-    finish_delivery(graph, [emu], consumed(ident))
+    base.finish_delivery(graph, [emu], base.consumed(ident))
     before = rec.received("/imu/noise_model")
     if ident.finish() is None:
-        raise ScenarioError(
+        raise base.ScenarioError(
             "no noise model: too little data (use --duration of at least "
             f"{ident.p['min_duration_s']:.0f} s)"
         )
@@ -210,7 +189,7 @@ def results_table(model, configured: dict | None) -> tuple[str, list[dict]]:
         "rel. error",
         "CRB s.e.",
     ]
-    return format_table(header, rows), records
+    return base.format_table(header, rows), records
 
 
 def figure_records(model, configured: dict | None) -> list[Figure]:
@@ -249,21 +228,21 @@ def final_model(bag) -> object | None:
     return model
 
 
-def analyse(bag, plots: Path | None = None) -> ScenarioResult:
+def analyse(bag, plots: Path | None = None) -> contract.ScenarioResult:
     """The scenario's figures from its recording ``bag`` alone: the final noise model
     (``/imu/noise_model``) against the emulator's configured terms (its parameters in the
     run record). ``plots``: the Allan figure's PNG path (None: none)."""
     model = final_model(bag)
     if model is None:
-        return ScenarioResult(
+        return contract.ScenarioResult(
             NAME, [], "", unavailable=[("*", f"{bag}: no message on /imu/noise_model")]
         )
     unavailable = []
     try:
         configured = configured_values(
-            node_parameters(read_run_info(bag), EMULATOR, "configured N, B, K, T")
+            contract.node_parameters(contract.read_run_info(bag), EMULATOR, "configured N, B, K, T")
         )
-    except AnalysisError as exc:
+    except contract.AnalysisError as exc:
         configured, unavailable = None, [("*.configured, *.rel_error", str(exc))]
     table, records = results_table(model, configured)
     figures = figure_records(model, configured)
@@ -271,7 +250,7 @@ def analyse(bag, plots: Path | None = None) -> ScenarioResult:
     if plots is not None:
         plot_allan(model, plots)
         paths.append(plots)
-    return ScenarioResult(
+    return contract.ScenarioResult(
         NAME,
         figures,
         table,
@@ -281,14 +260,14 @@ def analyse(bag, plots: Path | None = None) -> ScenarioResult:
     )
 
 
-def run(options: ScenarioOptions) -> dict:
+def run(options: base.ScenarioOptions) -> dict:
     """Run the scenario and analyse its recording (:func:`analyse`); return a dict with the
     table, records, paths and counts."""
     duration = DEFAULT_DURATION_S if options.duration_s is None else options.duration_s
     out = options.out or Path("runs") / f"{NAME}-{options.seed}.mcap"
     out.parent.mkdir(parents=True, exist_ok=True)
     graph, emu, ident, rec = build_graph(options, out, duration)
-    progress = Progress(duration, options.progress, NAME)
+    progress = base.Progress(duration, options.progress, NAME)
     try:
         _wait_matched(graph, emu, ident, rec)
         if options.realtime:
@@ -311,7 +290,7 @@ def run(options: ScenarioOptions) -> dict:
             counts=rec.counts(), gaps=rec.gaps(), losses=rec.losses(), text=rec.summary()
         )
         graph.close()
-    png = output_path(out, options.seed, "-allan.png") if options.plots else None
+    png = base.output_path(out, options.seed, "-allan.png") if options.plots else None
     result = analyse(out, png)
     return dict(
         table=result.table,

@@ -42,25 +42,7 @@ from scipy.interpolate import CubicSpline
 
 from mems_estimation.filters import scanner_amdm_model as sam
 from mems_estimation.filters import scanner_amdm_tracking as su
-from mems_scenarios.base import (
-    Progress,
-    ScenarioError,
-    ScenarioOptions,
-    format_table,
-    graph_for,
-    publish_all,
-    run_recorded,
-    topics_frames,
-)
-from mems_scenarios.contract import (
-    RUN_INFO_TOPIC,
-    AnalysisError,
-    GraphSpec,
-    NodeEntry,
-    ScenarioResult,
-    node_parameters,
-    read_run_info,
-)
+from mems_scenarios import base, contract
 from mems_scenarios.figures import Figure, cell, met_cell
 from mems_sim.devices import scanner_amdm as sa
 from mems_sim.ros.flow import progress_of
@@ -85,15 +67,7 @@ def process_torque_std() -> float:
     return p["inertia"] * math.sqrt(qa * p["output_decimation"])
 
 
-DEVICE = dict(
-    drive_voltage_max=150.0,
-    sweep_start_hz=31.32e3,
-    sweep_end_hz=31.26e3,
-    sweep_start_s=0.0,
-    sweep_time_s=0.06,
-    initial_angle=0.02,
-    torque_noise_std=process_torque_std(),
-)
+DEVICE = dict(sa.SWEEP_STUDY, torque_noise_std=process_torque_std())
 OFF = dict(DEVICE, sweep_start_hz=25.0e3, sweep_end_hz=25.0e3)
 PAPER = {"ekf": (5.04, 1.82), "ukf": (0.63, 0.39)}  # Table 5.3: amplitude, phase [deg]
 TARGET_PHASE_DEG = 0.18  # eq. (79)
@@ -142,7 +116,7 @@ def recorded_topics(ns: str) -> list[str]:
     return [f"/{ns}/{t}" for t in names]
 
 
-def graph(options: ScenarioOptions, duration_s: float) -> GraphSpec:
+def graph(options: base.ScenarioOptions, duration_s: float) -> contract.GraphSpec:
     """The scenario's graph: both devices (:func:`cases`), then their estimators (the
     chain delay of the nominal device, :func:`nominal_delay`); recorded: every topic of
     both, /diagnostics (the estimators' end state) and the run record."""
@@ -152,9 +126,11 @@ def graph(options: ScenarioOptions, duration_s: float) -> GraphSpec:
             dev, seed=int(options.seed) * 10 + k, duration_s=float(duration_s), frame_size=10000
         )
         # a process graph's device starts once its estimator and the recorder subscribed
-        devices.append(NodeEntry("scanner_amdm_node", DEVICE_NODE, ns, p, consumers="adc:2"))
+        devices.append(
+            contract.NodeEntry("scanner_amdm_node", DEVICE_NODE, ns, p, consumers="adc:2")
+        )
         estimators.append(
-            NodeEntry(
+            contract.NodeEntry(
                 "scanner_amdm_estimator_node",
                 ESTIMATOR_NODE,
                 f"{ns}/estimator",
@@ -162,16 +138,18 @@ def graph(options: ScenarioOptions, duration_s: float) -> GraphSpec:
             )
         )
         recorded += recorded_topics(ns)
-    return GraphSpec(NAME, (*devices, *estimators), (*recorded, "/diagnostics", RUN_INFO_TOPIC))
+    return contract.GraphSpec(
+        NAME, (*devices, *estimators), (*recorded, "/diagnostics", contract.RUN_INFO_TOPIC)
+    )
 
 
-def build_graph(options: ScenarioOptions, out: Path, duration: float):
+def build_graph(options: base.ScenarioOptions, out: Path, duration: float):
     """Devices, then estimator nodes told the delay of their device's chain as built (its
     ``device_seed``, ``temperature_c`` and the user's values), and the recorder in one
     context; the run record published (with the parameters the user set on each device,
     for :func:`oracle`)."""
     spec = graph(options, duration)
-    g = graph_for(options)
+    g = base.graph_for(options)
     emulators = tuple(n for n in spec.nodes if n.executable == "scanner_amdm_node")
     nodes = g.build(replace(spec, nodes=emulators), realtime=options.realtime)
     devices = {e.namespace: nodes[e.fqn] for e in emulators}
@@ -194,7 +172,9 @@ def build_graph(options: ScenarioOptions, out: Path, duration: float):
     return g, devices, estimators, rec
 
 
-def run_graph(options: ScenarioOptions, out: Path, duration: float, progress: Progress) -> dict:
+def run_graph(
+    options: base.ScenarioOptions, out: Path, duration: float, progress: base.Progress
+) -> dict:
     """Run the graph until both devices published ``duration`` and the recorder holds the
     estimators' end state (their diagnostics published once more); return counts."""
     graph, devices, estimators, rec = build_graph(options, out, duration)
@@ -219,7 +199,7 @@ def run_graph(options: ScenarioOptions, out: Path, duration: float, progress: Pr
             )
 
         graph.spin_until(matched, 30.0, "the recorder and estimators to subscribe")
-        publish_all(
+        base.publish_all(
             graph,
             list(devices.values()),
             delivered,
@@ -322,7 +302,7 @@ def oracle(record: dict | None) -> dict[str, float]:
     out = {}
     for ns in cases():
         fqn = device_fqn(ns)
-        p = node_parameters(record, fqn, "the AMDM chain's delay")
+        p = contract.node_parameters(record, fqn, "the AMDM chain's delay")
         drawn = draw_device(
             specs,
             {s.name: p[s.name] for s in specs},
@@ -360,13 +340,13 @@ def figures(path: Path) -> tuple[dict, list[tuple[str, str]]]:
     f: dict = {}
     unavailable = []
     events = [f"/{ns}/{k}/phase_amplitude" for ns in cases() for k in KINDS]
-    fr = topics_frames(path, _required_topics() + events, missing_ok=True)
+    fr = base.topics_frames(path, _required_topics() + events, missing_ok=True)
     absent = [t for t in _required_topics() if t not in fr]
     if absent:
-        raise AnalysisError(f"{path}: no frames on {', '.join(absent)}")
+        raise contract.AnalysisError(f"{path}: no frames on {', '.join(absent)}")
     try:
-        delay = oracle(read_run_info(path))["scanner_amdm"]
-    except AnalysisError as exc:
+        delay = oracle(contract.read_run_info(path))["scanner_amdm"]
+    except contract.AnalysisError as exc:
         delay = None
         unavailable.append((ORACLE, str(exc)))
     diag = node_diagnostics(path)
@@ -458,7 +438,7 @@ def figures(path: Path) -> tuple[dict, list[tuple[str, str]]]:
     return f, unavailable
 
 
-def analyse(bag, pngs=None) -> ScenarioResult:
+def analyse(bag, pngs=None) -> contract.ScenarioResult:
     """The scenario's figures from its recording ``bag`` alone (:func:`figures`; the chain
     delay through :func:`oracle`, from the run record); ``pngs``: the PNG paths of the
     Fig. 5.8 and Fig. 5.9 forms (None: no plots; they need the oracle's delay)."""
@@ -469,7 +449,7 @@ def analyse(bag, pngs=None) -> ScenarioResult:
         plot(f, *pngs)
         paths = [Path(p) for p in pngs]
     values = {k: v for k, v in f.items() if k != "series"}
-    return ScenarioResult(
+    return contract.ScenarioResult(
         NAME,
         [r for r in records(f) if _group_of(r.name) not in missing],
         table(f),
@@ -705,7 +685,7 @@ def table(f: dict) -> str:
                     met_cell(F[f"{case}.{k}.acquired"]),
                 ]
             )
-    return format_table(["figure", "paper", "target", "measured", "met"], rows)
+    return base.format_table(["figure", "paper", "target", "measured", "met"], rows)
 
 
 def plot(f: dict, path58: Path, path59: Path) -> None:
@@ -784,16 +764,16 @@ def plot(f: dict, path58: Path, path59: Path) -> None:
 
 def _check_duration(duration: float) -> None:
     if duration < 0.04:
-        raise ScenarioError(
+        raise base.ScenarioError(
             f"--duration = {duration!r} is too short for {NAME}: at least 0.04 s "
             f"(growth of the motion, acquisition, evaluation after {T_EVAL} s)"
         )
 
 
-def run(options: ScenarioOptions) -> dict:
+def run(options: base.ScenarioOptions) -> dict:
     """Run the scenario and analyse its recording (:func:`analyse`); return the table,
     figures and paths."""
-    return run_recorded(
+    return base.run_recorded(
         options,
         name=NAME,
         default_duration_s=DEFAULT_DURATION_S,

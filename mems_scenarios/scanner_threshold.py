@@ -45,25 +45,7 @@ from mems_estimation.studies.scanner_threshold import (
     rmse,
     snr_segments,
 )
-from mems_scenarios.base import (
-    NOT_RECORDED,
-    Progress,
-    ScenarioError,
-    ScenarioOptions,
-    format_table,
-    graph_for,
-    publish_all,
-    run_recorded,
-    topics_frames,
-)
-from mems_scenarios.contract import (
-    RUN_INFO_TOPIC,
-    GraphSpec,
-    NodeEntry,
-    ScenarioResult,
-    node_parameters,
-    read_run_info,
-)
+from mems_scenarios import base, contract
 from mems_scenarios.figures import Figure, cell, is_finite
 from mems_sim.devices.scanner import (
     SCANNER_SPECS,
@@ -107,10 +89,12 @@ TOPICS = tuple(
 )
 
 
-def graph(options: ScenarioOptions, duration_s: float, frame: int = FRAME) -> GraphSpec:
+def graph(
+    options: base.ScenarioOptions, duration_s: float, frame: int = FRAME
+) -> contract.GraphSpec:
     """The scenario's graph: the drifted device in ``/scanner`` and the threshold/EKF node
     in ``/scanner/threshold``, recorded. ``frame``: samples per frame."""
-    device = NodeEntry(
+    device = contract.NodeEntry(
         "scanner_node",
         "scanner",
         NS,
@@ -121,20 +105,22 @@ def graph(options: ScenarioOptions, duration_s: float, frame: int = FRAME) -> Gr
             frame_size=int(frame),
         ),
     )
-    estimator = NodeEntry(
+    estimator = contract.NodeEntry(
         "scanner_threshold_ekf_node",
         "scanner_threshold_ekf",
         f"{NS}/threshold",
         dict(device_namespace=f"/{NS}", dog_sigma=DOG_SIGMA),
     )
-    return GraphSpec(NAME, (device, estimator), (*TOPICS, f"/{NS}/end_of_stream", RUN_INFO_TOPIC))
+    return contract.GraphSpec(
+        NAME, (device, estimator), (*TOPICS, f"/{NS}/end_of_stream", contract.RUN_INFO_TOPIC)
+    )
 
 
 def run_graph(
-    options: ScenarioOptions,
+    options: base.ScenarioOptions,
     out: Path,
     duration: float,
-    progress: Progress,
+    progress: base.Progress,
     frame: int = FRAME,
     record: bool = True,
 ) -> dict:
@@ -142,13 +128,13 @@ def run_graph(
     recorder summary. ``frame``: samples per frame; ``record``: False leaves the recorder
     out (benchmark)."""
     spec = graph(options, duration, frame)
-    graph_ = graph_for(options)
+    graph_ = base.graph_for(options)
     nodes = graph_.build(spec, realtime=options.realtime)
     dev, est = nodes[EMULATOR], nodes[ESTIMATOR]
     rec = None
     if record:
-        regex = rf"^/{NS}/|^{re.escape(RUN_INFO_TOPIC)}$"
-        rec = graph_.recorder(str(out), regex=regex, exclude=NOT_RECORDED)
+        regex = rf"^/{NS}/|^{re.escape(contract.RUN_INFO_TOPIC)}$"
+        rec = graph_.recorder(str(out), regex=regex, exclude=base.NOT_RECORDED)
         graph_.publish_run_info(spec, options, nodes, duration_s=duration)
 
     def delivered(d) -> int:
@@ -179,7 +165,7 @@ def run_graph(
             "the recorder and the estimator to subscribe",
         )
         t_start = time.perf_counter()
-        publish_all(
+        base.publish_all(
             graph_,
             [dev],
             delivered,
@@ -269,7 +255,7 @@ def sampling_rate_study(
 def configured_device(record: dict | None) -> dict:
     """The device's parameters (:data:`SCANNER_SPECS`, validated) as the emulator ran with
     them: the scenario's values and the user's overrides, from the run record."""
-    params = node_parameters(record, EMULATOR, "the device's parameters")
+    params = contract.node_parameters(record, EMULATOR, "the device's parameters")
     return resolve_scanner({s.name: params[s.name] for s in SCANNER_SPECS})
 
 
@@ -279,7 +265,7 @@ def figures(path: Path, dp: dict, seed: int) -> dict:
     (the sampling-rate study's noise)."""
     sp = scanner_params(dp)
     fs = dp["sample_rate_hz"]
-    fr = topics_frames(
+    fr = base.topics_frames(
         path,
         [
             f"/{NS}/{t}"
@@ -294,7 +280,7 @@ def figures(path: Path, dp: dict, seed: int) -> dict:
     pla = fr[f"/{NS}/estimate_plain"]
     n = th.size
     if hyb["data"].shape[0] != n or pla["data"].shape[0] != n or hyb["first_index"] != 0:
-        raise ScenarioError(
+        raise base.ScenarioError(
             f"estimates cover {hyb['data'].shape[0]} / {pla['data'].shape[0]} of {n} samples"
         )
     dt = fr[f"/{NS}/threshold_detections"]
@@ -510,7 +496,7 @@ def table(f: dict) -> str:
         )
     for sig, d in f["sigma_sweep"].items():
         r.append([f"HYB NRMSE sigma_DOG={sig:g}", *[cell(x, ".4f") for x in d["nrmse"]]])
-    out = format_table(hdr, r)
+    out = base.format_table(hdr, r)
     rates = sorted({fs for (_, fs) in f["fs_study"]})
     facs = sorted({fac for (fac, _) in f["fs_study"]})
     r2 = [
@@ -524,7 +510,7 @@ def table(f: dict) -> str:
         for fac in facs
     ]
     out += "\n\nvar(e_theta,th) [rad^2] (detections) vs sampling rate, sinusoid 0.15 rad 625 Hz:\n"
-    out += format_table(["", *[f"{fs / 1e3:g} kHz" for fs in rates]], r2)
+    out += base.format_table(["", *[f"{fs / 1e3:g} kHz" for fs in rates]], r2)
     out += (
         f"\n\ndetector latency {f['latency']} samples; {f['n_detections']} online detections;"
         f" online = offline within one sample: {f['online_offline_same']}; "
@@ -641,18 +627,18 @@ def plot(f: dict, path: Path, path2: Path) -> None:
 
 def _check_duration(duration: float) -> None:
     if not 0.38 <= duration <= 2.0:
-        raise ScenarioError(
+        raise base.ScenarioError(
             f"--duration = {duration!r} is invalid for {NAME}: 0.38 .. 2 s (sweep "
             "0.25 s + hold 0.05 s + a ring-down of at least 80 ms, Sec. 4.4.1)"
         )
 
 
-def analyse(bag, pngs=None) -> ScenarioResult:
+def analyse(bag, pngs=None) -> contract.ScenarioResult:
     """The scenario's figures from its recording ``bag`` alone: the device's topics and
     the estimates, with the device's parameters and the run seed from the run record (an
     :class:`AnalysisError` without it). ``pngs``: the two PNG paths (Fig. 4.10 analogue,
     detection study), or one path (the second named ``<stem>-detection.png``), or None."""
-    record = read_run_info(bag)
+    record = contract.read_run_info(bag)
     dp = configured_device(record)
     f = figures(Path(bag), dp, int(record["options"]["seed"]))
     paths = []
@@ -663,13 +649,13 @@ def analyse(bag, pngs=None) -> ScenarioResult:
         paths = [Path(q) for q in pngs]
         plot(f, *paths)
     values = {k: v for k, v in f.items() if k != "series"}
-    return ScenarioResult(NAME, records(f), table(f), paths, values=values)
+    return contract.ScenarioResult(NAME, records(f), table(f), paths, values=values)
 
 
-def run(options: ScenarioOptions) -> dict:
+def run(options: base.ScenarioOptions) -> dict:
     """Run the scenario and analyse its recording (:func:`analyse`); return the table,
     figures and paths."""
-    return run_recorded(
+    return base.run_recorded(
         options,
         name=NAME,
         default_duration_s=DEFAULT_DURATION_S,

@@ -40,25 +40,7 @@ from mems_estimation.filters.resonator_consistency import (
     pooled_acf,
     replay_comparator_input,
 )
-from mems_scenarios.base import (
-    Progress,
-    ScenarioError,
-    ScenarioOptions,
-    format_table,
-    graph_for,
-    publish_all,
-    run_recorded,
-    topics_frames,
-)
-from mems_scenarios.contract import (
-    RUN_INFO_TOPIC,
-    AnalysisError,
-    GraphSpec,
-    NodeEntry,
-    ScenarioResult,
-    node_parameters,
-    read_run_info,
-)
+from mems_scenarios import base, contract
 from mems_scenarios.figures import Figure, cell, is_finite, met_cell
 from mems_sim.devices.resonator import default_pulse_amplitude
 from mems_sim.kernels.resonator_observer import observer_model, predicted_error_acf
@@ -146,7 +128,7 @@ def device_topics(ns: str, params: dict) -> list[str]:
     return [f"/{ns}/{t}" for t in names]
 
 
-def graph(options: ScenarioOptions, duration_s: float) -> GraphSpec:
+def graph(options: base.ScenarioOptions, duration_s: float) -> contract.GraphSpec:
     """The scenario's graph: the six devices (:func:`device_cases`), then the four observer
     nodes (:func:`observer_cases`), each in its own namespace; recorded: every device topic,
     every estimate and the run record."""
@@ -161,22 +143,26 @@ def graph(options: ScenarioOptions, duration_s: float) -> GraphSpec:
         )
         # a process graph's device starts once its observers and the recorder subscribed
         consumers = f"adc:{readers[ns] + 1}"
-        devices.append(NodeEntry("resonator_node", DEVICE_NODE, ns, p, consumers=consumers))
+        devices.append(
+            contract.NodeEntry("resonator_node", DEVICE_NODE, ns, p, consumers=consumers)
+        )
         recorded += device_topics(ns, p)
     observers = []
     for name, (ns, params) in observer_cases().items():
         topic = f"/{ns}/{name}/estimate"
         p = dict(params, device_namespace=f"/{ns}", output_topic=topic)
-        observers.append(NodeEntry("resonator_observer_node", OBSERVER_NODE, f"{ns}/{name}", p))
+        observers.append(
+            contract.NodeEntry("resonator_observer_node", OBSERVER_NODE, f"{ns}/{name}", p)
+        )
         recorded.append(topic)
-    return GraphSpec(NAME, (*devices, *observers), (*recorded, RUN_INFO_TOPIC))
+    return contract.GraphSpec(NAME, (*devices, *observers), (*recorded, contract.RUN_INFO_TOPIC))
 
 
-def build_graph(options: ScenarioOptions, out: Path, duration: float):
+def build_graph(options: base.ScenarioOptions, out: Path, duration: float):
     """Devices, observer nodes (:func:`graph`) and the recorder in one context; the run
     record published."""
     spec = graph(options, duration)
-    g = graph_for(options)
+    g = base.graph_for(options)
     nodes = g.build(spec, realtime=options.realtime)
     devices = {ns: nodes[device_fqn(ns)] for ns in device_cases(duration)}
     observers = {
@@ -201,7 +187,9 @@ def _delivered(rec, observers):
     return delivered
 
 
-def run_graph(options: ScenarioOptions, out: Path, duration: float, progress: Progress) -> dict:
+def run_graph(
+    options: base.ScenarioOptions, out: Path, duration: float, progress: base.Progress
+) -> dict:
     """Run the graph until every device published ``duration``; return publish counts."""
     graph, devices, observers, rec = build_graph(options, out, duration)
     delivered = _delivered(rec, observers)
@@ -221,7 +209,7 @@ def run_graph(options: ScenarioOptions, out: Path, duration: float, progress: Pr
             30.0,
             "the recorder to subscribe to the observers' estimates",
         )
-        publish_all(
+        base.publish_all(
             graph,
             list(devices.values()),
             delivered,
@@ -486,7 +474,7 @@ def oracle(record: dict | None, frames: dict) -> dict:
         ("sd_noisy", NOISE_NOISY, ("one_bit_q_overload", None)),
         ("sd_overload", NOISE_OVER, ("overload_q", "overload_q_std")),
     ):
-        seed = node_parameters(record, device_fqn(ns), "the devices' seeds")["seed"]
+        seed = contract.node_parameters(record, device_fqn(ns), "the devices' seeds")["seed"]
         position = frames[f"/{ns}/truth"]["data"][:, 0]
         bits = frames[f"/{ns}/adc"]["data"][:, 0]
         q = replay_comparator_input(seed, position, bits, noise)
@@ -505,7 +493,7 @@ def _needed_topics() -> list[str]:
 def figures(bag: Path) -> tuple[dict, dict, list[tuple[str, str]]]:
     """Every acceptance figure of the scenario that the recording ``bag`` allows: (numbers
     by :data:`KEYS`, plot series, (group, reason) of each group it does not allow)."""
-    frames = topics_frames(bag, _needed_topics(), missing_ok=True)
+    frames = base.topics_frames(bag, _needed_topics(), missing_ok=True)
     f: dict = dict.fromkeys(KEYS, math.nan)
     f["error_acf1_pred"] = float(
         predicted_error_acf(observer_model(F0, Q, FS, NOISE_NOISY, STATE_NOISE), ACF_LAGS)[0]
@@ -533,14 +521,14 @@ def figures(bag: Path) -> tuple[dict, dict, list[tuple[str, str]]]:
     absent = [t for ns in ("sd_noisy", "sd_overload") for t in _streams(ns) if t not in frames]
     try:
         if absent:
-            raise AnalysisError(f"{ORACLE}: no frames on {', '.join(absent)}")
-        f.update(oracle(read_run_info(bag), frames))
-    except AnalysisError as exc:
+            raise contract.AnalysisError(f"{ORACLE}: no frames on {', '.join(absent)}")
+        f.update(oracle(contract.read_run_info(bag), frames))
+    except contract.AnalysisError as exc:
         unavailable.append((ORACLE, str(exc)))
     return f, series, unavailable
 
 
-def analyse(bag, pngs=None) -> ScenarioResult:
+def analyse(bag, pngs=None) -> contract.ScenarioResult:
     """The scenario's figures from its recording ``bag`` alone (:func:`figures`; the
     replayed comparator input through :func:`oracle`, from the run record); ``pngs``: the
     figure's PNG path in a 1-tuple (None: no plot)."""
@@ -551,12 +539,12 @@ def analyse(bag, pngs=None) -> ScenarioResult:
         for name in (ORACLE_FIGURES if group == ORACLE else GROUPS[group][1])
     }
     if len(missing) == sum(len(g[1]) for g in GROUPS.values()) + len(ORACLE_FIGURES):
-        raise AnalysisError("; ".join(reason for _, reason in unavailable))
+        raise contract.AnalysisError("; ".join(reason for _, reason in unavailable))
     paths = []
     if pngs and {"x_obs", "rel"} <= set(series):
         plot(dict(f, series=series), pngs[0])
         paths.append(Path(pngs[0]))
-    return ScenarioResult(
+    return contract.ScenarioResult(
         NAME,
         [r for r in records(f) if r.name not in missing],
         table(f),
@@ -824,7 +812,7 @@ def table(f: dict) -> str:
             met_cell(F["tracking.settle_periods"]),
         ],
     ]
-    return format_table(["figure", "paper", "target", "measured", "met"], rows)
+    return base.format_table(["figure", "paper", "target", "measured", "met"], rows)
 
 
 def plot(f: dict, path: Path) -> None:
@@ -872,16 +860,16 @@ def plot(f: dict, path: Path) -> None:
 
 def _check_duration(duration: float) -> None:
     if duration < 0.2:
-        raise ScenarioError(
+        raise base.ScenarioError(
             f"--duration = {duration!r} is too short for sd_resonator: at least "
             "0.2 s (start-up, steady state, and the f0 step at mid-run)"
         )
 
 
-def run(options: ScenarioOptions) -> dict:
+def run(options: base.ScenarioOptions) -> dict:
     """Run the scenario and analyse its recording (:func:`analyse`); return the table,
     figures and paths."""
-    return run_recorded(
+    return base.run_recorded(
         options,
         name=NAME,
         default_duration_s=DEFAULT_DURATION_S,

@@ -63,6 +63,7 @@ from mems_estimation.nodes.scanner_threshold_ekf_node import ScannerThresholdEkf
 from mems_estimation.nodes.stage_ekf_node import StageEkfNode
 from mems_scenarios.base import Graph, default_domain_id, drive_fast, parameters
 from mems_sim.bag.recorder import RecorderNode
+from mems_sim.devices.scanner_amdm import SWEEP_STUDY
 from mems_sim.nodes.accelerometer_node import AccelerometerNode
 from mems_sim.nodes.imu_node import ImuNode
 from mems_sim.nodes.resonator_node import ResonatorNode
@@ -249,17 +250,7 @@ FAMILIES: dict[str, Family] = {
             name="scanner_amdm",
             namespace="scanner_amdm",
             device=ScannerAmdmNode,
-            device_params=dict(
-                seed=15,
-                drive_voltage_max=150.0,
-                sweep_start_hz=31.32e3,
-                sweep_end_hz=31.26e3,
-                sweep_start_s=0.0,
-                sweep_time_s=0.06,
-                initial_angle=0.02,
-                duration_s=0.03,
-                frame_size=1000,
-            ),
+            device_params=dict(SWEEP_STUDY, seed=15, duration_s=0.03, frame_size=1000),
             estimator=ScannerAmdmEstimatorNode,
             estimator_params={},
             inputs=("adc", "drive"),

@@ -361,6 +361,18 @@ DRIVE_SPECS: tuple[ParamSpec, ...] = (
 
 AMDM_SPECS: tuple[ParamSpec, ...] = DEVICE_SPECS + CIRCUIT_SPECS + DRIVE_SPECS
 
+#: The drive of the shared-electrode study (Chen 2018 Sec. 5.4, Figs. 5.8-5.9, as the
+#: scenario runs it): 150 V swept down 31.32 -> 31.26 kHz over 0.06 s through the
+#: parametric resonance, from 0.02 rad; the values of :data:`DRIVE_SPECS` it sets.
+SWEEP_STUDY = dict(
+    drive_voltage_max=150.0,
+    sweep_start_hz=31.32e3,
+    sweep_end_hz=31.26e3,
+    sweep_start_s=0.0,
+    sweep_time_s=0.06,
+    initial_angle=0.02,
+)
+
 
 def resolve_amdm(overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Validated parameters of :data:`AMDM_SPECS` with the cross checks of the chain.

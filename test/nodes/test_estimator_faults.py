@@ -57,6 +57,7 @@ from mems_estimation.nodes.stage_ekf_node import StageEkfNode
 from mems_estimation.nodes.stage_gyro_calibration_node import StageGyroCalibrationNode
 from mems_msgs.msg import AdcFrame, CalibrationResult, NoiseModel, SignalFrame, StateEstimate
 from mems_sim.devices import accelerometer
+from mems_sim.devices.scanner_amdm import SWEEP_STUDY
 from mems_sim.nodes.accelerometer_node import AccelerometerNode
 from mems_sim.nodes.imu_node import ImuNode
 from mems_sim.nodes.resonator_node import ResonatorNode
@@ -188,15 +189,7 @@ CASES = {
         Case(
             "scanner_amdm_estimator",
             ScannerAmdmNode,
-            dict(
-                seed=15,
-                drive_voltage_max=150.0,
-                sweep_start_hz=31.32e3,
-                sweep_end_hz=31.26e3,
-                sweep_start_s=0.0,
-                sweep_time_s=0.06,
-                initial_angle=0.02,
-            ),
+            dict(SWEEP_STUDY, seed=15),
             "/scanner_amdm",
             ScannerAmdmEstimatorNode,
             {},
