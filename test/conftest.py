@@ -59,6 +59,18 @@ def subprocess_env(domain_id):
     return env
 
 
+@pytest.fixture
+def cpu_hog():
+    """One core busy for the duration of the test (a child process spinning)."""
+    import subprocess
+    import sys
+
+    hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    yield hog
+    hog.kill()
+    hog.wait()
+
+
 def spin_until(executor, predicate, timeout=15.0):
     """Spin ``executor`` until ``predicate()`` holds or ``timeout`` s pass; return predicate()."""
     import time

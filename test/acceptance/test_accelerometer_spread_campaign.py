@@ -6,25 +6,9 @@ the runs. Prints the distributions and the gain against the model mismatch."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
-from pathlib import Path
-
 import numpy as np
-import pandas as pd
 import pytest
-
-
-def spread_campaign(out: Path, seeds: str, device_seeds: str, env, workers: str) -> pd.DataFrame:
-    """run_campaign accelerometer_spread: one row per run, one column per figure."""
-    cmd = [str(Path(sys.executable).parent / "run_campaign"), "accelerometer_spread"]
-    cmd += ["--seeds", seeds, "--device-seeds", device_seeds, "--workers", workers]
-    cmd += ["--out", str(out), "--no-progress"]
-    run = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=3600)
-    assert run.returncode == 0, run.stderr[-3000:]
-    df = pd.read_parquet(out / "results.parquet")
-    assert (df.status == "ok").all()
-    return df.pivot(index=["seed", "device_seed"], columns="name", values="value")
+from campaign_helpers import spread_campaign
 
 
 @pytest.mark.slow

@@ -18,15 +18,6 @@ from mems_sim.bag import info as info_mod
 RUNS = 5
 
 
-@pytest.fixture
-def cpu_hog():
-    """One core busy for the duration of the test (a child process spinning)."""
-    hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
-    yield hog
-    hog.kill()
-    hog.wait()
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("name", list(SCENARIOS))
 def test_loaded_runs_lose_nothing(name, cpu_hog, tmp_path, domain_id):

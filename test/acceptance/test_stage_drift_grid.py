@@ -19,6 +19,7 @@ import math
 
 import numpy as np
 import pytest
+from campaign_helpers import print_drift_rows
 
 from mems_estimation.identification.stage_gyro_calibration import DRIFT_GRID, Plan, drift_corner
 
@@ -59,16 +60,8 @@ def grid_table(seeds=SEEDS, plan: Plan | None = None) -> list[dict]:
 @pytest.mark.slow
 def test_drift_grid_every_corner():
     rows = grid_table()
-    print(
-        "\nfn tempco | gain tempco | zeta | row 1 ref. 22.9 C only | row 2 D_n/eta re-id. "
-        "| max RMSE | max |alpha-1|"
-    )
-    for r in rows:
-        fc, bc, z = r["corner"]
-        print(
-            f"{1e6 * fc:+.0f} ppm/K | {100 * bc:+.2f} %/K | {z:.1f} x | {r['rms_ref_t1']:.0f} ppm "
-            f"| {r['rms_ref_t2']:.0f} ppm | {r['max_rmse']:.4f} | {r['max_dalpha']:.1e}"
-        )
+    print()
+    print_drift_rows(rows)
     worst = max(r["rms_ref_t2"] for r in rows)
     print(f"worst corner, row 2: {worst:.0f} ppm (target <= {TARGET_PPM:g}, goal <= {GOAL_PPM:g})")
     for r in rows:

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from campaign_helpers import print_drift_rows
 
 from mems_estimation.identification.stage_gyro_calibration import DRIFT_GRID
 
@@ -123,16 +124,7 @@ def test_drift_grid_every_corner_through_graph(tmp_path):
     rows = corner_table(out / "results.parquet")
     assert sorted(r["corner"] for r in rows) == sorted(DRIFT_GRID)
     print(f"\ncampaign: {sum(r['runs'] for r in rows)} graph runs in {wall:.0f} s wall")
-    print(
-        "fn tempco | gain tempco | zeta | row 1 ref. 22.9 C only | row 2 D_n/eta re-id. "
-        "| max RMSE | max |alpha-1|"
-    )
-    for r in rows:
-        fc, bc, z = r["corner"]
-        print(
-            f"{1e6 * fc:+.0f} ppm/K | {100 * bc:+.2f} %/K | {z:.1f} x | {r['rms_ref_t1']:.0f} ppm "
-            f"| {r['rms_ref_t2']:.0f} ppm | {r['max_rmse']:.4f} | {r['max_dalpha']:.1e}"
-        )
+    print_drift_rows(rows)
     worst = max(r["rms_ref_t2"] for r in rows)
     goal = sum(r["rms_ref_t2"] <= GOAL_PPM for r in rows)
     print(

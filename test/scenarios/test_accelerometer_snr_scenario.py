@@ -1,12 +1,8 @@
 """End-to-end: scenario accelerometer_snr through the node graph, figures from its MCAP
 (Zhang 2010, Tables III and IV)."""
 
-import subprocess
-import sys
-from pathlib import Path
-
-import pandas as pd
 import pytest
+from campaign_helpers import spread_campaign
 from figure_checks import assert_figures
 
 from mems_scenarios import accelerometer_snr as sc
@@ -103,20 +99,6 @@ def test_figures_as_data_and_every_miss_flagged(result):
     assert figs["table_i.pull_in_simulated"]["pass"]
     assert figs["ekf_minus_pi_snr_1g"]["unit"] == "dB" and figs["ekf_minus_pi_snr_1g"]["pass"]
     assert figs["device.k_eff_mismatch"]["value"] == 0.0  # the nominal device
-
-
-def spread_campaign(out, seeds: str, device_seeds: str, env, workers: str = "0") -> pd.DataFrame:
-    """run_campaign accelerometer_spread over noise seeds x device seeds: the per-run rows
-    (gain at 0.1 g and 1 g, the device's mismatch against the filter's nominal model)."""
-    cmd = [str(Path(sys.executable).parent / "run_campaign"), "accelerometer_spread"]
-    cmd += ["--seeds", seeds, "--device-seeds", device_seeds, "--workers", workers]
-    cmd += ["--out", str(out), "--no-progress"]
-    run = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=3600)
-    assert run.returncode == 0, run.stderr[-3000:]
-    df = pd.read_parquet(out / "results.parquet")
-    assert (df.status == "ok").all()
-    wide = df.pivot(index=["seed", "device_seed"], columns="name", values="value")
-    return wide
 
 
 def test_spread_campaign_small(tmp_path, subprocess_env):

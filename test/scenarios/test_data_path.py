@@ -45,15 +45,6 @@ from mems_sim.bag.player import read_messages
 DATA_TOPICS = ("/imu/adc", "/imu/truth", "/imu/noise_model")
 
 
-@pytest.fixture
-def cpu_hog():
-    """One core busy for the duration of the test (a child process spinning)."""
-    hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
-    yield hog
-    hog.kill()
-    hog.wait()
-
-
 def assert_lossless(path: Path) -> dict:
     """Every recorded topic complete in the file: no gaps, no missing tail; the
     end-of-stream record present. Returns bag_info's dict."""
