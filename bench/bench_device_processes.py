@@ -78,9 +78,11 @@ sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
 from process_tools import (
+    check_families,
     cpu_ticks,
     device_parameters,
     device_timing,
+    family_parser,
     graph_topics,
     machine_ticks,
     process_env,
@@ -896,16 +898,11 @@ def _frame_size(text: str) -> tuple[str, int]:
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
     """The options of the module docstring (``--help`` prints them)."""
-    ap = argparse.ArgumentParser(
-        prog="bench_device_processes.py",
-        description="Each device family's graph as separate processes, paced by the "
+    ap = family_parser(
+        "bench_device_processes.py",
+        "Each device family's graph as separate processes, paced by the "
         "device's wall-clock timer (details in the module docstring).",
-    )
-    ap.add_argument(
-        "families",
-        nargs="*",
-        metavar="FAMILY",
-        help=f"families to run (default all: {', '.join(FAMILIES)})",
+        FAMILIES,
     )
     ap.add_argument("--pace", type=float, default=1.5, help="x real time (default 1.5)")
     ap.add_argument(
@@ -943,9 +940,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
             f"--storage-preset-profile {args.storage_preset_profile!r}: known "
             f"{', '.join(STORAGE_PRESETS)}"
         )
-    unknown = sorted(set(args.families) - set(FAMILIES))
-    if unknown:
-        ap.error(f"unknown families {unknown}; known: {', '.join(FAMILIES)}")
+    check_families(ap, args, FAMILIES)
     if not args.pace > 0 or not args.seconds > 0:
         ap.error(f"--pace ({args.pace}) and --seconds ({args.seconds}) must be > 0")
     args.frame_size = dict(args.frame_size)

@@ -42,6 +42,8 @@ from pathlib import Path
 
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")))
 
+from process_tools import check_families, family_parser
+
 from mems_scenarios.base import (
     NOT_RECORDED,
     THROUGHPUT,
@@ -311,16 +313,11 @@ def run_family(family: str, tmp: Path, domain_id: int | None, scale: float = 1.0
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
     """The options of the module docstring (``--help`` prints them)."""
-    ap = argparse.ArgumentParser(
-        prog="bench_single_device_fast.py",
-        description="Fast mode, one device per graph: each device family's real-time factor "
+    ap = family_parser(
+        "bench_single_device_fast.py",
+        "Fast mode, one device per graph: each device family's real-time factor "
         "from its first frame to its last (details in the module docstring).",
-    )
-    ap.add_argument(
-        "families",
-        nargs="*",
-        metavar="FAMILY",
-        help=f"families to run (default all: {', '.join(FAMILIES)})",
+        FAMILIES,
     )
     ap.add_argument("--repeat", type=int, default=1, help="graphs per family (default 1)")
     ap.add_argument(
@@ -330,9 +327,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         help="simulated duration of each graph x SCALE (default 1: 0.06-0.5 s, imu 300 s)",
     )
     args = ap.parse_args(argv)
-    unknown = sorted(set(args.families) - set(FAMILIES))
-    if unknown:
-        ap.error(f"unknown families {unknown}; known: {', '.join(FAMILIES)}")
+    check_families(ap, args, FAMILIES)
     if args.repeat < 1:
         ap.error(f"--repeat ({args.repeat}) must be >= 1")
     if not 0.1 <= args.scale <= 100.0:

@@ -10,6 +10,7 @@ The emulator is its executable with ``start_when_matched`` and ``exit_when_ackno
 
 from __future__ import annotations
 
+import argparse
 import os
 import time
 
@@ -232,3 +233,23 @@ def keep_all_publisher(node, msg_type, topic: str, timeout_s: float = 30.0):
     while pub.get_subscription_count() < 1 and time.monotonic() < deadline:
         time.sleep(0.05)
     return pub
+
+
+def family_parser(prog: str, description: str, families) -> argparse.ArgumentParser:
+    """A bench's option parser whose positional arguments name device families (default
+    all of ``families``); :func:`check_families` refuses unknown ones after parsing."""
+    ap = argparse.ArgumentParser(prog=prog, description=description)
+    ap.add_argument(
+        "families",
+        nargs="*",
+        metavar="FAMILY",
+        help=f"families to run (default all: {', '.join(families)})",
+    )
+    return ap
+
+
+def check_families(ap: argparse.ArgumentParser, args: argparse.Namespace, families) -> None:
+    """``ap.error`` (exit 2) on the names of ``args.families`` that ``families`` lacks."""
+    unknown = sorted(set(args.families) - set(families))
+    if unknown:
+        ap.error(f"unknown families {unknown}; known: {', '.join(families)}")
