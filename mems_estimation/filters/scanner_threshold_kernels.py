@@ -7,8 +7,8 @@ algorithm (ZOH model, Joseph form, late detections, peak-slope angle) is describ
 the model (:class:`~mems_estimation.filters.scanner_threshold_specs.ScannerModel`), the
 detection options (:class:`DetectionOptions`), the detections (:class:`DetectionArrays`),
 the fixed-lag buffer (:class:`LagBuffer`) and the outputs (:class:`RunOutputs`).  Numba
-re-validates a cached kernel on its own file only: after editing :func:`scalar_update`,
-clear the cache of :mod:`mems_estimation.studies.scanner_threshold` (its PCRB kernel).
+re-validates a cached kernel on its own file only: after editing :func:`scalar_update`
+or :func:`cov_predict`, clear the cache of :mod:`mems_estimation.studies.scanner_threshold` (its PCRB kernel).
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ __all__ = [
     "ekf_run",
     "aug_run",
     "scalar_update",
+    "cov_predict",
 ]
 
 
@@ -78,30 +79,76 @@ class RunOutputs(NamedTuple):
 
 
 @numba.njit(cache=True, inline="always")
-def _predict(x, P, v, Phi, Gam, Q, J, dc0, dth0, thth, xo, Po):
-    """x^- = Phi x + Gam tau/J; P^- = G P G^T + Q (eqs. (69)-(70), ZOH form). P as [p00,p01,p11]."""
+def _torque_terms(theta, v, J, dc0, dth0, thth):
+    """(acc, dacc): the drive's angular acceleration tau/J = 0.5 v^2 dC_d/dtheta / J over a
+    sample [rad/s^2] and its derivative in theta (eq. (69)); both 0 where v = 0."""
     v2 = v * v
     acc = 0.0
     dacc = 0.0
     if v2 != 0.0:
-        u = (x[0] - thth) / dth0
+        u = (theta - thth) / dth0
         e = math.exp(-u * u)
         acc = 0.5 * (-2.0 * dc0 * u / dth0 * e) * v2 / J
         dacc = 0.5 * (2.0 * dc0 / (dth0 * dth0) * (2.0 * u * u - 1.0) * e) * v2 / J
-    xo[0] = Phi[0, 0] * x[0] + Phi[0, 1] * x[1] + Gam[0] * acc
-    xo[1] = Phi[1, 0] * x[0] + Phi[1, 1] * x[1] + Gam[1] * acc
+    return acc, dacc
+
+
+@numba.njit(cache=True, inline="always")
+def cov_predict(p00, p01, p11, Phi, Gam, Q, dacc):
+    """P^- = G P G^T + Q (eq. (70), ZOH form), G = Phi + Gam [dacc, 0]; P as (p00, p01, p11).
+    Returns the predicted (p00, p01, p11)."""
     g00 = Phi[0, 0] + Gam[0] * dacc
     g01 = Phi[0, 1]
     g10 = Phi[1, 0] + Gam[1] * dacc
     g11 = Phi[1, 1]
-    p00, p01, p11 = P[0], P[1], P[2]
     a00 = g00 * p00 + g01 * p01
     a01 = g00 * p01 + g01 * p11
     a10 = g10 * p00 + g11 * p01
     a11 = g10 * p01 + g11 * p11
-    Po[0] = a00 * g00 + a01 * g01 + Q[0, 0]
-    Po[1] = a00 * g10 + a01 * g11 + Q[0, 1]
-    Po[2] = a10 * g10 + a11 * g11 + Q[1, 1]
+    return (
+        a00 * g00 + a01 * g01 + Q[0, 0],
+        a00 * g10 + a01 * g11 + Q[0, 1],
+        a10 * g10 + a11 * g11 + Q[1, 1],
+    )
+
+
+@numba.njit(cache=True, inline="always")
+def _predict(x, P, v, Phi, Gam, Q, J, dc0, dth0, thth, xo, Po):
+    """x^- = Phi x + Gam tau/J; P^- = G P G^T + Q (eqs. (69)-(70), ZOH form). P as [p00,p01,p11]."""
+    acc, dacc = _torque_terms(x[0], v, J, dc0, dth0, thth)
+    xo[0] = Phi[0, 0] * x[0] + Phi[0, 1] * x[1] + Gam[0] * acc
+    xo[1] = Phi[1, 0] * x[0] + Phi[1, 1] * x[1] + Gam[1] * acc
+    Po[0], Po[1], Po[2] = cov_predict(P[0], P[1], P[2], Phi, Gam, Q, dacc)
+
+
+@numba.njit(cache=True, inline="always")
+def _copy_state(x, P, xs, Ps):
+    """x (2,), P (3,) = xs, Ps."""
+    x[0] = xs[0]
+    x[1] = xs[1]
+    P[0] = Ps[0]
+    P[1] = Ps[1]
+    P[2] = Ps[2]
+
+
+@numba.njit(cache=True, inline="always")
+def _store_row(X, PP, r, xs, Ps):
+    """Row r of X (., 2), PP (., 3) = xs, Ps."""
+    X[r, 0] = xs[0]
+    X[r, 1] = xs[1]
+    PP[r, 0] = Ps[0]
+    PP[r, 1] = Ps[1]
+    PP[r, 2] = Ps[2]
+
+
+@numba.njit(cache=True, inline="always")
+def _load_row(x, P, X, PP, r):
+    """x, P = row r of X (., 2), PP (., 3)."""
+    x[0] = X[r, 0]
+    x[1] = X[r, 1]
+    P[0] = PP[r, 0]
+    P[1] = PP[r, 1]
+    P[2] = PP[r, 2]
 
 
 @numba.njit(cache=True, inline="always")
@@ -131,14 +178,22 @@ def scalar_update(x, P, h0, h1, nu, r):
 
 
 @numba.njit(cache=True, inline="always")
-def _ycap_update(x, P, y, gain, sc0, sth0, thth, rcap, full):
-    """y_cap update, eq. (71): y = h(theta) omega, h = -R_s V_bias dC_s/dtheta."""
+def _ycap_terms(x, y, gain, sc0, sth0, thth, full):
+    """(H0, H1, nu) of the y_cap measurement, eq. (71): y = h(theta) omega, h = -R_s V_bias
+    dC_s/dtheta; H = [h' omega (0 unless ``full``), h], nu = y - h omega [V]."""
     u = (x[0] - thth) / sth0
     e = math.exp(-u * u)
     h = -gain * (-2.0 * sc0 * u / sth0 * e)
     hp = -gain * (2.0 * sc0 / (sth0 * sth0) * (2.0 * u * u - 1.0) * e)
     nu = y - h * x[1]
     h0 = hp * x[1] if full else 0.0
+    return h0, h, nu
+
+
+@numba.njit(cache=True, inline="always")
+def _ycap_update(x, P, y, gain, sc0, sth0, thth, rcap, full):
+    """y_cap update, eq. (71) (:func:`_ycap_terms`)."""
+    h0, h, nu = _ycap_terms(x, y, gain, sc0, sth0, thth, full)
     scalar_update(x, P, h0, h, nu, rcap)
 
 
@@ -203,11 +258,7 @@ def ekf_run(y, v, k0, det, opt, m, x, P, buf, out, adapt, ad):
     for i in range(n):
         k = k0 + i
         if k == 0:
-            xp[0] = x[0]
-            xp[1] = x[1]
-            Pp[0] = P[0]
-            Pp[1] = P[1]
-            Pp[2] = P[2]
+            _copy_state(xp, Pp, x, P)
         else:
             _predict(
                 x,
@@ -224,18 +275,10 @@ def ekf_run(y, v, k0, det, opt, m, x, P, buf, out, adapt, ad):
                 Pp,
             )
         s = k % Lb
-        bx[s, 0] = xp[0]
-        bx[s, 1] = xp[1]
-        bP[s, 0] = Pp[0]
-        bP[s, 1] = Pp[1]
-        bP[s, 2] = Pp[2]
+        _store_row(bx, bP, s, xp, Pp)
         by[s] = y[i]
         bv[s] = v[i]
-        x[0] = xp[0]
-        x[1] = xp[1]
-        P[0] = Pp[0]
-        P[1] = Pp[1]
-        P[2] = Pp[2]
+        _copy_state(x, P, xp, Pp)
         _ycap_update(x, P, y[i], gain, sc0, sth0, thth, rcap * ad[1], full)
         # late threshold detections issued at this sample
         while jd < nd and det_k[jd] <= k:
@@ -246,11 +289,7 @@ def ekf_run(y, v, k0, det, opt, m, x, P, buf, out, adapt, ad):
                 stats[2] += 1
                 continue
             sc = c % Lb
-            xw[0] = bx[sc, 0]
-            xw[1] = bx[sc, 1]
-            Pw[0] = bP[sc, 0]
-            Pw[1] = bP[sc, 1]
-            Pw[2] = bP[sc, 2]
+            _load_row(xw, Pw, bx, bP, sc)
             h1 = dlt * Ts
             rdet = rth
             if canny:
@@ -270,53 +309,24 @@ def ekf_run(y, v, k0, det, opt, m, x, P, buf, out, adapt, ad):
                 continue
             stats[0] += 1
             # stacked update of Table 4.1 at sample c: both Jacobians at the prior
-            u = (xw[0] - thth) / sth0
-            e = math.exp(-u * u)
-            hh = -gain * (-2.0 * sc0 * u / sth0 * e)
-            hp = -gain * (2.0 * sc0 / (sth0 * sth0) * (2.0 * u * u - 1.0) * e)
-            nu_y = by[sc] - hh * xw[1]
-            hy0 = hp * xw[1] if full else 0.0
+            hy0, hh, nu_y = _ycap_terms(xw, by[sc], gain, sc0, sth0, thth, full)
             scalar_update(xw, Pw, 1.0, h1, nu, rdet)
             scalar_update(xw, Pw, hy0, hh, nu_y, rcap * ad[1])
             r = c - out_base
             if r >= 0:
-                ox[r, 0] = xw[0]
-                ox[r, 1] = xw[1]
-                oP[r, 0] = Pw[0]
-                oP[r, 1] = Pw[1]
-                oP[r, 2] = Pw[2]
+                _store_row(ox, oP, r, xw, Pw)
             for j in range(c + 1, k + 1):
                 _predict(xw, Pw, bv[(j - 1) % Lb], Phi, Gam, Q, J, dc0, dth0, thth, xp, Pp)
                 sj = j % Lb
-                bx[sj, 0] = xp[0]
-                bx[sj, 1] = xp[1]
-                bP[sj, 0] = Pp[0]
-                bP[sj, 1] = Pp[1]
-                bP[sj, 2] = Pp[2]
-                xw[0] = xp[0]
-                xw[1] = xp[1]
-                Pw[0] = Pp[0]
-                Pw[1] = Pp[1]
-                Pw[2] = Pp[2]
+                _store_row(bx, bP, sj, xp, Pp)
+                _copy_state(xw, Pw, xp, Pp)
                 _ycap_update(xw, Pw, by[sj], gain, sc0, sth0, thth, rcap * ad[1], full)
                 r = j - out_base
                 if r >= 0:
-                    ox[r, 0] = xw[0]
-                    ox[r, 1] = xw[1]
-                    oP[r, 0] = Pw[0]
-                    oP[r, 1] = Pw[1]
-                    oP[r, 2] = Pw[2]
-            x[0] = xw[0]
-            x[1] = xw[1]
-            P[0] = Pw[0]
-            P[1] = Pw[1]
-            P[2] = Pw[2]
+                    _store_row(ox, oP, r, xw, Pw)
+            _copy_state(x, P, xw, Pw)
         r = k - out_base
-        ox[r, 0] = x[0]
-        ox[r, 1] = x[1]
-        oP[r, 0] = P[0]
-        oP[r, 1] = P[1]
-        oP[r, 2] = P[2]
+        _store_row(ox, oP, r, x, P)
         rx[i, 0] = x[0]
         rx[i, 1] = x[1]
         det = P[0] * P[2] - P[1] * P[1]
@@ -332,14 +342,7 @@ def ekf_run(y, v, k0, det, opt, m, x, P, buf, out, adapt, ad):
 def _aug_predict(z, P, v, Phi, Gam, Q, J, dc0, dth0, thth, qc, zo, Po):
     """Prediction of z = [theta, omega, a, b] (a, b: log gain and log width of the sensing
     comb, random walks of variance qc[0], qc[1] per sample); P full 4 x 4."""
-    v2 = v * v
-    acc = 0.0
-    dacc = 0.0
-    if v2 != 0.0:
-        u = (z[0] - thth) / dth0
-        e = math.exp(-u * u)
-        acc = 0.5 * (-2.0 * dc0 * u / dth0 * e) * v2 / J
-        dacc = 0.5 * (2.0 * dc0 / (dth0 * dth0) * (2.0 * u * u - 1.0) * e) * v2 / J
+    acc, dacc = _torque_terms(z[0], v, J, dc0, dth0, thth)
     zo[0] = Phi[0, 0] * z[0] + Phi[0, 1] * z[1] + Gam[0] * acc
     zo[1] = Phi[1, 0] * z[0] + Phi[1, 1] * z[1] + Gam[1] * acc
     zo[2] = z[2]

@@ -18,7 +18,7 @@ import numpy as np
 
 from mems_estimation.filters.scanner_threshold_detector import Detections
 from mems_estimation.filters.scanner_threshold_ekf import EkfResult, run_ekf
-from mems_estimation.filters.scanner_threshold_kernels import scalar_update
+from mems_estimation.filters.scanner_threshold_kernels import cov_predict, scalar_update
 from mems_estimation.filters.scanner_threshold_specs import model_from_device, zoh_matrices
 
 __all__ = [
@@ -67,18 +67,7 @@ def _pcrb_run(th, om, v, Phi, Gam, Qt, J, dc0, dth0, thth, gain, sc0, sth0, rcap
                 u = (x - thth) / dth0
                 dacc = 0.5 * (2.0 * dc0 / (dth0 * dth0) * (2.0 * u * u - 1.0) * math.exp(-u * u))
                 dacc *= v2 / J
-            g00 = Phi[0, 0] + Gam[0] * dacc
-            g01 = Phi[0, 1]
-            g10 = Phi[1, 0] + Gam[1] * dacc
-            g11 = Phi[1, 1]
-            p00, p01, p11 = P[0], P[1], P[2]
-            a00 = g00 * p00 + g01 * p01
-            a01 = g00 * p01 + g01 * p11
-            a10 = g10 * p00 + g11 * p01
-            a11 = g10 * p01 + g11 * p11
-            P[0] = a00 * g00 + a01 * g01 + Qt[0, 0]
-            P[1] = a00 * g10 + a01 * g11 + Qt[0, 1]
-            P[2] = a10 * g10 + a11 * g11 + Qt[1, 1]
+            P[0], P[1], P[2] = cov_predict(P[0], P[1], P[2], Phi, Gam, Qt, dacc)
         u = (th[k] - thth) / sth0
         e = math.exp(-u * u)
         h = gain * 2.0 * sc0 * u / sth0 * e
