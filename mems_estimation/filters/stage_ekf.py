@@ -210,6 +210,28 @@ def ekf_run(y, u, A, B, Q, Rinv, eta, gap, lim, eps, x, P, uprev, out_x, out_var
     uprev[0] = up
 
 
+def _run_kernel(kernel, f, noise, y, u, n_states: int, correction) -> tuple[np.ndarray, np.ndarray]:
+    """One call of a stage EKF kernel (:func:`ekf_run`, :func:`gain_ekf_run`) on a frame.
+
+    f: the filter (its model, A, B, Rinv, eps and the carried x, P, uprev); noise: the
+    kernel's noise arguments after B (Q [V^2], and Qg for the gain state); y (n, n_y),
+    u (n,) as in :meth:`StageEkf.step`; correction: (alpha, beta) of
+    :func:`_output_correction`, or None. Returns states and variances (n, n_states)."""
+    y = np.ascontiguousarray(np.atleast_2d(y), float)
+    u = np.ascontiguousarray(u, float)
+    n = y.shape[0]
+    out_x = np.empty((n, n_states))
+    out_v = np.empty((n, n_states))
+    m = f.model
+    eta = np.asarray(m.eta, float)
+    gap = np.asarray(m.gap, float)
+    lim = np.ascontiguousarray(m.limits, float)
+    kernel(y, u, f.A, f.B, *noise, f.Rinv, eta, gap, lim, f.eps, f.x, f.P, f.uprev, out_x, out_v)
+    if correction is not None:
+        _output_correction(out_x, out_v, *correction)
+    return out_x, out_v
+
+
 def _output_correction(x: np.ndarray, var: np.ndarray, alpha: float, beta: float) -> None:
     """omega = (omega_ekf - beta) / alpha in place (sec. 3.5.4 last step), its variance
     scaled by 1/alpha^2; column 1 of the (n, n_states) arrays."""
@@ -302,32 +324,9 @@ class StageEkf:
         """Estimates (n, 2) [rad, rad/s] and variances (n, 2) for measurements y (n, n_y)
         and drive u (n,). ``corrected`` applies the identified output correction to omega
         (and scales its variance by 1/alpha^2)."""
-        y = np.ascontiguousarray(np.atleast_2d(y), float)
-        u = np.ascontiguousarray(u, float)
-        n = y.shape[0]
-        out_x = np.empty((n, 2))
-        out_v = np.empty((n, 2))
         m = self.model
-        ekf_run(
-            y,
-            u,
-            self.A,
-            self.B,
-            float(m.Q),
-            self.Rinv,
-            np.asarray(m.eta, float),
-            np.asarray(m.gap, float),
-            np.ascontiguousarray(m.limits, float),
-            self.eps,
-            self.x,
-            self.P,
-            self.uprev,
-            out_x,
-            out_v,
-        )
-        if corrected:
-            _output_correction(out_x, out_v, m.alpha, m.beta)
-        return out_x, out_v
+        corr = (m.alpha, m.beta) if corrected else None
+        return _run_kernel(ekf_run, self, (float(m.Q),), y, u, 2, corr)
 
 
 @numba.njit(cache=True)
@@ -452,33 +451,8 @@ class GainAdaptiveStageEkf:
     ) -> tuple[np.ndarray, np.ndarray]:
         """States (n, 3) [rad, rad/s, -] and their variances for measurements y (n, n_y)
         [V] and drive u (n,) [V]; ``corrected`` applies (alpha, beta) to omega."""
-        y = np.ascontiguousarray(np.atleast_2d(y), float)
-        u = np.ascontiguousarray(u, float)
-        n = y.shape[0]
-        out_x = np.empty((n, 3))
-        out_v = np.empty((n, 3))
-        m = self.model
-        gain_ekf_run(
-            y,
-            u,
-            self.A,
-            self.B,
-            float(m.Q),
-            self.Qg,
-            self.Rinv,
-            np.asarray(m.eta, float),
-            np.asarray(m.gap, float),
-            np.ascontiguousarray(m.limits, float),
-            self.eps,
-            self.x,
-            self.P,
-            self.uprev,
-            out_x,
-            out_v,
-        )
-        if corrected:
-            _output_correction(out_x, out_v, self.alpha, self.beta)
-        return out_x, out_v
+        corr = (self.alpha, self.beta) if corrected else None
+        return _run_kernel(gain_ekf_run, self, (float(self.model.Q), self.Qg), y, u, 3, corr)
 
 
 @numba.njit(cache=True)
