@@ -46,6 +46,7 @@ __all__ = [
     "identify_stage",
     "retrain_at",
     "calibration_seeds",
+    "sweep_devices",
     "calibration_record",
     "calibration_run",
     "off_axis_table",
@@ -360,6 +361,26 @@ def calibration_seeds(temperature_c: float, seed: int) -> tuple[int, int]:
     return seed * 100 + 50 + int(temperature_c), seed * 100 + 60 + int(temperature_c)
 
 
+def sweep_devices(
+    temperature_c: float,
+    seeds: tuple[int, int],
+    plan: Plan,
+    stage_params: dict | None = None,
+    gyro_params: dict | None = None,
+) -> tuple[MicroStage, MemsGyro]:
+    """Step 2's devices at ``temperature_c`` [degC] (Chen 2018 sec. 3.3.1): the stage driven
+    by the calibration amplitude sweep (``plan.cal_trials`` x ``plan.cal_periods`` periods)
+    and its gyro, with the noise seeds ``seeds`` = (stage, gyro)."""
+    sp = dict(stage_params or {}, temperature_c=temperature_c)
+    stage_seed, gyro_seed = seeds
+    stage = MicroStage(
+        sp,
+        DriveSchedule.amplitude_sweep(n_trials=plan.cal_trials, periods=plan.cal_periods),
+        seed=stage_seed,
+    )
+    return stage, MemsGyro(gyro_params, seed=gyro_seed, temperature_c=temperature_c)
+
+
 def calibration_record(
     temperature_c: float,
     seed: int,
@@ -370,14 +391,8 @@ def calibration_record(
     """The calibration sweep with the gyro on the stage (step 2: Chen 2018 sec. 3.3.1, the
     amplitude sweep of :class:`Plan`) at ``temperature_c`` [degC], seeded from the run
     ``seed``: (the record of :func:`mems_sim.devices.stage.record`, the gyro)."""
-    sp = dict(stage_params or {}, temperature_c=temperature_c)
-    stage_seed, gyro_seed = calibration_seeds(temperature_c, seed)
-    stage = MicroStage(
-        sp,
-        DriveSchedule.amplitude_sweep(n_trials=plan.cal_trials, periods=plan.cal_periods),
-        seed=stage_seed,
-    )
-    gyro = MemsGyro(gyro_params, seed=gyro_seed, temperature_c=temperature_c)
+    seeds = calibration_seeds(temperature_c, seed)
+    stage, gyro = sweep_devices(temperature_c, seeds, plan, stage_params, gyro_params)
     return record(stage, gyro), gyro
 
 

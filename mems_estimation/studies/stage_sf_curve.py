@@ -57,6 +57,7 @@ from mems_estimation.identification.stage_gyro_calibration import (
     calibrate,
     identify_stage,
     least_squares_eq27,
+    sweep_devices,
 )
 from mems_estimation.identification.stage_identification import (
     _predicted,
@@ -267,15 +268,9 @@ def calibration_devices(
 ) -> tuple[MicroStage, MemsGyro]:
     """Step 2's devices at ``temperature_c`` [C]: the stage driven by the calibration
     amplitude sweep (``plan.cal_trials`` x ``plan.cal_periods`` periods) and its gyro,
-    seeded by :func:`calibration_seeds`."""
-    sp = dict(stage_params or {}, temperature_c=temperature_c)
-    stage_seed, gyro_seed = calibration_seeds(temperature_c, seed)
-    stage = MicroStage(
-        sp,
-        DriveSchedule.amplitude_sweep(n_trials=plan.cal_trials, periods=plan.cal_periods),
-        seed=stage_seed,
-    )
-    return stage, MemsGyro(gyro_params, seed=gyro_seed, temperature_c=temperature_c)
+    seeded by :func:`calibration_seeds` (:func:`sweep_devices`)."""
+    seeds = calibration_seeds(temperature_c, seed)
+    return sweep_devices(temperature_c, seeds, plan, stage_params, gyro_params)
 
 
 def bootstrap_point(
