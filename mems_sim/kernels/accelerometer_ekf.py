@@ -98,6 +98,23 @@ def _pdot(p00, p01, p02, p11, p12, p22, f10, f11, qv, qa):
 
 
 @numba.njit(cache=True)
+def _pdot_stage(p00, p01, p02, p11, p12, p22, h, k00, k01, k02, k11, k12, k22, f10, f11, qv, qa):
+    """:func:`_pdot` at P + h K, an RK4 stage (K: the previous stage's derivative)."""
+    return _pdot(
+        p00 + h * k00,
+        p01 + h * k01,
+        p02 + h * k02,
+        p11 + h * k11,
+        p12 + h * k12,
+        p22 + h * k22,
+        f10,
+        f11,
+        qv,
+        qa,
+    )
+
+
+@numba.njit(cache=True)
 def ekf_predict(s, pm, v_f, dt, q, mv, steps=1):
     """Time update over dt [s] (eqs. 4-52, 4-53), RK4; s, pm updated in place.
 
@@ -115,43 +132,16 @@ def ekf_predict(s, pm, v_f, dt, q, mv, steps=1):
         a00, a01, a02, a11, a12, a22 = _pdot(p00, p01, p02, p11, p12, p22, f10, f11, qv, qa)
         hh = 0.5 * h
         x2, v2, f10, f11 = _dynamics(x + hh * x1, v + hh * v1, a, v_f, mv)
-        b00, b01, b02, b11, b12, b22 = _pdot(
-            p00 + hh * a00,
-            p01 + hh * a01,
-            p02 + hh * a02,
-            p11 + hh * a11,
-            p12 + hh * a12,
-            p22 + hh * a22,
-            f10,
-            f11,
-            qv,
-            qa,
+        b00, b01, b02, b11, b12, b22 = _pdot_stage(
+            p00, p01, p02, p11, p12, p22, hh, a00, a01, a02, a11, a12, a22, f10, f11, qv, qa
         )
         x3, v3, f10, f11 = _dynamics(x + hh * x2, v + hh * v2, a, v_f, mv)
-        c00, c01, c02, c11, c12, c22 = _pdot(
-            p00 + hh * b00,
-            p01 + hh * b01,
-            p02 + hh * b02,
-            p11 + hh * b11,
-            p12 + hh * b12,
-            p22 + hh * b22,
-            f10,
-            f11,
-            qv,
-            qa,
+        c00, c01, c02, c11, c12, c22 = _pdot_stage(
+            p00, p01, p02, p11, p12, p22, hh, b00, b01, b02, b11, b12, b22, f10, f11, qv, qa
         )
         x4, v4, f10, f11 = _dynamics(x + h * x3, v + h * v3, a, v_f, mv)
-        d00, d01, d02, d11, d12, d22 = _pdot(
-            p00 + h * c00,
-            p01 + h * c01,
-            p02 + h * c02,
-            p11 + h * c11,
-            p12 + h * c12,
-            p22 + h * c22,
-            f10,
-            f11,
-            qv,
-            qa,
+        d00, d01, d02, d11, d12, d22 = _pdot_stage(
+            p00, p01, p02, p11, p12, p22, h, c00, c01, c02, c11, c12, c22, f10, f11, qv, qa
         )
         w = h / 6.0
         x += w * (x1 + 2.0 * x2 + 2.0 * x3 + x4)
