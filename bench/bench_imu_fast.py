@@ -17,7 +17,8 @@ from pathlib import Path
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")))
 
 from mems_estimation.nodes.imu_noise_identifier_node import ImuNoiseIdentifierNode
-from mems_scenarios.base import Graph, consumed, drive_fast, finish_delivery, parameters
+from mems_scenarios.base import Graph, parameters
+from mems_scenarios.delivery import consumed, drive_fast, finish_delivery
 from mems_sim.bag.recorder import RecorderNode
 from mems_sim.nodes.imu_node import ImuNode
 

@@ -5,7 +5,7 @@ Run:  .venv/bin/python bench/bench_scenarios_fast.py [NAME ...] [--warm]
 Runs each scenario (default: sd_resonator, scanner_shared_electrodes, scanner_threshold,
 gyro_calibration, accelerometer_snr) at seed 1, its default duration, as fast as possible,
 without plots, in this process, and prints the summary line ``run_scenario`` prints
-(:class:`mems_scenarios.base.Throughput`): a single device's real-time factor, several
+(:class:`mems_scenarios.delivery.Throughput`): a single device's real-time factor, several
 devices' samples emulated per wall second against the sum of their sample rates; start-up
 (imports, graph, discovery) and the figures from the MCAP are excluded, loading the
 numba kernels from their cache at their first call is not. ``--warm``: run each scenario
@@ -30,7 +30,8 @@ DEFAULT = (
 
 def run(name: str, out: str) -> tuple[str | None, float]:
     from mems_scenarios import load
-    from mems_scenarios.base import THROUGHPUT, ScenarioOptions
+    from mems_scenarios.base import ScenarioOptions
+    from mems_scenarios.delivery import THROUGHPUT
 
     THROUGHPUT.reset()
     t0 = time.monotonic()

@@ -44,14 +44,8 @@ sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")
 
 from process_tools import check_families, family_parser
 
-from mems_scenarios.base import (
-    NOT_RECORDED,
-    THROUGHPUT,
-    ScenarioOptions,
-    format_table,
-    graph_for,
-    publish_all,
-)
+from mems_scenarios.base import NOT_RECORDED, ScenarioOptions, format_table, graph_for
+from mems_scenarios.delivery import THROUGHPUT, publish_all
 
 FAMILIES = ("imu", "accelerometer", "resonator", "scanner", "scanner_amdm", "stage")
 

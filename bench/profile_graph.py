@@ -235,15 +235,23 @@ def run_scenario_phases(
     cProfile of the first-to-last-frame phase (``perf_data``: a perf record of it)."""
     import cProfile
 
-    import mems_scenarios.base as base  # the public skeleton, profiled by wrapping its phases
-    from mems_scenarios import load
+    from mems_scenarios import (  # the skeleton, profiled by wrapping its phases
+        bag_frames,
+        base,
+        delivery,
+        load,
+    )
     from mems_sim.ros.env import apply_defaults
 
     apply_defaults()
     module = load(name)
     phases = defaultdict(float)
     prof = cProfile.Profile() if profile else None
-    orig_drive, orig_finish, orig_frames = base.drive_fast, base.finish_delivery, base.topic_frames
+    orig_drive, orig_finish, orig_frames = (
+        delivery.drive_fast,
+        delivery.finish_delivery,
+        bag_frames.topic_frames,
+    )
 
     def drive_fast(*a, **kw):
         perf = perf_record(perf_data, os.getpid()) if perf_data else None
@@ -274,7 +282,7 @@ def run_scenario_phases(
         finally:
             phases["figures: reading the MCAP (topic_frames)"] += time.perf_counter() - t0
 
-    base.drive_fast, base.finish_delivery = drive_fast, finish_delivery
+    delivery.drive_fast, delivery.finish_delivery = drive_fast, finish_delivery
     if hasattr(module, "topic_frames"):
         module.topic_frames = topic_frames
     opts = base.ScenarioOptions(duration_s=duration, seed=1, out=out, progress=False, plots=False)
@@ -282,7 +290,7 @@ def run_scenario_phases(
     try:
         result = module.run(opts)
     finally:
-        base.drive_fast, base.finish_delivery = orig_drive, orig_finish
+        delivery.drive_fast, delivery.finish_delivery = orig_drive, orig_finish
         if hasattr(module, "topic_frames"):
             module.topic_frames = orig_frames
     phases["total"] = time.perf_counter() - t0

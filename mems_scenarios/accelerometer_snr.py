@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from mems_estimation.identification.signal_metrics import coherent_snr_db, consistency
-from mems_scenarios import base, contract
+from mems_scenarios import bag_frames, base, contract, delivery
 from mems_scenarios.figures import Figure, cell
 from mems_sim.devices import accelerometer
 from mems_sim.nodes.accelerometer_node import REFERENCE_TEMPERATURE_C
@@ -235,7 +235,7 @@ def run_graph(
             30.0,
             "the recorder and the hybrid EKF node to subscribe",
         )
-        base.publish_all(
+        delivery.publish_all(
             graph_,
             list(devices.values()),
             delivered,
@@ -415,7 +415,7 @@ def figures(path: Path, record: dict | None, cases: dict) -> tuple[dict, list]:
     names = list(cases)
     for i in range(0, len(names), DEVICES_PER_PASS):
         group = {ns: cases[ns]["mode"] for ns in names[i : i + DEVICES_PER_PASS]}
-        frames = base.topics_frames(
+        frames = bag_frames.topics_frames(
             path, [t for ns, m in group.items() for t in _device_topics(ns, m)]
         )
         for ns, mode in group.items():
@@ -435,7 +435,7 @@ def figures(path: Path, record: dict | None, cases: dict) -> tuple[dict, list]:
         unavailable.append((", ".join(groups), str(exc)))
     if f["full"]:
         k0 = int(SKIP_S * FS)
-        fr = base.topics_frames(path, ["/acc_pi_1g/truth", DOWNSTREAM_TOPIC])
+        fr = bag_frames.topics_frames(path, ["/acc_pi_1g/truth", DOWNSTREAM_TOPIC])
         truth = fr["/acc_pi_1g/truth"]["data"]
         est = fr[DOWNSTREAM_TOPIC]
         f["downstream"] = consistency(est["data"][k0:, 0] - truth[k0:, 1], est["variances"][k0:, 0])

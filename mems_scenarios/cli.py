@@ -17,8 +17,9 @@ import time
 from pathlib import Path
 
 from mems_scenarios import SCENARIOS, load
-from mems_scenarios.base import THROUGHPUT, ScenarioError, ScenarioOptions
+from mems_scenarios.base import ScenarioError, ScenarioOptions
 from mems_scenarios.contract import RUN_INFO_TOPIC, AnalysisError
+from mems_scenarios.delivery import THROUGHPUT
 from mems_sim.cli_values import quiet_on_broken_pipe
 from mems_sim.params import ParameterError
 from mems_sim.ros.end_of_stream import is_end_of_stream_topic

@@ -377,7 +377,7 @@ def recorded_run(bag, ns: str, k_true: float) -> dict:
     RMSE, alpha, beta over one averaged period) and its published calibration result
     (:func:`published_calibration`), with the true gyro scale factor ``k_true``
     (:func:`oracle`) and the error [ppm]."""
-    from mems_scenarios.base import topics_frames
+    from mems_scenarios.bag_frames import topics_frames
 
     fr = topics_frames(bag, [f"/{ns}/{t}" for t in ("estimate", "truth", "drive")])
     est, tru, drv = (fr[f"/{ns}/{t}"]["data"] for t in ("estimate", "truth", "drive"))

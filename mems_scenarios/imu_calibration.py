@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from mems_estimation.identification import imu_calibration as ic
-from mems_scenarios import base, contract
+from mems_scenarios import base, contract, delivery
 from mems_scenarios.figures import Figure, cell, figure_table
 from mems_sim.devices.imu_profiles import load_profile
 
@@ -251,7 +251,7 @@ def aliases_of(bag, params: dict) -> dict[str, str]:
     ``/imu/temperature_sensor``); the aliases follow from the profile's design, not from
     the noise, so the recording gives them."""
     from mems_estimation.tools.calibrate_imu import read_adc
-    from mems_scenarios.base import topics_frames
+    from mems_scenarios.bag_frames import topics_frames
 
     idx, vals, fs, _ = read_adc(Path(bag), "/imu/adc")
     temperature = None
@@ -339,10 +339,10 @@ def run_profile(options: base.ScenarioOptions, name: str, profile: str, thermal:
     total = duration if duration is not None else prof.duration_s()
     progress = base.Progress(total, options.progress, name)
     try:
-        base.publish_all(
+        delivery.publish_all(
             graph,
             [emu],
-            base.consumed(cal),
+            delivery.consumed(cal),
             progress,
             realtime=options.realtime,
             realtime_timeout_s=total * 2 + 60,

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from mems_estimation.identification.imu_noise_fit import crb_relative_se
 from mems_estimation.identification.imu_noise_plots import plot_allan
-from mems_scenarios import base, contract
+from mems_scenarios import base, contract, delivery
 from mems_scenarios.figures import Figure, cell, is_finite
 from mems_sim.ros.frames import index_to_ns
 
@@ -106,12 +106,12 @@ def run_fast(graph: base.Graph, emu, ident, rec, progress: base.Progress) -> Non
     # the recorder counts for every topic the emulator publishes (the skeleton's flow
     # control): a reader that falls more than the publisher's history behind would lose
     # frames (reliable KEEP_LAST overwrites them)
-    base.drive_fast(graph, [emu], base.consumed(ident), progress, WINDOW)
+    delivery.drive_fast(graph, [emu], delivery.consumed(ident), progress, WINDOW)
 
 
 def run_realtime(graph: base.Graph, emu, progress: base.Progress) -> None:
     """Spin with the emulator's own wall-clock timer until its duration is published."""
-    base.prepare_delivery(graph, [emu])
+    delivery.prepare_delivery(graph, [emu])
     emu.start()
     while not emu.finished:
         graph.executor.spin_once(timeout_sec=0.05)
@@ -123,7 +123,7 @@ def drain(graph: base.Graph, emu, ident, rec) -> None:
     """Wait until every message reached the identifier and the recorder (a loss raises
     ScenarioError naming the topic); have the identifier publish its final model (its
     end-of-input service, as at shutdown) and wait until the recorder holds it."""
-    base.finish_delivery(graph, [emu], base.consumed(ident))
+    delivery.finish_delivery(graph, [emu], delivery.consumed(ident))
     before = rec.received("/imu/noise_model")
     if ident.finish() is None:
         raise base.ScenarioError(

@@ -42,7 +42,7 @@ from scipy.interpolate import CubicSpline
 
 from mems_estimation.filters import scanner_amdm_model as sam
 from mems_estimation.filters import scanner_amdm_tracking as su
-from mems_scenarios import base, contract
+from mems_scenarios import bag_frames, base, contract, delivery
 from mems_scenarios.figures import Figure, cell, met_cell
 from mems_sim.devices import scanner_amdm as sa
 from mems_sim.ros.flow import progress_of
@@ -199,7 +199,7 @@ def run_graph(
             )
 
         graph.spin_until(matched, 30.0, "the recorder and estimators to subscribe")
-        base.publish_all(
+        delivery.publish_all(
             graph,
             list(devices.values()),
             delivered,
@@ -340,7 +340,7 @@ def figures(path: Path) -> tuple[dict, list[tuple[str, str]]]:
     f: dict = {}
     unavailable = []
     events = [f"/{ns}/{k}/phase_amplitude" for ns in cases() for k in KINDS]
-    fr = base.topics_frames(path, _required_topics() + events, missing_ok=True)
+    fr = bag_frames.topics_frames(path, _required_topics() + events, missing_ok=True)
     absent = [t for t in _required_topics() if t not in fr]
     if absent:
         raise contract.AnalysisError(f"{path}: no frames on {', '.join(absent)}")

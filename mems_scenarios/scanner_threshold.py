@@ -45,7 +45,7 @@ from mems_estimation.studies.scanner_threshold import (
     rmse,
     snr_segments,
 )
-from mems_scenarios import base, contract
+from mems_scenarios import bag_frames, base, contract, delivery
 from mems_scenarios.figures import Figure, cell, is_finite
 from mems_sim.devices.scanner import (
     SCANNER_SPECS,
@@ -165,7 +165,7 @@ def run_graph(
             "the recorder and the estimator to subscribe",
         )
         t_start = time.perf_counter()
-        base.publish_all(
+        delivery.publish_all(
             graph_,
             [dev],
             delivered,
@@ -265,7 +265,7 @@ def figures(path: Path, dp: dict, seed: int) -> dict:
     (the sampling-rate study's noise)."""
     sp = scanner_params(dp)
     fs = dp["sample_rate_hz"]
-    fr = base.topics_frames(
+    fr = bag_frames.topics_frames(
         path,
         [
             f"/{NS}/{t}"

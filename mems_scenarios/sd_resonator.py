@@ -40,7 +40,7 @@ from mems_estimation.filters.resonator_consistency import (
     pooled_acf,
     replay_comparator_input,
 )
-from mems_scenarios import base, contract
+from mems_scenarios import bag_frames, base, contract, delivery
 from mems_scenarios.figures import Figure, cell, is_finite, met_cell
 from mems_sim.devices.resonator import default_pulse_amplitude
 from mems_sim.kernels.resonator_observer import observer_model, predicted_error_acf
@@ -209,7 +209,7 @@ def run_graph(
             30.0,
             "the recorder to subscribe to the observers' estimates",
         )
-        base.publish_all(
+        delivery.publish_all(
             graph,
             list(devices.values()),
             delivered,
@@ -493,7 +493,7 @@ def _needed_topics() -> list[str]:
 def figures(bag: Path) -> tuple[dict, dict, list[tuple[str, str]]]:
     """Every acceptance figure of the scenario that the recording ``bag`` allows: (numbers
     by :data:`KEYS`, plot series, (group, reason) of each group it does not allow)."""
-    frames = base.topics_frames(bag, _needed_topics(), missing_ok=True)
+    frames = bag_frames.topics_frames(bag, _needed_topics(), missing_ok=True)
     f: dict = dict.fromkeys(KEYS, math.nan)
     f["error_acf1_pred"] = float(
         predicted_error_acf(observer_model(F0, Q, FS, NOISE_NOISY, STATE_NOISE), ACF_LAGS)[0]

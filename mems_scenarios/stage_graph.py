@@ -90,7 +90,8 @@ def run_stage_graph(
     time [s]. ``run_info``: extra keys of the run record (None: no run record); it is
     published once the graph ran, with the graph's simulated and wall time
     (``simulated_s``, ``wall_s``), after every EKF's final diagnostics."""
-    from mems_scenarios.base import Progress, graph_for, publish_all
+    from mems_scenarios.base import Progress, graph_for
+    from mems_scenarios.delivery import publish_all
     from mems_sim.ros.flow import progress_of
 
     shielded = shielded or {}

@@ -289,7 +289,8 @@ def graph_points(
     from mems_estimation.filters.stage_ekf import FeedthroughCanceller
     from mems_estimation.identification.stage_identification import evaluate
     from mems_estimation.identification.stage_insitu import insitu_correct
-    from mems_scenarios.base import ScenarioError, topics_frames
+    from mems_scenarios.bag_frames import topics_frames
+    from mems_scenarios.base import ScenarioError
     from mems_sim.bag.player import read_messages
 
     nss = {namespace(T): T for T in models}

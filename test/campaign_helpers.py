@@ -1,5 +1,5 @@
 """Helpers shared by the campaign tests (test/scenarios, test/acceptance): running
-``run_campaign`` and printing the drifting stage's per-corner table (docs/design.md)."""
+``run_campaign`` and printing the drifting stage's per-corner table."""
 
 from __future__ import annotations
 

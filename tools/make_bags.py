@@ -28,7 +28,7 @@ resonator      resonator_node, observer loop,      output_noise_std = 0.5
 
 Every estimator runs in its device's namespace (``/imu``, ``/stage``, ...). The graph is
 one process, run as the scenarios run (:class:`mems_scenarios.base.Graph`,
-:func:`mems_scenarios.base.drive_fast`): the script steps the emulators and waits for the
+:func:`mems_scenarios.delivery.drive_fast`): the script steps the emulators and waits for the
 recorder and the estimator to take every frame, so the recordings are lossless and their
 messages and their log times (sensor time: the stamps, from epoch 0) identical from run to
 run (``publish_time``, the wall-clock time of publication, is the only thing that
@@ -61,7 +61,8 @@ from mems_estimation.nodes.resonator_observer_node import ResonatorObserverNode
 from mems_estimation.nodes.scanner_amdm_estimator_node import ScannerAmdmEstimatorNode
 from mems_estimation.nodes.scanner_threshold_ekf_node import ScannerThresholdEkfNode
 from mems_estimation.nodes.stage_ekf_node import StageEkfNode
-from mems_scenarios.base import Graph, default_domain_id, drive_fast, parameters
+from mems_scenarios.base import Graph, default_domain_id, parameters
+from mems_scenarios.delivery import drive_fast
 from mems_sim.bag.recorder import RecorderNode
 from mems_sim.devices.scanner_amdm import SWEEP_STUDY
 from mems_sim.nodes.accelerometer_node import AccelerometerNode

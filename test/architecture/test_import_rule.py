@@ -7,7 +7,7 @@ cycle between modules, and tests and benchmarks import scenarios only through th
 public entry (``run``, ``NAME``, ``DESCRIPTION``, ``DEFAULT_DURATION_S``; the contract's
 ``graph``, ``analyse``, ``oracle`` and its figure group ``ORACLE``; ``run_graph`` and
 the graph layout constants ``INSTANCES``, ``RECORDED``, ``FRAME`` for benchmarks); the
-skeleton (``base``), the contract (``contract``), the figure records (``figures``) and the
+skeleton (``base``, ``delivery``, ``bag_frames``), the contract (``contract``), the figure records (``figures``) and the
 command line are library.
 
 Inside a package, sub-packages import one way too (:data:`SUBPACKAGE_RULE`, any depth,
@@ -50,6 +50,20 @@ ALLOWED = {
 }
 #: What tests and benchmarks may take from a scenario module: its entry, its description and
 #: the graph-only entry with the graph's documented layout (benchmarks run the graph alone).
+#: The library of mems_scenarios, public to tests and benchmarks: the skeleton, its delivery
+#: and frame reading, the contract, figure records, command lines, campaigns, the node
+#: container and run_graph's launch reader (tools, not scenarios).
+SCENARIO_LIBRARY = {
+    "base",
+    "delivery",
+    "bag_frames",
+    "contract",
+    "cli",
+    "figures",
+    "campaign",
+    "component_container",
+    "run_graph",
+}
 SCENARIO_PUBLIC = {
     "run",
     "graph",
@@ -429,20 +443,10 @@ def test_tests_and_benches_use_scenarios_only_through_their_entry(folder):
             ):
                 if node.module == "mems_scenarios":
                     for alias in node.names:
-                        if alias.name in {"SCENARIOS", "load"}:
+                        if alias.name in {"SCENARIOS", "load"} | SCENARIO_LIBRARY:
                             continue
                         aliases[alias.asname or alias.name] = alias.name
-                elif node.module in {
-                    "mems_scenarios.base",
-                    "mems_scenarios.contract",
-                    "mems_scenarios.cli",
-                    "mems_scenarios.figures",
-                    "mems_scenarios.campaign",
-                    "mems_scenarios.component_container",
-                    "mems_scenarios.run_graph",
-                }:
-                    # the skeleton, the contract, figure records, command lines, campaigns, the node
-                    # container, run_graph's launch reader: tools, not scenarios; public
+                elif node.module.removeprefix("mems_scenarios.") in SCENARIO_LIBRARY:
                     continue
                 else:
                     bad = [a.name for a in node.names if a.name not in SCENARIO_PUBLIC]

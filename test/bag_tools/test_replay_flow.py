@@ -47,7 +47,8 @@ FS = 100.0
 def _fast_run(path: Path, domain_id: int, duration_s: float, frame: int = 10) -> None:
     """An IMU emulator stepped as fast as the recorder takes its frames (the scenario
     runner's machinery), /clock recorded too."""
-    from mems_scenarios.base import Graph, drive_fast
+    from mems_scenarios.base import Graph
+    from mems_scenarios.delivery import drive_fast
     from mems_sim.nodes.imu_node import ImuNode
 
     graph = Graph(domain_id)

@@ -9,7 +9,7 @@ equal floats (same bits) for finite inputs, so recordings and reference tables d
 move.  Checked here on the 6-state model and on the adaptive observer's Jacobian pattern
 (7 and 8 states), with a covariance that starts with exact zeros (the device's prior) and
 with random positive-definite ones; the frame checks keep their results and messages.
-The whole kernels (device, observers) against the old ones (test/resonator_oracles.py):
+The whole kernels (device, observers) against the old ones kept by the resonator oracles:
 ``bench/bench_sd_resonator.py --check-only``, and the slow test below.
 """
 

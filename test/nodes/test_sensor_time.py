@@ -188,7 +188,8 @@ def _check_timeline(path: Path, duration_s: float, device_topics: list[str]) -> 
 def test_scenario_graph_is_on_one_timeline(realtime, tmp_path, domain_id):
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from mems_scenarios.base import Graph, publish_all
+    from mems_scenarios.base import Graph
+    from mems_scenarios.delivery import publish_all
     from mems_sim.bag.recorder import RecorderNode
 
     duration = 1.5

@@ -145,7 +145,7 @@ def test_drifting_device_reported_honestly(tmp_path):
         "stage_d2": ("drifting.stage_t2", c2["ref_t1"]),
         "stage_d2r": ("drifting.stage_t2.ref_t2", c2["ref_t2"]),
     }
-    from mems_scenarios.base import topic_frames
+    from mems_scenarios.bag_frames import topic_frames
 
     for ns, (key, core) in cores.items():
         # the in-situ EKF node's recorded estimates are the core's, bit for bit
