@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 
-from mems_msgs.msg import AdcFrame
+from mems_msgs.msg import AdcFrame, SignalFrame
 from mems_sim.params import ParamSpec
 from mems_sim.ros.end_of_stream import END_OF_STREAM, END_OF_STREAM_QOS, parse_end_of_stream
 from mems_sim.ros.flow import ProgressReporter
@@ -30,6 +30,7 @@ from mems_sim.ros.frames import (
     code_range,
     frame_format,
     index_to_ns,
+    signal_data,
     time_to_ns,
 )
 from mems_sim.ros.node_base import MemsNode
@@ -185,6 +186,20 @@ def adc_channels(msg: AdcFrame, channels, codes: np.ndarray | None = None) -> np
             f"adc frame at {msg.first_sample_index}: channels {missing} absent", "foreign"
         )
     return adc_columns(msg, [names.index(c) for c in channels], codes)
+
+
+def drive_channels(msg: SignalFrame, channels) -> tuple[np.ndarray, ...]:
+    """The named channels of a drive SignalFrame, each a C-contiguous column (values as
+    :func:`~mems_sim.ros.frames.signal_data` decodes them); FrameError ``foreign`` naming
+    the first absent one."""
+    data = signal_data(msg)
+    names = list(msg.channel_names)
+    for c in channels:
+        if c not in names:
+            raise FrameError(
+                f"drive frame at {msg.first_sample_index}: no '{c}' channel", "foreign"
+            )
+    return tuple(np.ascontiguousarray(data[:, names.index(c)]) for c in channels)
 
 
 class EstimatorNode(MemsNode):

@@ -108,6 +108,20 @@ CAL_SPECS: tuple[ParamSpec, ...] = (
 )
 
 
+def subscribe_imu_inputs(node: EstimatorNode, decode) -> None:
+    """Subscribe the IMU's ``adc`` frames (decoded by ``decode``), paired with its
+    ``temperature_sensor`` frames (:func:`_temperature`) when the parameter
+    ``temperature_source`` is ``sensor``; both without the sample-rate check."""
+    if node.p["temperature_source"] == "sensor":
+        node.subscribe_pair(
+            ("adc", AdcFrame, decode),
+            ("temperature_sensor", SignalFrame, _temperature),
+            check_rate=False,
+        )
+    else:
+        node.subscribe_single(("adc", AdcFrame, decode), check_rate=False)
+
+
 def _temperature(msg: SignalFrame) -> np.ndarray:
     """Temperature [degC] of a ``temperature_sensor`` frame (channel ``temperature``)."""
     names = list(msg.channel_names)
@@ -146,14 +160,7 @@ class ImuCalibrationNode(EstimatorNode):
             CalibrationResult, self.device_topic("calibration"), RESULT_QOS
         )
         self._start()
-        if self.p["temperature_source"] == "sensor":
-            self.subscribe_pair(
-                ("adc", AdcFrame, self._decode),
-                ("temperature_sensor", SignalFrame, _temperature),
-                check_rate=False,
-            )
-        else:
-            self.subscribe_single(("adc", AdcFrame, self._decode), check_rate=False)
+        subscribe_imu_inputs(self, self._decode)
 
     def _start(self) -> None:
         self.chunks_idx: list[np.ndarray] = []

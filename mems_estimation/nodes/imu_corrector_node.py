@@ -34,8 +34,8 @@ from sensor_msgs.msg import Imu, Temperature
 
 from mems_estimation.identification import imu_calibration as ic
 from mems_estimation.nodes.frame_input import DEVICE_NAMESPACE, EstimatorNode, input_specs
-from mems_estimation.nodes.imu_calibration_node import _temperature, imu_values
-from mems_msgs.msg import AdcFrame, SignalFrame
+from mems_estimation.nodes.imu_calibration_node import imu_values, subscribe_imu_inputs
+from mems_msgs.msg import AdcFrame
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.frames import index_to_ns
 from mems_sim.ros.imu_msg import ImuSerializer
@@ -126,14 +126,7 @@ class ImuCorrectorNode(EstimatorNode):
         #: Temperature of the next frame in 'topic' mode [degC]: the latest message's.
         self.temperature_c = float(self.p["temperature_c"])
         self.temperature_messages = 0
-        if self.p["temperature_source"] == "sensor":
-            self.subscribe_pair(
-                ("adc", AdcFrame, self._decode),
-                ("temperature_sensor", SignalFrame, _temperature),
-                check_rate=False,
-            )
-        else:
-            self.subscribe_single(("adc", AdcFrame, self._decode), check_rate=False)
+        subscribe_imu_inputs(self, self._decode)
         if self.p["temperature_source"] == "topic":
             self.create_subscription(
                 Temperature,

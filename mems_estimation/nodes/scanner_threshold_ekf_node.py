@@ -47,6 +47,7 @@ from mems_estimation.nodes.frame_input import (
     DEVICE_NAMESPACE,
     Diverged,
     EstimatorNode,
+    drive_channels,
     input_specs,
     output_frame,
 )
@@ -59,7 +60,6 @@ from mems_sim.ros.frames import (
     index_to_ns,
     make_signal_frame,
     make_state_estimate,
-    signal_data,
 )
 from mems_sim.ros.node_main import run_node
 from mems_sim.ros.qos import FRAME_QOS
@@ -133,13 +133,7 @@ def _y_cap(msg: AdcFrame) -> np.ndarray:
 
 def _v_drive(msg: SignalFrame) -> np.ndarray:
     """v_drive [V] of a drive frame; FrameError when absent or non-finite."""
-    data = signal_data(msg)
-    names = list(msg.channel_names)
-    if "v_drive" not in names:
-        raise FrameError(
-            f"drive frame at {msg.first_sample_index}: no 'v_drive' channel", "foreign"
-        )
-    return np.ascontiguousarray(data[:, names.index("v_drive")])
+    return drive_channels(msg, ("v_drive",))[0]
 
 
 class ScannerThresholdEkfNode(EstimatorNode):

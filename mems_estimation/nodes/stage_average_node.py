@@ -37,6 +37,7 @@ from mems_estimation.filters.synchronous_average import SynchronousAverager, tap
 from mems_estimation.nodes.frame_input import (
     DEVICE_NAMESPACE,
     EstimatorNode,
+    drive_channels,
     input_specs,
     output_frame,
 )
@@ -107,15 +108,8 @@ AVERAGE_SPECS: tuple[ParamSpec, ...] = (
 def drive_columns(msg: SignalFrame) -> tuple[np.ndarray, ...]:
     """(v_bias [V], f_drive [Hz], trial [-], sample rate [Hz] per sample) of a drive frame;
     FrameError when a channel is absent or a value non-finite."""
-    data = signal_data(msg)
-    names = list(msg.channel_names)
-    for c in ("v_bias", "f_drive", "trial"):
-        if c not in names:
-            raise FrameError(
-                f"drive frame at {msg.first_sample_index}: no '{c}' channel", "foreign"
-            )
-    cols = [np.ascontiguousarray(data[:, names.index(c)]) for c in ("v_bias", "f_drive", "trial")]
-    return (*cols, np.full(data.shape[0], float(msg.sample_rate_hz)))
+    cols = drive_channels(msg, ("v_bias", "f_drive", "trial"))
+    return (*cols, np.full(cols[0].shape[0], float(msg.sample_rate_hz)))
 
 
 def decode_adc(msg: AdcFrame) -> tuple[np.ndarray, np.ndarray]:

@@ -48,13 +48,14 @@ from mems_estimation.nodes.frame_input import (
     Diverged,
     EstimatorNode,
     adc_channels,
+    drive_channels,
     input_specs,
     output_frame,
 )
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.kernels.divergence import state_ok
 from mems_sim.params import ParameterError, ParamSpec
-from mems_sim.ros.frames import FrameError, make_state_estimate, signal_data
+from mems_sim.ros.frames import FrameError, make_state_estimate
 from mems_sim.ros.node_main import run_node
 from mems_sim.ros.qos import FRAME_QOS
 
@@ -98,14 +99,7 @@ EKF_SPECS: tuple[ParamSpec, ...] = (
 
 def drive_columns(msg: SignalFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(u, v_bias, f_drive) of a drive frame; FrameError when absent or non-finite."""
-    data = signal_data(msg)
-    names = list(msg.channel_names)
-    for c in ("u", "v_bias", "f_drive"):
-        if c not in names:
-            raise FrameError(
-                f"drive frame at {msg.first_sample_index}: no '{c}' channel", "foreign"
-            )
-    return tuple(np.ascontiguousarray(data[:, names.index(c)]) for c in ("u", "v_bias", "f_drive"))
+    return drive_channels(msg, ("u", "v_bias", "f_drive"))
 
 
 #: Drive channels the in-situ mode keeps: the sweep's schedule besides the drive itself.
@@ -115,19 +109,12 @@ INSITU_DRIVE = ("u", "v_bias", "f_drive", "phase", "trial")
 def drive_sweep_columns(msg: SignalFrame) -> tuple[np.ndarray, ...]:
     """(u [V], v_bias [V], f_drive [Hz], phase [cycle], trial [-]) of a drive frame (in-situ
     mode); FrameError when absent or non-finite."""
-    data = signal_data(msg)
-    names = list(msg.channel_names)
-    for c in INSITU_DRIVE:
-        if c not in names:
-            raise FrameError(
-                f"drive frame at {msg.first_sample_index}: no '{c}' channel", "foreign"
-            )
-    cols = data[:, [names.index(c) for c in INSITU_DRIVE]]
-    if not np.all(np.isfinite(cols)):
+    cols = drive_channels(msg, INSITU_DRIVE)
+    if not all(np.all(np.isfinite(c)) for c in cols):
         raise FrameError(
             f"drive frame at {msg.first_sample_index}: non-finite values", "non_finite"
         )
-    return tuple(np.ascontiguousarray(cols[:, i]) for i in range(len(INSITU_DRIVE)))
+    return cols
 
 
 class StageEkfNode(EstimatorNode):
