@@ -104,6 +104,7 @@ def graph(
             duration_s=float(duration_s),
             frame_size=int(frame),
         ),
+        consumers="adc:2,drive:2",  # the threshold EKF and the recorder
     )
     estimator = contract.NodeEntry(
         "scanner_threshold_ekf_node",

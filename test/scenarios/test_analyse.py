@@ -113,11 +113,23 @@ def test_imu_noise_without_run_record(tmp_path):
     assert analysed("imu_noise", empty, expect=2)[0] == []
 
 
-#: Scenarios whose generated launch file runs as processes in ``make test`` (realtime factor).
-PROCESSES = {"imu_noise": 100.0}
+#: Scenarios whose generated launch file runs as processes: realtime factor, seconds the
+#: graph runs (its estimators do not end by themselves); imu_noise in ``make test``, three
+#: device families in ``make acceptance``.
+PROCESSES = {
+    "imu_noise": (100.0, 30),
+    "accelerometer_spread": (0.1, 30),
+    "scanner_threshold": (0.02, 45),
+}
 
 
-@pytest.mark.parametrize("name", sorted(PROCESSES))
+@pytest.mark.parametrize(
+    "name",
+    [
+        pytest.param(n, marks=[] if n == "imu_noise" else [pytest.mark.slow])
+        for n in sorted(PROCESSES)
+    ],
+)
 def test_analyse_a_process_graph(name, tmp_path):
     """The scenario's graph written as a launch file and run by ``run_graph`` as processes
     (emulators that start when their consumers and the recorder are matched): the figures
@@ -130,7 +142,8 @@ def test_analyse_a_process_graph(name, tmp_path):
     figures = ran(name, tmp_path / "in_process.mcap")
     launch = tmp_path / f"{name}.launch.yaml"
     argv = [name, "--seed", "1", "--write-launch", str(launch)]
-    status, _, err = cli(argv + ["--realtime-factor", str(PROCESSES[name])] + SHORT[name])
+    factor, seconds = PROCESSES[name]
+    status, _, err = cli(argv + ["--realtime-factor", str(factor)] + SHORT[name])
     assert status == 0, err
     assert (tmp_path / f"{name}.run_record.json").is_file()
     bag = tmp_path / "processes.mcap"
@@ -139,7 +152,7 @@ def test_analyse_a_process_graph(name, tmp_path):
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     env["ROS_DOMAIN_ID"] = str(next_domain_id())
     done = subprocess.run(
-        cmd + ["--duration", "60"], env=env, capture_output=True, text=True, timeout=300
+        cmd + ["--duration", str(seconds)], env=env, capture_output=True, text=True, timeout=300
     )
     assert done.returncode in (0, 1), done.stderr[-3000:]
     assert "gaps: 0 (0 samples missing)" in done.stdout + done.stderr
