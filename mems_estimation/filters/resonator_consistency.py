@@ -199,16 +199,21 @@ def analyse_stream(
             input is replayed from it, :func:`replay_comparator_input`).
     """
     io = (bits, pulses, starts, widths)
-    ko = KalmanObserver(
-        F0,
-        Q,
-        FS,
-        output_noise_std,
-        state_noise_std,
-        steady_state=True,
-        linear_output=linear_output,
-        initial_cov=np.zeros((6, 6)),
-    )
+
+    def observer(f0: float) -> KalmanObserver:
+        """The steady-state observer of the model at resonance f0 [Hz], initial covariance 0."""
+        return KalmanObserver(
+            f0,
+            Q,
+            FS,
+            output_noise_std,
+            state_noise_std,
+            steady_state=True,
+            linear_output=linear_output,
+            initial_cov=np.zeros((6, 6)),
+        )
+
+    ko = observer(F0)
     xf = ko.step_states(*io)[skip:]
     innov = ko.last_innovations[skip:]
     x = np.asarray(position, dtype=float)[skip:]
@@ -236,16 +241,7 @@ def analyse_stream(
             out.q_std = float(q[skip:].std())
             out.q_overload = float(np.mean(np.abs(q[skip:]) > 2.0))
     if f0_error is not None:
-        wrong = KalmanObserver(
-            F0 * (1.0 + f0_error),
-            Q,
-            FS,
-            output_noise_std,
-            state_noise_std,
-            steady_state=True,
-            linear_output=linear_output,
-            initial_cov=np.zeros((6, 6)),
-        )
+        wrong = observer(F0 * (1.0 + f0_error))
         pw, _ = wrong.step(*io)
         ew = pw[skip:] - x
         out.wrong_err_std = float(ew.std())

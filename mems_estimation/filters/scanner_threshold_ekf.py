@@ -148,17 +148,9 @@ class StreamingScannerEkf:
         self.P0 = np.array(
             [self.p["initial_theta_std"] ** 2, 0.0, self.p["initial_omega_std"] ** 2]
         )
-        self.x = self.x0.copy()
-        self.P = self.P0.copy()
-        self._bx = np.zeros((L, 2))
-        self._bP = np.zeros((L, 3))
-        self._by = np.zeros(L)
-        self._bv = np.zeros(L)
-        self._tx = np.full((L, 2), np.nan)  # final outputs not yet released (indices k-L..k-1)
-        self._tP = np.full((L, 3), np.nan)
         self.comb = bool(self.p["estimate_comb"])
-        if self.comb:
-            self._init_comb()
+        # final outputs not yet released (indices k-L..k-1): none yet
+        self._start(np.full((L, 2), np.nan), np.full((L, 3), np.nan))
         self.stats = np.array([0.0, 0.0, 0.0, np.inf, 0.0])
         self._adapt = np.array(
             [
@@ -174,6 +166,21 @@ class StreamingScannerEkf:
         #: are too late: their priors are gone)
         self.valid_from = 0
         self.resets = 0
+
+    def _start(self, tx: np.ndarray, tP: np.ndarray) -> None:
+        """The prior (x0, P0), an empty fixed-lag buffer, the pending final rows (tx (L, 2),
+        tP (L, 3)) and, with ``estimate_comb``, the 4-state filter's prior."""
+        L = self.lag
+        self.x = self.x0.copy()
+        self.P = self.P0.copy()
+        self._bx = np.zeros((L, 2))
+        self._bP = np.zeros((L, 3))
+        self._by = np.zeros(L)
+        self._bv = np.zeros(L)
+        self._tx = tx
+        self._tP = tP
+        if self.comb:
+            self._init_comb()
 
     def _init_comb(self) -> None:
         """Prior of the 4-state filter z = [theta, omega, log gain, log width]."""
@@ -200,16 +207,7 @@ class StreamingScannerEkf:
         final rows become the prior, the fixed-lag buffer is emptied, and detections of
         samples before now are counted too late."""
         L = self.lag
-        self.x = self.x0.copy()
-        self.P = self.P0.copy()
-        self._bx = np.zeros((L, 2))
-        self._bP = np.zeros((L, 3))
-        self._by = np.zeros(L)
-        self._bv = np.zeros(L)
-        self._tx = np.tile(self.x0, (L, 1))
-        self._tP = np.tile(self.P0, (L, 1))
-        if self.comb:
-            self._init_comb()
+        self._start(np.tile(self.x0, (L, 1)), np.tile(self.P0, (L, 1)))
         self.valid_from = self.next_index
         self.resets += 1
 

@@ -374,24 +374,8 @@ def allan_analysis(
             rate noise, i.e. alpha = 0; pass a model's slope for better edf).
     """
     rate = np.asarray(rate, dtype=float)
-    t, adev, err, n_terms = oadev(rate, fs, taus)
-    m = np.round(t * fs).astype(np.int64)
-    n_phase = rate.shape[0] + 1
-    edf = edf_from_slope(n_phase, m, -1.0 if slope is None else slope)
-    lo, hi = chi2_interval(adev**2, edf, confidence)
-    return AllanResult(
-        taus=t,
-        m=m,
-        adev=adev,
-        adev_error=err,
-        n_terms=n_terms,
-        edf=edf,
-        ci_low=np.sqrt(lo),
-        ci_high=np.sqrt(hi),
-        confidence=confidence,
-        fs=float(fs),
-        n_samples=int(rate.shape[0]),
-    )
+    t, adev, _, n_terms = oadev(rate, fs, taus)
+    return allan_result(t, adev, n_terms, fs, rate.shape[0], confidence, slope)
 
 
 # ---------------------------------------------------------------------------
