@@ -106,6 +106,21 @@ def _sigma_repaired(x0, x1, p00, p01, p11, q00, q11, gamma, S):
     return bad, p00, p01, p11, S
 
 
+@numba.njit(cache=True, inline="always")
+def _propagate(s0, s1, v2, m, J, T, f00, f01, f10, f11, g0, g1):
+    """Process model of one sigma point (s0, s1) [rad, rad/s]: Phi s + Gam u, u the
+    torque term at mid-step theta (:func:`_torque_u`, <V^2> = v2). Returns the new point."""
+    u = _torque_u(s0 + 0.5 * T * s1, v2, m, J)
+    return f00 * s0 + f01 * s1 + g0 * u, f10 * s0 + f11 * s1 + g1 * u
+
+
+@numba.njit(cache=True, inline="always")
+def _add_outer(p00, p01, p11, w, d0, d1):
+    """(p00, p01, p11) + w d d^T for d = (d0, d1): one sigma point's term of P = sum W_c
+    dX dX^T + Q (Algorithm 2)."""
+    return p00 + w * d0 * d0, p01 + w * d0 * d1, p11 + w * d1 * d1
+
+
 @numba.njit(cache=True)
 def ukf_run(
     y, v2, x, P, Phi, Gam, Q, m, J, R, T, wm, wc, gamma, predict_first, out_x, out_p, out_nis
@@ -137,39 +152,18 @@ def ukf_run(
             bad += r
             s00, s01, s10, s11, s20, s21, s30, s31, s40, s41 = S
             vk = v2[k]
-            u = _torque_u(s00 + 0.5 * T * s01, vk, m, J)
-            a0, a1 = f00 * s00 + f01 * s01 + g0 * u, f10 * s00 + f11 * s01 + g1 * u
-            u = _torque_u(s10 + 0.5 * T * s11, vk, m, J)
-            b0, b1 = f00 * s10 + f01 * s11 + g0 * u, f10 * s10 + f11 * s11 + g1 * u
-            u = _torque_u(s20 + 0.5 * T * s21, vk, m, J)
-            c0, c1 = f00 * s20 + f01 * s21 + g0 * u, f10 * s20 + f11 * s21 + g1 * u
-            u = _torque_u(s30 + 0.5 * T * s31, vk, m, J)
-            d0, d1 = f00 * s30 + f01 * s31 + g0 * u, f10 * s30 + f11 * s31 + g1 * u
-            u = _torque_u(s40 + 0.5 * T * s41, vk, m, J)
-            e0, e1 = f00 * s40 + f01 * s41 + g0 * u, f10 * s40 + f11 * s41 + g1 * u
+            a0, a1 = _propagate(s00, s01, vk, m, J, T, f00, f01, f10, f11, g0, g1)
+            b0, b1 = _propagate(s10, s11, vk, m, J, T, f00, f01, f10, f11, g0, g1)
+            c0, c1 = _propagate(s20, s21, vk, m, J, T, f00, f01, f10, f11, g0, g1)
+            d0, d1 = _propagate(s30, s31, vk, m, J, T, f00, f01, f10, f11, g0, g1)
+            e0, e1 = _propagate(s40, s41, vk, m, J, T, f00, f01, f10, f11, g0, g1)
             m0 = 0.0 + wm0 * a0 + wm1 * b0 + wm2 * c0 + wm3 * d0 + wm4 * e0
             m1 = 0.0 + wm0 * a1 + wm1 * b1 + wm2 * c1 + wm3 * d1 + wm4 * e1
-            p00, p01, p11 = q00, q01, q11
-            dd0, dd1 = a0 - m0, a1 - m1
-            p00 += wc0 * dd0 * dd0
-            p01 += wc0 * dd0 * dd1
-            p11 += wc0 * dd1 * dd1
-            dd0, dd1 = b0 - m0, b1 - m1
-            p00 += wc1 * dd0 * dd0
-            p01 += wc1 * dd0 * dd1
-            p11 += wc1 * dd1 * dd1
-            dd0, dd1 = c0 - m0, c1 - m1
-            p00 += wc2 * dd0 * dd0
-            p01 += wc2 * dd0 * dd1
-            p11 += wc2 * dd1 * dd1
-            dd0, dd1 = d0 - m0, d1 - m1
-            p00 += wc3 * dd0 * dd0
-            p01 += wc3 * dd0 * dd1
-            p11 += wc3 * dd1 * dd1
-            dd0, dd1 = e0 - m0, e1 - m1
-            p00 += wc4 * dd0 * dd0
-            p01 += wc4 * dd0 * dd1
-            p11 += wc4 * dd1 * dd1
+            p00, p01, p11 = _add_outer(q00, q01, q11, wc0, a0 - m0, a1 - m1)
+            p00, p01, p11 = _add_outer(p00, p01, p11, wc1, b0 - m0, b1 - m1)
+            p00, p01, p11 = _add_outer(p00, p01, p11, wc2, c0 - m0, c1 - m1)
+            p00, p01, p11 = _add_outer(p00, p01, p11, wc3, d0 - m0, d1 - m1)
+            p00, p01, p11 = _add_outer(p00, p01, p11, wc4, e0 - m0, e1 - m1)
             x0, x1 = m0, m1
         r, p00, p01, p11, S = _sigma_repaired(x0, x1, p00, p01, p11, q00, q11, gamma, S)
         bad += r
