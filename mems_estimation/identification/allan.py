@@ -209,6 +209,18 @@ def _block_sum(work, lo, hi, m):
     return ((a0 + a1) + (a2 + a3)) + ((a4 + a5) + (a6 + a7))
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _neumaier_add(s, comp, x):
+    """Neumaier's compensated summation step (Neumaier 1974): (s + x, comp + the rounding
+    error of s + x); the sum is s + comp."""
+    t = s + x
+    if abs(s) >= abs(x):
+        comp += (s - t) + x
+    else:
+        comp += (x - t) + s
+    return t, comp
+
+
 @numba.njit(cache=True, nogil=True)
 def _sum_sq_second_diff(phase, m):
     """sum_k (x[k+2m] - 2 x[k+m] + x[k])^2 over k < len(x)-2m, in blocks aligned on k = 0.
@@ -653,13 +665,8 @@ def _stream_update(
                 while k + _BLOCK <= p_end - 2 * m:
                     lo = k + 2 * m - p_first + hist_len
                     x = _block_sum(w, lo, lo + _BLOCK, m)
-                    s = sums[c, j]  # Neumaier compensated accumulation of the block sums
-                    t = s + x
-                    if abs(s) >= abs(x):
-                        comps[c, j] += (s - t) + x
-                    else:
-                        comps[c, j] += (x - t) + s
-                    sums[c, j] = t
+                    # Neumaier compensated accumulation of the block sums
+                    sums[c, j], comps[c, j] = _neumaier_add(sums[c, j], comps[c, j], x)
                     k += _BLOCK
                 committed[c, j] = k
             for j in range(tm.shape[0]):
@@ -672,13 +679,7 @@ def _stream_update(
                         d = ring[c, j, q % size] - 2.0 * ring[c, j, (q - r_) % size]
                         d += ring[c, j, (q - 2 * r_) % size]
                         x = d * d
-                        s = tsums[c, j]
-                        t = s + x
-                        if abs(s) >= abs(x):
-                            tcomps[c, j] += (s - t) + x
-                        else:
-                            tcomps[c, j] += (x - t) + s
-                        tsums[c, j] = t
+                        tsums[c, j], tcomps[c, j] = _neumaier_add(tsums[c, j], tcomps[c, j], x)
             # keep the last hist_len phase points in front of the next block
             w[:hist_len] = w[nb : nb + hist_len].copy()
         p_last += nb
