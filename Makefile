@@ -40,7 +40,7 @@ PKG_STAMP := $(VENV)/.stamp-pkg
 MSG_FILES := $(wildcard msg_defs/msg/*.msg)
 KERNEL_STAMP := $(VENV)/.stamp-kernels
 KERNEL_SOURCES := $(shell grep -rl --include=*.py numba.njit mems_sim mems_estimation)
-# numba targets besides the host CPU that test/core/test_portable_results.py compiles for
+# numba targets besides the host CPU that test/architecture/test_portable_results.py compiles for
 PORTABLE_TARGETS := generic haswell
 
 .PHONY: setup demo test lint acceptance bench bags clean

@@ -1,4 +1,4 @@
-"""Helpers shared by the campaign tests (test/scenarios, test/acceptance): running
+"""Helpers shared by the campaign tests (test/mems_scenarios, test/acceptance): running
 ``run_campaign`` and printing the drifting stage's per-corner table."""
 
 from __future__ import annotations

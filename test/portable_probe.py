@@ -1,7 +1,7 @@
 """Portability probe of the numba kernels: every kernel family on small fixed inputs, digested.
 
 Each family of :data:`FAMILIES` runs the kernels of one device model, filter or
-identification step through the public entry points the tests in ``test/core/`` call
+identification step through the public entry points the core tests call
 (same constructors, fixed seeds, short inputs) and returns the raw outputs as a list of
 numpy arrays (codes, states, variances, sums...). ``python test/portable_probe.py
 [FAMILY ...]`` prints one JSON object: ``{family: sha256 of the outputs}`` (each array
@@ -29,7 +29,7 @@ in a compiled kernel), except:
   package, the tests or the benchmarks (``capacitance`` and ``d2cap_dtheta2`` are numpy
   code; the kernels use only ``_gauss_dc``).
 
-The private ``scanner_amdm_ukf._sigma`` is called directly, as test/core/test_scanner_ukf.py
+The private ``scanner_amdm_ukf._sigma`` is called directly, as test/mems_estimation/filters/test_scanner_amdm_ukf.py
 does (``ukf_run`` has its arithmetic written out on scalars); ``resonator_observer_model.
 _riccati_iterate`` is reached through ``KalmanObserver(..., steady_state=True)`` on a
 noise-free model for which scipy's DARE solution fails its residual check.
@@ -160,7 +160,7 @@ def _scanner_detections():
 
 @functools.cache
 def _amdm_record():
-    """Chapter-5 scanner with the AMDM chain (test/core/test_scanner_ukf.py's run)."""
+    """Chapter-5 scanner with the AMDM chain (test/mems_estimation/filters/test_scanner_amdm_ukf.py's run)."""
     from mems_sim.devices import scanner_amdm as sa
 
     dev = sa.AmdmScannerDevice(dict(AMDM_RUN, torque_noise_std=AMDM_TORQUE_STD), seed=11)
@@ -238,7 +238,7 @@ def accelerometer_device() -> list[np.ndarray]:
 
 def accelerometer_ekf() -> list[np.ndarray]:
     """HybridEkf.run on the device's ADC and drive samples (_run), and the kernel functions
-    of mems_sim.kernels.accelerometer_ekf as test/core/test_hybrid_ekf.py calls them."""
+    of mems_sim.kernels.accelerometer_ekf as test/mems_sim/kernels/test_accelerometer_ekf.py calls them."""
     from mems_estimation.filters.accelerometer_ekf import HybridEkf
     from mems_sim.devices import accelerometer
     from mems_sim.kernels import accelerometer_ekf as he
@@ -432,7 +432,7 @@ def scanner_amdm_device() -> list[np.ndarray]:
 
 
 def _amdm_filter(kind: str) -> list[np.ndarray]:
-    """ScannerFilter as test/core/test_scanner_ukf.py runs it (acquisition, then tracking
+    """ScannerFilter as test/mems_estimation/filters/test_scanner_amdm_ukf.py runs it (acquisition, then tracking
     on 1000-sample frames), plus a run started explicitly at an off state."""
     from mems_estimation.filters import scanner_amdm_tracking as su
 
@@ -461,7 +461,7 @@ def scanner_amdm_ekf() -> list[np.ndarray]:
 
 def scanner_amdm_ukf() -> list[np.ndarray]:
     """The AMDM UKF (ukf_run, _chol with the measurement model) and the sigma points
-    (_sigma) as test/core/test_scanner_ukf.py computes them."""
+    (_sigma) as test/mems_estimation/filters/test_scanner_amdm_ukf.py computes them."""
     from mems_estimation.filters.scanner_amdm_ukf import _sigma, ukf_weights
 
     out = _amdm_filter("ukf")
@@ -537,7 +537,7 @@ def resonator_observer() -> list[np.ndarray]:
     """KalmanObserver.step (_kf_run: kf_update6, kf_predict6, cov_predict6, add_pulse_input)
     and the steady-state paths (_ss_run_innov, _ss_run_states), the linear-output
     variant, the frame checks, and the generic and structured Kalman kernels as
-    test/core/test_resonator_kernels.py calls them."""
+    test/mems_sim/kernels/test_resonator_kernels.py calls them."""
     from mems_sim.kernels.resonator_kf_steps import (
         cov_predict,
         cov_predict6,

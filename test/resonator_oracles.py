@@ -5,7 +5,7 @@ The generic n x n loops of :func:`~mems_sim.kernels.resonator_kf_steps.kf_update
 :func:`~mems_sim.kernels.resonator_kf_steps.cov_predict` and the full Jacobian products, as
 they were before the structured 6-state kernels, with the adaptive observer's f0 Jacobian
 column by central difference: frozen on purpose (not shared with the code they check).
-:func:`check_equal` compares them with the kernels in use; test/core/test_resonator_kernels.py
+:func:`check_equal` compares them with the kernels in use; test/mems_sim/kernels/test_resonator_kernels.py
 and ``bench/bench_sd_resonator.py --compare`` call it (docs/profiles.md).
 """
 

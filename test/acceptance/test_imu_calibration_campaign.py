@@ -2,7 +2,7 @@
 seeds (run_campaign, one process per run) on the ADIS16350 preset's nominal device.
 
 Evaluation seeds 101-120; the method was tuned on other data only (synthetic records of
-test/core with seeds 0-19, scenario seeds 1 and 3). Criteria (RMS over the 20 seeds and the
+test/mems_estimation with seeds 0-19, scenario seeds 1 and 3). Criteria (RMS over the 20 seeds and the
 3 axes): scale factor <= 300 ppm and misalignment <= 0.05 deg for both sensors,
 accelerometer bias <= 1 mg, gyro bias <= 3 B; coverage of the 95 % intervals pooled over
 every run >= 90 %; thermal ramp 20-60 degC at 1 K/min: the observable bias and scale-factor

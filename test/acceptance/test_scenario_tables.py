@@ -96,3 +96,9 @@ def test_scenario_table_matches_reference(name, tmp_path, domain_id):
     assert found is None, found
     expected = [" ".join(line.split()) for line in ref_text.read_text().splitlines()]
     assert recorded_lines(text) == recorded_lines(expected)
+    # the scenario contract at the default duration: the recording alone gives the figures
+    analyse = [sys.executable, "-m", "mems_scenarios.cli", name, "--analyse"]
+    analyse += [str(tmp_path / f"{name}-1.mcap"), "--json", "--no-plots"]
+    again = subprocess.run(analyse, capture_output=True, text=True, timeout=1800, cwd=tmp_path)
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert figures_of(json.loads(again.stdout)) == figures

@@ -140,7 +140,7 @@ BAD_LINES = (
     "Issue 4 acceptance:",
     "the issue asks the UKF to beat the EKF",
     'format_table(["figure", "paper", "issue", "measured"], rows)',
-    "second-order leakage (see test/core/test_micro_stage.py)",
+    "second-order leakage (see test/mems_sim/devices/test_stage.py)",
     "the table lives in one place (see mems_sim/params.py)",
     "they are too narrow (see the notes in mems_estimation/noise_id.py)",
     "documented in `mems_sim/micro_stage.py`",

@@ -15,7 +15,7 @@ from rclpy.executors import SingleThreadedExecutor
 from mems_msgs.msg import AdcFrame
 from mems_sim.ros.qos import FRAME_QOS
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 VENV_BIN = Path(sys.executable).parent
 PREFIX = Path(sys.prefix)
 

@@ -381,7 +381,7 @@ def test_reference_bags_still_read(bags):
     from mems_sim.bag.info import bag_info
     from mems_sim.bag.player import read_messages
 
-    repo = Path(__file__).resolve().parents[2]
+    repo = Path(__file__).resolve().parents[3]
     info = bag_info(str(repo / "bags" / "imu.mcap"))
     assert info["has_summary"] and not info["truncated"]
     assert sum(1 for _ in read_messages(str(repo / "bags" / "imu.mcap"), ["/imu/adc"])) == 600

@@ -76,7 +76,7 @@ from mems_sim.ros.frames import (
 from mems_sim.ros.node_base import FRAME_TYPES
 from mems_sim.ros.qos import FRAME_QOS, PROGRESS_QOS, RESULT_QOS
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 EPOCH_NS = 1_767_225_600 * 10**9  # 2026-01-01 UTC: the clean run's epoch
 JUMP_GAP = 10**9  # below max_gap_samples (2^32): a gap
 JUMP_RESET = 2**62  # beyond it: a stream reset

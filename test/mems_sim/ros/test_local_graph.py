@@ -19,7 +19,7 @@ from proc_sockets import inet_sockets, is_loopback
 
 from mems_sim.ros import env as ros_env
 
-PROFILE = Path(__file__).resolve().parents[2] / "config" / ros_env.PROFILE_NAME
+PROFILE = Path(__file__).resolve().parents[3] / "config" / ros_env.PROFILE_NAME
 FASTDDS_XSD = Path(sys.prefix) / "share" / "fastdds" / "fastdds_profiles.xsd"
 #: What a user's shell has: none of the variables apply_defaults sets in the test process.
 SET_BY_DEFAULTS = (ros_env.PROFILE_VARIABLE, ros_env.MARKER_VARIABLE, ros_env.RANGE_VARIABLE)
@@ -185,7 +185,7 @@ def test_a_middleware_without_rtps_ports_takes_any_decimal_domain(clean_env):
 def test_executables_refuse_a_bad_domain_id_in_one_line(tmp_path, command, value):
     """Exit 2 and one line naming the variable, no traceback, nothing joins a graph (Fast
     DDS's own "port number is too high" error never printed) and no file is written."""
-    launch = Path(__file__).resolve().parents[2] / "launch"
+    launch = Path(__file__).resolve().parents[3] / "launch"
     argv = [a.format(tmp=tmp_path, launch=launch) for a in command]
     argv[0] = str(Path(sys.executable).parent / argv[0])
     env = {k: v for k, v in os.environ.items() if k not in SET_BY_DEFAULTS}

@@ -14,7 +14,7 @@ import pytest
 from mems_sim.cli_values import number
 
 BIN = Path(sys.executable).parent
-BAG = Path(__file__).resolve().parents[1] / "bags" / "imu.mcap"
+BAG = Path(__file__).resolve().parents[2] / "bags" / "imu.mcap"
 
 
 def test_number_ranges():

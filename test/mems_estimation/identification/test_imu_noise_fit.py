@@ -6,7 +6,7 @@ path (StreamingAllan + identify_stream, as imu_noise_identifier_node and identif
 it) without ROS: the numbers are the same as through a node graph (frames carry the same
 samples) and a run costs seconds instead of minutes.  Tuning seeds (fit design, interval
 calibration): 10-29; the campaigns use seeds 100-199 (10,000 s) and 200-219 (40,000 s).
-Print the campaign figures:  ``.venv/bin/python test/core/test_noise_id.py``.
+Print the campaign figures:  ``.venv/bin/python test/mems_estimation/identification/test_imu_noise_fit.py``.
 """
 
 import dataclasses
@@ -18,7 +18,7 @@ import sys
 import numpy as np
 import pytest
 
-sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..")))
+sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", "..")))
 
 from mems_estimation.identification.allan import StreamingAllan, allan_analysis
 from mems_estimation.identification.imu_noise_fit import (

@@ -91,7 +91,7 @@ def _env(domain_id: int, peer: str | None) -> dict:
     env = dict(os.environ)
     env["ROS_DOMAIN_ID"] = str(domain_id)
     env["PYTHONPATH"] = os.pathsep.join(
-        [str(HERE.parents[1])] + [p for p in [os.environ.get("PYTHONPATH")] if p]
+        [str(HERE.parents[2])] + [p for p in [os.environ.get("PYTHONPATH")] if p]
     )
     for var in ("FASTDDS_DEFAULT_PROFILES_FILE", "MEMS_EMULATOR_FASTDDS_PROFILE"):
         env.pop(var, None)

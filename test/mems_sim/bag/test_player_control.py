@@ -33,7 +33,7 @@ from mems_sim.ros.qos_yaml import profiles_yaml as qos_profiles_yaml
 BIN = Path(sys.executable).parent
 FRAMES = 60  # /s/adc: 100 samples at 1 kHz each, log time k * 0.1 s
 SPLIT = 30  # frames 0..29 in file 0, 30..59 in file 1
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 
 
 def _frame(k: int) -> AdcFrame:

@@ -194,7 +194,7 @@ def test_foxglove_layouts_are_generated_and_name_recorded_topics():
 
     from mcap.reader import make_reader
 
-    repo = Path(__file__).resolve().parents[2]
+    repo = Path(__file__).resolve().parents[3]
     spec = importlib.util.spec_from_file_location(
         "foxglove_layouts", repo / "tools" / "foxglove_layouts.py"
     )

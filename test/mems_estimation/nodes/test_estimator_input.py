@@ -181,7 +181,7 @@ def test_hybrid_ekf_reset_after_an_absurd_frame():
 def test_stage_ekf_and_canceller_reset(tmp_path):
     from pathlib import Path
 
-    model = load_model(str(Path(__file__).resolve().parents[2] / "bags" / "stage_params.yaml"))
+    model = load_model(str(Path(__file__).resolve().parents[3] / "bags" / "stage_params.yaml"))
     nch = len(model.channels)
     rng = np.random.default_rng(0)
     y, u = rng.normal(0, 1e-3, (2000, nch)), rng.normal(0, 0.5, 2000)
