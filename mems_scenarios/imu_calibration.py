@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from mems_estimation.identification import imu_calibration as ic
+from mems_estimation.identification import imu_calibration_io as icio
 from mems_scenarios import base, contract, delivery
 from mems_scenarios.figures import Figure, cell, figure_table
 from mems_sim.devices.imu_profiles import load_profile
@@ -268,9 +269,9 @@ def aliases_of(bag, params: dict) -> dict[str, str]:
         index=idx,
         temperature=temperature,
         device_temperature_c=params["device_temperature_c"],
-        noise=ic.noise_option(params["noise_model"]),
+        noise=icio.noise_option(params["noise_model"]),
         thermal={"auto": None, "on": True, "off": False}[params["thermal"]],
-        base=ic.load_yaml(params["base_yaml"]) if params.get("base_yaml") else None,
+        base=icio.load_yaml(params["base_yaml"]) if params.get("base_yaml") else None,
     )
     return dict(cal.aliases)
 
@@ -376,7 +377,7 @@ def run_profile(options: base.ScenarioOptions, name: str, profile: str, thermal:
         table=result.table,
         figures=result.figures,
         rows=result.values["rows"],
-        calibration=ic.load_yaml(yaml_path),
+        calibration=icio.load_yaml(yaml_path),
         truth=result.values["truth"],
         mcap=out,
         yaml=yaml_path,

@@ -26,6 +26,7 @@ import numpy as np
 from rclpy.duration import Duration
 
 from mems_estimation.identification import imu_calibration as ic
+from mems_estimation.identification import imu_calibration_io as icio
 from mems_estimation.nodes.frame_input import DEVICE_NAMESPACE, EstimatorNode, input_specs
 from mems_msgs.msg import AdcFrame, CalibrationResult, SignalFrame
 from mems_sim.params import ParameterError, ParamSpec
@@ -150,8 +151,8 @@ class ImuCalibrationNode(EstimatorNode):
 
         try:
             self.profile = load_profile(self.p["profile"])
-            self.noise = ic.noise_option(self.p["noise_model"])
-            self.base = ic.load_yaml(self.p["base_yaml"]) if self.p["base_yaml"] else None
+            self.noise = icio.noise_option(self.p["noise_model"])
+            self.base = icio.load_yaml(self.p["base_yaml"]) if self.p["base_yaml"] else None
         except (ProfileError, ic.CalibrationError) as exc:
             raise ParameterError(str(exc)) from None
         self.results: list[ic.ImuCalibration] = []
@@ -249,7 +250,7 @@ class ImuCalibrationNode(EstimatorNode):
         self.diag.count("results")
         if self.p["output_yaml"]:
             try:
-                ic.save_yaml(cal, self.p["output_yaml"])
+                icio.save_yaml(cal, self.p["output_yaml"])
             except OSError as exc:
                 self.diag.warn(f"cannot write {self.p['output_yaml']}: {exc}")
         return msg

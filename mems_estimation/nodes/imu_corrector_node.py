@@ -1,6 +1,6 @@
 """ROS 2 node: corrected IMU output -- applies a calibration YAML to live data.
 
-Loads ``calibration_yaml`` (:func:`mems_estimation.identification.imu_calibration.load_yaml`;
+Loads ``calibration_yaml`` (:func:`mems_estimation.identification.imu_calibration_io.load_yaml`;
 written by ``calibrate_imu --out`` or the ``imu_calibration_node``'s ``output_yaml``),
 subscribes the IMU's ``adc`` (mems_msgs/AdcFrame gyro_x..z [rad/s], accel_x..z [m/s^2];
 node namespace, default ``/imu``, or ``device_namespace``) through the estimator input
@@ -33,6 +33,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, Temperature
 
 from mems_estimation.identification import imu_calibration as ic
+from mems_estimation.identification import imu_calibration_io as icio
 from mems_estimation.nodes.frame_input import DEVICE_NAMESPACE, EstimatorNode, input_specs
 from mems_estimation.nodes.imu_calibration_node import imu_values, subscribe_imu_inputs
 from mems_msgs.msg import AdcFrame
@@ -108,7 +109,7 @@ class ImuCorrectorNode(EstimatorNode):
         if not self.p["calibration_yaml"]:
             raise ParameterError("parameter 'calibration_yaml' is required: a calibration YAML")
         try:
-            self.cal = ic.load_yaml(self.p["calibration_yaml"])
+            self.cal = icio.load_yaml(self.p["calibration_yaml"])
         except ic.CalibrationError as exc:
             raise ParameterError(f"parameter 'calibration_yaml': {exc}") from None
         self.samples_published = 0

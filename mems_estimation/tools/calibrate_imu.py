@@ -23,7 +23,7 @@ or ``data`` (estimated inside the segments: the bias intervals are then too narr
 70 % coverage of the nominal 95 % measured; default ``data``, with a note);
 ``--temperature`` the device temperature of segments without their own [degC, default
 25]. Prints a table (parameter, value, unit, +-95 %), writes the YAML (``--out``, format in
-:func:`mems_estimation.identification.imu_calibration.calibration_to_dict`), ``--json``
+:func:`mems_estimation.identification.imu_calibration_io.calibration_to_dict`), ``--json``
 prints the result as JSON on stdout (the table then goes to stderr). Exit status 0, or 2
 with one line for input it cannot use.
 """
@@ -126,7 +126,7 @@ def format_result(cal) -> str:
 
 def result_dict(cal) -> dict:
     """JSON form: the YAML mapping plus the estimated parameters with units and intervals."""
-    from mems_estimation.identification.imu_calibration import calibration_to_dict
+    from mems_estimation.identification.imu_calibration_io import calibration_to_dict
 
     d = calibration_to_dict(cal)
     d["parameters"] = [
@@ -148,6 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     apply_defaults()
     from mems_estimation.identification import imu_calibration as ic
+    from mems_estimation.identification import imu_calibration_io as icio
     from mems_estimation.tools.identify_noise import IMU_TYPES, bag_topics
     from mems_sim.bag.player import BagReadError
     from mems_sim.devices.imu_profiles import ProfileError, load_profile
@@ -157,8 +158,8 @@ def main(argv: list[str] | None = None) -> int:
         if not math.isfinite(args.temperature):
             raise ValueError(f"--temperature {args.temperature!r} is not finite")
         profile = load_profile(args.profile)
-        noise = ic.noise_option(args.noise)
-        base = ic.load_yaml(args.base) if args.base else None
+        noise = icio.noise_option(args.noise)
+        base = icio.load_yaml(args.base) if args.base else None
         if not args.bag.exists():
             raise ValueError(f"{args.bag}: no such file or directory")
         topics = bag_topics(args.bag)
@@ -204,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
     for name, text in cal.aliases.items():
         print(f"note: {name} {text} (not separable in this profile)", file=out)
     if args.out:
-        ic.save_yaml(cal, args.out)
+        icio.save_yaml(cal, args.out)
         print(f"calibration: {args.out}", file=out)
     if args.json:
         print(json.dumps(result_dict(cal)))

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from figure_checks import assert_figures
 
-from mems_estimation.identification import imu_calibration as ic
+from mems_estimation.identification import imu_calibration_io as icio
 from mems_scenarios import imu_calibration
 from mems_scenarios.base import ScenarioOptions
 
@@ -50,7 +50,7 @@ def test_recording_and_figures(result):
     assert figs["coverage.total"]["value"] == 33
     assert figs["coverage"]["value"] >= 0.8
     # the YAML the node wrote is the published calibration
-    loaded = ic.load_yaml(result["yaml"])
+    loaded = icio.load_yaml(result["yaml"])
     assert loaded.values["gyro_matrix_zz"] == result["calibration"].values["gyro_matrix_zz"]
 
 
@@ -72,7 +72,7 @@ def test_calibrate_imu_on_the_bag(result, tmp_path, subprocess_env):
     # the node used the temperature_sensor frames, the CLI the profile's 25 C: same values
     for n, v in offline.items():
         assert v == pytest.approx(live[n], rel=1e-9, abs=1e-12), n
-    assert ic.load_yaml(out).values["accel_bias_x"] == pytest.approx(offline["accel_bias_x"])
+    assert icio.load_yaml(out).values["accel_bias_x"] == pytest.approx(offline["accel_bias_x"])
 
 
 @pytest.mark.parametrize(

@@ -9,6 +9,7 @@ import pytest
 from scipy.signal import lfilter
 
 from mems_estimation.identification import imu_calibration as ic
+from mems_estimation.identification import imu_calibration_io as icio
 from mems_sim.devices.imu_profiles import ProfileTruth, builtin_profile, profile_truth
 
 FS = 100.0
@@ -28,7 +29,7 @@ def _truth_calibration(rng) -> ic.ImuCalibration:
     for a in "xyz":
         for b in "xyz":
             v[f"gyro_g_sensitivity_{a}{b}"] = rng.normal(0, 9e-5)
-    return ic.calibration_from_values(list(v), list(v.values()), method="truth")
+    return icio.calibration_from_values(list(v), list(v.values()), method="truth")
 
 
 def _noise(n, N, B, T, K, rng):
@@ -120,7 +121,7 @@ def test_thermal_ramp_observability_and_aliases():
     )
     assert cal.values["gyro_sf_tempco_z"] == pytest.approx(tc.values["gyro_sf_tempco_z"], rel=1e-3)
     # with the multi-position values as base, the biases are clean (no alias)
-    base = ic.calibration_from_values(
+    base = icio.calibration_from_values(
         [n for n in ic.ALL_NAMES if "tempco" not in n],
         [tc.values[n] for n in ic.ALL_NAMES if "tempco" not in n],
         [0.0] * len([n for n in ic.ALL_NAMES if "tempco" not in n]),
@@ -200,8 +201,8 @@ def test_yaml_round_trip_and_errors(tmp_path):
     prof, truth, tc, g, a = _data("multi_position", seed=1)
     cal = ic.calibrate_profile(g, a, prof, FS, noise=ic.nominal_noise())
     path = tmp_path / "calib.yaml"
-    ic.save_yaml(cal, path)
-    back = ic.load_yaml(path)
+    icio.save_yaml(cal, path)
+    back = icio.load_yaml(path)
     for n in ic.ALL_NAMES:
         assert back.values[n] == cal.values[n]
     assert back.estimated == cal.estimated
@@ -211,10 +212,10 @@ def test_yaml_round_trip_and_errors(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("format: mems_emulator/imu_calibration\ngyroscope: {matrix: [[1, 0], [0, 1]]}\n")
     with pytest.raises(ic.CalibrationError, match="gyroscope.matrix"):
-        ic.load_yaml(bad)
+        icio.load_yaml(bad)
     bad.write_text("{foo: 1}")
     with pytest.raises(ic.CalibrationError, match="format"):
-        ic.load_yaml(bad)
+        icio.load_yaml(bad)
 
 
 def test_bad_input_is_one_clear_error():
@@ -224,4 +225,4 @@ def test_bad_input_is_one_clear_error():
     with pytest.raises(ic.CalibrationError, match="no profile segment"):
         ic.calibrate_profile(np.zeros((300, 3)), np.zeros((300, 3)), prof, FS)
     with pytest.raises(ic.CalibrationError, match="noise model"):
-        ic.noise_option("/nonexistent.json")
+        icio.noise_option("/nonexistent.json")

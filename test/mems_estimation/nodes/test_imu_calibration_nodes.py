@@ -9,7 +9,7 @@ import pytest
 from conftest import params, spin_until
 from sensor_msgs.msg import Imu, Temperature
 
-from mems_estimation.identification import imu_calibration as ic
+from mems_estimation.identification import imu_calibration_io as icio
 from mems_estimation.nodes.imu_calibration_node import ImuCalibrationNode
 from mems_estimation.nodes.imu_corrector_node import ImuCorrectorNode
 from mems_msgs.msg import CalibrationResult
@@ -81,7 +81,7 @@ def test_calibration_and_corrected_output(graph, tmp_path):
     assert np.max(np.abs(z)) < 5.0, sorted(zip(np.abs(z), est))[-3:]
     assert list(res.units)[res.names.index("gyro_bias_x")] == "rad/s"
     # the YAML the node wrote loads back to the published values
-    loaded = ic.load_yaml(out)
+    loaded = icio.load_yaml(out)
     assert loaded.values["accel_matrix_xy"] == pytest.approx(est["accel_matrix_xy"][0])
 
     # corrected output: the calibration applied to the live frames of a second run (static)
@@ -139,7 +139,9 @@ def test_corrector_follows_a_temperature_topic(graph, tmp_path):
     )
     yaml_path = tmp_path / "truth.yaml"
     rows = emu.model.calibration_truth()
-    ic.save_yaml(ic.calibration_from_values([r[0] for r in rows], [r[1] for r in rows]), yaml_path)
+    icio.save_yaml(
+        icio.calibration_from_values([r[0] for r in rows], [r[1] for r in rows]), yaml_path
+    )
     corr = ImuCorrectorNode(
         context=ctx,
         namespace="imu3",
