@@ -63,6 +63,7 @@ SCENARIO_LIBRARY = {
     "campaign",
     "component_container",
     "run_graph",
+    "launch_file",
 }
 SCENARIO_PUBLIC = {
     "run",
