@@ -933,7 +933,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         "with chunk CRCs)",
     )
     args = ap.parse_args(argv)
-    from mems_sim.bag.writer import STORAGE_PRESETS
+    from mems_sim.bag.compression import STORAGE_PRESETS
 
     if args.storage_preset_profile not in (None, *STORAGE_PRESETS):
         ap.error(

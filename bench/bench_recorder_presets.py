@@ -29,7 +29,8 @@ sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")
 
 from mcap.reader import make_reader
 
-from mems_sim.bag.writer import McapBagWriter, storage_preset
+from mems_sim.bag.compression import storage_preset
+from mems_sim.bag.writer import McapBagWriter
 
 #: (label, McapBagWriter options) in the order printed
 CONFIGS = [

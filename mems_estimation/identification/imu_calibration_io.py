@@ -3,7 +3,6 @@
 Calibration YAML (format in :func:`calibration_to_dict`, :func:`save_yaml` /
 :func:`load_yaml`), calibrations from name/value lists (CalibrationResult,
 ``truth_calibration``) and noise models named on a command line (:func:`noise_option`).
-See docs/imu.md.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ exists there: ``-s/--storage`` (``mcap`` only), ``--topics``, ``-a/--all``, ``-e
 ``-x/--exclude-regex``, ``--include-hidden-topics``, ``-b/--max-bag-size``,
 ``-d/--max-bag-duration``, ``--qos-profile-overrides-path``, ``--compression-format``,
 ``--storage-preset-profile`` (``none``, ``fastwrite``, ``zstd_fast``, ``zstd_small``:
-:data:`~mems_sim.bag.writer.STORAGE_PRESETS`).
+:data:`~mems_sim.bag.compression.STORAGE_PRESETS`).
 ``--duration`` (rosbag2 has no such option) ends recording after that much wall-clock
 time. With ``-b`` or ``-d`` the output is a rosbag2 bag directory of split MCAP files and a
 ``metadata.yaml`` (:class:`~mems_sim.bag.writer.McapBagWriter`); without them ``-o`` names
@@ -33,14 +33,13 @@ import re
 import sys
 import time
 
+from mems_sim.bag.compression import STORAGE_PRESETS, storage_preset
 from mems_sim.bag.recorder import RecorderNode
 from mems_sim.bag.writer import (
-    STORAGE_PRESETS,
     BagWriteError,
     bag_directory_path,
     bag_directory_problem,
     output_problem,
-    storage_preset,
 )
 from mems_sim.cli_values import OneLineParser, non_negative, positive
 from mems_sim.ros.env import apply_defaults, domain_id_problem

@@ -50,6 +50,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
+from mems_sim.bag.compression import storage_preset
 from mems_sim.bag.schema import (
     SchemaError,
     has_header,
@@ -64,7 +65,6 @@ from mems_sim.bag.writer import (
     BagWriteError,
     McapBagWriter,
     gap_summary,
-    storage_preset,
 )
 from mems_sim.ros.end_of_stream import (
     describe_tail,
@@ -145,7 +145,7 @@ class RecorderNode(Node):
     :param compression: chunk compression ``'zstd'``, ``'lz4'`` or ``'none'``.
     :param chunk_size: uncompressed chunk size [bytes].
     :param storage_preset_profile: rosbag2's MCAP storage preset (``none``, ``fastwrite``,
-        ``zstd_fast``, ``zstd_small``; :func:`~mems_sim.bag.writer.storage_preset`): its
+        ``zstd_fast``, ``zstd_small``; :func:`~mems_sim.bag.compression.storage_preset`): its
         compression, zstd level, chunk size and CRC setting replace ``compression`` and
         ``chunk_size`` (``mcap_record`` lets explicit options override the preset).
     :param writer_options: more :class:`~mems_sim.bag.writer.McapBagWriter` options

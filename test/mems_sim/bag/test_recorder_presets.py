@@ -13,8 +13,9 @@ from __future__ import annotations
 import pytest
 from bagtool_helpers import reference_frames, run_measured
 
+from mems_sim.bag.compression import STORAGE_PRESETS, storage_preset
 from mems_sim.bag.record_cli import _parse_args
-from mems_sim.bag.writer import STORAGE_PRESETS, McapBagWriter, storage_preset
+from mems_sim.bag.writer import McapBagWriter
 
 TOPIC = "/imu/adc"
 TYPE = "mems_msgs/msg/AdcFrame"
