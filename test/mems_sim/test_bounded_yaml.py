@@ -61,7 +61,7 @@ def _consumers():
     """(name, load(path), the error classes its callers report in one line)."""
     from mems_estimation.filters.stage_ekf import load_model
     from mems_estimation.identification.imu_calibration import CalibrationError
-    from mems_estimation.identification.imu_calibration import load_yaml as load_calibration
+    from mems_estimation.identification.imu_calibration_io import load_yaml as load_calibration
     from mems_scenarios.launch_file import GraphError, load_graph
     from mems_sim.devices.imu_profiles import ProfileError, load_profile
     from mems_sim.ros.params_file import ParamsFileError, load_params_file
