@@ -412,10 +412,25 @@ def test_no_node_outlives_a_killed_run_graph(tmp_path, fake_pkg):
             print("left running:", line)
 
 
-def test_a_stalled_recorder_is_loss_in_the_exit_status(tmp_path, subprocess_env):
-    """The recorder SIGSTOPped while an IMU publishes 1000 frames/s: its 1000-frame history
-    overflows, and run_graph exits 1 naming the lost topic (it exited 0 before)."""
+def test_a_stalled_recorder_is_loss_in_the_exit_status(tmp_path, subprocess_env, ros_context):
+    """The recorder SIGSTOPped while an IMU publishes 1000 frames/s: the recorder stays
+    stopped until a watcher of the test has seen 4 frame histories more go by (an IMU slowed
+    by a loaded machine takes longer; 6 s at full speed), so the writer's and the reader's
+    histories overflow, and run_graph exits 1 naming the lost topic (it exited 0 before)."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    from mems_msgs.msg import AdcFrame
+    from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS
+
     namespace = f"/stalled_{os.getpid()}"
+    watcher = rclpy.create_node("stall_watcher", context=ros_context)
+    seen = []
+    watcher.create_subscription(
+        AdcFrame, f"{namespace}/adc", lambda m: seen.append(m.first_sample_index), FRAME_QOS
+    )
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(watcher)
     graph = write(
         tmp_path / "imu.launch.yaml",
         "launch:\n- node: {pkg: mems_emulator, exec: imu_node, name: imu, namespace: "
@@ -445,17 +460,24 @@ def test_a_stalled_recorder_is_loss_in_the_exit_status(tmp_path, subprocess_env)
         assert recorder and bag.exists()
         while time.monotonic() < deadline and bag.stat().st_size < 100_000:
             time.sleep(0.1)  # frames recorded: the first chunks are in the file
+        assert spin_until(executor, lambda: seen, timeout=30), "the watcher saw no frame"
         os.kill(recorder[0], signal.SIGSTOP)
-        time.sleep(6.0)  # 6000 frames published meanwhile
+        stopped_at = seen[-1]
+        overflowed = spin_until(
+            executor, lambda: seen[-1] - stopped_at >= 4 * FRAME_DEPTH, timeout=60
+        )
         os.kill(recorder[0], signal.SIGCONT)
+        assert overflowed, f"the IMU published {seen[-1] - stopped_at} frames in 60 s"
         time.sleep(1.0)
         os.kill(proc.pid, signal.SIGINT)
-        _, stderr = proc.communicate(timeout=90)
+        stdout, stderr = proc.communicate(timeout=90)
     finally:
+        executor.shutdown()
+        watcher.destroy_node()
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
-    assert proc.returncode == 1, stderr[-2000:]
+    assert proc.returncode == 1, stdout[-2000:] + stderr[-2000:]
     assert "recorder mcap_record: the recording lost data" in stderr, stderr[-2000:]
     assert f"lost data: {namespace}/" in stderr, stderr[-2000:]
 
