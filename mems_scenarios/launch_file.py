@@ -43,6 +43,9 @@ OUTPUTS = ("screen", "log")
 
 #: Deepest chain of includes (deeper: an include cycle).
 MAX_INCLUDE_DEPTH = 20
+#: Most launch files read for one graph, the root and every include counted (a file that
+#: includes the next one twice, 20 deep, would read 2**21 files within the depth cap).
+MAX_INCLUDE_LOADS = 1000
 
 #: ``$( ... )`` without nested parentheses.
 SUBSTITUTION = re.compile(r"\$\(([^()]*)\)")
@@ -198,10 +201,18 @@ class _Loader:
         self.cli = cli
         self.require = require
         self.graph = Graph()
+        #: Launch files read so far (:data:`MAX_INCLUDE_LOADS`).
+        self.loads = 0
 
     def load(self, path: Path, scope: dict[str, str], depth: int = 0) -> None:
         if depth > MAX_INCLUDE_DEPTH:
             raise GraphError(f"{path}: includes nested deeper than {MAX_INCLUDE_DEPTH} (a cycle?)")
+        self.loads += 1
+        if self.loads > MAX_INCLUDE_LOADS:
+            raise GraphError(
+                f"{path}: more than {MAX_INCLUDE_LOADS} launch files read for one graph "
+                "(includes that fan out?)"
+            )
         try:
             text = bounded_yaml.read_text(path)
         except OSError as exc:
@@ -274,7 +285,10 @@ class _Loader:
 
         if "$(" in SUBSTITUTION.sub("", text):
             raise GraphError(f"{where}: unterminated or nested substitution in {text!r}")
-        return SUBSTITUTION.sub(replace, text)
+        text = SUBSTITUTION.sub(replace, text)
+        if "\0" in text:  # no command line can carry it: refused before anything starts
+            raise GraphError(f"{where}: a NUL character in {text!r}")
+        return text
 
     def param_value(self, value, scope: dict[str, str], where: str) -> str:
         """A parameter value as the text after ``-p NAME:=`` (YAML, as the node parses it)."""

@@ -314,6 +314,45 @@ def test_include_cycle_and_bad_options_are_refused(tmp_path, subprocess_env):
     assert "no node" in refusal([empty], subprocess_env)
 
 
+def test_includes_that_fan_out_are_refused_in_bounded_time_and_memory(tmp_path, subprocess_env):
+    """Each file includes the next one twice, 21 files deep (within the depth cap; 2**21 - 1
+    loads, ~26 minutes before the cap): refused by the total-loads cap with one line and
+    exit 2 within 30 s, with a peak resident size under 500 MB."""
+    depth = 20
+    write(tmp_path / f"f{depth}.launch.yaml", "launch:\n" + NODE)
+    for k in range(depth - 1, -1, -1):
+        inc = f"- include: {{file: {tmp_path / f'f{k + 1}.launch.yaml'}}}\n"
+        write(tmp_path / f"f{k}.launch.yaml", "launch:\n" + inc + inc)
+    measure = (
+        "import resource, subprocess, sys; r = subprocess.run(sys.argv[1:], "
+        "capture_output=True, text=True); print(r.returncode); print(r.stderr, end=''); "
+        "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)"
+    )
+    t0 = time.monotonic()
+    run = subprocess.run(
+        [sys.executable, "-c", measure, RUN_GRAPH, str(tmp_path / "f0.launch.yaml")],
+        env=subprocess_env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    elapsed = time.monotonic() - t0
+    status, *stderr, peak_kib = run.stdout.splitlines()
+    assert status == "2" and len(stderr) == 1, run.stdout
+    assert stderr[0].startswith("run_graph: error: ") and "more than 1000 launch files" in stderr[0]
+    assert elapsed < 30, elapsed
+    assert int(peak_kib) < 500 * 1024, peak_kib
+
+
+def test_a_nul_character_in_a_value_is_refused_before_anything_starts(tmp_path, subprocess_env):
+    f = write(
+        tmp_path / "nul.launch.yaml",
+        "launch:\n- node: {pkg: mems_emulator, exec: imu_node, name: imu}\n"
+        '- node: {pkg: mems_emulator, exec: imu_node, name: "b\\0d"}\n',
+    )
+    assert "a NUL character in 'b\\x00d'" in refusal([f], subprocess_env)
+
+
 # --------------------------------------------------------------------------- the runner
 
 
