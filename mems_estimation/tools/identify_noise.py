@@ -33,7 +33,6 @@ import argparse
 import contextlib
 import json
 import math
-import os
 import sys
 from pathlib import Path
 
@@ -70,18 +69,6 @@ def _parser() -> argparse.ArgumentParser:
         "--overwrite", action="store_true", help="replace existing --kalibr/--plot files"
     )
     return p
-
-
-def _replace_atomically(path: Path, write) -> None:
-    """``write(tmp)`` into a new file beside ``path``, then rename it over ``path`` (a
-    reader never sees half a file, and a failed write leaves ``path`` as it was)."""
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def _is_mcap_file(path: Path) -> bool:
@@ -377,6 +364,26 @@ def format_model(model) -> str:
     return format_table(["axis", "param", "unit", "identified", "95 % CI", "CRB s.e."], rows)
 
 
+def _write_outputs(args, model, kalibr: dict | None, notes: list[str], out) -> None:
+    """Write ``--kalibr`` and ``--plot`` (each whole or not at all, never through a
+    symbolic link: :func:`~mems_sim.bag.output_paths.write_output`); BagWriteError."""
+    from mems_sim.bag.output_paths import write_output
+
+    if args.kalibr:
+        import yaml
+
+        text = yaml.safe_dump(kalibr, sort_keys=False)
+        write_output(args.kalibr, lambda tmp: Path(tmp).write_text(text), args.overwrite)
+        print(f"kalibr: {args.kalibr} (rostopic {kalibr['rostopic']})", file=out)
+        for note in notes:
+            print(f"kalibr: {note}", file=out)
+    if args.plot:
+        from mems_estimation.identification.imu_noise_plots import plot_allan
+
+        write_output(args.plot, lambda tmp: plot_allan(model, tmp), args.overwrite)
+        print(f"figure: {args.plot}", file=out)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``identify_noise``."""
     args = _parser().parse_args(argv)
@@ -384,7 +391,7 @@ def main(argv: list[str] | None = None) -> int:
     from mems_sim.bag.player import BagReadError
 
     out = sys.stderr if args.json else sys.stdout
-    from mems_sim.bag.writer import output_problem
+    from mems_sim.bag.output_paths import BagWriteError, output_problem
 
     for option, path in (("--kalibr", args.kalibr), ("--plot", args.plot)):
         # before the analysis: a symbolic link, a directory or an existing file (without
@@ -420,19 +427,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     print(head + "\n", file=out)
     print(format_model(model), file=out)
-    if args.kalibr:
-        import yaml
-
-        text = yaml.safe_dump(kalibr, sort_keys=False)
-        _replace_atomically(args.kalibr, lambda tmp: tmp.write_text(text))
-        print(f"kalibr: {args.kalibr} (rostopic {kalibr['rostopic']})", file=out)
-        for note in notes:
-            print(f"kalibr: {note}", file=out)
-    if args.plot:
-        from mems_estimation.identification.imu_noise_plots import plot_allan
-
-        _replace_atomically(args.plot, lambda tmp: plot_allan(model, tmp))
-        print(f"figure: {args.plot}", file=out)
+    try:
+        _write_outputs(args, model, kalibr, notes, out)
+    except BagWriteError as exc:  # e.g. the disk filled up, or a link appeared meanwhile
+        print(f"identify_noise: error: {exc}", file=sys.stderr)
+        return 2
     if args.json:
         d = model_to_dict(model)
         d["topic"] = topic

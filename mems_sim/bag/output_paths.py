@@ -1,8 +1,10 @@
-"""Where a bag may be written: checks of an output file (:func:`output_problem`) and of a
+"""Where an output may be written: checks of an output file (:func:`output_problem`) and of a
 bag directory of a split recording (:func:`bag_directory_problem`), its layout (rosbag2's
-``NAME/NAME_<n>.mcap`` and ``metadata.yaml``) and the one-line :class:`BagWriteError`.
-Symbolic links are never followed; nothing but a bag written here is ever replaced.
-Docs: docs/recording.md.
+``NAME/NAME_<n>.mcap`` and ``metadata.yaml``), the one-line :class:`BagWriteError`, and
+:func:`write_output`, the one way every tool writes a file a user names (a YAML result, a
+figure, a report): refused like a bag output, written to a temporary sibling and moved
+into place whole. Symbolic links are never followed; nothing but a bag written here is ever
+replaced. Docs: docs/recording.md.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ import errno
 import os
 import re
 import stat
+from collections.abc import Callable
 
 
 class BagWriteError(OSError):
@@ -178,3 +181,74 @@ def prepare_directory(path: str, overwrite: bool) -> None:
             os.mkdir(path, 0o755)
     except OSError as exc:
         raise BagWriteError(describe_error(path, exc)) from None
+
+
+def _temporary_sibling(path: str) -> str:
+    """A new empty file beside ``path`` (same file system, so a rename is atomic), named
+    ``.<name>.<pid>.<n>.tmp<suffix>`` so that tools choosing a format by the suffix (e.g.
+    matplotlib's ``savefig``) see the final one; created with ``O_EXCL | O_NOFOLLOW``."""
+    head, name = os.path.split(path)
+    suffix = os.path.splitext(name)[1]
+    for n in range(100):
+        tmp = os.path.join(head, f".{name}.{os.getpid()}.{n}.tmp{suffix}")
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644)
+        except FileExistsError:
+            continue
+        os.close(fd)
+        return tmp
+    raise FileExistsError(errno.EEXIST, "no free temporary name", path)
+
+
+def _move_into_place(tmp: str, path: str, overwrite: bool) -> None:
+    """Rename ``tmp`` to ``path``; without ``overwrite`` never over a file that appeared
+    meanwhile (a hard link fails with EEXIST; where links are not supported, a rename)."""
+    if overwrite:
+        os.replace(tmp, path)
+        return
+    try:
+        os.link(tmp, path, follow_symlinks=False)
+    except FileExistsError:
+        raise
+    except OSError:  # no hard links on this file system
+        if os.path.lexists(path):
+            raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), path) from None
+        os.replace(tmp, path)
+        return
+    os.unlink(tmp)
+
+
+def _is_character_device(path: str) -> bool:
+    try:
+        return stat.S_ISCHR(os.lstat(path).st_mode)
+    except FileNotFoundError:
+        return False
+
+
+def write_output(path, write: Callable[[str], object], overwrite: bool = False) -> None:
+    """Write the file ``path`` a user named: ``write(name)`` writes the content to the file
+    ``name`` (a temporary sibling), which is then moved to ``path`` whole, so a reader never
+    sees half a file and a failed write leaves ``path`` as it was.
+
+    Refused as :func:`output_problem` refuses (a symbolic link, never followed, even with
+    ``overwrite``; an existing file unless ``overwrite``; a directory); a character device
+    (``/dev/null``) is written in place. Raises :class:`BagWriteError` (one line naming the
+    path) for a refusal and for any OSError of writing (e.g. the disk is full).
+    """
+    path = str(path)
+    problem = output_problem(path, overwrite=overwrite, probe=False)
+    if problem is not None:
+        raise BagWriteError(problem)
+    tmp = None
+    try:
+        if _is_character_device(path):
+            write(path)
+            return
+        tmp = _temporary_sibling(path)
+        write(tmp)
+        _move_into_place(tmp, path, overwrite)
+    except OSError as exc:
+        raise BagWriteError(describe_error(path, exc)) from None
+    finally:
+        if tmp is not None and os.path.lexists(tmp):
+            os.unlink(tmp)

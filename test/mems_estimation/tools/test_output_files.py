@@ -1,0 +1,49 @@
+"""Outputs of ``identify_noise`` and ``calibrate_imu`` when the write itself fails after the
+analysis: the process runs with ``RLIMIT_FSIZE`` (SIGXFSZ ignored, so a write past the limit
+fails with EFBIG, as on a full disk; no mount rights needed). One line naming the path,
+exit 2, no traceback, and nothing left at the path (no half file).
+
+The up-front checks (a link, an existing file, a missing directory) are in
+test/mems_scenarios/test_imu_noise_scenario.py.
+"""
+
+from __future__ import annotations
+
+import resource
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+BAG = Path(__file__).resolve().parents[3] / "bags" / "imu.mcap"
+BIN = Path(sys.executable).parent
+
+
+def _small_files(limit_bytes: int):
+    """preexec_fn: files of the child end at ``limit_bytes``; a write past it is EFBIG."""
+
+    def apply() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+
+    return apply
+
+
+def _run_limited(args, env, limit_bytes: int) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [str(BIN / args[0]), *map(str, args[1:])],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+        preexec_fn=_small_files(limit_bytes),
+    )
+
+
+def test_identify_noise_plot_on_a_full_disk(tmp_path, subprocess_env):
+    figure = tmp_path / "allan.png"
+    run = _run_limited(["identify_noise", BAG, "--plot", figure], subprocess_env, 4096)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2, run.stderr
+    assert lines == [f"identify_noise: error: {figure}: File too large"], run.stderr
+    assert sorted(tmp_path.iterdir()) == []  # no half figure, no temporary file
