@@ -55,6 +55,7 @@ from pathlib import Path
 import numpy as np
 
 from mems_scenarios.figures import figures_of
+from mems_sim.bag.output_paths import write_output
 from mems_sim.cli_values import OneLineParser, number, positive
 
 #: Figure columns of a result row, in the order ``run_scenario --json`` gives them.
@@ -101,7 +102,9 @@ class RunSpec:
             args += ["--duration", repr(self.duration_s)]
         for s in self.sets:
             args += ["--set", s]
-        return args + ["--out", str(bag), "--json", "--no-plots", "--no-progress"]
+        # --overwrite: the campaign's own file of this run (a retried run replaces it)
+        args += ["--out", str(bag), "--overwrite"]
+        return args + ["--json", "--no-plots", "--no-progress"]
 
 
 @dataclass
@@ -307,6 +310,45 @@ def run_one(spec: RunSpec, out_dir: str, keep_bag: bool = False, timeout_s: floa
 # ---------------------------------------------------------------------- storage
 
 
+def write_text(path: Path, text: str) -> None:
+    """Write a campaign file whole (a killed driver leaves it whole or absent), never
+    through a symbolic link (:func:`~mems_sim.bag.output_paths.write_output`)."""
+    write_output(path, lambda tmp: Path(tmp).write_text(text), overwrite=True)
+
+
+#: The campaign's own files and directories in ``DIR`` (module doc); the report pages
+#: ``report-<n>.png`` besides.
+CAMPAIGN_ENTRIES = (
+    "campaign.json",
+    "results.parquet",
+    "report.json",
+    "report.txt",
+    "runs",
+    "bags",
+)
+
+
+def out_problem(out: Path) -> str | None:
+    """Why the campaign directory ``out`` cannot be used (one line), or None: ``out`` or one
+    of the campaign's entries in it is a symbolic link (never followed), or not of its kind
+    (a file where a directory belongs, or the reverse). Existing files are the campaign's
+    own (a campaign resumes): they are replaced."""
+    if out.is_symlink():
+        return f"{out}: is a symbolic link; refusing to write through it"
+    if out.exists() and not out.is_dir():
+        return f"{out}: exists and is not a directory"
+    if not out.is_dir():
+        return None
+    pages = sorted(p.name for p in out.glob("report-*.png"))
+    for name in (*CAMPAIGN_ENTRIES, *pages):
+        path = out / name
+        if path.is_symlink():
+            return f"{path}: is a symbolic link; refusing to write through it"
+        if path.exists() and path.is_dir() != (name in ("runs", "bags")):
+            return f"{path}: is {'a directory' if path.is_dir() else 'not a directory'}"
+    return None
+
+
 def run_file(out: Path, spec: RunSpec) -> Path:
     return out / "runs" / f"{spec.run_id}.json"
 
@@ -315,9 +357,7 @@ def save_result(out: Path, result: RunResult) -> None:
     """Write a run's file atomically (a killed driver leaves it whole or absent)."""
     path = run_file(out, result.spec)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(result.to_json() + "\n")
-    os.replace(tmp, path)
+    write_text(path, result.to_json() + "\n")
 
 
 def load_results(out: Path, specs: list[RunSpec]) -> dict[str, RunResult]:
@@ -363,7 +403,8 @@ def write_table(out: Path, results: list[RunResult]) -> Path:
         ]
     )
     path = out / "results.parquet"
-    pq.write_table(pa.Table.from_pylist(rows, schema=schema), path)
+    table = pa.Table.from_pylist(rows, schema=schema)
+    write_output(path, lambda tmp: pq.write_table(table, tmp), overwrite=True)
     return path
 
 
@@ -500,7 +541,7 @@ def plot_report(out: Path, results: list[RunResult], per_page: int = 24) -> list
         fig.suptitle(f"{len(results)} runs", fontsize=9)
         fig.tight_layout()
         path = out / f"report-{page // per_page + 1}.png"
-        fig.savefig(path, dpi=90)
+        write_output(path, lambda tmp, fig=fig: fig.savefig(tmp, dpi=90), overwrite=True)
         plt.close(fig)
         paths.append(path)
     return paths
@@ -632,6 +673,16 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def write_report(out: Path, results: list[RunResult]) -> tuple[Path, dict, list[Path]]:
+    """Write the table, ``report.json``, ``report.txt`` and the report pages; returns the
+    table's path, the report and the pages' paths. OSError (BagWriteError: one line)."""
+    table = write_table(out, results)
+    rep = report(results)
+    write_text(out / "report.json", json.dumps(rep, indent=1) + "\n")
+    write_text(out / "report.txt", report_text(rep) + "\n")
+    return table, rep, plot_report(out, results)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``run_campaign``."""
     from mems_scenarios import SCENARIOS
@@ -670,10 +721,14 @@ def main(argv: list[str] | None = None) -> int:
     if len({s.run_id for s in specs}) != len(specs):
         return fail("the campaign names the same run twice (repeated seeds or points)")
     out: Path = args.out
+    problem = out_problem(out)
+    if problem is not None:
+        return fail(f"--out: {problem}")
     try:
         out.mkdir(parents=True, exist_ok=True)
-        (out / "campaign.json").write_text(
-            json.dumps(dict(argv=sys.argv[1:] if argv is None else argv, runs=len(specs))) + "\n"
+        write_text(
+            out / "campaign.json",
+            json.dumps(dict(argv=sys.argv[1:] if argv is None else argv, runs=len(specs))) + "\n",
         )
     except OSError as exc:
         return fail(f"--out {str(out)!r}: {exc.strerror or exc}")
@@ -683,12 +738,11 @@ def main(argv: list[str] | None = None) -> int:
         return fail("interrupted; finished runs are kept, run the same command to resume")
     except OSError as exc:  # e.g. no scheduler at the address
         return fail(" ".join(str(exc).split()))
-    table = write_table(out, results)
-    rep = report(results)
-    (out / "report.json").write_text(json.dumps(rep, indent=1) + "\n")
+    try:
+        table, rep, pngs = write_report(out, results)
+    except OSError as exc:  # e.g. the disk is full: one line, the run files are kept
+        return fail(f"{' '.join(str(exc).split())} (run the same command to write the report)")
     text = report_text(rep)
-    (out / "report.txt").write_text(text + "\n")
-    pngs = plot_report(out, results)
     if args.json:
         print(json.dumps(rep))
         print(text, file=sys.stderr)
