@@ -59,7 +59,16 @@ import numba
 import numpy as np
 
 from mems_sim.kernels.divergence import covariance_ok, state_ok
-from mems_sim.kernels.resonator_kf_steps import predicted_output_sd, predictor_gain_sd
+from mems_sim.kernels.resonator_kf_steps import (
+    head6,
+    ntf_entry,
+    predicted_output_sd,
+    predictor_gain_sd,
+    put_sym,
+    row6,
+    sd_coefficients,
+    stf_entry,
+)
 from mems_sim.kernels.resonator_models import (
     interval_input,
     next_spill,
@@ -275,13 +284,6 @@ def _acc_r(x0, x1, x6, x7, b0, b1, b6, b7, q):
 
 
 @numba.njit(cache=True, inline="always")
-def _put(P, i, j, val):
-    """P[i, j] = P[j, i] = val (a symmetric covariance entry, units of P)."""
-    P[i, j] = val
-    P[j, i] = val
-
-
-@numba.njit(cache=True, inline="always")
 def _cov_predict_ekf(P, J, F, L, S):
     """Covariance prediction of the EKF, P <- J P J' + F - L L' S in place (Colinet, Galayko
     & Juillard, eq. (2), the predictor form with the cross term; L = (J P C' + M)/S), for
@@ -297,25 +299,13 @@ def _cov_predict_ekf(P, J, F, L, S):
     """
     n = P.shape[0]
     q = n == 8
-    a00 = J[0, 0]
-    a01 = J[0, 1]
-    a10 = J[1, 0]
-    a11 = J[1, 1]
-    a22 = J[2, 2]
-    a23 = J[2, 3]
-    a44 = J[4, 4]
-    a45 = J[4, 5]
+    a00, a01, a10, a11, a22, a23, a44, a45 = sd_coefficients(J)
     j06 = J[0, 6]
     j16 = J[1, 6]
     j07 = J[0, 7] if q else 0.0
     j17 = J[1, 7] if q else 0.0
     # old P, upper triangle
-    p00 = P[0, 0]
-    p01 = P[0, 1]
-    p02 = P[0, 2]
-    p03 = P[0, 3]
-    p04 = P[0, 4]
-    p05 = P[0, 5]
+    p00, p01, p02, p03, p04, p05 = row6(P, 0)
     p06 = P[0, 6]
     p11 = P[1, 1]
     p12 = P[1, 2]
@@ -373,67 +363,62 @@ def _cov_predict_ekf(P, J, F, L, S):
     v5 = _row_r(a10, a11, j16, j17, q, p05, p15, p56, p57)
     v6 = _row_r(a10, a11, j16, j17, q, p06, p16, p66, p67)
     v7 = _row_r(a10, a11, j16, j17, q, p07, p17, p67, p77)
-    w0 = p00 + a22 * p02 + a23 * p03
-    w2 = p02 + a22 * p22 + a23 * p23
-    w3 = p03 + a22 * p23 + a23 * p33
-    w4 = p04 + a22 * p24 + a23 * p34
-    w5 = p05 + a22 * p25 + a23 * p35
-    w6 = p06 + a22 * p26 + a23 * p36
-    w7 = p07 + a22 * p27 + a23 * p37
-    x4 = a44 * p44 + a45 * p45
-    x5 = a44 * p45 + a45 * p55
-    x6 = a44 * p46 + a45 * p56
-    x7 = a44 * p47 + a45 * p57
-    L0 = L[0]
-    L1 = L[1]
-    L2 = L[2]
-    L3 = L[3]
-    L4 = L[4]
-    L5 = L[5]
+    w0 = stf_entry(a22, a23, p00, p02, p03)
+    w2 = stf_entry(a22, a23, p02, p22, p23)
+    w3 = stf_entry(a22, a23, p03, p23, p33)
+    w4 = stf_entry(a22, a23, p04, p24, p34)
+    w5 = stf_entry(a22, a23, p05, p25, p35)
+    w6 = stf_entry(a22, a23, p06, p26, p36)
+    w7 = stf_entry(a22, a23, p07, p27, p37)
+    x4 = ntf_entry(a44, a45, p44, p45)
+    x5 = ntf_entry(a44, a45, p45, p55)
+    x6 = ntf_entry(a44, a45, p46, p56)
+    x7 = ntf_entry(a44, a45, p47, p57)
+    L0, L1, L2, L3, L4, L5 = head6(L)
     L6 = L[6]
     # (J P) J' + F - L L' S, upper triangle mirrored; resonator rows
     P[0, 0] = _acc_r(u0, u1, u6, u7, a00, a01, j06, j07, q) + F[0, 0] - L0 * L0 * S
-    _put(P, 0, 1, _acc_r(u0, u1, u6, u7, a10, a11, j16, j17, q) + F[0, 1] - L0 * L1 * S)
+    put_sym(P, 0, 1, _acc_r(u0, u1, u6, u7, a10, a11, j16, j17, q) + F[0, 1] - L0 * L1 * S)
     P[1, 1] = _acc_r(v0, v1, v6, v7, a10, a11, j16, j17, q) + F[1, 1] - L1 * L1 * S
     # STF state, J[2] = [1, 0, a22, a23, 0, ...]
-    _put(P, 0, 2, (0.0 + u0 + u2 * a22 + u3 * a23) + F[0, 2] - L0 * L2 * S)
-    _put(P, 1, 2, (0.0 + v0 + v2 * a22 + v3 * a23) + F[1, 2] - L1 * L2 * S)
+    put_sym(P, 0, 2, (0.0 + u0 + u2 * a22 + u3 * a23) + F[0, 2] - L0 * L2 * S)
+    put_sym(P, 1, 2, (0.0 + v0 + v2 * a22 + v3 * a23) + F[1, 2] - L1 * L2 * S)
     P[2, 2] = (0.0 + w0 + w2 * a22 + w3 * a23) + F[2, 2] - L2 * L2 * S
     # STF delay, J[3] = e_2; F[:, 3] = 0
-    _put(P, 0, 3, (0.0 + u2) - L0 * L3 * S)
-    _put(P, 1, 3, (0.0 + v2) - L1 * L3 * S)
-    _put(P, 2, 3, (0.0 + w2) - L2 * L3 * S)
+    put_sym(P, 0, 3, (0.0 + u2) - L0 * L3 * S)
+    put_sym(P, 1, 3, (0.0 + v2) - L1 * L3 * S)
+    put_sym(P, 2, 3, (0.0 + w2) - L2 * L3 * S)
     P[3, 3] = (0.0 + p22) - L3 * L3 * S
     # NTF state, J[4] = [0, 0, 0, 0, a44, a45, 0, ...]
-    _put(P, 0, 4, (0.0 + u4 * a44 + u5 * a45) + F[0, 4] - L0 * L4 * S)
-    _put(P, 1, 4, (0.0 + v4 * a44 + v5 * a45) + F[1, 4] - L1 * L4 * S)
-    _put(P, 2, 4, (0.0 + w4 * a44 + w5 * a45) + F[2, 4] - L2 * L4 * S)
-    _put(P, 3, 4, (0.0 + p24 * a44 + p25 * a45) + F[3, 4] - L3 * L4 * S)
+    put_sym(P, 0, 4, (0.0 + u4 * a44 + u5 * a45) + F[0, 4] - L0 * L4 * S)
+    put_sym(P, 1, 4, (0.0 + v4 * a44 + v5 * a45) + F[1, 4] - L1 * L4 * S)
+    put_sym(P, 2, 4, (0.0 + w4 * a44 + w5 * a45) + F[2, 4] - L2 * L4 * S)
+    put_sym(P, 3, 4, (0.0 + p24 * a44 + p25 * a45) + F[3, 4] - L3 * L4 * S)
     P[4, 4] = (0.0 + x4 * a44 + x5 * a45) + F[4, 4] - L4 * L4 * S
     # NTF delay, J[5] = e_4; F[:, 5] = 0
-    _put(P, 0, 5, (0.0 + u4) - L0 * L5 * S)
-    _put(P, 1, 5, (0.0 + v4) - L1 * L5 * S)
-    _put(P, 2, 5, (0.0 + w4) - L2 * L5 * S)
-    _put(P, 3, 5, (0.0 + p24) - L3 * L5 * S)
-    _put(P, 4, 5, (0.0 + x4) - L4 * L5 * S)
+    put_sym(P, 0, 5, (0.0 + u4) - L0 * L5 * S)
+    put_sym(P, 1, 5, (0.0 + v4) - L1 * L5 * S)
+    put_sym(P, 2, 5, (0.0 + w4) - L2 * L5 * S)
+    put_sym(P, 3, 5, (0.0 + p24) - L3 * L5 * S)
+    put_sym(P, 4, 5, (0.0 + x4) - L4 * L5 * S)
     P[5, 5] = (0.0 + p44) - L5 * L5 * S
     # parameters (random walks), J[j] = e_j
-    _put(P, 0, 6, (0.0 + u6) + F[0, 6] - L0 * L6 * S)
-    _put(P, 1, 6, (0.0 + v6) + F[1, 6] - L1 * L6 * S)
-    _put(P, 2, 6, (0.0 + w6) + F[2, 6] - L2 * L6 * S)
-    _put(P, 3, 6, (0.0 + p26) + F[3, 6] - L3 * L6 * S)
-    _put(P, 4, 6, (0.0 + x6) + F[4, 6] - L4 * L6 * S)
-    _put(P, 5, 6, (0.0 + p46) + F[5, 6] - L5 * L6 * S)
+    put_sym(P, 0, 6, (0.0 + u6) + F[0, 6] - L0 * L6 * S)
+    put_sym(P, 1, 6, (0.0 + v6) + F[1, 6] - L1 * L6 * S)
+    put_sym(P, 2, 6, (0.0 + w6) + F[2, 6] - L2 * L6 * S)
+    put_sym(P, 3, 6, (0.0 + p26) + F[3, 6] - L3 * L6 * S)
+    put_sym(P, 4, 6, (0.0 + x6) + F[4, 6] - L4 * L6 * S)
+    put_sym(P, 5, 6, (0.0 + p46) + F[5, 6] - L5 * L6 * S)
     P[6, 6] = (0.0 + p66) + F[6, 6] - L6 * L6 * S
     if q:
         L7 = L[7]
-        _put(P, 0, 7, (0.0 + u7) + F[0, 7] - L0 * L7 * S)
-        _put(P, 1, 7, (0.0 + v7) + F[1, 7] - L1 * L7 * S)
-        _put(P, 2, 7, (0.0 + w7) + F[2, 7] - L2 * L7 * S)
-        _put(P, 3, 7, (0.0 + p27) + F[3, 7] - L3 * L7 * S)
-        _put(P, 4, 7, (0.0 + x7) + F[4, 7] - L4 * L7 * S)
-        _put(P, 5, 7, (0.0 + p47) + F[5, 7] - L5 * L7 * S)
-        _put(P, 6, 7, (0.0 + p67) + F[6, 7] - L6 * L7 * S)
+        put_sym(P, 0, 7, (0.0 + u7) + F[0, 7] - L0 * L7 * S)
+        put_sym(P, 1, 7, (0.0 + v7) + F[1, 7] - L1 * L7 * S)
+        put_sym(P, 2, 7, (0.0 + w7) + F[2, 7] - L2 * L7 * S)
+        put_sym(P, 3, 7, (0.0 + p27) + F[3, 7] - L3 * L7 * S)
+        put_sym(P, 4, 7, (0.0 + x7) + F[4, 7] - L4 * L7 * S)
+        put_sym(P, 5, 7, (0.0 + p47) + F[5, 7] - L5 * L7 * S)
+        put_sym(P, 6, 7, (0.0 + p67) + F[6, 7] - L6 * L7 * S)
         P[7, 7] = (0.0 + p77) + F[7, 7] - L7 * L7 * S
 
 

@@ -35,6 +35,12 @@ __all__ = [
     "kf_predict6",
     "cov_predict_sd",
     "cov_predict6",
+    "sd_coefficients",
+    "head6",
+    "row6",
+    "stf_entry",
+    "ntf_entry",
+    "put_sym",
     "ss_step",
     "ss_step6",
 ]
@@ -173,6 +179,46 @@ def cov_predict(P, A, F, L, S, AP):
 
 
 @numba.njit(cache=True, inline="always")
+def sd_coefficients(A):
+    """The free entries of the structured A (or the adaptive observer's Jacobian J) in the
+    pattern above: (a00, a01, a10, a11, a22, a23, a44, a45) = Phi_s, STF row, NTF row."""
+    return A[0, 0], A[0, 1], A[1, 0], A[1, 1], A[2, 2], A[2, 3], A[4, 4], A[4, 5]
+
+
+@numba.njit(cache=True, inline="always")
+def head6(v):
+    """(v[0], ..., v[5]): the six model states of a vector held in scalars (the kernels
+    below read them before writing the array, so the compiler need not reload them)."""
+    return v[0], v[1], v[2], v[3], v[4], v[5]
+
+
+@numba.njit(cache=True, inline="always")
+def row6(P, i):
+    """(P[i, 0], ..., P[i, 5]): the model-state entries of row i of a covariance, in scalars."""
+    return P[i, 0], P[i, 1], P[i, 2], P[i, 3], P[i, 4], P[i, 5]
+
+
+@numba.njit(cache=True, inline="always")
+def stf_entry(a22, a23, p0, p2, p3):
+    """One entry of the STF row of A P, A[2] = [1, 0, a22, a23, 0, ...]: p0 + a22 p2 + a23 p3
+    (p0, p2, p3 the entries of rows 0, 2, 3 of P in one column)."""
+    return p0 + a22 * p2 + a23 * p3
+
+
+@numba.njit(cache=True, inline="always")
+def ntf_entry(a44, a45, p4, p5):
+    """One entry of the NTF row of A P, A[4] = [0, 0, 0, 0, a44, a45, 0, ...]: a44 p4 + a45 p5."""
+    return a44 * p4 + a45 * p5
+
+
+@numba.njit(cache=True, inline="always")
+def put_sym(P, i, j, val):
+    """P[i, j] = P[j, i] = val (a symmetric covariance entry, units of P)."""
+    P[i, j] = val
+    P[j, i] = val
+
+
+@numba.njit(cache=True, inline="always")
 def predicted_output_sd(xp, P, C, G, PC):
     """:func:`predicted_output` for C non-zero on the modulator states 2-5 only (any number
     of states >= 6): yhat = C X(k|k-1), S = C P C' + G (eq. (2)); fills PC = P C'."""
@@ -236,12 +282,7 @@ def kf_predict6(xp, P, A, F, M, nu, S, PC, L):
     P <- A P A' + F - L L' S (Colinet et al. eq. (2) with the cross term M,
     L = (A P C' + M)/S; :func:`cov_predict6`).  L (6,) is scratch."""
     predictor_gain_sd(A, M, PC, S, L)
-    x0 = xp[0]
-    x1 = xp[1]
-    x2 = xp[2]
-    x3 = xp[3]
-    x4 = xp[4]
-    x5 = xp[5]
+    x0, x1, x2, x3, x4, x5 = head6(xp)
     xp[0] = 0.0 + L[0] * nu + A[0, 0] * x0 + A[0, 1] * x1
     xp[1] = 0.0 + L[1] * nu + A[1, 0] * x0 + A[1, 1] * x1
     xp[2] = 0.0 + L[2] * nu + x0 + A[2, 2] * x2 + A[2, 3] * x3
@@ -258,14 +299,7 @@ def cov_predict_sd(P, A, F, L, S, AP):
     place (Colinet et al. eq. (2) with the cross term; L = (A P C' + M)/S).  AP (n, n) is
     scratch."""
     n = P.shape[0]
-    a00 = A[0, 0]
-    a01 = A[0, 1]
-    a10 = A[1, 0]
-    a11 = A[1, 1]
-    a22 = A[2, 2]
-    a23 = A[2, 3]
-    a44 = A[4, 4]
-    a45 = A[4, 5]
+    a00, a01, a10, a11, a22, a23, a44, a45 = sd_coefficients(A)
     # A P; rows 3, 5 and 6.. of A pick rows 2, 4 and 6.. of P
     for m in range(n):
         p0 = P[0, m]
@@ -279,9 +313,9 @@ def cov_predict_sd(P, A, F, L, S, AP):
             s1 += A[1, a] * P[a, m]
         AP[0, m] = s0
         AP[1, m] = s1
-        AP[2, m] = p0 + a22 * p2 + a23 * P[3, m]
+        AP[2, m] = stf_entry(a22, a23, p0, p2, P[3, m])
         AP[3, m] = p2
-        AP[4, m] = a44 * p4 + a45 * P[5, m]
+        AP[4, m] = ntf_entry(a44, a45, p4, P[5, m])
         AP[5, m] = p4
         for a in range(6, n):
             AP[a, m] = P[a, m]
@@ -294,29 +328,23 @@ def cov_predict_sd(P, A, F, L, S, AP):
             for a in range(6, n):
                 acc += AP[i, a] * A[j, a]
             val = acc + F[i, j] - L[i] * L[j] * S
-            P[i, j] = val
-            P[j, i] = val
+            put_sym(P, i, j, val)
     for i in range(3):  # STF state, A[2] = [1, 0, a22, a23, 0, ...]
         val = (0.0 + AP[i, 0] + AP[i, 2] * a22 + AP[i, 3] * a23) + F[i, 2] - L[i] * L[2] * S
-        P[i, 2] = val
-        P[2, i] = val
+        put_sym(P, i, 2, val)
     for i in range(4):  # STF delay, A[3] = e_2; F[:, 3] = 0
         val = (0.0 + AP[i, 2]) - L[i] * L[3] * S
-        P[i, 3] = val
-        P[3, i] = val
+        put_sym(P, i, 3, val)
     for i in range(5):  # NTF state, A[4] = [0, 0, 0, 0, a44, a45, 0, ...]
         val = (0.0 + AP[i, 4] * a44 + AP[i, 5] * a45) + F[i, 4] - L[i] * L[4] * S
-        P[i, 4] = val
-        P[4, i] = val
+        put_sym(P, i, 4, val)
     for i in range(6):  # NTF delay, A[5] = e_4; F[:, 5] = 0
         val = (0.0 + AP[i, 4]) - L[i] * L[5] * S
-        P[i, 5] = val
-        P[5, i] = val
+        put_sym(P, i, 5, val)
     for j in range(6, n):  # parameters (random walks), A[j] = e_j
         for i in range(j + 1):
             val = (0.0 + AP[i, j]) + F[i, j] - L[i] * L[j] * S
-            P[i, j] = val
-            P[j, i] = val
+            put_sym(P, i, j, val)
 
 
 @numba.njit(cache=True, inline="always")
@@ -332,26 +360,9 @@ def cov_predict6(P, A, F, L, S):
     rows 2 and 4 of P), instead of the scratch array that the compiler had to store and
     reload around every write of P.
     """
-    a00 = A[0, 0]
-    a01 = A[0, 1]
-    a10 = A[1, 0]
-    a11 = A[1, 1]
-    a22 = A[2, 2]
-    a23 = A[2, 3]
-    a44 = A[4, 4]
-    a45 = A[4, 5]
-    p00 = P[0, 0]
-    p01 = P[0, 1]
-    p02 = P[0, 2]
-    p03 = P[0, 3]
-    p04 = P[0, 4]
-    p05 = P[0, 5]
-    p10 = P[1, 0]
-    p11 = P[1, 1]
-    p12 = P[1, 2]
-    p13 = P[1, 3]
-    p14 = P[1, 4]
-    p15 = P[1, 5]
+    a00, a01, a10, a11, a22, a23, a44, a45 = sd_coefficients(A)
+    p00, p01, p02, p03, p04, p05 = row6(P, 0)
+    p10, p11, p12, p13, p14, p15 = row6(P, 1)
     p20 = P[2, 0]
     p22 = P[2, 2]
     p23 = P[2, 3]
@@ -380,48 +391,36 @@ def cov_predict6(P, A, F, L, S):
     v3 = a10 * p03 + a11 * p13
     v4 = a10 * p04 + a11 * p14
     v5 = a10 * p05 + a11 * p15
-    w0 = p00 + a22 * p20 + a23 * p30
-    w2 = p02 + a22 * p22 + a23 * p32
-    w3 = p03 + a22 * p23 + a23 * p33
-    w4 = p04 + a22 * p24 + a23 * p34
-    w5 = p05 + a22 * p25 + a23 * p35
-    x4 = a44 * p44 + a45 * p54
-    x5 = a44 * p45 + a45 * p55
-    L0 = L[0]
-    L1 = L[1]
-    L2 = L[2]
-    L3 = L[3]
-    L4 = L[4]
-    L5 = L[5]
+    w0 = stf_entry(a22, a23, p00, p20, p30)
+    w2 = stf_entry(a22, a23, p02, p22, p32)
+    w3 = stf_entry(a22, a23, p03, p23, p33)
+    w4 = stf_entry(a22, a23, p04, p24, p34)
+    w5 = stf_entry(a22, a23, p05, p25, p35)
+    x4 = ntf_entry(a44, a45, p44, p54)
+    x5 = ntf_entry(a44, a45, p45, p55)
+    L0, L1, L2, L3, L4, L5 = head6(L)
     # (A P) A' + F - L L' S, upper triangle mirrored
-    _put6(P, 0, 0, (0.0 + u0 * a00 + u1 * a01) + F[0, 0] - L0 * L0 * S)
-    _put6(P, 0, 1, (0.0 + u0 * a10 + u1 * a11) + F[0, 1] - L0 * L1 * S)
-    _put6(P, 1, 1, (0.0 + v0 * a10 + v1 * a11) + F[1, 1] - L1 * L1 * S)
-    _put6(P, 0, 2, (0.0 + u0 + u2 * a22 + u3 * a23) + F[0, 2] - L0 * L2 * S)
-    _put6(P, 1, 2, (0.0 + v0 + v2 * a22 + v3 * a23) + F[1, 2] - L1 * L2 * S)
-    _put6(P, 2, 2, (0.0 + w0 + w2 * a22 + w3 * a23) + F[2, 2] - L2 * L2 * S)
-    _put6(P, 0, 3, (0.0 + u2) - L0 * L3 * S)
-    _put6(P, 1, 3, (0.0 + v2) - L1 * L3 * S)
-    _put6(P, 2, 3, (0.0 + w2) - L2 * L3 * S)
-    _put6(P, 3, 3, (0.0 + p22) - L3 * L3 * S)
-    _put6(P, 0, 4, (0.0 + u4 * a44 + u5 * a45) + F[0, 4] - L0 * L4 * S)
-    _put6(P, 1, 4, (0.0 + v4 * a44 + v5 * a45) + F[1, 4] - L1 * L4 * S)
-    _put6(P, 2, 4, (0.0 + w4 * a44 + w5 * a45) + F[2, 4] - L2 * L4 * S)
-    _put6(P, 3, 4, (0.0 + p24 * a44 + p25 * a45) + F[3, 4] - L3 * L4 * S)
-    _put6(P, 4, 4, (0.0 + x4 * a44 + x5 * a45) + F[4, 4] - L4 * L4 * S)
-    _put6(P, 0, 5, (0.0 + u4) - L0 * L5 * S)
-    _put6(P, 1, 5, (0.0 + v4) - L1 * L5 * S)
-    _put6(P, 2, 5, (0.0 + w4) - L2 * L5 * S)
-    _put6(P, 3, 5, (0.0 + p24) - L3 * L5 * S)
-    _put6(P, 4, 5, (0.0 + x4) - L4 * L5 * S)
-    _put6(P, 5, 5, (0.0 + p44) - L5 * L5 * S)
-
-
-@numba.njit(cache=True, inline="always")
-def _put6(P, i, j, val):
-    """P[i, j] = P[j, i] = val (a symmetric covariance entry, V^2)."""
-    P[i, j] = val
-    P[j, i] = val
+    put_sym(P, 0, 0, (0.0 + u0 * a00 + u1 * a01) + F[0, 0] - L0 * L0 * S)
+    put_sym(P, 0, 1, (0.0 + u0 * a10 + u1 * a11) + F[0, 1] - L0 * L1 * S)
+    put_sym(P, 1, 1, (0.0 + v0 * a10 + v1 * a11) + F[1, 1] - L1 * L1 * S)
+    put_sym(P, 0, 2, (0.0 + u0 + u2 * a22 + u3 * a23) + F[0, 2] - L0 * L2 * S)
+    put_sym(P, 1, 2, (0.0 + v0 + v2 * a22 + v3 * a23) + F[1, 2] - L1 * L2 * S)
+    put_sym(P, 2, 2, (0.0 + w0 + w2 * a22 + w3 * a23) + F[2, 2] - L2 * L2 * S)
+    put_sym(P, 0, 3, (0.0 + u2) - L0 * L3 * S)
+    put_sym(P, 1, 3, (0.0 + v2) - L1 * L3 * S)
+    put_sym(P, 2, 3, (0.0 + w2) - L2 * L3 * S)
+    put_sym(P, 3, 3, (0.0 + p22) - L3 * L3 * S)
+    put_sym(P, 0, 4, (0.0 + u4 * a44 + u5 * a45) + F[0, 4] - L0 * L4 * S)
+    put_sym(P, 1, 4, (0.0 + v4 * a44 + v5 * a45) + F[1, 4] - L1 * L4 * S)
+    put_sym(P, 2, 4, (0.0 + w4 * a44 + w5 * a45) + F[2, 4] - L2 * L4 * S)
+    put_sym(P, 3, 4, (0.0 + p24 * a44 + p25 * a45) + F[3, 4] - L3 * L4 * S)
+    put_sym(P, 4, 4, (0.0 + x4 * a44 + x5 * a45) + F[4, 4] - L4 * L4 * S)
+    put_sym(P, 0, 5, (0.0 + u4) - L0 * L5 * S)
+    put_sym(P, 1, 5, (0.0 + v4) - L1 * L5 * S)
+    put_sym(P, 2, 5, (0.0 + w4) - L2 * L5 * S)
+    put_sym(P, 3, 5, (0.0 + p24) - L3 * L5 * S)
+    put_sym(P, 4, 5, (0.0 + x4) - L4 * L5 * S)
+    put_sym(P, 5, 5, (0.0 + p44) - L5 * L5 * S)
 
 
 @numba.njit(cache=True)
@@ -442,12 +441,7 @@ def ss_step6(xp, A, B, C, L, cpk, v, u):
     """:func:`ss_step` for the 6-state model, using its sparsity (res 2x2 block, STF and
     NTF companion blocks, A[2,0] = 1 coupling, B only on the resonator, C only on the
     modulator states)."""
-    x0 = xp[0]
-    x1 = xp[1]
-    x2 = xp[2]
-    x3 = xp[3]
-    x4 = xp[4]
-    x5 = xp[5]
+    x0, x1, x2, x3, x4, x5 = head6(xp)
     nu = v - (C[2] * x2 + C[3] * x3 + C[4] * x4 + C[5] * x5)
     xp[0] = A[0, 0] * x0 + A[0, 1] * x1 + B[0] * u + L[0] * nu
     xp[1] = A[1, 0] * x0 + A[1, 1] * x1 + B[1] * u + L[1] * nu

@@ -167,6 +167,24 @@ def check_pulse_timing(
     return np.ascontiguousarray(s), np.ascontiguousarray(w)
 
 
+@numba.njit(cache=True, inline="always")
+def _pulse_input(xp, res, gam, spill, u, s, w, eff, z, wc):
+    """:func:`add_pulse_input` of the pulse u (fired at s T, width w T) at the model
+    res = [f0, Q, fs, w0 velocity scale], called only when there is a pulse or a tail to
+    add (the call with array arguments costs refcounts)."""
+    if u != 0.0 or spill[0] != 0.0:
+        add_pulse_input(xp, res[0], res[1], res[2], res[3], gam, spill, u, s, w, eff, z, wc)
+
+
+@numba.njit(cache=True, inline="always")
+def _output(C, xp):
+    """Predicted output C X(k|k-1) of the steady-state paths, summed over all states."""
+    yhat = 0.0
+    for i in range(xp.shape[0]):
+        yhat += C[i] * xp[i]
+    return yhat
+
+
 # nogil: in a one-process graph the recorder's writer thread runs meanwhile
 @numba.njit(cache=True, nogil=True)
 def _kf_run(bits, pulses, starts, widths, xp, P, A, C, F, G, M, res, gam, spill, pos, var, innov):
@@ -183,22 +201,7 @@ def _kf_run(bits, pulses, starts, widths, xp, P, A, C, F, G, M, res, gam, spill,
         var[k] = pv
         innov[k] = nu / math.sqrt(S)
         kf_predict6(xp, P, A, F, M, nu, S, PC, L)
-        if pulses[k] != 0.0 or spill[0] != 0.0:  # (call guarded: array-argument
-            add_pulse_input(
-                xp,
-                res[0],
-                res[1],
-                res[2],
-                res[3],
-                gam,
-                spill,
-                pulses[k],  # refcounts
-                starts[k],
-                widths[k],
-                eff,
-                z,
-                wc,
-            )
+        _pulse_input(xp, res, gam, spill, pulses[k], starts[k], widths[k], eff, z, wc)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -209,27 +212,10 @@ def _ss_run_innov(
     z = np.empty(6)
     wc = np.full(3, -1.0)
     for k in range(bits.shape[0]):
-        yhat = 0.0
-        for i in range(xp.shape[0]):
-            yhat += C[i] * xp[i]
+        yhat = _output(C, xp)
         innov[k] = (bits[k] - yhat) / sqrtS
         pos[k] = ss_step6(xp, A, B, C, L, cpk, bits[k], 0.0)
-        if pulses[k] != 0.0 or spill[0] != 0.0:  # (call guarded: array-argument
-            add_pulse_input(
-                xp,
-                res[0],
-                res[1],
-                res[2],
-                res[3],
-                gam,
-                spill,
-                pulses[k],  # refcounts
-                starts[k],
-                widths[k],
-                eff,
-                z,
-                wc,
-            )
+        _pulse_input(xp, res, gam, spill, pulses[k], starts[k], widths[k], eff, z, wc)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -242,30 +228,13 @@ def _ss_run_states(
     z = np.empty(6)
     wc = np.full(3, -1.0)
     for k in range(bits.shape[0]):
-        yhat = 0.0
-        for i in range(n):
-            yhat += C[i] * xp[i]
+        yhat = _output(C, xp)
         nu = bits[k] - yhat
         innov[k] = nu / sqrtS
         for i in range(n):
             xf[k, i] = xp[i] + K[i] * nu
         ss_step6(xp, A, B, C, L, 0.0, bits[k], 0.0)
-        if pulses[k] != 0.0 or spill[0] != 0.0:  # (call guarded: array-argument
-            add_pulse_input(
-                xp,
-                res[0],
-                res[1],
-                res[2],
-                res[3],
-                gam,
-                spill,
-                pulses[k],  # refcounts
-                starts[k],
-                widths[k],
-                eff,
-                z,
-                wc,
-            )
+        _pulse_input(xp, res, gam, spill, pulses[k], starts[k], widths[k], eff, z, wc)
 
 
 class KalmanObserver:
@@ -368,6 +337,13 @@ class KalmanObserver:
         """Steady-state position variance, V^2 (steady_state mode only)."""
         return self.ss["pos_var"] if self.steady_state else None
 
+    def _checked(self, bits, pulses, starts, widths):
+        """The frame's outputs, pulses and pulse timing, checked (:func:`check_bits` or
+        :func:`check_outputs`, :func:`check_pulse_timing`): (b, u, s, w)."""
+        b, u = (check_outputs if self.linear_output else check_bits)(bits, pulses)
+        s, w = check_pulse_timing(u, starts, widths, self.model.fs)
+        return b, u, s, w
+
     def step(self, bits, pulses, starts=None, widths=None) -> tuple[np.ndarray, np.ndarray]:
         """Process n samples.
 
@@ -384,8 +360,7 @@ class KalmanObserver:
             ValueError: bits not in {+1, -1} (message names the convention), bad shape or
                 bad pulse timing.
         """
-        b, u = (check_outputs if self.linear_output else check_bits)(bits, pulses)
-        s, w = check_pulse_timing(u, starts, widths, self.model.fs)
+        b, u, s, w = self._checked(bits, pulses, starts, widths)
         n = b.shape[0]
         pos = np.empty(n)
         m = self.model
@@ -449,8 +424,7 @@ class KalmanObserver:
         """
         if not self.steady_state:
             raise ValueError("step_states needs steady_state=True (fixed gain, fixed P)")
-        b, u = (check_outputs if self.linear_output else check_bits)(bits, pulses)
-        s, w = check_pulse_timing(u, starts, widths, self.model.fs)
+        b, u, s, w = self._checked(bits, pulses, starts, widths)
         n = b.shape[0]
         m = self.model
         xf = np.empty((n, 6))
