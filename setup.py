@@ -32,12 +32,13 @@ RUNTIME = (
     "zstandard",
     "lz4",
     "foxglove-sdk",
+    "websockets",
     "dask",
     "distributed",
     "pandas",
     "pyarrow",
 )
-TEST = ("pytest", "ruff", "xmlschema", "AllanTools", "filterpy", "websockets")
+TEST = ("pytest", "ruff", "xmlschema", "AllanTools", "filterpy")
 
 
 def locked(names):

@@ -44,3 +44,36 @@ def is_loopback(address_port: str) -> bool:
     """True for a loopback address (IPv4, IPv6, or IPv4 mapped into IPv6)."""
     ip = ipaddress.ip_address(address_port.rsplit(":", 1)[0])
     return (getattr(ip, "ipv4_mapped", None) or ip).is_loopback
+
+
+def process_tree(pid: int) -> list[int]:
+    """``pid`` and every live descendant of it (children through ``/proc/*/stat``)."""
+    children: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        parent = int(stat.rsplit(")", 1)[1].split()[1])
+        children.setdefault(parent, []).append(int(entry.name))
+    tree, todo = [], [pid]
+    while todo:
+        current = todo.pop()
+        tree.append(current)
+        todo.extend(children.get(current, []))
+    return tree
+
+
+def non_loopback_sockets(pid: int) -> list[tuple[int, str, str]]:
+    """(pid, protocol, address:port) of each socket of ``pid``'s process tree bound beyond
+    the loopback interface (0.0.0.0, [::] or a network address)."""
+    found = []
+    for member in process_tree(pid):
+        try:
+            sockets = inet_sockets(member)
+        except OSError:  # the process ended meanwhile
+            continue
+        found += [(member, proto, a) for proto, a in sockets if not is_loopback(a)]
+    return found

@@ -12,12 +12,17 @@ It does not slow the graph: a topic is subscribed in ROS only while a Foxglove c
 subscribes to its channel (best-effort, shallow history: the publishers never wait for the
 live view, reliable ones included), and each channel forwards at most ``max_rate_hz``
 messages per second; messages above that rate are dropped. A live view is not lossless
-(the recorder is): frame topics of fast devices are decimated, and a slow client's
-backlog is bounded by the server, which drops its oldest messages.
+(the recorder is): frame topics of fast devices are decimated.
 
-The server binds to 127.0.0.1 unless ``host`` says otherwise; ``port`` 0 takes a free port.
-Once it listens, one line ``live_view: Foxglove WebSocket server on ws://HOST:PORT`` goes to
-standard output. SIGINT or SIGTERM stops the server and the node.
+Clients reach a front end (:mod:`mems_sim.nodes.foxglove_front`), not the SDK's server,
+which listens on a private port of 127.0.0.1: the front end checks each handshake's
+``Origin`` (:mod:`mems_sim.nodes.foxglove_origin`; others added with ``allowed_origins``),
+admits at most ``max_clients`` clients and bounds what waits for each client to
+``client_queue_bytes``, dropping the oldest messages of a client that does not read
+(counted and logged). It binds to 127.0.0.1 unless ``host`` says otherwise; ``port`` 0 takes
+a free port. Once it listens, one line
+``live_view: Foxglove WebSocket server on ws://HOST:PORT`` goes to standard output. SIGINT
+or SIGTERM stops the server and the node.
 """
 
 from __future__ import annotations
@@ -39,6 +44,8 @@ from mems_sim.bag.schema import (
     peek_header_stamp_ns,
     schema_text,
 )
+from mems_sim.nodes.foxglove_front import FrontEnd, FrontStats
+from mems_sim.nodes.foxglove_origin import OriginError, OriginPolicy, parse_origins
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.node_main import run_node
 from mems_sim.ros.params import declare_specs
@@ -68,6 +75,11 @@ LATCHED_QOS = QoSProfile(
 #: Period of the check of the clients' subscriptions [s].
 SYNC_PERIOD_S = 0.1
 
+#: Messages the SDK's server holds for each of the front end's connections (its
+#: ``message_backlog_size``, 1024 by default): it only fills when the front end's thread is
+#: starved of CPU, and its oldest message data is dropped beyond.
+SDK_BACKLOG_MESSAGES = 32
+
 SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "host",
@@ -91,6 +103,30 @@ SPECS: tuple[ParamSpec, ...] = (
         "-",
         "comma-separated topic names to offer (offered even if excluded by default); with "
         "neither topics nor regex every topic is offered",
+    ),
+    ParamSpec(
+        "allowed_origins",
+        "",
+        "-",
+        "comma-separated web origins (scheme://host[:port]) allowed besides the defaults: no "
+        "Origin, null, file://, loopback http(s) hosts and https://app.foxglove.dev",
+    ),
+    ParamSpec(
+        "max_clients",
+        16,
+        "-",
+        "most WebSocket clients connected at once; one more is refused (HTTP 503)",
+        min=1,
+        max=1024,
+    ),
+    ParamSpec(
+        "client_queue_bytes",
+        2 * 1024 * 1024,
+        "B",
+        "bound of what waits to be sent to one client; beyond it the client's oldest "
+        "messages are dropped (counted)",
+        min=64 * 1024,
+        max=1024 * 1024 * 1024,
     ),
     ParamSpec("regex", "", "-", "offer the topics whose name matches this regular expression"),
     ParamSpec("exclude", "", "-", "never offer topics matching this regular expression"),
@@ -161,23 +197,9 @@ class LiveViewNode(Node):
         self._last_stamp_ns: int | None = None
         self._closed = False
 
-        import foxglove
-
-        self._foxglove_context = foxglove.Context()
-        try:
-            self.server = foxglove.start_server(
-                name="mems_emulator live view",
-                host=self.p["host"],
-                port=self.p["port"],
-                context=self._foxglove_context,
-            )
-        except Exception as exc:  # the SDK raises its own error types for bind failures
-            raise ParameterError(
-                f"parameter 'port' = {self.p['port']}: the WebSocket server cannot listen "
-                f"on {self.p['host']}:{self.p['port']} ({' '.join(str(exc).split())})"
-            ) from None
-        self.port = int(self.server.port)
-        self.url = f"ws://{self.p['host']}:{self.port}"
+        self._start_servers()
+        host = self.p["host"]
+        self.url = f"ws://[{host}]:{self.port}" if ":" in host else f"ws://{host}:{self.port}"
         if self.p["host"] not in ("127.0.0.1", "localhost", "::1"):
             self.get_logger().warning(
                 f"the live view serves {self.p['host']}: it is reachable from the network"
@@ -189,6 +211,40 @@ class LiveViewNode(Node):
         )
         self._sync_timer = self.create_timer(SYNC_PERIOD_S, self.sync_subscriptions, clock=steady)
         self.discover()
+
+    def _start_servers(self) -> None:
+        """The SDK's server on a private loopback port, the front end on ``host:port``."""
+        import foxglove
+
+        try:
+            policy = OriginPolicy(parse_origins(self.p["allowed_origins"]))
+        except OriginError as exc:
+            raise ParameterError(f"parameter 'allowed_origins' is invalid: {exc}") from None
+        self._foxglove_context = foxglove.Context()
+        self.server = foxglove.start_server(
+            name="mems_emulator live view",
+            host="127.0.0.1",
+            port=0,
+            context=self._foxglove_context,
+            message_backlog_size=SDK_BACKLOG_MESSAGES,
+        )
+        self.front = FrontEnd(
+            int(self.server.port),
+            self.p["host"],
+            self.p["port"],
+            policy,
+            self.p["max_clients"],
+            self.p["client_queue_bytes"],
+            log=self.get_logger().warning,
+        )
+        try:
+            self.port = self.front.start()
+        except OSError as exc:
+            self.server.stop()
+            raise ParameterError(
+                f"parameter 'port' = {self.p['port']}: the WebSocket server cannot listen "
+                f"on {self.p['host']}:{self.p['port']} ({' '.join(str(exc).split())})"
+            ) from None
 
     def _compile(self, name: str):
         text = self.p[name]
@@ -317,6 +373,11 @@ class LiveViewNode(Node):
         """Per offered topic: (messages forwarded, messages dropped by the rate limit)."""
         return {t: (c.forwarded, c.decimated) for t, c in self._channels.items()}
 
+    def client_stats(self) -> FrontStats:
+        """The front end's counters: clients now, accepted, refused (origin, full), messages
+        dropped for clients that did not read, clients disconnected for reading nothing."""
+        return self.front.stats
+
     # ---------------------------------------------------------------- end
 
     def close(self) -> None:
@@ -330,13 +391,17 @@ class LiveViewNode(Node):
             if live.subscription is not None:
                 self.destroy_subscription(live.subscription)
                 live.subscription = None
+        self.front.stop()
         self.server.stop()
         for live in self._channels.values():
             live.channel.close()
         forwarded = sum(c.forwarded for c in self._channels.values())
         decimated = sum(c.decimated for c in self._channels.values())
+        stats = self.front.stats
         self.get_logger().info(
-            f"stopped: {forwarded} messages forwarded, {decimated} dropped by the rate limit"
+            f"stopped: {forwarded} messages forwarded, {decimated} dropped by the rate limit; "
+            f"{stats.accepted} clients served, {stats.dropped} messages dropped for clients "
+            f"that did not read, {stats.refused_origin + stats.refused_full} clients refused"
         )
 
 

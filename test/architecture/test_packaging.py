@@ -45,6 +45,8 @@ IMPORT_KEYS = {
     "mems_msgs": "mems_msgs",
     # foxglove-sdk has no rosdep key: setup.py and requirements.lock pin it (checked below)
     "foxglove": None,
+    # the live view's front end in front of the SDK's server
+    "websockets": "python3-websockets",
     # campaigns: pandas has a rosdep key; Dask and pyarrow have none (pinned like foxglove)
     "pandas": "python3-pandas",
     "dask": None,
@@ -129,6 +131,7 @@ def test_setup_requirements_are_the_locked_versions():
         "mcap",
         "rosbags",
         "foxglove-sdk",
+        "websockets",
     ):
         assert module in names or module.replace("_", "-") in names, module
 

@@ -1,5 +1,6 @@
 """The live view: a Foxglove WebSocket client connected during a scenario run subscribes to
-the estimate channel and decodes a message with the schema the server advertised.
+the estimate channel and decodes a message with the schema the server advertised; no
+process of the run has a socket beyond loopback.
 
 The client side of the Foxglove WebSocket protocol (JSON ``serverInfo``/``advertise`` from
 the server, ``subscribe`` from the client, binary Message Data frames: opcode 1, u32
@@ -23,6 +24,7 @@ import time
 from pathlib import Path
 
 import pytest
+from proc_sockets import non_loopback_sockets, process_tree
 
 BIN = Path(sys.executable).parent
 SUBPROTOCOL = "foxglove.sdk.v1"
@@ -130,6 +132,10 @@ def test_foxglove_client_decodes_the_estimate_during_a_scenario(tmp_path, subpro
     try:
         m = _lines_until(run.stderr, URL_LINE, 60.0, seen)
         assert m, "run_scenario printed no live view URL:\n" + "".join(seen)
+        # what `ss -ltnp` would show: nothing of the run's processes beyond loopback
+        tree = process_tree(run.pid)
+        assert len(tree) >= 2, tree  # run_scenario and its live_view process at least
+        assert non_loopback_sockets(run.pid) == []
         got = asyncio.run(_subscribe_and_take(int(m.group(1)), ESTIMATE, 30.0))
         stdout, _ = run.communicate(timeout=90)
     finally:
@@ -155,17 +161,25 @@ def test_foxglove_client_decodes_the_estimate_during_a_scenario(tmp_path, subpro
     assert got["log_time"] == stamp
 
 
+def _refusal(env: dict, executable: str, *args: str) -> str:
+    """The one line ``executable args...`` prints on stderr as it exits with 2."""
+    run = subprocess.run(
+        [str(BIN / executable), *args], env=env, capture_output=True, text=True, timeout=60
+    )
+    assert run.returncode == 2, run.stderr
+    assert len(run.stderr.strip().splitlines()) == 1, run.stderr
+    return run.stderr
+
+
+def _live_view_refusal(env: dict, parameter: str) -> str:
+    """The one line ``live_view --ros-args -p PARAMETER`` prints as it exits with 2."""
+    return _refusal(env, "live_view", "--ros-args", "-p", parameter)
+
+
 @pytest.mark.parametrize("port", ["-1", "70000"])
 def test_run_scenario_refuses_a_bad_live_view_port(port, subprocess_env):
-    run = subprocess.run(
-        [str(BIN / "run_scenario"), "scanner_threshold", "--live-view", port],
-        env=subprocess_env,
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert run.returncode == 2
-    assert "--live-view" in run.stderr and len(run.stderr.strip().splitlines()) == 1
+    err = _refusal(subprocess_env, "run_scenario", "scanner_threshold", "--live-view", port)
+    assert "--live-view" in err
 
 
 def test_live_view_refuses_a_port_in_use(subprocess_env):
@@ -175,15 +189,14 @@ def test_live_view_refuses_a_port_in_use(subprocess_env):
         busy.bind(("127.0.0.1", 0))
         busy.listen()
         port = busy.getsockname()[1]
-        run = subprocess.run(
-            [str(BIN / "live_view"), "--ros-args", "-p", f"port:={port}"],
-            env=subprocess_env,
-            capture_output=True,
-            text=True,
-            timeout=60,
-        )
-    assert run.returncode == 2, run.stderr
-    assert "port" in run.stderr and str(port) in run.stderr
+        err = _live_view_refusal(subprocess_env, f"port:={port}")
+    assert "port" in err and str(port) in err
+
+
+@pytest.mark.parametrize("origins", ["viewer.example", "https://viewer.example/page"])
+def test_live_view_refuses_an_allowed_origin_that_is_no_origin(origins, subprocess_env):
+    err = _live_view_refusal(subprocess_env, f"allowed_origins:={origins}")
+    assert "allowed_origins" in err and origins in err
 
 
 def test_foxglove_layouts_are_generated_and_name_recorded_topics():
