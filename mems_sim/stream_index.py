@@ -48,6 +48,64 @@ class StallTimer:
         return self.last_change is not None and now - self.last_change > timeout
 
 
+class PublicationStall(StallTimer):
+    """Stalls of one publisher, on its own clock (the publication times of its messages
+    [s], e.g. the middleware's source timestamps): a silence longer than
+    :meth:`bound` after at least :attr:`STEADY` messages (sending steadily) is a stall,
+    found when the publisher sends again (:meth:`update`). A silence that ends in a gap the
+    device declared (a scheduled device gap) is none. Bounded memory: the last
+    :attr:`INTERVALS` intervals.
+
+    :param timeout: least silence that is a stall [s].
+    """
+
+    #: Messages before the publisher counts as sending steadily.
+    STEADY = 10
+    #: A silence shorter than this many times the longest recent interval is no stall.
+    FACTOR = 3.0
+    #: Recent intervals between messages remembered.
+    INTERVALS = 16
+
+    def __init__(self, timeout: float) -> None:
+        super().__init__()
+        self.timeout = float(timeout)
+        self.messages = 0
+        #: Stalls found, their total and their longest silence [s].
+        self.stalls = 0
+        self.stalled_s = self.longest_s = 0.0
+        self._intervals: deque[float] = deque(maxlen=self.INTERVALS)
+
+    def bound(self) -> float | None:
+        """Silence beyond which the publisher is stalled [s]: the timeout, or
+        :attr:`FACTOR` times the longest recent interval if longer; None before it sent
+        :attr:`STEADY` messages."""
+        if self.messages < self.STEADY or not self._intervals:
+            return None
+        return max(self.timeout, self.FACTOR * max(self._intervals))
+
+    def update(self, now: float, declared: bool = False) -> float | None:
+        """A message published at ``now`` [s] (``declared``: it follows a gap the device
+        declared); returns the silence before it [s] if that was a stall, else None. A time
+        before the last one (a clock stepped back) is ignored."""
+        last, bound = self.last_change, self.bound()
+        if last is not None and now < last:
+            return None
+        self.messages += 1
+        self.touch(now)
+        if last is None:
+            return None
+        silence = now - last
+        if bound is not None and silence > bound:
+            if declared:
+                return None
+            self.stalls += 1
+            self.stalled_s += silence
+            self.longest_s = max(self.longest_s, silence)
+            return silence
+        self._intervals.append(silence)
+        return None
+
+
 class StreamIndex(StallTimer):
     """Sequence accounting of one stream of frames by their first index.
 
