@@ -42,7 +42,12 @@ until the deadline; messages still queued then are dropped and counted
 (:meth:`McapBagWriter.dropped`), and the Summary is written with what is in
 the file, so a stop request finishes in bounded time however busy the
 producers were. After a write error (disk full) nothing more is written: the
-file keeps the complete chunks written before, and ``close`` raises.
+file keeps the complete chunks written before, and ``close`` raises. The messages of the
+chunk that could not be written (and the message being written) then count as dropped,
+so that :meth:`McapBagWriter.counts` (the recorder's summary), the messages a reader finds
+in the files and a split recording's ``metadata.yaml`` agree; when ``metadata.yaml``
+itself cannot be rewritten at close (no room left), the error line says how many messages
+it lists against those in the files.
 
 The writer also counts messages per topic and, for frame types
 (:data:`~mems_sim.bag.schema.GAP_CHECKED_TYPES`), gaps of the frame index
@@ -248,6 +253,8 @@ class McapBagWriter:
         self._roll_pending = False
         self._writer = None
         self._stream = None
+        self._metadata_listed = 0  # messages the metadata.yaml on disk lists
+        self._metadata_problem: str | None = None  # why it could not be updated at close
         if self._directory:
             self.path = bag_directory_path(path)
             prepare_directory(self.path, overwrite)
@@ -293,6 +300,7 @@ class McapBagWriter:
                     self._add(item)
             except BaseException as exc:
                 self._error = exc
+                self._lose_unwritten(item)
 
     # ---------------------------------------------------------------- files
 
@@ -319,6 +327,7 @@ class McapBagWriter:
         self._stream, self._writer = stream, writer
         self._file_ids, self._file_schema_ids, self._file_counts = {}, {}, {}
         self._file_first = self._file_last = self._file_start_hw = None
+        self._on_disk: tuple[dict[int, int], int | None, int | None] = ({}, None, None)
         for bag_id, (topic, type_name, schema, metadata) in enumerate(self._topic_defs, 1):
             self._register_in_file(bag_id, topic, type_name, schema, metadata)
 
@@ -326,6 +335,7 @@ class McapBagWriter:
         self, bag_id: int, topic: str, type_name: str, schema: bytes, metadata: dict[str, str]
     ) -> None:
         # registering can finish a chunk (schemas and channels go into chunks)
+        before = self._stream.tell()
         with _zstd_level(self.compression_level):
             schema_id = self._file_schema_ids.get(type_name)
             if schema_id is None:
@@ -336,6 +346,7 @@ class McapBagWriter:
             self._file_ids[bag_id] = self._writer.register_channel(
                 topic=topic, message_encoding="cdr", schema_id=schema_id, metadata=metadata
             )
+        self._note_on_disk(self._stream, before)
 
     def _add(self, item) -> None:
         """Append one queued message to the open file, splitting first when due (writer
@@ -347,6 +358,7 @@ class McapBagWriter:
             or (self._max_span_ns and high_water - self._file_start_hw >= self._max_span_ns)
         ):
             self._roll()
+        before = self._stream.tell()
         with _zstd_level(self.compression_level):
             self._writer.add_message(
                 channel_id=self._file_ids.get(item[0], item[0]),
@@ -363,6 +375,7 @@ class McapBagWriter:
             self._file_first = min(self._file_first, log_time)
             self._file_last = max(self._file_last, log_time)
         self._file_counts[item[0]] = self._file_counts.get(item[0], 0) + 1
+        self._note_on_disk(self._stream, before)
         if self._max_bytes and self._stream.tell() >= self._max_bytes:
             self._roll_pending = True  # split before the next message: no empty last file
 
@@ -377,12 +390,35 @@ class McapBagWriter:
     def _finish_file(self) -> None:
         """Write the open file's last chunk, Summary and footer, fsync and close it."""
         stream, self._stream = self._stream, None
+        before = stream.tell()
         try:
             with _zstd_level(self.compression_level):
                 self._writer.finish()
             stream.fsync()
         finally:
+            self._note_on_disk(stream, before)
             stream.close()
+
+    def _note_on_disk(self, stream: _WriteThroughFile, before: int) -> None:
+        """The open file grew past ``before`` [bytes]: every message added to it so far is
+        in complete chunks in the OS (mcap's Writer writes a chunk whole, with the message
+        just added, before anything else; a write that failed midway does not count)."""
+        if stream.tell() != before:
+            self._on_disk = (dict(self._file_counts), self._file_first, self._file_last)
+
+    def _lose_unwritten(self, item) -> None:
+        """After a write error: the open file's messages that are not in a complete chunk
+        on disk, and ``item`` (the message being written, None: none), count as dropped,
+        and the file's counts and times become those on disk, so that :meth:`counts`,
+        ``metadata.yaml`` and what a reader finds in the files agree (module doc)."""
+        on_disk, first, last = self._on_disk
+        for channel_id, n in self._file_counts.items():
+            lost = n - on_disk.get(channel_id, 0)
+            if lost:
+                self._dropped[channel_id] = self._dropped.get(channel_id, 0) + lost
+        if item is not None:
+            self._dropped[item[0]] = self._dropped.get(item[0], 0) + 1
+        self._file_counts, self._file_first, self._file_last = dict(on_disk), first, last
 
     def _roll(self) -> None:
         """Finish the open split file and open the next one (writer thread)."""
@@ -455,7 +491,8 @@ class McapBagWriter:
         """Write ``metadata.yaml`` atomically (a temporary file renamed over it)."""
         import yaml
 
-        text = yaml.safe_dump(self._metadata(), sort_keys=False, default_flow_style=False)
+        metadata = self._metadata()
+        text = yaml.safe_dump(metadata, sort_keys=False, default_flow_style=False)
         final = os.path.join(self.path, METADATA_FILE)
         tmp = final + ".tmp"
         try:
@@ -464,6 +501,7 @@ class McapBagWriter:
                 handle.flush()
                 os.fsync(handle.fileno())
             os.replace(tmp, final)
+            self._metadata_listed = _message_count(metadata)
         except OSError as exc:
             try:
                 os.unlink(tmp)
@@ -714,6 +752,7 @@ class McapBagWriter:
                             self._write_metadata()
                     except OSError as exc:
                         self._error = exc
+                        self._lose_unwritten(None)
             finally:
                 if self._stream is not None:
                     self._stream.close()
@@ -721,18 +760,25 @@ class McapBagWriter:
                 if self._directory and self._error is not None:
                     try:  # list what was written (the last file may lack its Summary)
                         self._write_metadata()
-                    except OSError:
-                        pass
+                    except OSError as exc:
+                        self._metadata_problem = describe_error(METADATA_FILE, exc)
         if self._error is not None:
             raise self._failure() from self._error
 
     def _failure(self) -> BagWriteError:
         exc = self._error
         if isinstance(exc, BagWriteError):
-            return exc
-        if isinstance(exc, OSError):
-            return BagWriteError(describe_error(self.path, exc))
-        return BagWriteError(f"{self.path}: writing failed: {exc}")
+            text = str(exc)
+        elif isinstance(exc, OSError):
+            text = describe_error(self.path, exc)
+        else:
+            text = f"{self.path}: writing failed: {exc}"
+        if self._metadata_problem:  # one line: which of the three is short
+            text += (
+                f"; {self._metadata_problem}: it lists {self._metadata_listed} of the "
+                f"{_message_count(self._metadata())} messages in the files"
+            )
+        return exc if text == str(exc) and isinstance(exc, BagWriteError) else BagWriteError(text)
 
     def _check_open(self) -> None:
         if self._closed:
@@ -745,6 +791,11 @@ class McapBagWriter:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _message_count(metadata: dict) -> int:
+    """Messages a ``metadata.yaml`` content (:meth:`McapBagWriter._metadata`) lists."""
+    return int(metadata["rosbag2_bagfile_information"]["message_count"])
 
 
 def gap_summary(details: dict[str, dict[str, int]]) -> tuple[int, int]:
