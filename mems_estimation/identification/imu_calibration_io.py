@@ -198,11 +198,16 @@ def calibration_from_dict(d: Any) -> ImuCalibration:
     return cal
 
 
-def save_yaml(cal: ImuCalibration, path: str | Path) -> None:
-    """Write ``cal`` as YAML (:func:`calibration_to_dict`)."""
+def save_yaml(cal: ImuCalibration, path: str | Path, overwrite: bool = True) -> None:
+    """Write ``cal`` as YAML (:func:`calibration_to_dict`), whole or not at all and never
+    through a symbolic link (:func:`mems_sim.bag.output_paths.write_output`: an existing
+    file only with ``overwrite``); BagWriteError (an OSError, one line) when it cannot."""
     import yaml
 
-    Path(path).write_text(yaml.safe_dump(calibration_to_dict(cal), sort_keys=False))
+    from mems_sim.bag.output_paths import write_output
+
+    text = yaml.safe_dump(calibration_to_dict(cal), sort_keys=False)
+    write_output(path, lambda tmp: Path(tmp).write_text(text), overwrite)
 
 
 def load_yaml(path: str | Path) -> ImuCalibration:

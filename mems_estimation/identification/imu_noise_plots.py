@@ -8,10 +8,13 @@ from pathlib import Path
 import numpy as np
 
 from mems_estimation.identification.imu_noise_fit import avar_gm
+from mems_sim.bag.output_paths import write_output
 
 
-def plot_allan(model, path: Path) -> None:
-    """Allan deviation per axis with confidence bars, the fitted model and its terms."""
+def plot_allan(model, path: Path, overwrite: bool = True) -> None:
+    """Allan deviation per axis with confidence bars, the fitted model and its terms, written
+    to ``path`` whole and never through a symbolic link (an existing file only with
+    ``overwrite``; :func:`~mems_sim.bag.output_paths.write_output`, BagWriteError)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -63,5 +66,5 @@ def plot_allan(model, path: Path) -> None:
         f"{model.num_samples} samples at {model.sample_rate_hz:g} Hz, identified noise model"
     )
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    write_output(path, lambda tmp: fig.savefig(tmp, dpi=110), overwrite)
     plt.close(fig)

@@ -546,10 +546,15 @@ def curve_from_dict(d) -> SfCurve:
 
 
 def save_yaml(curve: SfCurve, path: str | Path, info: dict | None = None) -> None:
-    """Write ``curve`` as YAML (:func:`curve_to_dict`)."""
+    """Write ``curve`` as YAML (:func:`curve_to_dict`), whole or not at all and never through
+    a symbolic link (:func:`mems_sim.bag.output_paths.write_output`; a scenario's output
+    beside its MCAP file, replaced); BagWriteError (an OSError, one line) when it cannot."""
     import yaml
 
-    Path(path).write_text(yaml.safe_dump(curve_to_dict(curve, info), sort_keys=False))
+    from mems_sim.bag.output_paths import write_output
+
+    text = yaml.safe_dump(curve_to_dict(curve, info), sort_keys=False)
+    write_output(path, lambda tmp: Path(tmp).write_text(text), overwrite=True)
 
 
 def load_yaml(path: str | Path) -> SfCurve:

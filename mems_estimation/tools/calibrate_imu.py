@@ -10,7 +10,7 @@ the segment-mean covariance of a noise model, 95 % intervals).
 Usage:
     calibrate_imu BAG --profile NAME|FILE.yaml [--thermal] [--base CAL.yaml]
                   [--noise PRESET|data|NOISE.json] [--temperature C] [--out CAL.yaml]
-                  [--json] [--topic T]
+                  [--overwrite] [--json] [--topic T]
 
 ``--profile`` a built-in profile (six_position, multi_position, thermal_ramp,
 thermal_multi_position) or a profile YAML (mems_sim.devices.imu_profiles); ``--thermal``
@@ -24,8 +24,10 @@ or ``data`` (estimated inside the segments: the bias intervals are then too narr
 ``--temperature`` the device temperature of segments without their own [degC, default
 25]. Prints a table (parameter, value, unit, +-95 %), writes the YAML (``--out``, format in
 :func:`mems_estimation.identification.imu_calibration_io.calibration_to_dict`), ``--json``
-prints the result as JSON on stdout (the table then goes to stderr). Exit status 0, or 2
-with one line for input it cannot use.
+prints the result as JSON on stdout (the table then goes to stderr). ``--out`` is checked
+before the calibration: a symbolic link (never followed), a directory, a missing directory
+or an existing file without ``--overwrite`` is refused; the file is written whole or not at
+all. Exit status 0, or 2 with one line for input it cannot use or an output it cannot write.
 """
 
 from __future__ import annotations
@@ -50,6 +52,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--noise", default="data", help="preset name, 'data' or identify_noise JSON")
     p.add_argument("--temperature", type=float, default=25.0, help="device temperature [degC]")
     p.add_argument("--out", type=Path, default=None, help="write the calibration YAML")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     p.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
     p.add_argument("--topic", default=None, help="AdcFrame or Imu topic (default /imu/adc)")
     return p
@@ -150,10 +153,15 @@ def main(argv: list[str] | None = None) -> int:
     from mems_estimation.identification import imu_calibration as ic
     from mems_estimation.identification import imu_calibration_io as icio
     from mems_estimation.tools.identify_noise import IMU_TYPES, bag_topics
+    from mems_sim.bag.output_paths import BagWriteError, output_problem
     from mems_sim.bag.player import BagReadError
     from mems_sim.devices.imu_profiles import ProfileError, load_profile
 
     out = sys.stderr if args.json else sys.stdout
+    problem = None if args.out is None else output_problem(str(args.out), args.overwrite)
+    if problem is not None:
+        print(f"calibrate_imu: error: --out {problem}", file=sys.stderr)
+        return 2
     try:
         if not math.isfinite(args.temperature):
             raise ValueError(f"--temperature {args.temperature!r} is not finite")
@@ -205,7 +213,11 @@ def main(argv: list[str] | None = None) -> int:
     for name, text in cal.aliases.items():
         print(f"note: {name} {text} (not separable in this profile)", file=out)
     if args.out:
-        icio.save_yaml(cal, args.out)
+        try:
+            icio.save_yaml(cal, args.out, overwrite=args.overwrite)
+        except BagWriteError as exc:  # e.g. the disk filled up meanwhile
+            print(f"calibrate_imu: error: {exc}", file=sys.stderr)
+            return 2
         print(f"calibration: {args.out}", file=out)
     if args.json:
         print(json.dumps(result_dict(cal)))

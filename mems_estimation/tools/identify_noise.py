@@ -380,7 +380,7 @@ def _write_outputs(args, model, kalibr: dict | None, notes: list[str], out) -> N
     if args.plot:
         from mems_estimation.identification.imu_noise_plots import plot_allan
 
-        write_output(args.plot, lambda tmp: plot_allan(model, tmp), args.overwrite)
+        plot_allan(model, args.plot, overwrite=args.overwrite)
         print(f"figure: {args.plot}", file=out)
 
 

@@ -75,6 +75,22 @@ def test_calibrate_imu_on_the_bag(result, tmp_path, subprocess_env):
     assert icio.load_yaml(out).values["accel_bias_x"] == pytest.approx(offline["accel_bias_x"])
 
 
+def test_calibrate_imu_replaces_out_only_with_overwrite(result, tmp_path, subprocess_env):
+    out = tmp_path / "cal.yaml"
+    out.write_text("old\n")
+    cmd = [str(BIN / "calibrate_imu"), str(result["mcap"]), "--profile", "multi_position"]
+    cmd += ["--noise", "adis16350", "--out", str(out)]
+    run = subprocess.run(cmd, capture_output=True, text=True, env=subprocess_env, timeout=120)
+    assert run.returncode == 2 and "--overwrite" in run.stderr, run.stderr
+    assert out.read_text() == "old\n"
+    run = subprocess.run(
+        cmd + ["--overwrite"], capture_output=True, text=True, env=subprocess_env, timeout=120
+    )
+    assert run.returncode == 0, run.stderr
+    assert "gyro_matrix_zz" in icio.load_yaml(out).values
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cal.yaml"]  # no temporary left
+
+
 @pytest.mark.parametrize(
     "args, text",
     [

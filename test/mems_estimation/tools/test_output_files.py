@@ -47,3 +47,32 @@ def test_identify_noise_plot_on_a_full_disk(tmp_path, subprocess_env):
     assert run.returncode == 2, run.stderr
     assert lines == [f"identify_noise: error: {figure}: File too large"], run.stderr
     assert sorted(tmp_path.iterdir()) == []  # no half figure, no temporary file
+
+
+def test_calibrate_imu_out_refused_before_the_calibration(tmp_path, subprocess_env):
+    """A link (target untouched, also with --overwrite), an existing file without
+    --overwrite, a directory: one line and exit 2 before the bag is read."""
+    target = tmp_path / "target.yaml"
+    target.write_text("keep me\n")
+    link = tmp_path / "link.yaml"
+    link.symlink_to(target)
+    existing = tmp_path / "cal.yaml"
+    existing.write_text("old\n")
+    for path, extra, needle in (
+        (link, [], "is a symbolic link; refusing to write through it"),
+        (link, ["--overwrite"], "is a symbolic link; refusing to write through it"),
+        (existing, [], "exists (give --overwrite to replace it)"),
+        (tmp_path, ["--overwrite"], "is a directory"),
+    ):
+        run = subprocess.run(
+            [str(BIN / "calibrate_imu"), "/nonexistent.mcap", "--profile", "six_position"]
+            + ["--out", str(path), *extra],
+            capture_output=True,
+            text=True,
+            env=subprocess_env,
+            timeout=60,
+        )
+        assert run.returncode == 2, run.stderr
+        lines = run.stderr.strip().splitlines()
+        assert lines == [f"calibrate_imu: error: --out {path}: {needle}"], run.stderr
+    assert target.read_text() == "keep me\n" and existing.read_text() == "old\n"
