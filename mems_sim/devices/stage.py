@@ -76,9 +76,9 @@ from mems_sim.devices.stage_capacitance import (
     _GL_W,
     _GL_X,
     EPS0,
-    _grad_channel,
-    _grad_channel_small,
-    _small_offaxis,
+    _grad_xy,
+    _layout_extent,
+    _tilt_terms,
     channel_limits,
     dcdtheta_single,
     dcdtheta_single_tan,
@@ -183,29 +183,17 @@ def _readout(
     nseg = sega.shape[0]
     sat = 0
     two_pi = 2.0 * math.pi
-    wxmax = max(np.abs(lim[:, 0]).max(), np.abs(lim[:, 1]).max())
-    wymax = max(np.abs(lim[:, 2]).max(), np.abs(lim[:, 3]).max())
+    wxmax, wymax = _layout_extent(lim)
     for i in range(n):
-        tx = math.tan(thx[i])
-        ty = math.tan(thy[i])
-        sx = 1.0 + tx * tx
-        sy = 1.0 + ty * ty
-        small = _small_offaxis(tx, ty, dn, wxmax, wymax)
+        tx, ty, sx, sy, small = _tilt_terms(thx[i], thy[i], dn, wxmax, wymax)
         dudt = 0.0
         if feedthrough:
             s = seg[i]
             a = sega[s] if s < nseg else 0.0
             dudt = two_pi * fd[i] * a * math.cos(two_pi * phs[i])
         for c in range(nch):
-            if small:
-                iy, ix = _grad_channel_small(
-                    tx, ty, dn, lim[c, 0], lim[c, 1], lim[c, 2], lim[c, 3], glx, glw
-                )
-            else:
-                iy, ix = _grad_channel(
-                    tx, ty, dn, lim[c, 0], lim[c, 1], lim[c, 2], lim[c, 3], glx, glw
-                )
-            dcdt = (-eps * ix * sx) * omx[i] + (eps * iy * sy) * omy[i]
+            gx, gy = _grad_xy(tx, ty, sx, sy, small, dn, lim, c, eps, glx, glw)
+            dcdt = gx * omx[i] + gy * omy[i]
             v = -(vb[i] * gain_rs[c]) * dcdt - ft_rs[c] * dudt + noise[i, c] * noise_std
             y[i, c] = v
             q = np.rint(v * inv_lsb)

@@ -54,6 +54,13 @@ _C1, _C2, _C3 = 2.0 / 3.0, 4.0 / 5.0, 6.0 / 7.0
 
 
 @numba.njit(cache=True, inline="always")
+def _half_widths(w1, w2, w3, w4):
+    """(half-width, centre) along w_X, then (centre, half-width) along w_Y of the channel
+    rectangle [w1, w2] x [w3, w4] [m]."""
+    return 0.5 * (w2 - w1), 0.5 * (w2 + w1), 0.5 * (w3 + w4), 0.5 * (w4 - w3)
+
+
+@numba.njit(cache=True, inline="always")
 def _grad_channel(tx, ty, dn, w1, w2, w3, w4, glx, glw):
     """(int int w_Y/D^2, int int w_X/D^2) over one channel's rectangle of eq. (40),
     D = D_n - w_X tan(theta_Y) + w_Y tan(theta_X); tx, ty = tan(theta_X), tan(theta_Y).
@@ -67,10 +74,7 @@ def _grad_channel(tx, ty, dn, w1, w2, w3, w4, glx, glw):
     One division per outer node. Returns (Iy, Ix) = (int int w_X/D^2, int int w_Y/D^2) [m]:
     dC/dtheta_Y = eps sec^2(theta_Y) Iy, dC/dtheta_X = -eps sec^2(theta_X) Ix.
     """
-    hx = 0.5 * (w2 - w1)
-    mx = 0.5 * (w2 + w1)
-    c = 0.5 * (w3 + w4)
-    h = 0.5 * (w4 - w3)
+    hx, mx, c, h = _half_widths(w1, w2, w3, w4)
     iy = 0.0
     ix = 0.0
     for q in range(glx.shape[0]):
@@ -110,10 +114,7 @@ def _grad_channel(tx, ty, dn, w1, w2, w3, w4, glx, glw):
 def _grad_channel_small(tx, ty, dn, w1, w2, w3, w4, glx, glw):
     """:func:`_grad_channel` when |e| < 1e-3 at every node (caller checks with
     :func:`_small_offaxis`): three series terms (e^6 < 1e-18), straight-line code."""
-    hx = 0.5 * (w2 - w1)
-    mx = 0.5 * (w2 + w1)
-    c = 0.5 * (w3 + w4)
-    h = 0.5 * (w4 - w3)
+    hx, mx, c, h = _half_widths(w1, w2, w3, w4)
     iy = 0.0
     ix = 0.0
     for q in range(glx.shape[0]):
@@ -137,6 +138,40 @@ def _small_offaxis(tx, ty, dn, wxmax, wymax):
     return dmin > 0.0 and abs(tx) * wymax < 1e-3 * dmin
 
 
+@numba.njit(cache=True, inline="always")
+def _layout_extent(lim):
+    """(largest |w_X|, largest |w_Y|) of the electrode layout lim (nch, 4) [m], the bounds
+    :func:`_small_offaxis` takes."""
+    wxmax = max(np.abs(lim[:, 0]).max(), np.abs(lim[:, 1]).max())
+    wymax = max(np.abs(lim[:, 2]).max(), np.abs(lim[:, 3]).max())
+    return wxmax, wymax
+
+
+@numba.njit(cache=True, inline="always")
+def _tilt_terms(thx, thy, dn, wxmax, wymax):
+    """(tan(theta_X), tan(theta_Y), sec^2(theta_X), sec^2(theta_Y), fast path?) of one
+    sample for :func:`_grad_xy` (the flag from :func:`_small_offaxis`)."""
+    tx = math.tan(thx)
+    ty = math.tan(thy)
+    sx = 1.0 + tx * tx
+    sy = 1.0 + ty * ty
+    return tx, ty, sx, sy, _small_offaxis(tx, ty, dn, wxmax, wymax)
+
+
+@numba.njit(cache=True, inline="always")
+def _grad_xy(tx, ty, sx, sy, small, dn, lim, c, eps, glx, glw):
+    """(dC_c/dtheta_X, dC_c/dtheta_Y) of channel c, eq. (40) [F/rad]: -eps sec^2(theta_X) Ix,
+    eps sec^2(theta_Y) Iy with (Iy, Ix) of :func:`_grad_channel_small` on the fast path,
+    :func:`_grad_channel` otherwise (tx, ty, sx, sy, small from :func:`_tilt_terms`)."""
+    if small:
+        iy, ix = _grad_channel_small(
+            tx, ty, dn, lim[c, 0], lim[c, 1], lim[c, 2], lim[c, 3], glx, glw
+        )
+    else:
+        iy, ix = _grad_channel(tx, ty, dn, lim[c, 0], lim[c, 1], lim[c, 2], lim[c, 3], glx, glw)
+    return -eps * ix * sx, eps * iy * sy
+
+
 @numba.njit(cache=True)
 def _grad_dual(thx, thy, dn, lim, eps, glx, glw, out):
     """dC/dtheta_X, dC/dtheta_Y of eq. (40) for every sample and channel (:func:`_grad_channel`).
@@ -146,25 +181,13 @@ def _grad_dual(thx, thy, dn, lim, eps, glx, glw, out):
     """
     n = thx.shape[0]
     nch = lim.shape[0]
-    wxmax = max(np.abs(lim[:, 0]).max(), np.abs(lim[:, 1]).max())
-    wymax = max(np.abs(lim[:, 2]).max(), np.abs(lim[:, 3]).max())
+    wxmax, wymax = _layout_extent(lim)
     for i in range(n):
-        tx = math.tan(thx[i])
-        ty = math.tan(thy[i])
-        sx = 1.0 + tx * tx
-        sy = 1.0 + ty * ty
-        small = _small_offaxis(tx, ty, dn, wxmax, wymax)
+        tx, ty, sx, sy, small = _tilt_terms(thx[i], thy[i], dn, wxmax, wymax)
         for c in range(nch):
-            if small:
-                iy, ix = _grad_channel_small(
-                    tx, ty, dn, lim[c, 0], lim[c, 1], lim[c, 2], lim[c, 3], glx, glw
-                )
-            else:
-                iy, ix = _grad_channel(
-                    tx, ty, dn, lim[c, 0], lim[c, 1], lim[c, 2], lim[c, 3], glx, glw
-                )
-            out[i, c, 0] = -eps * ix * sx
-            out[i, c, 1] = eps * iy * sy
+            gx, gy = _grad_xy(tx, ty, sx, sy, small, dn, lim, c, eps, glx, glw)
+            out[i, c, 0] = gx
+            out[i, c, 1] = gy
 
 
 @numba.njit(cache=True)
