@@ -3,8 +3,8 @@
 Usage::
 
     run_graph FILE.launch.yaml [name:=value ...] [--duration S] [--record FILE.mcap]
-              [--record-regex RE] [--overwrite] [--log-dir DIR] [--kill-timeout S]
-              [--show-args] [--dry-run]
+              [--record-regex RE] [--overwrite] [--allow-loss] [--stall-timeout S]
+              [--log-dir DIR] [--kill-timeout S] [--show-args] [--dry-run]
 
 Supported subset of the ROS 2 launch YAML format (what graph files need; anything else is
 refused with one line naming the file, the entry and what is not supported)::
@@ -81,6 +81,9 @@ nodes; the nodes start once its node is visible in the ROS graph (at most 15 s).
 discovers topics periodically, so a topic is recorded from its subscription on (the first
 messages of a node that publishes at once can be missed), as with a recorder started next
 to a launch. It is stopped after the nodes, so their last messages are still recorded.
+Loss fails the run: the recorder runs with ``--fail-on-loss``, so a recorded topic that
+lost data or stalled (a publisher that sent steadily, then nothing for longer than
+``--stall-timeout``) makes the exit status 1 (``--allow-loss``: reported only).
 
 Stopping, SIGHUP, the parent-death signal and the exit status: docs/graphs.md ("Output,
 stopping, exit status").
@@ -117,7 +120,7 @@ PROG = "run_graph"
 OK, FAILED, BAD_INPUT = 0, 1, 2
 #: Package and executable of the recorder that ``--record`` adds.
 RECORDER = ("mems_emulator", "mcap_record")
-#: Exit status of ``mcap_record --fail-on-loss`` when a recorded topic lost data.
+#: Exit status of ``mcap_record --fail-on-loss`` when a recorded topic lost data or stalled.
 RECORDER_LOSS_STATUS = 3
 
 
@@ -128,9 +131,14 @@ RECORDER_LOSS_STATUS = 3
 
 
 def recorder_action(
-    output: str, regex: str | None, overwrite: bool, fail_on_loss: bool = False
+    output: str,
+    regex: str | None,
+    overwrite: bool,
+    fail_on_loss: bool = True,
+    stall_timeout: float | None = None,
 ) -> NodeAction:
-    """The recorder process that ``--record`` adds."""
+    """The recorder process that ``--record`` adds (``stall_timeout`` [s]: its
+    ``--stall-timeout``, None: the recorder's default)."""
     out = Path(output)
     if out.exists() and not overwrite:
         raise GraphError(f"--record {output}: the file exists (add --overwrite to replace it)")
@@ -138,6 +146,8 @@ def recorder_action(
         raise GraphError(f"--record {output}: directory {out.parent} does not exist")
     pkg, exe = RECORDER
     args = ["-o", str(out)] + (["--fail-on-loss"] if fail_on_loss else [])
+    if stall_timeout is not None:
+        args += ["--stall-timeout", repr(stall_timeout)]
     args += ["--regex", regex] if regex else ["-a"]
     if overwrite:
         args.append("--overwrite")
@@ -268,7 +278,7 @@ class _Process:
         elif rc is not None and rc < 0:
             text = f"{what} died from {signal.Signals(-rc).name}"
         elif rc == RECORDER_LOSS_STATUS and self.action.label == "mcap_record":
-            text = f"{what}: the recording lost data (the topics are named above)"
+            text = f"{what}: the recording lost data or stalled (the topics are named above)"
         else:
             text = f"{what} exited with status {rc}"
         return text + (f" (log: {self.log_path})" if self.log_path else "")
@@ -332,7 +342,7 @@ class Runner:
     def _start(self, action: NodeAction, env: dict) -> _Process | None:
         try:
             return _Process(action, self.log_dir, env, self._lock)
-        except OSError as exc:
+        except (OSError, ValueError) as exc:  # ValueError: a NUL in an argument
             self._fail(f"{action.title or f'{action.fqn()} ({action.exe})'} failed to start: {exc}")
             return None
 
@@ -484,9 +494,24 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--overwrite", action="store_true", help="replace an existing --record file")
     p.add_argument(
+        "--allow-loss",
+        action="store_true",
+        help="exit 0 when the recording lost data or a topic stalled (reported only); "
+        "by default that is exit status 1",
+    )
+    p.add_argument(
         "--fail-on-loss",
         action="store_true",
-        help="exit 1 when the recording lost data (the recorder names the topics)",
+        help="exit 1 when the recording lost data or a topic stalled: the default "
+        "(kept for the command lines that give it)",
+    )
+    p.add_argument(
+        "--stall-timeout",
+        type=float,
+        default=None,
+        metavar="S",
+        help="the recorder's --stall-timeout: a topic that had been sending steadily and "
+        "then sends nothing for longer than S seconds stalled (default 5; 0: not timed)",
     )
     p.add_argument(
         "--log-dir",
@@ -525,6 +550,12 @@ def main(argv: list[str] | None = None) -> int:
         return _error(f"--duration = {args.duration!r} is invalid: allowed (0, 1e9) s")
     if not 0 <= args.kill_timeout < 1e6:
         return _error(f"--kill-timeout = {args.kill_timeout!r} is invalid: allowed [0, 1e6) s")
+    if args.stall_timeout is not None and not 0 <= args.stall_timeout < 1e6:
+        return _error(f"--stall-timeout = {args.stall_timeout!r} is invalid: allowed [0, 1e6) s")
+    if args.allow_loss and args.fail_on_loss:
+        return _error("--allow-loss and --fail-on-loss contradict each other")
+    if args.record is None and (args.allow_loss or args.stall_timeout is not None):
+        return _error("--allow-loss and --stall-timeout need --record FILE.mcap")
     if args.record_regex is not None:
         if args.record is None:
             return _error("--record-regex needs --record FILE.mcap")
@@ -546,7 +577,11 @@ def main(argv: list[str] | None = None) -> int:
         recorder = None
         if args.record is not None:
             recorder = recorder_action(
-                args.record, args.record_regex, args.overwrite, args.fail_on_loss
+                args.record,
+                args.record_regex,
+                args.overwrite,
+                not args.allow_loss,
+                args.stall_timeout,
             )
     except GraphError as exc:
         return _error(str(exc))

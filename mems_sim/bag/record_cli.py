@@ -24,6 +24,12 @@ skips the rest of the grace window and of the drain. Output problems (an
 existing file without ``--overwrite``, a symbolic link, a directory, a missing
 directory, a full disk) give one line on stderr naming the path and exit status
 1 (2 for a path refused before recording).
+
+Loss: the summary lists every recorded topic that lost data (``lost: ...``) and every
+topic a publisher of which stalled (``stalled: TOPIC (N s without data)``: it had been
+sending steadily, then sent nothing for longer than ``--stall-timeout``, default
+:data:`STALL_TIMEOUT_S`; :class:`~mems_sim.bag.recorder.RecorderNode`); with
+``--fail-on-loss`` either gives one line on stderr and exit status :data:`LOSS_STATUS`.
 """
 
 from __future__ import annotations
@@ -58,8 +64,10 @@ STOP_FINALISE_S = 1.0
 DURATION_FINALISE_S = 0.3
 
 
-#: Exit status of ``mcap_record --fail-on-loss`` when a recorded topic lost data.
+#: Exit status of ``mcap_record --fail-on-loss`` when a recorded topic lost data or stalled.
 LOSS_STATUS = 3
+#: Default ``--stall-timeout``: a steady publisher silent for longer than this is stalled [s].
+STALL_TIMEOUT_S = 5.0
 #: Smallest split size of ``-b`` [bytes]: below it every message would start a file.
 MIN_SPLIT_BYTES = 16384
 
@@ -201,7 +209,15 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
         "--fail-on-loss",
         action="store_true",
         help=f"exit with status {LOSS_STATUS} (after the summary, with one line naming the "
-        "topics) when a recorded topic lost data (run_graph sets it)",
+        "topics) when a recorded topic lost data or stalled (run_graph sets it)",
+    )
+    parser.add_argument(
+        "--stall-timeout",
+        type=non_negative,
+        default=STALL_TIMEOUT_S,
+        metavar="SECONDS",
+        help="a publisher that sent steadily and then nothing for longer than this is "
+        f"stalled [s] (default {STALL_TIMEOUT_S:g}; 0: stalls are not timed)",
     )
     parser.add_argument(
         "--report-progress",
@@ -265,6 +281,17 @@ def drain(
             return
 
 
+def _loss_status(recorder: RecorderNode) -> int:
+    """:data:`LOSS_STATUS` with one line naming the topics that lost data or stalled; 0 if
+    none did."""
+    lost, stalled = recorder.losses(), recorder.stalls()
+    if not (lost or stalled):
+        return 0
+    return _error(
+        "; ".join(([f"lost data: {'; '.join(lost)}"] if lost else []) + stalled), LOSS_STATUS
+    )
+
+
 def _error(text: str, code: int) -> int:
     print(f"mcap_record: error: {' '.join(str(text).split())}", file=sys.stderr, flush=True)
     return code
@@ -324,6 +351,7 @@ def _run(argv: list[str] | None, stop: StopRequest) -> int:
                 qos_overrides=args.qos_overrides,
                 include_hidden_topics=args.include_hidden_topics,
                 progress_topic=args.report_progress,
+                stall_timeout_s=args.stall_timeout or None,
             )
         except BagWriteError as exc:
             return _error(exc, 1)
@@ -382,8 +410,8 @@ def _run(argv: list[str] | None, stop: StopRequest) -> int:
                 flush=True,
             )
         print(recorder.summary(), flush=True)
-        if code == 0 and args.fail_on_loss and recorder.losses():
-            code = _error("lost data: " + "; ".join(recorder.losses()), LOSS_STATUS)
+        if code == 0 and args.fail_on_loss:
+            code = _loss_status(recorder)
     finally:
         if recorder is not None:
             try:

@@ -18,6 +18,16 @@ are not frames too. An emulator's end-of-stream record (``.../end_of_stream``,
 per topic; :meth:`RecorderNode.tails` compares that with what was recorded, so a
 missing tail is seen as well as a gap (:meth:`RecorderNode.losses` lists both).
 
+Stalls (with ``stall_timeout_s``): each publisher of a data topic is timed on its own
+clock, the middleware's source timestamps of its messages
+(:class:`~mems_sim.stream_index.PublicationStall`): a publisher that had been sending
+steadily and then sent nothing for longer than the timeout (or three times its longest
+recent interval) while it stayed in the graph is stalled, seen when it sends again
+(:meth:`RecorderNode.stalls`). A stopped recorder stalls no publisher (their timestamps
+run on), and a frame after a gap its device declared (a scheduled device gap) ends no
+stall. Not timed: ``/diagnostics``, ``/rosout``, ``/parameter_events``, ``/clock`` and
+end-of-stream records, which are not data streams.
+
 Times: the bag is on the data's timeline. ``log_time`` is the message's sensor
 time: its ``header.stamp`` when the type starts with a ``std_msgs/Header`` (for
 ``rosgraph_msgs/Clock`` the clock value), otherwise the graph's clock when it
@@ -67,6 +77,7 @@ from mems_sim.bag.writer import (
     gap_summary,
 )
 from mems_sim.ros.end_of_stream import (
+    NOT_STREAMS,
     describe_tail,
     is_end_of_stream_topic,
     missing_tail,
@@ -75,6 +86,7 @@ from mems_sim.ros.end_of_stream import (
 from mems_sim.ros.flow import ProgressReporter
 from mems_sim.ros.qos import FRAME_DEPTH
 from mems_sim.ros.qos_yaml import profiles_yaml
+from mems_sim.stream_index import DEVICE_GAP, PublicationStall
 
 _BEST_EFFORT = ReliabilityPolicy.BEST_EFFORT
 
@@ -164,6 +176,8 @@ class RecorderNode(Node):
         ``~/progress`` (one past the last sample index written, after each frame of that
         topic), so that a player's ``--wait-for-consumer NODE_FQN:TOPIC`` flow control can
         replay into the recorder without loss; None: no progress topic.
+    :param stall_timeout_s: a publisher of a data topic silent for longer than this [s]
+        after sending steadily is stalled (:meth:`stalls`); None: stalls are not timed.
     :param kwargs: passed to ``rclpy.node.Node`` (e.g. ``context=ctx``).
 
     The constructor arguments can be overridden by ROS parameters of the same
@@ -189,6 +203,7 @@ class RecorderNode(Node):
         qos_overrides: dict[str, QoSProfile] | None = None,
         include_hidden_topics: bool = True,
         progress_topic: str | None = None,
+        stall_timeout_s: float | None = None,
         **kwargs,
     ):
         super().__init__(node_name, **kwargs)
@@ -225,6 +240,9 @@ class RecorderNode(Node):
         self._rec_closed = False
         self._graph_clock_ns: int | None = None
         self._progress_topic = progress_topic
+        self._stall_timeout_s = stall_timeout_s
+        #: (topic, publisher) -> its stall accounting (with ``stall_timeout_s``).
+        self._publication: dict[tuple[str, bytes | None], PublicationStall] = {}
         #: ``~/progress`` of ``progress_topic`` (:mod:`mems_sim.ros.flow`); None without one.
         self.progress_reporter = ProgressReporter(self) if progress_topic else None
         self._clock_sub = self.create_subscription(
@@ -357,16 +375,29 @@ class RecorderNode(Node):
         log_time = self.graph_time_ns() if stamp is None else stamp
         sent = info.get("source_timestamp") if info else None
         sequence, publisher = _publication(info)
-        self._bag.write(
-            topic, data, log_time, sent or time.time_ns(), sequence=sequence, publisher=publisher
-        )
+        sent = sent or time.time_ns()
+        event = self._bag.write(topic, data, log_time, sent, sequence=sequence, publisher=publisher)
         self._rx_counts[topic] += 1
+        if self._stall_timeout_s is not None and topic not in self._eos_topics:
+            self._time_publication(topic, publisher, sent, event == DEVICE_GAP)
         if self.progress_reporter is not None and topic == self._progress_topic:
             peek = peek_frame_index(data)
             if peek is not None:  # what it last wrote (a replay that loops starts again)
                 self.progress_reporter.report(peek[0] + peek[1], follow=True)
         if topic in self._eos_topics:
             self._take_end_of_stream(topic, data)
+
+    def _time_publication(self, topic: str, publisher, sent_ns: int, declared: bool) -> None:
+        """Stall accounting of ``topic``'s ``publisher`` with a message sent at ``sent_ns``
+        (``declared``: a frame after a device gap its device declared)."""
+        if topic in NOT_STREAMS:
+            return
+        watch = self._publication.get((topic, publisher))
+        if watch is None:
+            watch = self._publication[(topic, publisher)] = PublicationStall(self._stall_timeout_s)
+        silence = watch.update(sent_ns * 1e-9, declared)
+        if silence is not None:
+            self.get_logger().warning(f"{topic}: stalled, {silence:.1f} s without data")
 
     def _take_end_of_stream(self, topic: str, data: bytes) -> None:
         """Keep the per-topic counts of an emulator's end-of-stream record."""
@@ -456,6 +487,27 @@ class RecorderNode(Node):
                 out.append(f"{topic}: " + ", ".join(parts))
         return out
 
+    def stalls(self) -> list[str]:
+        """One line per topic a publisher of which stalled (class doc):
+        ``stalled: TOPIC (N s without data)``, with the number of stalls if more than one
+        (the longest silence then)."""
+        found: dict[str, list[PublicationStall]] = {}
+        for (topic, _), watch in self._publication.items():
+            if watch.stalls:
+                found.setdefault(topic, []).append(watch)
+        out = []
+        for topic, watches in sorted(found.items()):
+            count = sum(w.stalls for w in watches)
+            longest = max(w.longest_s for w in watches)
+            times = f"{count} stalls, longest " if count > 1 else ""
+            out.append(f"stalled: {topic} ({times}{longest:.1f} s without data)")
+        return out
+
+    def declare_device_gap(self, topic: str, first: int, n: int) -> None:
+        """Frame topic ``topic``'s device declares sample indices ``[first, first + n)``
+        missing (a scheduled fault): a device gap, neither transport loss nor a stall."""
+        self._bag.declare_device_gap(topic, first, n)
+
     def matched(self, topic: str) -> bool:
         """True when the recorder subscribes to ``topic`` and has matched a publisher."""
         sub = self._topic_subs.get(topic)
@@ -539,6 +591,7 @@ class RecorderNode(Node):
         total_gaps, missing = gap_summary(details)
         lines.append(f"  frame-index gaps: {total_gaps} ({missing} samples missing)")
         lines += [f"  lost: {text}" for text in self.losses()]
+        lines += [f"  {text}" for text in self.stalls()]
         dropped = self.dropped()
         if dropped:
             lines.append(

@@ -584,8 +584,10 @@ class McapBagWriter:
         publish_time_ns: int,
         sequence: int | None = None,
         publisher: bytes | None = None,
-    ) -> None:
-        """Append one serialised (CDR) message of a registered topic.
+    ) -> str | None:
+        """Append one serialised (CDR) message of a registered topic; returns the frame's
+        event of the loss taxonomy (:data:`~mems_sim.stream_index.EVENTS`, e.g.
+        :data:`~mems_sim.stream_index.DEVICE_GAP`), None for a message that is no frame.
 
         :param log_time_ns: the message's time on the data's timeline [ns] (the recorder
             gives its sensor time: header stamp, else the graph's clock); MCAP readers order
@@ -605,12 +607,13 @@ class McapBagWriter:
             if channel_id is None:
                 raise KeyError(f"topic {topic} was not added to the bag")
             counter = self._gap_counters.get(topic)
-            gap = None
+            gap = event = None
             if counter is not None:
                 peek = peek_frame_index(data)
                 if peek is not None:
                     expected = counter.expected
-                    if counter.update(*peek)[0] == GAP:
+                    event = counter.update(*peek)[0]
+                    if event == GAP:
                         gap = (expected, peek[0])
             if sequence is None:
                 sequence = self._counts[topic]
@@ -632,6 +635,7 @@ class McapBagWriter:
             self._counts[topic] += 1
         if gap is not None and self._on_gap is not None:
             self._on_gap(topic, gap[0], gap[1])
+        return event
 
     # ---------------------------------------------------------------- stats
 
@@ -673,6 +677,15 @@ class McapBagWriter:
                 }
                 for t, c in self._gap_counters.items()
             }
+
+    def declare_device_gap(self, topic: str, first: int, n: int) -> None:
+        """The device of frame topic ``topic`` declares that sample indices ``[first,
+        first + n)`` will not come (a scheduled fault): a jump over them is a device gap,
+        not transport loss (:meth:`~mems_sim.stream_index.StreamIndex.declare_device_gap`)."""
+        with self._lock:
+            counter = self._gap_counters.get(topic)
+            if counter is not None:
+                counter.declare_device_gap(first, n)
 
     def frame_end(self, topic: str) -> int | None:
         """First sample index after the last frame written on ``topic`` (None: none yet)."""

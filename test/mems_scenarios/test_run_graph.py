@@ -152,6 +152,7 @@ def test_show_args_lists_the_arguments_of_the_file_and_its_includes(tmp_path, su
 
 
 def test_dry_run_prints_the_recorder_then_the_nodes(tmp_path, subprocess_env):
+    env = subprocess_env
     f = write(
         tmp_path / "g.launch.yaml",
         "launch:\n- node: {pkg: mems_emulator, exec: imu_node, namespace: a}\n",
@@ -159,16 +160,22 @@ def test_dry_run_prints_the_recorder_then_the_nodes(tmp_path, subprocess_env):
     out = tmp_path / "r.mcap"
     run = run_graph([f, "--dry-run", "--record", out, "--record-regex", "^/a/"], subprocess_env)
     recorder, imu = commands(run)
-    assert recorder[:6] == [
+    # loss (and a stall) fails the run by default: the recorder's --fail-on-loss
+    assert recorder[:7] == [
         str(LIB / "mcap_record"),
         "-o",
         str(out),
+        "--fail-on-loss",
         "--regex",
         "^/a/",
         "--ros-args",
     ]
-    assert recorder[6] == "-r" and recorder[7].startswith("__node:=mcap_record_")
-    assert recorder[8:] == ["--log-level", "warn"]
+    assert recorder[7] == "-r" and recorder[8].startswith("__node:=mcap_record_")
+    assert recorder[9:] == ["--log-level", "warn"]
+    allowed = commands(
+        run_graph([f, "--dry-run", "--record", out, "--allow-loss", "--stall-timeout", "2"], env)
+    )[0]
+    assert allowed[:6] == [str(LIB / "mcap_record"), "-o", str(out), "--stall-timeout", "2.0", "-a"]
     assert imu == [str(LIB / "imu_node"), "--ros-args", "-r", "__ns:=/a"]
 
 
@@ -310,6 +317,15 @@ def test_include_cycle_and_bad_options_are_refused(tmp_path, subprocess_env):
     assert "--overwrite" in refusal([g, "--record", existing], subprocess_env)
     assert "--duration" in refusal([g, "--duration", "0"], subprocess_env)
     assert "needs --record" in refusal([g, "--record-regex", "x"], subprocess_env)
+    assert "need --record" in refusal([g, "--allow-loss"], subprocess_env)
+    out = tmp_path / "new.mcap"
+    assert "contradict" in refusal(
+        [g, "--record", out, "--allow-loss", "--fail-on-loss"], subprocess_env
+    )
+    for bad in ("nan", "-1", "inf"):
+        assert "--stall-timeout" in refusal(
+            [g, "--record", out, "--stall-timeout", bad], subprocess_env
+        )
     empty = write(tmp_path / "e.launch.yaml", "launch: []\n")
     assert "no node" in refusal([empty], subprocess_env)
 
@@ -451,6 +467,27 @@ def test_no_node_outlives_a_killed_run_graph(tmp_path, fake_pkg):
             print("left running:", line)
 
 
+def watched_graph(cmd: list[str], env) -> subprocess.Popen:
+    """run_graph in a session of its own, its output piped as text."""
+    return subprocess.Popen(
+        cmd,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+
+
+def end_watch(proc: subprocess.Popen, executor, watcher) -> None:
+    """The test's watcher node shut down; run_graph's session killed if it still runs."""
+    executor.shutdown()
+    watcher.destroy_node()
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
 def test_a_stalled_recorder_is_loss_in_the_exit_status(tmp_path, subprocess_env, ros_context):
     """The recorder SIGSTOPped while an IMU publishes 1000 frames/s: the recorder stays
     stopped until a watcher of the test has seen 4 frame histories more go by (an IMU slowed
@@ -477,14 +514,9 @@ def test_a_stalled_recorder_is_loss_in_the_exit_status(tmp_path, subprocess_env,
         + ", param: [{name: sample_rate_hz, value: 1000.0}, {name: frame_size, value: 1}]}\n",
     )
     bag = tmp_path / "stalled.mcap"
-    proc = subprocess.Popen(
-        [str(VENV_BIN / "run_graph"), str(graph), "--record", str(bag), "--fail-on-loss"]
-        + ["--kill-timeout", "30"],
-        env=subprocess_env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
+    proc = watched_graph(
+        [RUN_GRAPH, str(graph), "--record", str(bag), "--fail-on-loss", "--kill-timeout", "30"],
+        subprocess_env,
     )
     try:
         deadline = time.monotonic() + 60
@@ -511,14 +543,109 @@ def test_a_stalled_recorder_is_loss_in_the_exit_status(tmp_path, subprocess_env,
         os.kill(proc.pid, signal.SIGINT)
         stdout, stderr = proc.communicate(timeout=90)
     finally:
-        executor.shutdown()
-        watcher.destroy_node()
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+        end_watch(proc, executor, watcher)
     assert proc.returncode == 1, stdout[-2000:] + stderr[-2000:]
     assert "recorder mcap_record: the recording lost data" in stderr, stderr[-2000:]
     assert f"lost data: {namespace}/" in stderr, stderr[-2000:]
+    assert "stalled:" not in stdout + stderr  # the recorder stopped, not the IMU
+
+
+#: The stalled-node runs: which node is SIGSTOPped, its topic that stalls, for how long [s],
+#: and run_graph's --stall-timeout (None: the recorder's default, 5 s).
+STALLS = [
+    pytest.param("imu_node", "adc", 4.0, 1.5, id="emulator"),
+    pytest.param("imu_corrector_node", "data_corrected", 4.0, 1.5, id="estimator"),
+    pytest.param("imu_node", "adc", 10.0, None, id="emulator-10s", marks=pytest.mark.slow),
+    pytest.param(
+        "imu_corrector_node",
+        "data_corrected",
+        10.0,
+        None,
+        id="estimator-10s",
+        marks=pytest.mark.slow,
+    ),
+]
+
+
+@pytest.mark.parametrize("exe, topic, stop_s, timeout", STALLS)
+def test_a_stalled_node_is_a_stall_in_the_exit_status(
+    exe, topic, stop_s, timeout, tmp_path, subprocess_env, ros_context
+):
+    """An emulator (imu_node) or the estimator downstream of it (imu_corrector_node)
+    SIGSTOPped while the graph records, then continued: its topic had been sending steadily
+    and sent nothing for ``stop_s`` s with its publisher still in the graph, so run_graph
+    exits 1 naming the stalled topic (it exited 0 before: nothing was lost in transport).
+    A watcher of the test waits for the recorder's subscription and steady data before the
+    stop, and for the data to flow again after it (robust to a loaded machine)."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Imu
+
+    from mems_estimation.identification.imu_calibration import neutral_calibration
+    from mems_estimation.identification.imu_calibration_io import save_yaml
+    from mems_msgs.msg import AdcFrame
+
+    namespace = f"/stall_{os.getpid()}"
+    calibration = tmp_path / "neutral.yaml"
+    save_yaml(neutral_calibration(), calibration)
+    graph = write(
+        tmp_path / "imu.launch.yaml",
+        f"""\
+        launch:
+        - node: {{pkg: mems_emulator, exec: imu_node, name: imu, namespace: {namespace},
+                  param: [{{name: frame_size, value: 10}}]}}
+        - node: {{pkg: mems_emulator, exec: imu_corrector_node, name: corrector,
+                  namespace: {namespace}, param: [{{name: calibration_yaml, value: {calibration}}}]}}
+        """,
+    )
+    watched = f"{namespace}/{topic}"
+    watcher = rclpy.create_node("stall_watcher", context=ros_context)
+    seen = []
+    watcher.create_subscription(
+        AdcFrame if topic == "adc" else Imu,
+        watched,
+        lambda m: seen.append(1),
+        QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT),
+    )
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(watcher)
+    bag = tmp_path / "stalled.mcap"
+    cmd = [RUN_GRAPH, str(graph), "--record", str(bag), "--log-dir", str(tmp_path / "logs")]
+    cmd += ["--kill-timeout", "30"] + ([] if timeout is None else ["--stall-timeout", str(timeout)])
+    proc = watched_graph(cmd, subprocess_env)
+    try:
+        # the recorder (and, on adc, the corrector) subscribe next to the watcher
+        subscribers = 3 if topic == "adc" else 2
+        assert spin_until(
+            executor, lambda: watcher.count_subscribers(watched) >= subscribers, timeout=60
+        ), "the recorder did not subscribe"
+        # 30 frames (data_corrected: a message per sample, 10 per frame): past the start-up
+        steady = 30 if topic == "adc" else 300
+        assert spin_until(executor, lambda: len(seen) >= steady, timeout=60), "no steady data"
+        node = [
+            int(line.split()[0])
+            for line in processes_naming_with_pid(f"__ns:={namespace}")
+            if f"/{exe} " in line
+        ]
+        assert len(node) == 1, node
+        os.kill(node[0], signal.SIGSTOP)
+        try:
+            spin_until(executor, lambda: False, timeout=stop_s)
+            before = len(seen)
+        finally:
+            os.kill(node[0], signal.SIGCONT)
+        assert spin_until(executor, lambda: len(seen) >= before + steady, timeout=60), "no data"
+        os.kill(proc.pid, signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=90)
+    finally:
+        end_watch(proc, executor, watcher)
+    assert proc.returncode == 1, stdout[-2000:] + stderr[-2000:]
+    assert "recorder mcap_record: the recording lost data or stalled" in stderr, stderr[-2000:]
+    line = next(x for x in stderr.splitlines() if x.startswith("[mcap_record] mcap_record: error"))
+    assert f"stalled: {watched} (" in line, stderr[-2000:]
+    silence = float(line.split(f"stalled: {watched} (")[1].split(" s without data)")[0])
+    assert silence >= stop_s - 0.5, line
 
 
 def test_a_node_that_cannot_start_is_named_and_nothing_else_runs(tmp_path, fake_pkg):
@@ -610,12 +737,13 @@ def stderr_of(f) -> str:
     return f.read()[-3000:]
 
 
-@pytest.mark.parametrize("stop", ["SIGINT", "SIGHUP"])
+@pytest.mark.parametrize("stop", ["SIGINT", "SIGTERM", "SIGHUP"])
 def test_graph_with_args_two_namespaces_and_recorder_stops_cleanly_on_a_signal(
     stop, tmp_path, graph, subprocess_env
 ):
-    """SIGINT (Ctrl-C) or SIGHUP (the terminal closed): every node and the recorder stop and
-    finalise, and no process of the graph outlives run_graph."""
+    """SIGINT (Ctrl-C), SIGTERM (``kill``) or SIGHUP (the terminal closed): every node and
+    the recorder stop and finalise (a Summary the mcap library and rosbags read), and no
+    process of the graph outlives run_graph."""
     from mems_msgs.msg import AdcFrame
     from mems_sim.bag.player import read_messages
     from mems_sim.ros.qos import FRAME_QOS
@@ -675,3 +803,11 @@ def test_graph_with_args_two_namespaces_and_recorder_stops_cleanly_on_a_signal(
     assert sizes["/a/adc"] == {100} and sizes["/a/truth"] == {100}
     assert sizes["/b/adc"] == {50} and sizes["/b/truth_remapped"] == {50}
     assert "/b/truth" not in sizes
+    from mcap.reader import make_reader
+    from rosbags.highlevel import AnyReader
+
+    with open(bag, "rb") as handle:
+        summary = make_reader(handle).get_summary()
+    assert summary is not None and summary.statistics.message_count > 0
+    with AnyReader([bag]) as reader:
+        assert {"/a/adc", "/b/adc"} <= {c.topic for c in reader.connections}
