@@ -6,12 +6,14 @@ frame is classed against the index expected next, by one :class:`StreamIndex` th
 estimators, the bag writer, ``mcap_info`` and the player use alike; the loss classes are
 :data:`GAP` (transport), :data:`DEVICE_GAP`, :data:`REPEAT`, :data:`OUT_OF_ORDER`,
 :data:`RESET`, the missing head (:attr:`StreamIndex.missing_head`) and a stall
-(:meth:`StallTimer.stalled`). Also here: a stream's format pin and the pairing of two
+(:meth:`StallTimer.stalled`); duplicated messages of a bag (identical topic, log time and
+bytes) by :class:`DuplicateFilter`. Also here: a stream's format pin and the pairing of two
 streams by index. Docs: docs/recording.md (loss accounting of recordings).
 """
 
 from __future__ import annotations
 
+import hashlib
 from collections import deque
 
 #: The first frame of a stream; the frame expected next.
@@ -374,3 +376,47 @@ class FramePairer:
                 self.samples[kind] -= size
                 dropped.append((kind, first, size))
         return dropped
+
+
+class DuplicateFilter:
+    """Duplicated messages: identical topic, log time [ns] and bytes (a chunk or a file
+    stored twice, a writer that wrote a message again), the taxonomy's *duplicate*; where
+    the format numbers messages (MCAP's ``sequence``), the same number too, so that a
+    publisher that sent the same bytes twice at one time (sim time standing) is not one.
+
+    :meth:`seen` tells a message met before (a duplicate, counted per topic in
+    :attr:`counts`; its caller uses it once) from a new one. Bounded memory: the keys
+    (topic, log time, a 128-bit BLAKE2b digest of sequence and bytes) of the last ``window``
+    messages only. In log-time order duplicates are neighbours (equal log times), and in
+    file order a chunk stored twice repeats within its own length, so a window larger than
+    the messages of one log time or one chunk sees every duplicate.
+    """
+
+    #: Messages remembered (about 16 MB of keys).
+    WINDOW = 1 << 16
+
+    def __init__(self, window: int = WINDOW) -> None:
+        self.window = int(window)
+        #: Duplicates per topic.
+        self.counts: dict[str, int] = {}
+        self._order: deque[tuple[str, int, bytes]] = deque()
+        self._keys: set[tuple[str, int, bytes]] = set()
+
+    @property
+    def total(self) -> int:
+        """Duplicates of all topics."""
+        return sum(self.counts.values())
+
+    def seen(self, topic: str, log_time_ns: int, data: bytes, sequence: int = 0) -> bool:
+        """True (and counted) if this message was met within the window, else False (and
+        remembered). ``sequence``: the message's number in the file (0: none)."""
+        digest = hashlib.blake2b(data, digest_size=16, salt=int(sequence).to_bytes(8, "little"))
+        key = (topic, int(log_time_ns), digest.digest())
+        if key in self._keys:
+            self.counts[topic] = self.counts.get(topic, 0) + 1
+            return True
+        self._keys.add(key)
+        self._order.append(key)
+        if len(self._order) > self.window:
+            self._keys.discard(self._order.popleft())
+        return False

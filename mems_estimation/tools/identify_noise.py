@@ -30,7 +30,6 @@ included).
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import math
 import sys
@@ -39,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from mems_sim.ros.env import apply_defaults
+from mems_sim.stream_index import DuplicateFilter
 
 ADC_TYPES = ("mems_msgs/msg/AdcFrame", "mems_msgs/AdcFrame")
 IMU_TYPES = ("sensor_msgs/msg/Imu", "sensor_msgs/Imu")
@@ -46,6 +46,9 @@ IMU_CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 IMU_UNITS = ("rad/s",) * 3 + ("m/s^2",) * 3
 #: An interval this far from the median counts as irregular.
 IRREGULAR = 0.10
+#: Largest magnitude of an Imu value accepted [rad/s, m/s^2]: its square summed over any
+#: record stays finite in float64 (1e100**2 = 1e200, the limit is 1.8e308).
+MAX_VALUE = 1e100
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -71,37 +74,24 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def _is_mcap_file(path: Path) -> bool:
-    return path.is_file() and path.suffix == ".mcap"
+def _is_mcap(path: Path) -> bool:
+    """An MCAP bag (a ``.mcap`` file, or a bag directory of MCAP files), read by the
+    project's reader; else a ROS 1 or sqlite3 bag (:mod:`mems_sim.bag.foreign`)."""
+    from mems_sim.bag.foreign import bag_format
+
+    return (path.suffix == ".mcap" and not path.is_dir()) or bag_format(path) == "mcap"
 
 
 def bag_topics(path: Path) -> dict[str, str]:
     """Topic -> type name of a bag (any format ``identify_noise`` reads)."""
-    if _is_mcap_file(path):
+    if _is_mcap(path):
         from mems_sim.bag.player import recorded_topics
 
         return {t: v[0] for t, v in recorded_topics(str(path)).items()}
-    with _any_reader(path) as reader:
-        return {c.topic: c.msgtype for c in reader.connections}
+    from mems_sim.bag.foreign import open_foreign
 
-
-def _any_reader(path: Path):
-    """rosbags' reader (opened, closed by the ``with`` block) for a rosbag2 directory, an
-    sqlite3 file's directory or a ROS 1 bag; one-line errors (ValueError) for anything else."""
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
-
-    if not path.exists():
-        raise ValueError(f"{path}: no such file or directory")
-    target = path.parent if path.is_file() and path.suffix == ".db3" else path
-    try:
-        store = get_typestore(Stores.ROS1_NOETIC if path.suffix == ".bag" else Stores.LATEST)
-        reader = AnyReader([target], default_typestore=store)
-        reader.open()
-    except Exception as exc:  # rosbags raises many types: one line for all
-        text = " ".join(str(exc).split())
-        raise ValueError(f"{path}: not a bag rosbags can read ({text})") from None
-    return contextlib.closing(reader)
+    with open_foreign(path) as bag:
+        return dict(bag.topics)
 
 
 def choose_topic(topics: dict[str, str], topic: str | None, path: Path) -> str:
@@ -121,8 +111,11 @@ def choose_topic(topics: dict[str, str], topic: str | None, path: Path) -> str:
     )
 
 
-def read_imu(path: Path, topic: str) -> tuple[np.ndarray, np.ndarray]:
-    """Stamps [ns] (n,) and values (n, 6) of the sensor_msgs/Imu messages of ``topic``."""
+def read_imu(
+    path: Path, topic: str, duplicates: DuplicateFilter | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Stamps [ns] (n,) and values (n, 6) of the sensor_msgs/Imu messages of ``topic``,
+    each duplicated message once (counted in ``duplicates``)."""
     stamps: list[int] = []
     logs: list[int] = []
     rows: list[tuple[float, ...]] = []
@@ -134,16 +127,17 @@ def read_imu(path: Path, topic: str) -> tuple[np.ndarray, np.ndarray]:
         logs.append(int(log_ns))
         rows.append((w.x, w.y, w.z, a.x, a.y, a.z))
 
-    if _is_mcap_file(path):
+    if _is_mcap(path):
         from mems_sim.bag.player import read_messages
 
-        for _, _, log_ns, msg in read_messages(str(path), [topic]):
+        for _, _, log_ns, msg in read_messages(str(path), [topic], duplicates=duplicates):
             take(msg, log_ns)
     else:
-        with _any_reader(path) as reader:
-            conns = [c for c in reader.connections if c.topic == topic]
-            for conn, log_ns, raw in reader.messages(connections=conns):
-                take(reader.deserialize(raw, conn.msgtype), log_ns)
+        from mems_sim.bag.foreign import open_foreign
+
+        with open_foreign(path) as bag:
+            for log_ns, msg in bag.messages(topic, duplicates):
+                take(msg, log_ns)
     t = np.asarray(stamps if any(stamps) else logs, dtype=np.int64)  # unstamped: log times
     return t, np.asarray(rows, dtype=float).reshape(-1, 6)
 
@@ -172,25 +166,33 @@ def sampling(stamps_ns: np.ndarray) -> dict:
     )
 
 
-def identify_imu(path: Path, topic: str, grid: str):
-    """NoiseModel identified from the sensor_msgs/Imu messages of ``topic``; also returns the
-    sampling report."""
-    from mems_estimation.nodes.imu_noise_identifier_node import NoiseAccumulator, identify_message
-
-    stamps, values = read_imu(path, topic)
+def identify_imu(path: Path, topic: str, grid: str, duplicates: DuplicateFilter | None = None):
+    """NoiseModel identified from the sensor_msgs/Imu messages of ``topic`` (each duplicated
+    message once, counted in ``duplicates``); also returns the sampling report. The bag is
+    read before the identification stack (scipy) is imported, so a hostile bag meets only
+    the reader's memory."""
+    stamps, values = read_imu(path, topic, duplicates)
     if stamps.size == 0:
         raise ValueError(f"{path}: no sensor_msgs/Imu messages on topic {topic}")
     if not np.all(np.isfinite(values)):
         raise ValueError(f"{path}: topic {topic} holds non-finite values")
+    if values.size and np.abs(values).max() > MAX_VALUE:
+        raise ValueError(
+            f"{path}: topic {topic} holds values beyond {MAX_VALUE:g} (the analysis' sums "
+            "of squares would overflow)"
+        )
     report = sampling(stamps)
+    from mems_estimation.nodes.imu_noise_identifier_node import NoiseAccumulator, identify_message
+
     acc = NoiseAccumulator(grid)
     acc.start(report["sample_rate_hz"], 0, IMU_CHANNELS, IMU_UNITS)
     acc.extend(values[report.pop("order")])
     return identify_message(acc, grid, final=True), report
 
 
-def identify_bag(path: Path, topic: str, grid: str):
-    """NoiseModel identified from the AdcFrames of ``topic`` in ``path``.
+def identify_bag(path: Path, topic: str, grid: str, duplicates: DuplicateFilter | None = None):
+    """NoiseModel identified from the AdcFrames of ``topic`` in ``path``, each duplicated
+    message (identical topic, log time and bytes) once, counted in ``duplicates``.
 
     Returns:
         (NoiseModel message, frames used, frames rejected, accumulator).
@@ -221,7 +223,7 @@ def identify_bag(path: Path, topic: str, grid: str):
     from mems_sim.ros.frames import FrameError
 
     acc, rejected, frames = NoiseAccumulator(grid), 0, 0
-    for _, type_name, _, msg in read_messages(str(path), [topic]):
+    for _, type_name, _, msg in read_messages(str(path), [topic], duplicates=duplicates):
         if type_name != stored_type:
             raise ValueError(
                 f"{path}: topic {topic} carries {type_name[:80]!r}, not mems_msgs/msg/AdcFrame"
@@ -400,11 +402,12 @@ def main(argv: list[str] | None = None) -> int:
         if problem is not None:
             print(f"identify_noise: error: {option} {problem}", file=sys.stderr)
             return 2
+    duplicates = DuplicateFilter()
     try:
         topics = bag_topics(args.bag)
         topic = choose_topic(topics, args.topic, args.bag)
         if topics[topic] in IMU_TYPES:
-            model, rep = identify_imu(args.bag, topic, args.grid)
+            model, rep = identify_imu(args.bag, topic, args.grid, duplicates)
             head = (
                 f"{args.bag}: {topic} (sensor_msgs/Imu), {model.num_samples} samples at "
                 f"{model.sample_rate_hz:.6g} Hz from the stamps; {rep['irregular_intervals']} "
@@ -414,12 +417,13 @@ def main(argv: list[str] | None = None) -> int:
                 + (", stamps out of order (sorted)" if rep["unordered"] else "")
             )
         else:
-            model, frames, rejected, acc = identify_bag(args.bag, topic, args.grid)
+            model, frames, rejected, acc = identify_bag(args.bag, topic, args.grid, duplicates)
             rep = None
             head = (
                 f"{args.bag}: {topic}, {frames} frames, {model.num_samples} samples at "
                 f"{model.sample_rate_hz:g} Hz, {rejected} rejected, {acc.tracker.gaps} gaps"
             )
+        head += f", {duplicates.total} duplicate messages (used once)" if duplicates.total else ""
         notes: list[str] = []
         kalibr = kalibr_dict(model, kalibr_topic(topics, topic), notes) if args.kalibr else None
     except (BagReadError, ValueError) as exc:
@@ -435,6 +439,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         d = model_to_dict(model)
         d["topic"] = topic
+        d["duplicates"] = duplicates.total
         if rep is not None:
             d["sampling"] = rep
         print(json.dumps(d))

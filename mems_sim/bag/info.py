@@ -20,6 +20,10 @@ compared with it: fewer messages, or a last frame that ends before the announced
 sample index, is a missing tail. Each loss is on the topic's line and in a warning
 line on stderr (exit status 0: the file itself is readable).
 
+Duplicates: a message stored more than once (identical topic, log time, sequence number
+and bytes, e.g. every chunk written twice) is counted once in every figure and the copies
+are reported per topic (``duplicates``, on the topic's line and in one warning line).
+
 Times are the bag's log times, which the recorder sets to sensor time (header
 stamps, else the graph's clock): start, end and duration are the data's, e.g.
 from 0 for a fast simulated run. The end includes the extent of the last frame
@@ -65,13 +69,16 @@ from mems_sim.ros.end_of_stream import (
     missing_tail,
     parse_end_of_stream,
 )
-from mems_sim.stream_index import SequenceIndex, StreamIndex
+from mems_sim.stream_index import DuplicateFilter, SequenceIndex, StreamIndex
 
 
 def _scan(files: list[str]) -> dict:
     """Scan all records of the files in order: channels, per-topic counts/times, frames,
     sequences, chunk compressions. The accounting runs over the files as one recording
-    (a split bag's files in recording order), keyed by topic.
+    (a split bag's files in recording order), keyed by topic. A duplicated message
+    (:class:`~mems_sim.stream_index.DuplicateFilter`) is counted per file and topic in
+    ``file_duplicates`` and left out of every other count, so a bag whose chunks are
+    stored twice is described as the bag stored once.
 
     Raises :class:`BagReadError` for a corrupt record, an invalid topic name or absurd QoS.
     """
@@ -81,6 +88,8 @@ def _scan(files: list[str]) -> dict:
     file_channels: list[dict[int, Channel]] = []
     file_counts: list[dict[str, int]] = []
     file_times: list[tuple[int | None, int | None]] = []
+    file_duplicates: list[dict[str, int]] = []
+    duplicates = DuplicateFilter()
     frames: dict[str, StreamIndex] = {}
     rates: dict[str, set] = {}
     data_ends: dict[str, int] = {}
@@ -97,6 +106,7 @@ def _scan(files: list[str]) -> dict:
         schemas: dict[int, Schema] = {}
         by_id: dict[int, Channel] = {}
         counts: dict[str, int] = {}
+        before = dict(duplicates.counts)
         start = end = None
         file_header = None
         handle = open_bag(path)
@@ -115,7 +125,9 @@ def _scan(files: list[str]) -> dict:
                     _add_channel(path, item, schema.name if schema else "", channels, types, origin)
                 elif isinstance(item, Message):
                     channel = by_id.get(item.channel_id)
-                    if channel is None:
+                    if channel is None or duplicates.seen(
+                        channel.topic, item.log_time, item.data, item.sequence
+                    ):
                         continue
                     start = item.log_time if start is None else min(start, item.log_time)
                     end = item.log_time if end is None else max(end, item.log_time)
@@ -130,6 +142,9 @@ def _scan(files: list[str]) -> dict:
         file_channels.append(by_id)
         file_counts.append(counts)
         file_times.append((start, end))
+        file_duplicates.append(
+            {t: n - before.get(t, 0) for t, n in duplicates.counts.items() if n > before.get(t, 0)}
+        )
     return {
         "header": header,
         "channels": channels,
@@ -137,6 +152,7 @@ def _scan(files: list[str]) -> dict:
         "file_channels": file_channels,
         "file_counts": file_counts,
         "file_times": file_times,
+        "file_duplicates": file_duplicates,
         "frames": frames,
         "rates": rates,
         "data_ends": data_ends,
@@ -267,7 +283,9 @@ def bag_info(path: str) -> dict:
     without frames), ``duration_s`` [s] (from ``start_ns`` to the later of ``end_ns`` and
     ``data_end_ns``) and ``topics``: ``{topic: {type, message_encoding, count, offered_qos_profiles,
     topic_type_hash, type_problem (why the type is not an installed interface, None if it
-    is; such types are only listed, never imported), and for frame topics sample_rate_hz [Hz] (None if it varies),
+    is; such types are only listed, never imported), duplicates (messages stored more than once with identical topic,
+    log time and bytes, each counted once in count and every other figure), and for frame
+    topics sample_rate_hz [Hz] (None if it varies),
     total_samples, frames, gaps, missing_samples, resets; for other topics sequence_gaps and
     missing_messages (None when the sequence numbers cannot be checked); for topics named
     in an end-of-stream record end_of_stream (the announced counts) and tail (what is
@@ -292,19 +310,24 @@ def bag_info(path: str) -> dict:
     counts: dict[str, int] = {}
     total = 0
     start = end = None
-    for stats, by_id, scanned, times in zip(
-        stats_list, scan["file_channels"], scan["file_counts"], scan["file_times"]
+    for stats, by_id, scanned, times, dups in zip(
+        stats_list,
+        scan["file_channels"],
+        scan["file_counts"],
+        scan["file_times"],
+        scan["file_duplicates"],
     ):
         file_counts = dict(scanned)
-        if stats is not None:
+        if stats is not None:  # the Statistics count duplicates as stored: counted once here
             for cid, channel in by_id.items():
                 if cid in stats.channel_message_counts:
-                    file_counts[channel.topic] = stats.channel_message_counts[cid]
+                    stored = stats.channel_message_counts[cid]
+                    file_counts[channel.topic] = max(stored - dups.get(channel.topic, 0), 0)
         for topic, n in file_counts.items():
             counts[topic] = counts.get(topic, 0) + n
         if stats is not None and stats.message_count:
             times = (stats.message_start_time, stats.message_end_time)
-            total += stats.message_count
+            total += max(stats.message_count - sum(dups.values()), 0)
         else:
             total += sum(scanned.values())
         if times[0] is not None:
@@ -318,6 +341,7 @@ def bag_info(path: str) -> dict:
             "type_problem": interface_problem(type_name) if type_name else None,
             "message_encoding": channel.message_encoding,
             "count": counts.get(topic, 0),
+            "duplicates": sum(d.get(topic, 0) for d in scan["file_duplicates"]),
             "offered_qos_profiles": channel.metadata.get("offered_qos_profiles", ""),
             "topic_type_hash": channel.metadata.get("topic_type_hash"),
         }
@@ -407,6 +431,8 @@ def format_info(info: dict) -> str:
                 f", {t['total_samples']} samples @ {rate}, {t['gaps']} gaps"
                 f" ({t['missing_samples']} samples missing)"
             )
+        if t.get("duplicates"):
+            line += f", {t['duplicates']} duplicates (stored twice, counted once)"
         if t.get("sequence_gaps"):
             line += (
                 f", {t['sequence_gaps']} sequence gaps ({t['missing_messages']} messages missing)"
@@ -416,6 +442,19 @@ def format_info(info: dict) -> str:
             line += ", " + describe_tail(topic, t["end_of_stream"], tail).split(": ", 1)[1]
         lines.append(line)
     return "\n".join(lines)
+
+
+def _warn_duplicates(path: str, info: dict) -> None:
+    """One warning line naming the topics with duplicated messages and their counts."""
+    listed = [
+        f"{t} {v['duplicates']}" for t, v in sorted(info["topics"].items()) if v["duplicates"]
+    ]
+    if listed:
+        text = (
+            f"mcap_info: warning: {path}: duplicated messages (identical topic, log time and "
+            f"bytes; counted once): {', '.join(listed)}"
+        )
+        print(one_line(text, 1000), file=sys.stderr)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -453,6 +492,7 @@ def _main(argv: list[str] | None) -> int:
             ),
             file=sys.stderr,
         )
+    _warn_duplicates(args.file, info)
     for text in losses(info):
         print(
             one_line(f"mcap_info: warning: {args.file}: lost data: {text}", 1000), file=sys.stderr

@@ -154,11 +154,11 @@ def _natural_key(name: str) -> list:
     return [(0, int(t), "") if t.isdigit() else (1, 0, t) for t in re.split(r"(\d+)", name) if t]
 
 
-def _listed_files(directory: str) -> list[str] | None:
-    """``relative_file_paths`` of the directory's ``metadata.yaml`` (None: no such file or
-    no such list); raises :class:`BagReadError` for a metadata file that is unreadable,
-    too large, not rosbag2's layout, of another storage than MCAP, or that lists a path
-    outside the directory."""
+def bag_metadata(directory: str) -> dict | None:
+    """``rosbag2_bagfile_information`` of a bag directory's ``metadata.yaml`` (None: no such
+    file), read by :mod:`mems_sim.bounded_yaml` (at most :data:`MAX_METADATA_BYTES`);
+    :class:`BagReadError` (one line) for a file that is unreadable, too large or not
+    rosbag2's layout. Shared with :mod:`mems_sim.bag.foreign` (sqlite3 bags)."""
     meta = os.path.join(directory, METADATA_NAME)
     try:
         size = os.stat(meta).st_size
@@ -177,6 +177,18 @@ def _listed_files(directory: str) -> list[str] | None:
     info = doc.get("rosbag2_bagfile_information") if isinstance(doc, dict) else None
     if not isinstance(info, dict):
         raise BagReadError(f"{meta}: no rosbag2_bagfile_information mapping")
+    return info
+
+
+def _listed_files(directory: str) -> list[str] | None:
+    """``relative_file_paths`` of the directory's ``metadata.yaml`` (None: no such file or
+    no such list); raises :class:`BagReadError` for a metadata file that
+    :func:`bag_metadata` refuses, of another storage than MCAP, or that lists a path
+    outside the directory."""
+    meta = os.path.join(directory, METADATA_NAME)
+    info = bag_metadata(directory)
+    if info is None:
+        return None
     storage = info.get("storage_identifier")
     if storage is not None and str(storage) != "mcap":
         raise BagReadError(f"{meta}: storage {shown(str(storage))} is not MCAP")
@@ -255,6 +267,85 @@ def _parse(opcode: int, body: bytes, path: str, offset: int):
 # ---------------------------------------------------------------- chunks
 
 
+#: Chunk compressions :func:`expand` decodes: MCAP's (zstd, lz4) and ROS 1's (bz2, lz4).
+COMPRESSIONS = ("", "none", "zstd", "lz4", "bz2")
+
+
+def expand(data: bytes, compression: str, limit: int, where: str) -> bytes:
+    """``data`` decompressed, at most ``limit`` bytes of output ever held.
+
+    The decompressor is a streaming one asked for ``limit + 1`` bytes, so a small
+    compressed bomb costs at most that much memory; output past ``limit`` raises
+    :class:`BagReadError` (``where`` names the chunk or row), as does damaged or
+    incomplete input and a compression outside :data:`COMPRESSIONS`. Shared by the MCAP
+    chunks of this module and the ROS 1 chunks and sqlite3 rows of
+    :mod:`mems_sim.bag.foreign`.
+    """
+    try:
+        if compression in ("", "none"):
+            out = bytes(data[: limit + 1])
+        elif compression == "zstd":
+            out = _expand_zstd(data, limit)
+        elif compression in ("lz4", "bz2"):
+            out = _expand_incremental(data, compression, limit, where)
+        else:
+            raise BagReadError(f"{where}: unsupported compression {shown(compression)}")
+    except BagReadError:
+        raise
+    except Exception as exc:  # zstd/lz4/bz2 errors on damaged input
+        raise BagReadError(
+            f"{where}: {compression} data does not decompress ({one_line(exc, 120)})"
+        ) from None
+    if len(out) > limit:
+        raise BagReadError(f"{where} expands past {limit} bytes (decompression bomb?); refused")
+    return out
+
+
+def _accumulate(read, limit: int) -> bytes:
+    """Pieces of at most 1 MiB from ``read(n)`` until it returns nothing or ``limit + 1``
+    bytes came. Gathered in a BytesIO, whose ``getvalue`` hands over its buffer without a
+    copy: the peak is about 1.1 times the output, not twice (a list joined at the end)."""
+    out, total = io.BytesIO(), 0
+    while total <= limit:
+        part = read(min(limit + 1 - total, 1 << 20))
+        if not part:
+            break
+        out.write(part)
+        total += len(part)
+    return out.getvalue()
+
+
+def _expand_zstd(data: bytes, limit: int) -> bytes:
+    """The zstd frames of ``data``, up to ``limit + 1`` bytes."""
+    import zstandard
+
+    reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(data), read_across_frames=True)
+    return _accumulate(reader.read, limit)
+
+
+def _expand_incremental(data: bytes, compression: str, limit: int, where: str) -> bytes:
+    """One lz4 frame or bz2 stream of ``data``, up to ``limit + 1`` bytes."""
+    if compression == "lz4":
+        import lz4.frame
+
+        decompressor = lz4.frame.LZ4FrameDecompressor()
+    else:
+        import bz2
+
+        decompressor = bz2.BZ2Decompressor()
+    pending = [data]
+
+    def read(n: int) -> bytes:
+        if decompressor.eof:
+            return b""
+        return decompressor.decompress(pending.pop() if pending else b"", max_length=n)
+
+    out = _accumulate(read, limit)
+    if len(out) <= limit and not decompressor.eof:
+        raise BagReadError(f"{where}: {compression} data is incomplete")
+    return out
+
+
 def _decompress(chunk: Chunk, path: str, offset: int) -> bytes:
     """The records bytes of a chunk, never more than its declared size (<= MAX_CHUNK_BYTES)."""
     declared = chunk.uncompressed_size
@@ -264,43 +355,9 @@ def _decompress(chunk: Chunk, path: str, offset: int) -> bytes:
             f"{where} declares {declared} uncompressed bytes "
             f"(limit {MAX_CHUNK_BYTES}); refusing to decompress it"
         )
-    compression = chunk.compression
-    try:
-        if compression in ("", "none"):
-            data = bytes(chunk.data)
-        elif compression == "zstd":
-            import zstandard
-
-            reader = zstandard.ZstdDecompressor().stream_reader(
-                io.BytesIO(chunk.data), read_across_frames=True
-            )
-            parts, total = [], 0
-            while total <= declared:
-                part = reader.read(min(declared + 1 - total, 1 << 20))
-                if not part:
-                    break
-                parts.append(part)
-                total += len(part)
-            data = b"".join(parts)
-        elif compression == "lz4":
-            import lz4.frame
-
-            decompressor = lz4.frame.LZ4FrameDecompressor()
-            data = decompressor.decompress(chunk.data, max_length=declared + 1)
-            if len(data) <= declared and not decompressor.eof:
-                raise BagReadError(f"{where}: lz4 data is incomplete")
-        else:
-            raise BagReadError(f"{where}: unsupported compression {shown(compression)}")
-    except BagReadError:
-        raise
-    except Exception as exc:  # zstd/lz4 errors on damaged input
-        raise BagReadError(
-            f"{where}: {compression} data does not decompress ({one_line(exc, 120)})"
-        ) from None
-    if len(data) > declared:
-        raise BagReadError(
-            f"{where} expands past its declared {declared} bytes (decompression bomb?); refused"
-        )
+    if chunk.compression == "bz2":  # not an MCAP compression
+        raise BagReadError(f"{where}: unsupported compression 'bz2'")
+    data = expand(chunk.data, chunk.compression, declared, f"{where} (declared {declared} bytes)")
     if len(data) != declared:
         raise BagReadError(f"{where}: {len(data)} bytes decompressed, {declared} declared")
     if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:

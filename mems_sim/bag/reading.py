@@ -35,6 +35,7 @@ from mems_sim.bag.reader import (
     warn_truncated,
 )
 from mems_sim.bag.reader import iter_stream_records as _iter_stream_records
+from mems_sim.stream_index import DuplicateFilter
 
 __all__ = [
     "BagMessage",
@@ -248,12 +249,18 @@ def bag_start_time_ns(path: str) -> int | None:
 
 
 def iter_messages(
-    path: str, topics: Iterable[str] | None = None, start_offset_s: float = 0.0
+    path: str,
+    topics: Iterable[str] | None = None,
+    start_offset_s: float = 0.0,
+    duplicates: DuplicateFilter | None = None,
 ) -> Iterator[BagMessage]:
     """Iterate the stored messages as :class:`BagMessage` in log-time order.
 
     :param topics: only these topics (None: all).
     :param start_offset_s: skip messages logged earlier than start + offset [s].
+    :param duplicates: if given, a message it has seen (identical topic, log time and
+        bytes, and sequence number: a chunk stored twice) is counted there and skipped,
+        so each is used once.
     Raises :class:`BagReadError` for a missing, non-MCAP or corrupt file.
     """
     start = None
@@ -261,6 +268,10 @@ def iter_messages(
         first = bag_start_time_ns(path)
         start = None if first is None else first + int(round(start_offset_s * 1e9))
     for schema, channel, message in iter_raw(path, topics, start_time_ns=start):
+        if duplicates is not None and duplicates.seen(
+            channel.topic, message.log_time, message.data, message.sequence
+        ):
+            continue
         type_name = schema.name if schema is not None else ""
         yield BagMessage(
             channel.topic, type_name, message.log_time, message.publish_time, message.data
@@ -271,6 +282,7 @@ def read_messages(
     path: str,
     topics: Iterable[str] | None = None,
     on_unknown: Callable[[str, str, str], None] | None = None,
+    duplicates: DuplicateFilter | None = None,
 ) -> Iterator[tuple[str, str, int, object]]:
     """Iterate ``(topic, type_name, log_time_ns, msg)`` with ``msg`` deserialised into its real class.
 
@@ -278,7 +290,8 @@ def read_messages(
     of a type that is not an installed interface (``schema.message_class`` refuses to
     import it) are skipped and reported once per topic through
     ``on_unknown(path, topic, reason)`` (default: a warning line on stderr). A message
-    that does not deserialise raises :class:`BagReadError`.
+    that does not deserialise raises :class:`BagReadError`. ``duplicates``: as
+    :func:`iter_messages`.
     """
     from rclpy.serialization import deserialize_message
 
@@ -287,7 +300,7 @@ def read_messages(
     classes: dict[str, type | None] = {}
     reasons: dict[str, str] = {}
     reported: set[str] = set()
-    for item in iter_messages(path, topics):
+    for item in iter_messages(path, topics, duplicates=duplicates):
         if item.type_name not in classes:
             try:
                 classes[item.type_name] = message_class(item.type_name)

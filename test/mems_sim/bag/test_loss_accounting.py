@@ -51,7 +51,9 @@ def test_sequence_gaps_of_a_topic_that_is_not_frames(tmp_path):
     for seq in (1, 2, 5, 6):
         w.write("/r", data, seq, seq, sequence=seq, publisher=b"a")
     for seq, pub in ((1, b"a"), (1, b"b"), (2, b"a"), (2, b"b")):  # two publishers
-        w.write("/two", data, 10, 10, sequence=seq, publisher=pub)
+        # each its own bytes: identical topic, log time and bytes would be a duplicate
+        own = serialize_message(String(data=pub.decode()))
+        w.write("/two", own, 10, 10, sequence=seq, publisher=pub)
     w.close()
     details = w.sequence_details()
     assert details["/r"] == {
@@ -67,6 +69,7 @@ def test_sequence_gaps_of_a_topic_that_is_not_frames(tmp_path):
     assert info["topics"]["/r"]["missing_messages"] == 2
     # interleaved numbers of two publishers cannot be checked from the file alone
     assert info["topics"]["/two"]["sequence_gaps"] is None
+    assert info["topics"]["/two"]["duplicates"] == 0 and info["topics"]["/two"]["count"] == 4
     assert info_mod.losses(info) == ["/r: 1 sequence gaps (2 messages)"]
 
 
