@@ -168,21 +168,10 @@ def check_pulse_timing(
 
 
 @numba.njit(cache=True, inline="always")
-def _pulse_input(xp, res, gam, spill, u, s, w, eff, z, wc):
-    """:func:`add_pulse_input` of the pulse u (fired at s T, width w T) at the model
-    res = [f0, Q, fs, w0 velocity scale], called only when there is a pulse or a tail to
-    add (the call with array arguments costs refcounts)."""
-    if u != 0.0 or spill[0] != 0.0:
-        add_pulse_input(xp, res[0], res[1], res[2], res[3], gam, spill, u, s, w, eff, z, wc)
-
-
-@numba.njit(cache=True, inline="always")
-def _output(C, xp):
-    """Predicted output C X(k|k-1) of the steady-state paths, summed over all states."""
-    yhat = 0.0
-    for i in range(xp.shape[0]):
-        yhat += C[i] * xp[i]
-    return yhat
+def _pulse_setup(res):
+    """The model res = [f0, Q, fs, w0 velocity scale] of :func:`add_pulse_input` in scalars
+    and its scratch arrays eff (2,), z (6,) and width cache wc (3,), for a frame loop."""
+    return res[0], res[1], res[2], res[3], np.empty(2), np.empty(6), np.full(3, -1.0)
 
 
 # nogil: in a one-process graph the recorder's writer thread runs meanwhile
@@ -192,30 +181,34 @@ def _kf_run(bits, pulses, starts, widths, xp, P, A, C, F, G, M, res, gam, spill,
     # to the generic kf_update / kf_predict); res = [f0, Q, fs, w0 velocity scale] of the model
     PC = np.empty(6)
     L = np.empty(6)
-    eff = np.empty(2)
-    z = np.empty(6)
-    wc = np.full(3, -1.0)
+    f0, q, fs, w0s, eff, z, wc = _pulse_setup(res)
     for k in range(bits.shape[0]):
         nu, S, p, pv, _ = kf_update6(xp, P, C, G, bits[k], PC)
         pos[k] = p
         var[k] = pv
         innov[k] = nu / math.sqrt(S)
         kf_predict6(xp, P, A, F, M, nu, S, PC, L)
-        _pulse_input(xp, res, gam, spill, pulses[k], starts[k], widths[k], eff, z, wc)
+        if pulses[k] != 0.0 or spill[0] != 0.0:  # (call guarded: array-argument refcounts)
+            add_pulse_input(
+                xp, f0, q, fs, w0s, gam, spill, pulses[k], starts[k], widths[k], eff, z, wc
+            )
 
 
 @numba.njit(cache=True, nogil=True)
 def _ss_run_innov(
     bits, pulses, starts, widths, xp, A, B, C, L, cpk, sqrtS, res, gam, spill, pos, innov
 ):
-    eff = np.empty(2)
-    z = np.empty(6)
-    wc = np.full(3, -1.0)
+    f0, q, fs, w0s, eff, z, wc = _pulse_setup(res)
     for k in range(bits.shape[0]):
-        yhat = _output(C, xp)
+        yhat = 0.0
+        for i in range(xp.shape[0]):
+            yhat += C[i] * xp[i]
         innov[k] = (bits[k] - yhat) / sqrtS
         pos[k] = ss_step6(xp, A, B, C, L, cpk, bits[k], 0.0)
-        _pulse_input(xp, res, gam, spill, pulses[k], starts[k], widths[k], eff, z, wc)
+        if pulses[k] != 0.0 or spill[0] != 0.0:  # (call guarded: array-argument refcounts)
+            add_pulse_input(
+                xp, f0, q, fs, w0s, gam, spill, pulses[k], starts[k], widths[k], eff, z, wc
+            )
 
 
 @numba.njit(cache=True, nogil=True)
@@ -224,17 +217,20 @@ def _ss_run_states(
 ):
     # steady-state filter keeping the whole a-posteriori state X(k|k) (rows of xf)
     n = xp.shape[0]
-    eff = np.empty(2)
-    z = np.empty(6)
-    wc = np.full(3, -1.0)
+    f0, q, fs, w0s, eff, z, wc = _pulse_setup(res)
     for k in range(bits.shape[0]):
-        yhat = _output(C, xp)
+        yhat = 0.0
+        for i in range(n):
+            yhat += C[i] * xp[i]
         nu = bits[k] - yhat
         innov[k] = nu / sqrtS
         for i in range(n):
             xf[k, i] = xp[i] + K[i] * nu
         ss_step6(xp, A, B, C, L, 0.0, bits[k], 0.0)
-        _pulse_input(xp, res, gam, spill, pulses[k], starts[k], widths[k], eff, z, wc)
+        if pulses[k] != 0.0 or spill[0] != 0.0:  # (call guarded: array-argument refcounts)
+            add_pulse_input(
+                xp, f0, q, fs, w0s, gam, spill, pulses[k], starts[k], widths[k], eff, z, wc
+            )
 
 
 class KalmanObserver:
