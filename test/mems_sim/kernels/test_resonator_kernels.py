@@ -48,6 +48,19 @@ def _spd(rng, n, scale=1.0):
     return 0.5 * (p + p.T)
 
 
+def _trial_cov(rng, n, trial):
+    """Covariance of trial ``trial``: random SPD (:func:`_spd`, scale 1e-8..10), its
+    parameter rows and columns 6.. zero on every 4th trial (the warm-up's held parameters),
+    all zero on the next."""
+    P = _spd(rng, n, 10.0 ** rng.uniform(-8, 1))
+    if trial % 4 == 0:
+        P[6:, :] = 0.0
+        P[:, 6:] = 0.0
+    if trial % 4 == 1:
+        P[:, :] = 0.0
+    return P
+
+
 def _models():
     yield observer_model(F0, Q, FS, 0.25, 5e-4)
     yield observer_model(1.05 * F0, 80.0, FS, 0.5, 0.0, quantizer_gain=1.247)
@@ -133,12 +146,7 @@ def test_structured_covariance_equal_generic(n):
     G = 1.0 - 2.0 / np.pi
     for trial in range(40):
         J, F, M = _jacobian(rng, n)
-        P = _spd(rng, n, 10.0 ** rng.uniform(-8, 1))
-        if trial % 4 == 0:
-            P[6:, :] = 0.0
-            P[:, 6:] = 0.0
-        if trial % 4 == 1:
-            P[:, :] = 0.0
+        P = _trial_cov(rng, n, trial)
         xp = rng.standard_normal(n)
         PCa, PCb = np.empty(n), np.empty(n)
         yhat, S = predicted_output(xp, P, C, G, PCa)
@@ -316,12 +324,7 @@ def test_ekf_covariance_prediction_equal_structured(n):
     rng = np.random.default_rng(100 + n)
     for trial in range(200):
         J, F, _ = _jacobian(rng, n)
-        P = _spd(rng, n, 10.0 ** rng.uniform(-8, 1))
-        if trial % 4 == 0:
-            P[6:, :] = 0.0
-            P[:, 6:] = 0.0
-        if trial % 4 == 1:
-            P[:, :] = 0.0
+        P = _trial_cov(rng, n, trial)
         L = rng.standard_normal(n)
         S = rng.uniform(0.1, 3.0)
         Pa, Pb = P.copy(), P.copy()
