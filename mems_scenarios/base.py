@@ -508,6 +508,22 @@ def output_path(out: Path | str, seed: int, suffix: str) -> Path:
     return out.with_name(f"{stem}-seed{seed}{suffix}")
 
 
+def outputs_beside(out: Path | str, seed: int) -> list[Path]:
+    """The existing entries beside the MCAP file ``out`` that a run of ``seed`` would write
+    (:func:`output_path`'s names: ``<stem>-seed<N>`` followed by ``-``, ``.`` or ``_``)."""
+    out = Path(out)
+    prefix = output_path(out, seed, "").name
+    try:
+        names = sorted(os.listdir(out.parent))
+    except OSError:
+        return []
+    return [
+        out.parent / n
+        for n in names
+        if n.startswith(prefix) and n[len(prefix) : len(prefix) + 1] in ("-", ".", "_")
+    ]
+
+
 def graph_for(options: ScenarioOptions) -> Graph:
     """The Graph of a scenario run: its domain (None: a free one, leased), the user's
     parameter overrides (recorded as applied in ``options.applied``) and the fault

@@ -5,7 +5,13 @@ Usage:
     run_scenario NAME --analyse FILE.mcap [--json]
     run_scenario NAME [--duration S] [--seed N] [--device-seed N] [--temperature C]
                  [--set NODE.PARAM=VALUE ...] [--params-file FILE.yaml] [--realtime]
-                 [--out FILE.mcap] [--json]
+                 [--out FILE.mcap [--overwrite]] [--json]
+
+Outputs: ``--out FILE.mcap`` and the files a run writes beside it (figures and results
+named ``<stem>-seed<N>...``, :func:`mems_scenarios.base.output_path`) are checked before
+the run: a symbolic link is refused (never followed), an existing file unless
+``--overwrite``. Without ``--out`` the outputs go to ``runs/`` and replace the previous
+run's only when this run succeeded (:mod:`mems_scenarios.staged_outputs`).
 """
 
 from __future__ import annotations
@@ -96,7 +102,14 @@ def _parser() -> argparse.ArgumentParser:
         type=Path,
         default=None,
         metavar="FILE.mcap",
-        help="MCAP output (default runs/<scenario>-<seed>.mcap)",
+        help="MCAP output (default runs/<scenario>-<seed>.mcap, replaced only by a run that "
+        "succeeded; a failed run's outputs go to runs/incomplete/)",
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an existing --out file and the files beside it that the run writes "
+        "(a symbolic link is refused either way)",
     )
     p.add_argument(
         "--domain-id",
@@ -194,12 +207,22 @@ def validate(args) -> str | None:
     if args.out is not None and args.out.suffix != ".mcap":
         return f"--out = {str(args.out)!r} is invalid: the file name must end in .mcap"
     if args.out is not None and args.out.parent.is_dir():
-        from mems_sim.bag.writer import output_problem
-
-        problem = output_problem(str(args.out), overwrite=True)
+        problem = out_problem(args.out, args.seed, args.overwrite)
         if problem is not None:
             return f"--out: {problem}"
     return None
+
+
+def out_problem(out: Path, seed: int, overwrite: bool) -> str | None:
+    """Why ``out`` or a file the run writes beside it cannot be written (one line), or None:
+    :func:`~mems_sim.bag.output_paths.output_problem` of each."""
+    from mems_scenarios.base import outputs_beside
+    from mems_sim.bag.output_paths import output_problem
+
+    problem = output_problem(str(out), overwrite=overwrite)
+    for path in outputs_beside(out, seed):
+        problem = problem or output_problem(str(path), overwrite=overwrite, probe=False)
+    return problem
 
 
 def overrides(args) -> list[Override]:
@@ -298,6 +321,24 @@ def _main(args) -> int:
         options.cut = {c.rpartition(":")[0]: int(c.rpartition(":")[2]) for c in args.cut}
     if args.live_view is not None:
         options.live_view = args.live_view
+    staged = None
+    if args.out is None:  # runs/: replaced only when the run succeeded (module doc)
+        from mems_scenarios.staged_outputs import StagedOutputs
+
+        try:
+            staged = StagedOutputs(Path("runs"))
+        except OSError as exc:
+            return _fail(f"runs: {exc.strerror or exc}")
+        options.out = staged.path(f"{args.name}-{args.seed}.mcap")
+    try:
+        return _run(args, module, options, staged)
+    finally:
+        if staged is not None:
+            staged.discard()
+
+
+def _run(args, module, options: ScenarioOptions, staged) -> int:
+    """Run the scenario, publish its staged outputs (if any) and report."""
     THROUGHPUT.reset()
     start = time.monotonic()
     try:
@@ -306,9 +347,9 @@ def _main(args) -> int:
         with StopRequest(raising=True):
             result = args.result = module.run(options)
     except (ScenarioError, ParameterError) as exc:
-        return _fail(str(exc))
+        return _failed_run(staged, _fail(str(exc)))
     except OSError as exc:  # e.g. the output directory cannot be created, the disk is full
-        return _fail(" ".join(str(exc).split()))
+        return _failed_run(staged, _fail(" ".join(str(exc).split())))
     except KeyboardInterrupt as exc:
         signum = getattr(exc, "signum", signal.SIGINT)
         print(
@@ -316,7 +357,12 @@ def _main(args) -> int:
             "was finalised",
             file=sys.stderr,
         )
-        return 128 + signum
+        return _failed_run(staged, 128 + signum)
+    rec = result.get("recorder") or {}
+    try:
+        _publish(staged, result, succeeded=not rec.get("losses"))
+    except OSError as exc:
+        return _fail(f"cannot move the outputs into runs/: {' '.join(str(exc).split())}")
     wall = time.monotonic() - start
     result["device_seed"], result["temperature_c"] = args.device_seed, args.temperature
     print(
@@ -332,7 +378,6 @@ def _main(args) -> int:
         print("parameters set (they override the scenario's values):")
         print(applied_text(options.applied) + "\n")
     print(result["table"])
-    rec = result.get("recorder") or {}
     counts = {
         t: n
         for t, n in (rec.get("counts") or {}).items()
@@ -355,6 +400,35 @@ def _main(args) -> int:
         )
         return 1
     return 0
+
+
+def _failed_run(staged, status: int) -> int:
+    """``status`` of a run that failed; what it wrote of its default outputs (if anything)
+    goes to runs/incomplete/, the previous outputs stay."""
+    try:
+        _publish(staged, None, succeeded=False)
+    except OSError as exc:
+        print(f"run_scenario: error: {exc}", file=sys.stderr)
+    return status
+
+
+def _publish(staged, result: dict | None, succeeded: bool) -> None:
+    """Move the staged default outputs into runs/ (``succeeded``) or runs/incomplete/, and
+    point ``result``'s paths at them (:mod:`mems_scenarios.staged_outputs`)."""
+    if staged is None or not any(staged.staging.iterdir()):
+        return
+    moved = staged.publish(succeeded)
+    if result is not None:
+        for key in ("mcap", "figure"):
+            result[key] = moved.get(result.get(key), result.get(key))
+        paths = result.get("figure_paths")
+        if paths:
+            result["figure_paths"] = tuple(moved.get(p, p) for p in paths)
+    if not succeeded:
+        print(
+            f"run_scenario: this run's outputs are in {staged.destination(False)}/ "
+            f"({staged.final_dir}/ keeps the previous run's)"
+        )
 
 
 def write_launch_main(args) -> int:

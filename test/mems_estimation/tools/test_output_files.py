@@ -29,20 +29,21 @@ def _small_files(limit_bytes: int):
     return apply
 
 
-def _run_limited(args, env, limit_bytes: int) -> subprocess.CompletedProcess:
+def _run(args, env, limit_bytes: int | None = None) -> subprocess.CompletedProcess:
+    """A console script of the venv; with ``limit_bytes``, under that RLIMIT_FSIZE."""
     return subprocess.run(
         [str(BIN / args[0]), *map(str, args[1:])],
         capture_output=True,
         text=True,
         env=env,
         timeout=120,
-        preexec_fn=_small_files(limit_bytes),
+        preexec_fn=None if limit_bytes is None else _small_files(limit_bytes),
     )
 
 
 def test_identify_noise_plot_on_a_full_disk(tmp_path, subprocess_env):
     figure = tmp_path / "allan.png"
-    run = _run_limited(["identify_noise", BAG, "--plot", figure], subprocess_env, 4096)
+    run = _run(["identify_noise", BAG, "--plot", figure], subprocess_env, 4096)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 2, run.stderr
     assert lines == [f"identify_noise: error: {figure}: File too large"], run.stderr
@@ -64,14 +65,8 @@ def test_calibrate_imu_out_refused_before_the_calibration(tmp_path, subprocess_e
         (existing, [], "exists (give --overwrite to replace it)"),
         (tmp_path, ["--overwrite"], "is a directory"),
     ):
-        run = subprocess.run(
-            [str(BIN / "calibrate_imu"), "/nonexistent.mcap", "--profile", "six_position"]
-            + ["--out", str(path), *extra],
-            capture_output=True,
-            text=True,
-            env=subprocess_env,
-            timeout=60,
-        )
+        args = ["calibrate_imu", "/nonexistent.mcap", "--profile", "six_position", "--out"]
+        run = _run([*args, path, *extra], subprocess_env)
         assert run.returncode == 2, run.stderr
         lines = run.stderr.strip().splitlines()
         assert lines == [f"calibrate_imu: error: --out {path}: {needle}"], run.stderr
