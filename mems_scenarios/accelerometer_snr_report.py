@@ -13,6 +13,7 @@ import numpy as np
 
 from mems_scenarios import base
 from mems_scenarios.figures import Figure, cell
+from mems_sim.bag.output_paths import write_output
 from mems_sim.devices import accelerometer
 
 NAME_SPREAD = "accelerometer_spread"
@@ -520,7 +521,7 @@ def plot(f: dict, path: Path) -> None:
         ax.set(xlabel="time [ms]", ylabel="proof-mass displacement [nm]", title=NAME_SPREAD)
         ax.legend(fontsize=8)
         fig.tight_layout()
-        fig.savefig(path, dpi=110)
+        write_output(path, lambda tmp: fig.savefig(tmp, dpi=110), overwrite=True)
         plt.close(fig)
         return
     fig, ax = plt.subplots(3, 1, figsize=(11, 11))
@@ -551,5 +552,5 @@ def plot(f: dict, path: Path) -> None:
     ax[2].set_xticks(range(len(cases)), [QR_LABELS[c] for c in cases], fontsize=8)
     ax[2].set(ylabel="output SNR [dB]", title="Table IV: EKF loop at 0.1 g, scaled Q and R")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    write_output(path, lambda tmp: fig.savefig(tmp, dpi=110), overwrite=True)
     plt.close(fig)

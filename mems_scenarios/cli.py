@@ -444,10 +444,17 @@ def write_launch_main(args) -> int:
         return _fail(f"scenario {args.name} has no graph as data yet")
     if not (math.isfinite(args.realtime_factor) and 0 < args.realtime_factor <= 1000):
         return _fail(f"--realtime-factor = {args.realtime_factor!r} is invalid: allowed (0, 1000]")
-    if args.write_launch.exists() or args.write_launch.is_symlink():
-        return _fail(f"--write-launch: {args.write_launch} exists; refusing to overwrite it")
     if not args.write_launch.name.endswith(".yaml"):
         return _fail(f"--write-launch = {str(args.write_launch)!r}: the name must end in .yaml")
+    from mems_sim.bag.output_paths import BagWriteError, output_problem, write_output
+
+    record_file = args.write_launch.with_name(
+        args.write_launch.name.removesuffix(".yaml").removesuffix(".launch") + ".run_record.json"
+    )
+    for path in (args.write_launch, record_file):  # a link, an existing file: refused
+        problem = output_problem(str(path), overwrite=args.overwrite)
+        if problem is not None:
+            return _fail(f"--write-launch: {problem}")
     duration = module.DEFAULT_DURATION_S if args.duration is None else args.duration
     options = ScenarioOptions(
         duration_s=duration,
@@ -469,12 +476,12 @@ def write_launch_main(args) -> int:
     except ParameterError as exc:
         return _fail(str(exc))
     record = run_info(spec.scenario, options_record(options), nodes, duration_s=duration)
-    record_file = args.write_launch.with_name(
-        args.write_launch.name.removesuffix(".yaml").removesuffix(".launch") + ".run_record.json"
-    )
     text = spec.as_processes(args.realtime_factor, str(record_file.resolve())).to_launch_yaml()
-    args.write_launch.write_text(text)
-    record_file.write_text(record + "\n")
+    try:
+        for path, content in ((args.write_launch, text), (record_file, record + "\n")):
+            write_output(path, lambda tmp, c=content: Path(tmp).write_text(c), args.overwrite)
+    except BagWriteError as exc:
+        return _fail(f"--write-launch: {exc}")
     print(f"wrote {args.write_launch} ({len(spec.nodes)} nodes) and its run record {record_file}")
     return 0
 

@@ -44,6 +44,7 @@ from mems_estimation.filters import scanner_amdm_model as sam
 from mems_estimation.filters import scanner_amdm_tracking as su
 from mems_scenarios import bag_frames, base, contract, delivery
 from mems_scenarios.figures import Figure, cell, met_cell
+from mems_sim.bag.output_paths import write_output
 from mems_sim.devices import scanner_amdm as sa
 from mems_sim.ros.flow import progress_of
 
@@ -721,7 +722,7 @@ def plot(f: dict, path58: Path, path59: Path) -> None:
     ax[2].set(xlabel="time [ms]", ylabel="y_cap [V]")
     ax[2].legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path58, dpi=110)
+    write_output(path58, lambda tmp: fig.savefig(tmp, dpi=110), overwrite=True)
     plt.close(fig)
 
     ref = s["ref"]
@@ -758,7 +759,7 @@ def plot(f: dict, path58: Path, path59: Path) -> None:
     ax[1, 0].set(ylabel="amplitude error [deg]", ylim=(-0.5, 0.5))
     ax[1, 1].set(ylabel="phase error [deg]", ylim=(-1.5, 1.5))
     fig.tight_layout()
-    fig.savefig(path59, dpi=110)
+    write_output(path59, lambda tmp: fig.savefig(tmp, dpi=110), overwrite=True)
     plt.close(fig)
 
 

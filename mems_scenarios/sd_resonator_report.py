@@ -13,6 +13,7 @@ import numpy as np
 from mems_estimation.filters.resonator_consistency import OVERLOAD_LIMIT
 from mems_scenarios import base
 from mems_scenarios.figures import Figure, cell, is_finite, met_cell
+from mems_sim.bag.output_paths import write_output
 
 FS = 1.0e6  # output sample rate [Hz]
 ACF_LAGS = 2000  # error autocorrelation lags compared with the filter's prediction
@@ -317,5 +318,5 @@ def plot(f: dict, path: Path) -> None:
     )
     ax[2].legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    write_output(path, lambda tmp: fig.savefig(tmp, dpi=110), overwrite=True)
     plt.close(fig)

@@ -33,6 +33,7 @@ from mems_estimation.studies.stage_noise_sensitivity import (
     NOISE_SCALES,
     noise_sensitivity_study,
 )
+from mems_sim.bag.output_paths import write_output
 from mems_sim.table import format_table
 
 NAME = "stage_noise_sensitivity"
@@ -155,7 +156,7 @@ def write_plot(path: Path, res: dict) -> Path:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7, loc="best")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    write_output(path, lambda tmp: fig.savefig(tmp, dpi=100), overwrite=True)
     plt.close(fig)
     return path
 

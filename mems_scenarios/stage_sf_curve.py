@@ -67,6 +67,7 @@ from mems_estimation.studies.stage_sf_curve import (
 )
 from mems_scenarios.figures import Figure, cell, met_cell
 from mems_scenarios.stage_graph import run_stage_graph
+from mems_sim.bag.output_paths import write_output
 from mems_sim.devices.stage import STAGE_SPECS
 from mems_sim.devices.stage_gyro import GYRO_SPECS, MemsGyro
 
@@ -176,7 +177,7 @@ def write_plot(path: Path, res: dict, ev: dict) -> Path:
     ad.set_xlabel("temperature [C]")
     ad.set_ylabel("SF / true - 1 [ppm]")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    write_output(path, lambda tmp: fig.savefig(tmp, dpi=100), overwrite=True)
     plt.close(fig)
     return path
 

@@ -102,3 +102,24 @@ def test_out_and_files_beside_it_refused_before_the_run(tmp_path, capsys, overwr
             f"run_scenario: error: --out: {out}: exists (give --overwrite to replace it)"
         ], err
         assert out.read_bytes() == OLD
+
+
+def test_write_launch_refuses_links_and_existing_files(tmp_path, capsys):
+    launch = tmp_path / "g.launch.yaml"
+    record = tmp_path / "g.run_record.json"
+    target = tmp_path / "target.json"
+    target.write_bytes(OLD)
+    record.symlink_to(target)
+    argv = ["imu_noise", "--seed", "1", "--write-launch", str(launch)]
+    assert run_scenario(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"run_scenario: error: --write-launch: {record}: is a symbolic link; refusing to "
+        "write through it"
+    ], err
+    assert target.read_bytes() == OLD and not launch.exists()
+    record.unlink()
+    assert run_scenario(argv) == 0
+    assert "imu_node" in launch.read_text() and record.stat().st_size > 0
+    assert run_scenario(argv) == 2 and "--overwrite" in capsys.readouterr().err
+    assert run_scenario(argv + ["--overwrite"]) == 0
