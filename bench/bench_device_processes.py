@@ -87,6 +87,7 @@ from process_tools import (
     machine_ticks,
     process_env,
     reap,
+    recorder_command,
     wait_quiet,
 )
 
@@ -350,23 +351,13 @@ def _scanner_amdm(pace: float, seconds: float, frame: int | None, tmp: Path) -> 
 
 
 def _stage(pace: float, seconds: float, frame: int | None, tmp: Path) -> Graph:
-    from mems_estimation.filters.stage_ekf import StageModel, save_model
+    from mems_estimation.filters.stage_ekf import oracle_model, save_model
     from mems_sim.devices.stage import MicroStage
 
     ns, n_trials, f_drive = "/stage", 7, 1700.0
     periods = max(2, 2 * round(pace * seconds * f_drive / n_trials / 2))  # even
     s = MicroStage(dict(idealised=True))
-    model = StageModel(
-        s.wn,
-        s.zeta,
-        s.b_c,
-        s.fs,
-        s.eta_true.copy(),
-        np.full(4, s.gap),
-        s.limits.copy(),
-        np.eye(4) * float(s.noise_std) ** 2,
-        1e-6,
-    )
+    model = oracle_model(s, float(s.noise_std) ** 2)  # white read-out noise per channel
     yaml_path = tmp / "stage_model.yaml"
     save_model(model, str(yaml_path))
     dev = Proc(
@@ -456,20 +447,11 @@ def _commands(
 ) -> dict[str, list[str]]:
     py = sys.executable
     cmds = {
-        "recorder": [
-            py,
-            "-m",
-            "mems_sim.bag.record_cli",
-            "-o",
-            str(out),
-            "--compression",
-            "zstd",
-            *(["--storage-preset-profile", preset] if preset else []),
-            *g.topics,
-            "--ros-args",
-            "--log-level",
-            "warn",
-        ]
+        "recorder": recorder_command(
+            out,
+            ["--compression", "zstd", *(["--storage-preset-profile", preset] if preset else [])],
+            g.topics,
+        )
     }
     for name, nodes in consumer_processes(g, compose).items():
         if name == COMPOSED:

@@ -161,12 +161,7 @@ def _scanner_amdm(graph, duration):
     dev = graph.add_device(
         ScannerAmdmNode,
         dict(
-            drive_voltage_max=150.0,
-            sweep_start_hz=31.32e3,
-            sweep_end_hz=31.26e3,
-            sweep_start_s=0.0,
-            sweep_time_s=0.06,
-            initial_angle=0.02,
+            sa.SWEEP_STUDY,
             torque_noise_std=p["inertia"] * math.sqrt(qa * p["output_decimation"]),
             seed=1,
             duration_s=duration,
@@ -184,9 +179,8 @@ def _scanner_amdm(graph, duration):
 
 
 def _stage(graph, duration, tmp: Path):
-    import numpy as np
 
-    from mems_estimation.filters.stage_ekf import StageModel, save_model
+    from mems_estimation.filters.stage_ekf import oracle_model, save_model
     from mems_estimation.nodes.stage_ekf_node import StageEkfNode
     from mems_estimation.nodes.stage_gyro_calibration_node import StageGyroCalibrationNode
     from mems_sim.devices.stage import MicroStage
@@ -195,17 +189,7 @@ def _stage(graph, duration, tmp: Path):
     ns, n_trials = "stage_t1", 3
     periods = max(2, 2 * round(duration * 1700.0 / n_trials / 2))  # even, at 1.7 kHz
     s = MicroStage(dict(idealised=True))
-    model = StageModel(
-        s.wn,
-        s.zeta,
-        s.b_c,
-        s.fs,
-        s.eta_true.copy(),
-        np.full(4, s.gap),
-        s.limits.copy(),
-        np.eye(4) * float(s.noise_std) ** 2,  # white read-out noise per channel
-        1e-6,
-    )
+    model = oracle_model(s, float(s.noise_std) ** 2)  # white read-out noise per channel
     yaml_path = tmp / "stage_model.yaml"
     save_model(model, str(yaml_path))
     dev = graph.add_device(

@@ -113,23 +113,6 @@ def _stage_record():
     return st, record(st, frame=7000)
 
 
-def _stage_model(stage):
-    """The stage's own truth as an estimator model, as the in-situ tests build it."""
-    from mems_estimation.filters.stage_ekf import StageModel
-
-    return StageModel(
-        stage.wn,
-        stage.zeta,
-        stage.b_c,
-        stage.fs,
-        stage.eta_true.copy(),
-        np.full(4, stage.gap),
-        stage.limits.copy(),
-        np.eye(4) * 1e-8,
-        1e-6,
-    )
-
-
 @functools.cache
 def _scanner_record():
     """The start of the chapter-4 scanner's drive programme with the drifted sensing comb."""
@@ -305,6 +288,7 @@ def stage_ekf() -> list[np.ndarray]:
         FeedthroughCanceller,
         GainAdaptiveStageEkf,
         StageEkf,
+        oracle_model,
     )
 
     st, rec = _stage_record()
@@ -316,7 +300,7 @@ def stage_ekf() -> list[np.ndarray]:
             for a in range(0, y.shape[0], 5000)
         ]
     )
-    m = _stage_model(st)
+    m = oracle_model(st, 1e-8)
     out = [yc]
     ekf = StageEkf(m)
     half = yc.shape[0] // 2
@@ -350,12 +334,18 @@ def stage_identification() -> list[np.ndarray]:
 def stage_insitu() -> list[np.ndarray]:
     """In-situ model correction from the cancelled channels (_signal_grid in the
     Gauss-Newton fit of each trial's tilt)."""
+    from mems_estimation.filters.stage_ekf import oracle_model
     from mems_estimation.identification.stage_identification import cancelled
     from mems_estimation.identification.stage_insitu import insitu_correct
 
     st, rec = _stage_record()
     m, rep = insitu_correct(
-        _stage_model(st), cancelled(rec), rec["u"], rec["phase"], rec["segment"], rec["f_drive"]
+        oracle_model(st, 1e-8),
+        cancelled(rec),
+        rec["u"],
+        rec["phase"],
+        rec["segment"],
+        rec["f_drive"],
     )
     thetas = np.array([p["Theta"] for p in rep["phasors"]])
     return _arrays(m.wn, m.b_c, rep["G"], rep["scatter"], thetas)

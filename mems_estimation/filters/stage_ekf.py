@@ -49,6 +49,7 @@ from mems_sim.kernels.divergence import covariance_ok, state_ok
 
 __all__ = [
     "StageModel",
+    "oracle_model",
     "ekf_run",
     "StageEkf",
     "FeedthroughCanceller",
@@ -106,6 +107,26 @@ class StageModel:
             self.eps_r,
             dict(self.extra),
         )
+
+
+def oracle_model(stage, r_var: float, q: float = 1e-6) -> StageModel:
+    """The emulated stage's own truth as an estimator model, labelled ``oracle``: the
+    nominal-model path that tests and benchmarks compare against, never the model an
+    estimator node runs on (that one is identified from recorded data): wn, zeta, b_c,
+    fs, eta, gap and electrode limits of ``stage`` (a
+    :class:`mems_sim.devices.stage.MicroStage`), R = r_var I [V^2] over its four
+    channels, Q = q [V^2]."""
+    return StageModel(
+        stage.wn,
+        stage.zeta,
+        stage.b_c,
+        stage.fs,
+        stage.eta_true.copy(),
+        np.full(4, stage.gap),
+        stage.limits.copy(),
+        np.eye(4) * r_var,
+        q,
+    )
 
 
 @numba.njit(cache=True)

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from mems_estimation.filters.stage_ekf import StageModel
+from mems_estimation.filters.stage_ekf import StageModel, oracle_model
 from mems_estimation.identification.stage_identification import cancelled
 from mems_estimation.identification.stage_insitu import (
     correct_model,
@@ -14,20 +14,6 @@ from mems_estimation.identification.stage_insitu import (
     model_response,
 )
 from mems_sim.devices.stage import DriveSchedule, MicroStage, record
-
-
-def _true_model(stage: MicroStage) -> StageModel:
-    return StageModel(
-        stage.wn,
-        stage.zeta,
-        stage.b_c,
-        stage.fs,
-        stage.eta_true.copy(),
-        np.full(4, stage.gap),
-        stage.limits.copy(),
-        np.eye(4) * 1e-8,
-        1e-6,
-    )
 
 
 def test_correct_model_round_trip():
@@ -51,7 +37,7 @@ def test_insitu_recovers_drifted_stage_noise_free():
         dict(p, temperature_c=35.7), DriveSchedule.amplitude_sweep(n_trials=3, periods=600), seed=3
     )
     rec = record(stage)
-    model = _true_model(cold)
+    model = oracle_model(cold, 1e-8)
     model.gap = np.full(4, stage.gap)  # sensor parameters of the temperature of use
     model.eta = stage.eta_true.copy()
     m, rep = insitu_correct(
