@@ -119,6 +119,13 @@ def bench_graph(frame: int, record: bool) -> tuple[float, float]:
         return sc.DEFAULT_DURATION_S, r["wall_s"]  # publishing phase only (no set-up)
 
 
+def _timed(n: int, fn, *args, **kw):
+    """(fn(*args, **kw), n / its wall time in s): the result and the rate over n samples."""
+    t0 = time.perf_counter()
+    out = fn(*args, **kw)
+    return out, n / (time.perf_counter() - t0)
+
+
 def main() -> None:
     dev = MicroScannerDevice(DRIFTED_SENSOR, seed=0)
     dev.step(1000)
@@ -148,17 +155,11 @@ def main() -> None:
     p = model_from_device(resolve_scanner({}))
     run_ekf(y[:2000], v[:2000], p, detections=None)
     for name, d in (("plain EKF", None), ("hybrid EKF (late detections, re-propagation)", D)):
-        t0 = time.perf_counter()
-        run_ekf(y, v, p, detections=d, frame=1000)
-        rk = n / (time.perf_counter() - t0)
+        _, rk = _timed(n, run_ekf, y, v, p, detections=d, frame=1000)
         print(f"{name} kernel: {rk / 1e6:6.2f} Msamples/s = {rk / FS:5.1f} x real time")
     m = 20_000
-    t0 = time.perf_counter()
-    ref = numpy_ekf(y[:m], v[:m], p)
-    r_np = m / (time.perf_counter() - t0)
-    t0 = time.perf_counter()
-    ours = run_ekf(y[:m], v[:m], p)
-    r_nb = m / (time.perf_counter() - t0)
+    ref, r_np = _timed(m, numpy_ekf, y[:m], v[:m], p)
+    ours, r_nb = _timed(m, run_ekf, y[:m], v[:m], p)
     err = np.abs(np.column_stack([ours.theta, ours.omega]) - ref).max(axis=0)
     print(
         f"plain EKF numba {r_nb / 1e3:8.0f} ksamples/s vs numpy loop {r_np / 1e3:6.1f} ksamples/s"
@@ -169,9 +170,7 @@ def main() -> None:
     except ImportError:
         print("filterpy: not installed in .venv -> ratio to filterpy not measured")
         return
-    t0 = time.perf_counter()
-    fp = filterpy_ekf(y[:m], v[:m], p)
-    r_fp = m / (time.perf_counter() - t0)
+    fp, r_fp = _timed(m, filterpy_ekf, y[:m], v[:m], p)
     err = np.abs(np.column_stack([ours.theta, ours.omega]) - fp).max(axis=0)
     print(
         f"filterpy ExtendedKalmanFilter {r_fp / 1e3:6.1f} ksamples/s: numba x{r_nb / r_fp:5.0f}; "

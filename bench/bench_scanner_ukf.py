@@ -137,6 +137,9 @@ def _lean_h(th, c0, th0, cb, acir, bcir, a2, ct, db):
     return acir * c + bcir + db + a2 * dc * dc
 
 
+# Deliberately a second copy of the kernel's arithmetic (scanner_amdm_ukf.ukf_run), not an
+# import: the yardstick the kernel's speed is measured against (lean_vs_kernel), written out
+# per sigma point as the kernel is; its estimates must equal the kernel's.
 @numba.njit(cache=True)
 def lean_ukf(y, v2, x_in, P_in, Phi, Gam, Q, m, J, R, T, wm, wc, gamma, out_x, out_p, out_nis):
     """Lean reference loop of :func:`ukf_run`'s arithmetic (the yardstick of the kernel):

@@ -62,7 +62,13 @@ from mems_sim.devices.stage_capacitance import EPS0, GL8_NODES, GL8_WEIGHTS, dcd
 # bench_device_processes.py)
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from process_tools import cpu_ticks as _cpu_ticks
-from process_tools import device_parameters, device_timing, process_env, wait_quiet
+from process_tools import (
+    device_parameters,
+    device_timing,
+    process_env,
+    recorder_command,
+    wait_quiet,
+)
 from process_tools import machine_ticks as _machine_ticks
 from process_tools import reap as _reap
 
@@ -145,6 +151,9 @@ _GL_X = np.array(GL8_NODES)
 _GL_W = np.array(GL8_WEIGHTS)
 
 
+# Deliberately a second copy of the kernel's arithmetic (stage_ekf.ekf_run), not an import:
+# the yardstick the kernel's speed is measured against (lean_vs_kernel); its estimates must
+# equal the kernel's.
 @numba.njit(cache=True)
 def lean_stage_ekf(y, u, A, B, Q, Rinv, eta, gap, lim, eps, x_in, P_in, u0, out_x, out_var):
     """Lean reference loop of the stage EKF kernel's arithmetic (eqs. 48-53; the yardstick
@@ -523,22 +532,13 @@ def graph_processes(
         save_model(model, str(yaml_path))
         out = tmp / "graph.mcap"
         cmds = {
-            "recorder": [
-                py,
-                "-m",
-                "mems_sim.bag.record_cli",
-                "-o",
-                str(out),
-                *(
-                    ["--storage-preset-profile", compression]
-                    if compression in PRESET_ROWS
-                    else ["--compression", compression]
-                ),
-                *topics,
-                "--ros-args",
-                "--log-level",
-                "warn",
-            ],
+            "recorder": recorder_command(
+                out,
+                ["--storage-preset-profile", compression]
+                if compression in PRESET_ROWS
+                else ["--compression", compression],
+                topics,
+            ),
             "ekf": [
                 py,
                 "-m",

@@ -12,12 +12,31 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 
 #: Topics of every node, not data of a graph.
 IGNORED_TOPICS = ("/rosout", "/parameter_events")
 #: Wall seconds after the first frame excluded from ``rtf_steady``.
 WARMUP_S = 2.0
+
+
+def recorder_command(out, storage: list[str], topics) -> list[str]:
+    """Command line of the recorder process (``mems_sim.bag.record_cli``) writing the MCAP
+    ``out`` with the storage options ``storage`` (compression, preset) from ``topics``,
+    logging warnings only."""
+    return [
+        sys.executable,
+        "-m",
+        "mems_sim.bag.record_cli",
+        "-o",
+        str(out),
+        *storage,
+        *topics,
+        "--ros-args",
+        "--log-level",
+        "warn",
+    ]
 
 
 def cpu_ticks(pid: int) -> int:
