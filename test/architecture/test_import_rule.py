@@ -64,6 +64,7 @@ SCENARIO_LIBRARY = {
     "component_container",
     "run_graph",
     "launch_file",
+    "staged_outputs",
 }
 SCENARIO_PUBLIC = {
     "run",
