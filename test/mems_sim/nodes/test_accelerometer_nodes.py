@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from conftest import params, spin_until
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from node_helpers import emulator_refuses, wait_matched
 
 from mems_estimation.filters.accelerometer_ekf import HybridEkf
 from mems_estimation.nodes.accelerometer_ekf_node import AccelerometerEkfNode
@@ -83,10 +84,7 @@ def test_ekf_node_on_the_device_topics_matches_the_core(graph):
     ex.add_node(dev)
     ex.add_node(ekf)
     got = _collect(probe, "/accelerometer", ("estimate",))
-    assert spin_until(
-        ex,
-        lambda: dev.pub_adc.get_subscription_count() == 1 and ekf.pub.get_subscription_count() == 1,
-    )
+    assert wait_matched(ex, dev.pub_adc, ekf.pub)
     for _ in range(4):
         dev.step()
     assert spin_until(ex, lambda: len(got["estimate"]) == 4)
@@ -113,9 +111,7 @@ def test_ekf_node_rejects_non_finite_drive_and_keeps_running(graph):
     got = _collect(probe, "/accelerometer", ("estimate",))
     diags = []
     probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
-    assert spin_until(
-        ex, lambda: pub_a.get_subscription_count() == 1 and pub_d.get_subscription_count() == 1
-    )
+    assert wait_matched(ex, pub_a, pub_d)
     from mems_sim.ros.frames import make_adc_frame
 
     for k in range(3):
@@ -190,9 +186,6 @@ def test_over_range_input_warns_on_diagnostics(graph):
 
 @pytest.mark.parametrize("name,value", [("mass", 0.0), ("gap", 0.0), ("stiffness", -3.0)])
 def test_nodes_refuse_non_physical_parameters(ros_context, name, value):
-    with pytest.raises(ParameterError, match=name):
-        AccelerometerNode(
-            context=ros_context, drive_externally=True, parameter_overrides=params(**{name: value})
-        )
+    emulator_refuses(AccelerometerNode, ros_context, name, **{name: value})
     with pytest.raises(ParameterError, match=name):
         AccelerometerEkfNode(context=ros_context, parameter_overrides=params(**{name: value}))

@@ -1,17 +1,22 @@
 """Sigma-delta resonator device node and observer node through real topics."""
 
 import numpy as np
-import pytest
 from conftest import params, spin_until
 from diagnostic_msgs.msg import DiagnosticArray
+from node_helpers import (
+    diagnostics_show,
+    emulator_refuses,
+    one_channel_adc,
+    status_values,
+    wait_matched,
+)
 
 from mems_estimation.nodes.resonator_observer_node import ResonatorObserverNode
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.devices.resonator import SdResonatorDevice
 from mems_sim.kernels.resonator_observer import KalmanObserver
 from mems_sim.nodes.resonator_node import ResonatorNode
-from mems_sim.params import ParameterError
-from mems_sim.ros.frames import make_adc_frame, make_signal_frame
+from mems_sim.ros.frames import make_signal_frame
 from mems_sim.ros.qos import FRAME_QOS
 
 
@@ -31,13 +36,7 @@ def test_device_publishes_bits_pulses_truth_and_loop_estimate(graph):
         ("loop_estimate", StateEstimate),
     ):
         probe.create_subscription(typ, f"/resonator/{name}", got[name].append, FRAME_QOS)
-    assert spin_until(
-        ex,
-        lambda: (
-            dev.pub_adc.get_subscription_count() == 1
-            and dev.pub_estimate.get_subscription_count() == 1
-        ),
-    )
+    assert wait_matched(ex, dev.pub_adc, dev.pub_estimate)
     for _ in range(6):
         dev.step()
     assert spin_until(ex, lambda: all(len(v) == 6 for v in got.values()))
@@ -63,29 +62,12 @@ def test_device_publishes_bits_pulses_truth_and_loop_estimate(graph):
 
 
 def test_device_refuses_f0_above_nyquist_and_bad_q(ros_context):
-    with pytest.raises(ParameterError, match="f0_hz"):
-        ResonatorNode(
-            context=ros_context, drive_externally=True, parameter_overrides=params(f0_hz=6e5)
-        )
-    with pytest.raises(ParameterError, match="quality_factor"):
-        ResonatorNode(
-            context=ros_context,
-            drive_externally=True,
-            parameter_overrides=params(quality_factor=0.0),
-        )
+    emulator_refuses(ResonatorNode, ros_context, "f0_hz", f0_hz=6e5)
+    emulator_refuses(ResonatorNode, ros_context, "quality_factor", quality_factor=0.0)
 
 
 def _bit_frame(first, codes, fs=1e6):
-    return make_adc_frame(
-        np.asarray(codes).reshape(-1, 1),
-        first,
-        fs,
-        bits=1,
-        channel_names=["sd_bit"],
-        channel_units=["V"],
-        lsb=[1.0],
-        full_scale=[1.0],
-    )
+    return one_channel_adc(first, codes, fs, bits=1, name="sd_bit", lsb=1.0, full_scale=1.0)
 
 
 def _pulse_frame(first, n, fs=1e6):
@@ -103,9 +85,7 @@ def test_observer_node_rejects_bad_bit_streams_on_diagnostics(graph):
     estimates, diags = [], []
     probe.create_subscription(StateEstimate, "/resonator/estimate", estimates.append, FRAME_QOS)
     probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
-    assert spin_until(
-        ex, lambda: pub_b.get_subscription_count() == 1 and pub_p.get_subscription_count() == 1
-    )
+    assert wait_matched(ex, pub_b, pub_p)
     rng = np.random.default_rng(0)
     good = rng.choice([-1, 1], size=100)
     pub_b.publish(_bit_frame(0, good))
@@ -120,11 +100,10 @@ def test_observer_node_rejects_bad_bit_streams_on_diagnostics(graph):
     obs.diag.publish()
     assert spin_until(
         ex,
-        lambda: any(
-            s.name.startswith("resonator_observer")
-            and {kv.key: kv.value for kv in s.values}.get("rejected_frames") == "2"
-            for d in diags
-            for s in d.status
+        lambda: diagnostics_show(
+            diags,
+            "resonator_observer",
+            lambda s: status_values(s).get("rejected_frames") == "2",
         ),
     )
 
@@ -150,9 +129,7 @@ def test_observer_node_uses_sub_sample_pulse_timing(graph):
     pub_p = probe.create_publisher(SignalFrame, "/resonator/drive", FRAME_QOS)
     estimates = []
     probe.create_subscription(StateEstimate, "/resonator/estimate", estimates.append, FRAME_QOS)
-    assert spin_until(
-        ex, lambda: pub_b.get_subscription_count() == 1 and pub_p.get_subscription_count() == 1
-    )
+    assert wait_matched(ex, pub_b, pub_p)
     fr = SdResonatorDevice({"output_noise_std": 0.5}, seed=5).step(4000)
     assert np.count_nonzero(fr.pulse_start) > 100
     for first in range(0, 4000, 1000):

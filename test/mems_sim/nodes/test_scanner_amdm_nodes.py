@@ -4,13 +4,21 @@ import numpy as np
 import pytest
 from conftest import params, spin_until
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from node_helpers import (
+    diagnostics_show,
+    emulator_refuses,
+    one_channel_adc,
+    status_values,
+    step_frames,
+    wait_matched,
+)
 
 from mems_estimation.nodes.scanner_amdm_estimator_node import ScannerAmdmEstimatorNode
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.devices.scanner_amdm import AmdmScannerDevice, chain_delay, resolve_amdm
 from mems_sim.nodes.scanner_amdm_node import ScannerAmdmNode
 from mems_sim.params import ParameterError
-from mems_sim.ros.frames import make_adc_frame, make_signal_frame
+from mems_sim.ros.frames import make_signal_frame
 from mems_sim.ros.qos import FRAME_QOS
 
 RUN = dict(
@@ -58,9 +66,7 @@ def test_emulator_and_estimators_through_topics(graph):
         ),
     )
     n_frames = 12
-    for _ in range(n_frames):
-        dev.step()
-        ex.spin_once(timeout_sec=0)
+    step_frames(ex, dev, n_frames)
     assert spin_until(
         ex,
         lambda: (
@@ -93,16 +99,8 @@ def test_emulator_and_estimators_through_topics(graph):
 
 def _adc(first, y, fs=1e6, name="y_cap"):
     lsb = 20.0 / 65536
-    return make_adc_frame(
-        np.round(np.asarray(y) / lsb).astype(int).reshape(-1, 1),
-        first,
-        fs,
-        bits=16,
-        channel_names=[name],
-        channel_units=["V"],
-        lsb=[lsb],
-        full_scale=[10.0],
-    )
+    codes = np.round(np.asarray(y) / lsb).astype(int)
+    return one_channel_adc(first, codes, fs, bits=16, name=name, lsb=lsb, full_scale=10.0)
 
 
 def _drive(first, v, fs=1e6):
@@ -124,9 +122,7 @@ def test_estimator_rejects_bad_frames_and_reports_low_signal(graph):
     out, diags = [], []
     probe.create_subscription(StateEstimate, "/scanner_amdm/ukf/estimate", out.append, FRAME_QOS)
     probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
-    assert spin_until(
-        ex, lambda: pub_a.get_subscription_count() == 1 and pub_d.get_subscription_count() == 1
-    )
+    assert wait_matched(ex, pub_a, pub_d)
     rng = np.random.default_rng(0)
     y0 = -0.3574e12 * (5.71e-12 + 9.79e-12) + 6.3945  # mirror at rest
     t = np.arange(2000) / 1e6
@@ -146,22 +142,15 @@ def test_estimator_rejects_bad_frames_and_reports_low_signal(graph):
     est.diag.publish()
     assert spin_until(
         ex,
-        lambda: any(
-            s.name.startswith("scanner_amdm_estimator")
-            and s.level == DiagnosticStatus.WARN
-            and "low_signal_frames" in {kv.key for kv in s.values}
-            for d in diags
-            for s in d.status
+        lambda: diagnostics_show(
+            diags,
+            "scanner_amdm_estimator",
+            lambda s: s.level == DiagnosticStatus.WARN and "low_signal_frames" in status_values(s),
         ),
     )
 
 
 def test_invalid_parameters_refused(ros_context):
-    with pytest.raises(ParameterError, match="carrier_freq_hz"):
-        ScannerAmdmNode(
-            context=ros_context,
-            drive_externally=True,
-            parameter_overrides=params(carrier_freq_hz=5e6),
-        )
+    emulator_refuses(ScannerAmdmNode, ros_context, "carrier_freq_hz", carrier_freq_hz=5e6)
     with pytest.raises(ParameterError, match="inertia"):
         ScannerAmdmEstimatorNode(context=ros_context, parameter_overrides=params(inertia=-1.0))

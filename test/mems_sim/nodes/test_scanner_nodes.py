@@ -4,6 +4,13 @@ import numpy as np
 import pytest
 from conftest import params, spin_until
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from node_helpers import (
+    diagnostics_show,
+    emulator_refuses,
+    one_channel_adc,
+    step_frames,
+    wait_matched,
+)
 
 from mems_estimation.nodes.scanner_threshold_ekf_node import (
     ScannerThresholdEkfNode,
@@ -13,7 +20,7 @@ from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.devices.scanner import MicroScannerDevice
 from mems_sim.nodes.scanner_node import ScannerNode, quantize
 from mems_sim.params import ParameterError
-from mems_sim.ros.frames import make_adc_frame, make_signal_frame
+from mems_sim.ros.frames import make_signal_frame
 from mems_sim.ros.qos import FRAME_QOS
 
 # free decay from 0.1 rad: short, with threshold crossings at good SNR
@@ -38,12 +45,7 @@ def test_device_node_publishes_core_frames(graph):
     )
     ex.add_node(dev)
     got = _subscribe(probe, "/scanner", ("adc", "drive", "truth", "psd"))
-    assert spin_until(
-        ex,
-        lambda: (
-            dev.pub_adc.get_subscription_count() == 1 and dev.pub_psd.get_subscription_count() == 1
-        ),
-    )
+    assert wait_matched(ex, dev.pub_adc, dev.pub_psd)
     for _ in range(5):
         dev.step()
     assert spin_until(ex, lambda: all(len(v) == 5 for v in got.values()))
@@ -83,9 +85,7 @@ def test_threshold_node_tracks_through_topics(graph):
         ),
     )
     n_frames = 15
-    for _ in range(n_frames):
-        dev.step()
-        ex.spin_once(timeout_sec=0.0)
+    step_frames(ex, dev, n_frames)
     assert spin_until(
         ex,
         lambda: (
@@ -129,16 +129,8 @@ def test_low_signal_reported_far_from_resonance(graph):
     ex.add_node(est)
     diags = []
     probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
-    assert spin_until(
-        ex,
-        lambda: (
-            dev.pub_adc.get_subscription_count() == 1
-            and dev.pub_drive.get_subscription_count() == 1
-        ),
-    )
-    for _ in range(12):
-        dev.step()
-        ex.spin_once(timeout_sec=0.0)
+    assert wait_matched(ex, dev.pub_adc, dev.pub_drive)
+    step_frames(ex, dev, 12)
     assert spin_until(ex, lambda: est.frames_done == 12)
     assert est.low_signal and est.snr < 0.1
     assert any("low signal" in w for w in est.diag.warnings)
@@ -147,27 +139,17 @@ def test_low_signal_reported_far_from_resonance(graph):
     est.diag.publish()
     assert spin_until(
         ex,
-        lambda: any(
-            s.name.startswith("scanner_threshold")
-            and s.level == DiagnosticStatus.WARN
-            and "low signal" in s.message
-            for d in diags
-            for s in d.status
+        lambda: diagnostics_show(
+            diags,
+            "scanner_threshold",
+            lambda s: s.level == DiagnosticStatus.WARN and "low signal" in s.message,
         ),
     )
 
 
 def _y_frame(first, n, fs=500e3, name="y_cap"):
-    return make_adc_frame(
-        np.zeros((n, 1), dtype=int),
-        first,
-        fs,
-        bits=16,
-        channel_names=[name],
-        channel_units=["V"],
-        lsb=[20 / 65536],
-        full_scale=[10.0],
-    )
+    codes = np.zeros(n, dtype=int)
+    return one_channel_adc(first, codes, fs, bits=16, name=name, lsb=20 / 65536, full_scale=10.0)
 
 
 def test_threshold_node_rejects_malformed_frames(graph):
@@ -176,9 +158,7 @@ def test_threshold_node_rejects_malformed_frames(graph):
     ex.add_node(est)
     pub_y = probe.create_publisher(AdcFrame, "/scanner/adc", FRAME_QOS)
     pub_v = probe.create_publisher(SignalFrame, "/scanner/drive", FRAME_QOS)
-    assert spin_until(
-        ex, lambda: pub_y.get_subscription_count() == 1 and pub_v.get_subscription_count() == 1
-    )
+    assert wait_matched(ex, pub_y, pub_v)
     pub_y.publish(_y_frame(0, 100, fs=1e6))  # wrong rate
     pub_y.publish(_y_frame(0, 100, name="other"))  # wrong channel
     bad = make_signal_frame(
@@ -190,18 +170,8 @@ def test_threshold_node_rejects_malformed_frames(graph):
 
 
 def test_invalid_parameters_refused(ros_context):
-    with pytest.raises(ParameterError, match="damping_ratio"):
-        ScannerNode(
-            context=ros_context,
-            drive_externally=True,
-            parameter_overrides=params(damping_ratio=-1.0),
-        )
-    with pytest.raises(ParameterError, match="front_end"):
-        ScannerNode(
-            context=ros_context,
-            drive_externally=True,
-            parameter_overrides=params(front_end="optical"),
-        )
+    emulator_refuses(ScannerNode, ros_context, "damping_ratio", damping_ratio=-1.0)
+    emulator_refuses(ScannerNode, ros_context, "front_end", front_end="optical")
     with pytest.raises(ParameterError, match="lag"):
         ScannerThresholdEkfNode(context=ros_context, parameter_overrides=params(lag=100))
     with pytest.raises(ParameterError, match="dog_width"):

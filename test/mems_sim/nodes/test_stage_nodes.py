@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 from conftest import params, spin_until
+from node_helpers import emulator_refuses
 
 from mems_estimation.filters.stage_ekf import FeedthroughCanceller, StageEkf, load_model, save_model
 from mems_estimation.identification.stage_gyro_calibration import Plan, identify_stage
@@ -227,16 +228,8 @@ def test_refusals(ros_context, yaml_path, tmp_path):
         StageEkfNode(
             context=ros_context, parameter_overrides=params(params_yaml=yaml_path, channels="1A,3C")
         )
-    with pytest.raises(ParameterError, match="safe_tilt_rad"):
-        StageNode(
-            context=ros_context, drive_externally=True, parameter_overrides=params(amp_hi_v=4.0)
-        )
-    with pytest.raises(ParameterError, match="sample_rate_hz"):
-        StageNode(
-            context=ros_context,
-            drive_externally=True,
-            parameter_overrides=params(sample_rate_hz=0.0),
-        )
+    emulator_refuses(StageNode, ros_context, "safe_tilt_rad", amp_hi_v=4.0)
+    emulator_refuses(StageNode, ros_context, "sample_rate_hz", sample_rate_hz=0.0)
 
 
 def test_nonfinite_frames_rejected_and_counted(graph, yaml_path):
