@@ -111,6 +111,20 @@ def _fill_frame(
     return msg
 
 
+def _channel_frame(
+    msg, what: str, values: np.ndarray, first_index, sample_rate_hz, names, units, frame_id, t0_ns
+):
+    """``msg`` (an AdcFrame or SignalFrame) with the fields of :func:`_fill_frame` and its
+    channel names and units, for ``values`` of shape (n, channels) (``what``: their name in
+    the error)."""
+    if values.ndim != 2 or values.shape[1] != len(names):
+        raise FrameError(f"{what} shape {values.shape} does not match {len(names)} channels")
+    msg = _fill_frame(msg, first_index, sample_rate_hz, values.shape[0], frame_id, t0_ns)
+    msg.channel_names = list(names)
+    msg.channel_units = list(units)
+    return msg
+
+
 def make_adc_frame(
     codes: np.ndarray,
     first_index: int,
@@ -128,12 +142,18 @@ def make_adc_frame(
 ) -> AdcFrame:
     """AdcFrame from integer codes of shape (n, channels)."""
     codes = np.asarray(codes)
-    if codes.ndim != 2 or codes.shape[1] != len(channel_names):
-        raise FrameError(f"codes shape {codes.shape} does not match {len(channel_names)} channels")
-    msg = _fill_frame(AdcFrame(), first_index, sample_rate_hz, codes.shape[0], frame_id, t0_ns)
+    msg = _channel_frame(
+        AdcFrame(),
+        "codes",
+        codes,
+        first_index,
+        sample_rate_hz,
+        channel_names,
+        channel_units,
+        frame_id,
+        t0_ns,
+    )
     msg.bits = int(bits)
-    msg.channel_names = list(channel_names)
-    msg.channel_units = list(channel_units)
     msg.lsb = _float64_array(np.asarray(lsb, dtype=float))
     msg.offset = _float64_array(
         np.zeros(len(channel_names)) if offset is None else np.asarray(offset, dtype=float)
@@ -156,11 +176,17 @@ def make_signal_frame(
 ) -> SignalFrame:
     """SignalFrame from float samples of shape (n, channels), SI units."""
     data = np.asarray(data, dtype=float)
-    if data.ndim != 2 or data.shape[1] != len(channel_names):
-        raise FrameError(f"data shape {data.shape} does not match {len(channel_names)} channels")
-    msg = _fill_frame(SignalFrame(), first_index, sample_rate_hz, data.shape[0], frame_id, t0_ns)
-    msg.channel_names = list(channel_names)
-    msg.channel_units = list(channel_units)
+    msg = _channel_frame(
+        SignalFrame(),
+        "data",
+        data,
+        first_index,
+        sample_rate_hz,
+        channel_names,
+        channel_units,
+        frame_id,
+        t0_ns,
+    )
     msg.data = _float64_array(data)
     return msg
 
