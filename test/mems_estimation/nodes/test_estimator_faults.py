@@ -44,6 +44,7 @@ import numpy as np
 import pytest
 from conftest import params, spin_until
 from diagnostic_msgs.msg import DiagnosticArray
+from node_helpers import one_channel_adc
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import UInt64
 
@@ -66,7 +67,6 @@ from mems_sim.nodes.scanner_node import ScannerNode
 from mems_sim.nodes.stage_node import StageNode
 from mems_sim.ros.frames import (
     index_to_ns,
-    make_adc_frame,
     make_signal_frame,
     make_state_estimate,
     ns_to_time,
@@ -881,17 +881,8 @@ def test_estimator_survives_faults(name, graph):
 
 def _acc_frames(first: int, n: int = 1000):
     d = accelerometer.ForceRebalanceAccelerometer({"mode": "pi_rebalance"}, seed=1)
-    codes = np.zeros((n, 1), dtype=np.int32)
-    adc = make_adc_frame(
-        codes,
-        first,
-        1e6,
-        bits=16,
-        channel_names=("readout",),
-        channel_units=("V",),
-        lsb=(d.lsb,),
-        full_scale=(0.5,),
-    )
+    codes = np.zeros(n, dtype=np.int32)
+    adc = one_channel_adc(first, codes, 1e6, bits=16, name="readout", lsb=d.lsb, full_scale=0.5)
     drive = make_signal_frame(
         np.zeros((n, 2)),
         first,

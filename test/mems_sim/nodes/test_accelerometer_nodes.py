@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from conftest import params, spin_until
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from node_helpers import emulator_refuses, wait_matched
+from node_helpers import emulator_refuses, one_channel_adc, wait_matched
 
 from mems_estimation.filters.accelerometer_ekf import HybridEkf
 from mems_estimation.nodes.accelerometer_ekf_node import AccelerometerEkfNode
@@ -112,20 +112,11 @@ def test_ekf_node_rejects_non_finite_drive_and_keeps_running(graph):
     diags = []
     probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
     assert wait_matched(ex, pub_a, pub_d)
-    from mems_sim.ros.frames import make_adc_frame
-
     for k in range(3):
         f = d.step(1000)
         pub_a.publish(
-            make_adc_frame(
-                f.code.reshape(-1, 1),
-                k * 1000,
-                1e6,
-                bits=16,
-                channel_names=("readout",),
-                channel_units=("V",),
-                lsb=(d.lsb,),
-                full_scale=(0.5,),
+            one_channel_adc(
+                k * 1000, f.code, 1e6, bits=16, name="readout", lsb=d.lsb, full_scale=0.5
             )
         )
         v = np.column_stack([f.v_f, np.full(1000, d.v_b)])
