@@ -17,6 +17,7 @@ run's only when this run succeeded (:mod:`mems_scenarios.staged_outputs`).
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import time
@@ -402,6 +403,17 @@ def _run(args, module, options: ScenarioOptions, staged) -> int:
     return 0
 
 
+def _relocated(value, staging: Path, dest: Path):
+    """``value`` (a path, a text naming paths, or a tuple or list of them) with the staging
+    directory ``staging`` replaced by ``dest``."""
+    if isinstance(value, (tuple, list)):
+        return type(value)(_relocated(v, staging, dest) for v in value)
+    if isinstance(value, (str, Path)):
+        text = str(value).replace(f"{staging}{os.sep}", f"{dest}{os.sep}")
+        return Path(text) if isinstance(value, Path) else text
+    return value
+
+
 def _failed_run(staged, status: int) -> int:
     """``status`` of a run that failed; what it wrote of its default outputs (if anything)
     goes to runs/incomplete/, the previous outputs stay."""
@@ -417,13 +429,10 @@ def _publish(staged, result: dict | None, succeeded: bool) -> None:
     point ``result``'s paths at them (:mod:`mems_scenarios.staged_outputs`)."""
     if staged is None or not any(staged.staging.iterdir()):
         return
-    moved = staged.publish(succeeded)
+    staged.publish(succeeded)
     if result is not None:
-        for key in ("mcap", "figure"):
-            result[key] = moved.get(result.get(key), result.get(key))
-        paths = result.get("figure_paths")
-        if paths:
-            result["figure_paths"] = tuple(moved.get(p, p) for p in paths)
+        for key in ("mcap", "figure", "figure_paths"):
+            result[key] = _relocated(result.get(key), staged.staging, staged.destination(succeeded))
     if not succeeded:
         print(
             f"run_scenario: this run's outputs are in {staged.destination(False)}/ "

@@ -54,7 +54,8 @@ def test_failed_run_leaves_previous_runs_output(tmp_path, monkeypatch, capsys):
     mcap, figure = Path("runs/imu_noise-2.mcap"), Path("runs/imu_noise-seed2-allan.png")
     assert run_scenario(_argv()) == 0
     first = mcap.read_bytes(), figure.read_bytes()
-    assert f"recorded {mcap}:" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert f"recorded {mcap}:" in out and f"figure: {figure}" in out, out
 
     # a run that loses data (fault injection: only 20 truth messages reach the middleware)
     assert run_scenario(_argv("--cut", "/imu/truth:20")) != 0
@@ -123,3 +124,20 @@ def test_write_launch_refuses_links_and_existing_files(tmp_path, capsys):
     assert "imu_node" in launch.read_text() and record.stat().st_size > 0
     assert run_scenario(argv) == 2 and "--overwrite" in capsys.readouterr().err
     assert run_scenario(argv + ["--overwrite"]) == 0
+
+
+def test_printed_paths_name_the_final_place():
+    """The paths a scenario returns (a Path, a text listing paths, a tuple of them) are
+    printed where the outputs end up, not in the staging directory."""
+    from mems_scenarios.cli import _relocated
+
+    staging, dest = Path("runs/.partial-x"), Path("runs")
+    assert _relocated(staging / "a.mcap", staging, dest) == Path("runs/a.mcap")
+    text = f"{staging}/a-seed1-period.png, {staging}/a-seed1-peak_to_peak.png"
+    assert (
+        _relocated(text, staging, dest) == "runs/a-seed1-period.png, runs/a-seed1-peak_to_peak.png"
+    )
+    assert _relocated((staging / "b.png",), staging, dest / "incomplete") == (
+        Path("runs/incomplete/b.png"),
+    )
+    assert _relocated(None, staging, dest) is None
