@@ -78,6 +78,9 @@ sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
 from process_tools import (
+    RESONATOR_NOISE,
+    RESONATOR_OBSERVERS,
+    RESONATOR_STATE_NOISE,
     check_families,
     cpu_ticks,
     device_parameters,
@@ -88,6 +91,7 @@ from process_tools import (
     process_env,
     reap,
     recorder_command,
+    resonator_device_parameters,
     wait_quiet,
 )
 
@@ -245,29 +249,21 @@ def _accelerometer(pace: float, seconds: float, frame: int | None, tmp: Path) ->
 
 
 def _resonator(pace: float, seconds: float, frame: int | None, tmp: Path) -> Graph:
-    from mems_sim.devices.resonator import default_pulse_amplitude
-
-    ns, f0, noise, state = "/resonator", 5.0e4, 0.25, 5e-4
+    ns = "/resonator"
     dev = Proc(
         "resonator",
         "mems_sim.nodes.resonator_node",
         ns,
-        dict(
-            mode="observer",
-            output_noise_std=noise,
-            state_noise_std=state,
-            observer_state_noise_std=state,
-            fast=False,
-            pulse_amplitude=float(default_pulse_amplitude(0.25)),
-            seed=1,
-            duration_s=pace * seconds,
-            **({"frame_size": frame} if frame else {}),
+        resonator_device_parameters(
+            duration_s=pace * seconds, **({"frame_size": frame} if frame else {})
         ),
         outputs=tuple(
             f"{ns}/{t}" for t in ("adc", "drive", "truth", "loop_estimate", "end_of_stream")
         ),
     )
-    base = dict(output_noise_std=noise, state_noise_std=state, device_namespace=ns)
+    base = dict(
+        output_noise_std=RESONATOR_NOISE, state_noise_std=RESONATOR_STATE_NOISE, device_namespace=ns
+    )
     observers = [
         Proc(
             name,
@@ -277,11 +273,7 @@ def _resonator(pace: float, seconds: float, frame: int | None, tmp: Path) -> Gra
             inputs=(f"{ns}/adc", f"{ns}/drive"),
             outputs=(f"{ns}/{name}/estimate",),
         )
-        for name, extra in (
-            ("exact", dict(f0_hz=f0)),
-            ("f0_error", dict(f0_hz=f0 * 1.05)),
-            ("adaptive", dict(f0_hz=f0 * 1.05, adaptive=True)),
-        )
+        for name, extra in RESONATOR_OBSERVERS
     ]
     return Graph("resonator", dev, observers)
 

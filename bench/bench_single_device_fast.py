@@ -42,7 +42,14 @@ from pathlib import Path
 
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")))
 
-from process_tools import check_families, family_parser
+from process_tools import (
+    RESONATOR_NOISE,
+    RESONATOR_OBSERVERS,
+    RESONATOR_STATE_NOISE,
+    check_families,
+    family_parser,
+    resonator_device_parameters,
+)
 
 from mems_scenarios.base import NOT_RECORDED, ScenarioOptions, format_table, graph_for
 from mems_scenarios.delivery import THROUGHPUT, publish_all
@@ -86,33 +93,22 @@ def _accelerometer(graph, duration):
 
 def _resonator(graph, duration):
     from mems_estimation.nodes.resonator_observer_node import ResonatorObserverNode
-    from mems_sim.devices.resonator import default_pulse_amplitude
     from mems_sim.nodes.resonator_node import ResonatorNode
 
-    ns, f0, noise, state = "sd_noisy", 5.0e4, 0.25, 5e-4
+    ns = "sd_noisy"
     dev = graph.add_device(
         ResonatorNode,
-        dict(
-            mode="observer",
-            output_noise_std=noise,
-            state_noise_std=state,
-            observer_state_noise_std=state,
-            fast=False,
-            pulse_amplitude=default_pulse_amplitude(0.25),
-            seed=1,
-            duration_s=duration,
-            frame_size=10000,
-        ),
+        resonator_device_parameters(duration_s=duration, frame_size=10000),
         realtime=False,
         namespace=ns,
     )
-    base = dict(output_noise_std=noise, state_noise_std=state, device_namespace=f"/{ns}")
+    base = dict(
+        output_noise_std=RESONATOR_NOISE,
+        state_noise_std=RESONATOR_STATE_NOISE,
+        device_namespace=f"/{ns}",
+    )
     observers = []
-    for name, extra in (
-        ("exact", dict(f0_hz=f0)),
-        ("f0_error", dict(f0_hz=f0 * 1.05)),
-        ("adaptive", dict(f0_hz=f0 * 1.05, adaptive=True)),
-    ):
+    for name, extra in RESONATOR_OBSERVERS:
         observers.append(
             graph.node(
                 ResonatorObserverNode,

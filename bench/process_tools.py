@@ -21,6 +21,35 @@ IGNORED_TOPICS = ("/rosout", "/parameter_events")
 WARMUP_S = 2.0
 
 
+#: Resonator graph of the device benches (one process and separate processes): natural
+#: frequency [Hz], output and thermomechanical noise std [V] of the emulator and observers.
+RESONATOR_F0, RESONATOR_NOISE, RESONATOR_STATE_NOISE = 5.0e4, 0.25, 5e-4
+#: Its three observers: (name, parameters besides the noise): the exact model, a 5 % f0
+#: error, and the adaptive observer from that error.
+RESONATOR_OBSERVERS = (
+    ("exact", dict(f0_hz=RESONATOR_F0)),
+    ("f0_error", dict(f0_hz=RESONATOR_F0 * 1.05)),
+    ("adaptive", dict(f0_hz=RESONATOR_F0 * 1.05, adaptive=True)),
+)
+
+
+def resonator_device_parameters(**extra) -> dict:
+    """Parameters of the resonator emulator of the device benches (observer loop, full
+    Kalman gain, seed 1) plus ``extra`` (duration, frame size)."""
+    from mems_sim.devices.resonator import default_pulse_amplitude
+
+    return dict(
+        mode="observer",
+        output_noise_std=RESONATOR_NOISE,
+        state_noise_std=RESONATOR_STATE_NOISE,
+        observer_state_noise_std=RESONATOR_STATE_NOISE,
+        fast=False,
+        pulse_amplitude=float(default_pulse_amplitude(0.25)),
+        seed=1,
+        **extra,
+    )
+
+
 def recorder_command(out, storage: list[str], topics) -> list[str]:
     """Command line of the recorder process (``mems_sim.bag.record_cli``) writing the MCAP
     ``out`` with the storage options ``storage`` (compression, preset) from ``topics``,
