@@ -115,3 +115,18 @@ def load_file(
 ):
     """One YAML document from the file ``path``, every bound applied."""
     return load(read_text(Path(path), max_bytes), loader)
+
+
+def load_mapping(path: str | os.PathLike, what: str) -> dict:
+    """The mapping a parameter file ``path`` holds (``what``: its kind, for the messages,
+    e.g. ``"scanner parameter YAML"``), every bound applied. Raises FileNotFoundError when
+    there is no such file and ValueError for YAML that does not parse or is not a mapping."""
+    if not path or not os.path.isfile(path):
+        raise FileNotFoundError(f"{what} not found: {str(path)!r} (run the identification first)")
+    try:
+        data = load_file(path)
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{what} {str(path)!r}: {problem(exc)}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{what} {str(path)!r} is not a mapping")
+    return data

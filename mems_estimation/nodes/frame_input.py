@@ -20,7 +20,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 
 from mems_msgs.msg import AdcFrame, SignalFrame
-from mems_sim.params import ParamSpec
+from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.end_of_stream import END_OF_STREAM, END_OF_STREAM_QOS, parse_end_of_stream
 from mems_sim.ros.flow import ProgressReporter
 from mems_sim.ros.frames import (
@@ -319,6 +319,17 @@ class EstimatorNode(MemsNode):
     def input_ended(self) -> None:
         """The input announced as ended is all done (:meth:`follow_end_of_stream`);
         nodes that hold samples back publish them here."""
+
+    def parameter_file(self, name: str, load: Callable[[str], Any]):
+        """``load(path)`` of the file the parameter ``name`` names (an identified model's
+        YAML); a missing or broken file is refused as the parameter's invalid value
+        (ParameterError naming it)."""
+        try:
+            return load(self.p[name])
+        except (FileNotFoundError, ValueError) as exc:
+            raise ParameterError(
+                f"parameter {name!r} = {self.p[name]!r} is invalid: {exc}"
+            ) from None
 
     def device_topic(self, name: str) -> str:
         """Topic ``name`` of the device (``device_namespace``, or relative)."""

@@ -23,6 +23,12 @@ or at shutdown):
     ``/diagnostics``  frames, rejected frames, gaps, detections applied/gated, the running
         SNR of y_cap and a WARN "low signal" when it is below ``low_snr`` (no motion).
 
+Model: ``params_yaml`` names the identified model's YAML
+(:mod:`mems_estimation.identification.scanner_threshold_identification`, written by the bench
+identification of scenario ``scanner_threshold``); its values replace the model parameters
+and are the node's reported parameters. Empty: the parameters as given (their defaults are
+the emulator's nominal table: the ``oracle`` model).
+
 Input path: :class:`EstimatorNode`. Over a gap the filters continue as if the samples
 were consecutive; the estimates keep the input's sample indices (a message never spans a
 gap), also over a jump ahead beyond ``max_gap_samples`` (a counted stream reset). A
@@ -43,6 +49,7 @@ from mems_estimation.filters.scanner_threshold_detector import (
     OnlineThresholdDetector,
 )
 from mems_estimation.filters.scanner_threshold_ekf import EKF_SPECS, StreamingScannerEkf, signal_snr
+from mems_estimation.identification.scanner_threshold_identification import load_identification
 from mems_estimation.nodes.frame_input import (
     DEVICE_NAMESPACE,
     Diverged,
@@ -66,6 +73,15 @@ from mems_sim.ros.qos import FRAME_QOS
 
 NODE_SPECS: tuple[ParamSpec, ...] = (
     DEVICE_NAMESPACE,
+    ParamSpec(
+        "params_yaml",
+        "",
+        "-",
+        "identified model YAML (scanner_threshold_identification): its model_* values, "
+        "R_s, V_bias, fs and r_cap replace the parameters' (empty: the parameters as given, "
+        "by default the nominal device's: the oracle model)",
+        "Chen 2018 Sec. 4.4.2 (bench identification)",
+    ),
     ParamSpec("run_plain", True, "-", "also run and publish the plain EKF (no detections)", ""),
     ParamSpec(
         "low_snr",
@@ -149,6 +165,9 @@ class ScannerThresholdEkfNode(EstimatorNode):
     def __init__(self, **node_kwargs) -> None:
         super().__init__(**node_kwargs)
         p = self.p
+        if p["params_yaml"]:
+            # the node runs with (and reports) the identified model
+            p.update(self.parameter_file("params_yaml", load_identification))
         ekf = self.values_of(EKF_SPECS)
         det = self.values_of(_DET_SPECS)
         det["noise_std"] = float(np.sqrt(p["r_cap"]))

@@ -133,12 +133,7 @@ class StageEkfNode(EstimatorNode):
     def __init__(self, **node_kwargs) -> None:
         super().__init__(**node_kwargs)
         p = self.p
-        try:
-            model = load_model(p["params_yaml"])
-        except (FileNotFoundError, ValueError) as exc:
-            raise ParameterError(
-                f"parameter 'params_yaml' = {p['params_yaml']!r} is invalid: {exc}"
-            ) from None
+        model = self.parameter_file("params_yaml", load_model)
         chans = tuple(c.strip() for c in p["channels"].split(",") if c.strip())
         if (
             not chans

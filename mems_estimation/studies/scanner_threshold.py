@@ -19,7 +19,19 @@ import numpy as np
 from mems_estimation.filters.scanner_threshold_detector import Detections
 from mems_estimation.filters.scanner_threshold_ekf import EkfResult, run_ekf
 from mems_estimation.filters.scanner_threshold_kernels import cov_predict, scalar_update
-from mems_estimation.filters.scanner_threshold_specs import model_from_device, zoh_matrices
+from mems_estimation.filters.scanner_threshold_specs import (
+    EKF_SPECS,
+    model_from_device,
+    zoh_matrices,
+)
+from mems_estimation.identification.scanner_threshold_identification import (
+    MAX_PSD_DELAY_S,
+    MODEL_KEYS,
+    cutoff_index,
+    identify,
+    ringdown_fit,
+)
+from mems_sim.params import resolve
 
 __all__ = [
     "DRIFTED_SENSOR",
@@ -36,6 +48,11 @@ __all__ = [
     "EVALUATION_SEEDS",
     "drift_evaluation",
     "grid_trial",
+    "hold_frequency",
+    "bench_record",
+    "bench_identification",
+    "identified_parameters",
+    "oracle_parameters",
 ]
 
 #: Device deviation used by the threshold study: the sensing comb drifted (temperature,
@@ -255,8 +272,95 @@ TUNING_SEEDS = (101, 102)
 EVALUATION_SEEDS = (1, 2, 3, 4, 5)
 
 
-def drift_evaluation(th, om, y, v, D, dp: dict, segs) -> dict:
-    """Hybrid vs the full-Jacobian EKF on one record, with the device's PCRB.
+#: The thesis' programme: its hold at 1250 Hz (twice the 625 Hz motion of Table 4.2) for
+#: the mirror it identified at 624.6 Hz (Sec. 4.4.1-4.4.2).
+PAPER_HOLD_HZ, PAPER_NATURAL_HZ = 1250.0, 624.6
+#: Smallest ring-down amplitude [rad] of the bench run for a usable sensing-comb map: below
+#: about the comb's width (0.05 rad) the map is nearly linear in theta and only
+#: C0/theta0^2 is seen (measured: a 0.07 rad ring-down put C0 +270 %, theta0 +96 %).
+MIN_BENCH_AMPLITUDE = 0.1
+
+
+def hold_frequency(natural_freq_hz: float) -> float:
+    """Hold (and sweep-end) frequency [Hz] of the drive programme for a mirror identified at
+    ``natural_freq_hz``: the thesis' 1250 Hz scaled by natural_freq_hz / 624.6 Hz, to the
+    0.1 Hz of a function generator's setting."""
+    return round(PAPER_HOLD_HZ * natural_freq_hz / PAPER_NATURAL_HZ, 1)
+
+
+def bench_record(device: Mapping[str, Any], seed: int, adc=None) -> dict:
+    """One bench run of ``device`` (a spec dict of the emulator's table; ROS-free core, noise
+    seed ``seed``): drive ``v`` [V], ``y`` [V] (``adc(y)`` if given: the converter the
+    emulator node puts in front), PSD reference ``psd`` [rad], ``fs`` [Hz]."""
+    from mems_sim.devices.scanner import MicroScannerDevice
+
+    dev = MicroScannerDevice(device, seed=seed)
+    rec = dev.step(dev.total_samples)
+    y = rec.y if adc is None else adc(rec.y)
+    return dict(v=rec.drive, y=y, psd=rec.psd, fs=dev.fs)
+
+
+def bench_identification(
+    device: Mapping[str, Any], seed: int, adc=None, search: bool = True
+) -> dict:
+    """Identification on the bench (Sec. 4.4.2) of ``device`` before the drift (its sensing
+    comb as the analog map was identified: no ``sense_*_drift``). With ``search``, a first
+    run of the programme gives wn from its PSD ring-down and the hold moves to
+    :func:`hold_frequency` (the resonance search: the sweep must find the drawn device's
+    parametric resonance); a run with that programme (noise seed ``seed`` + 1) gives the
+    model (:func:`~mems_estimation.identification.scanner_threshold_identification.identify`).
+    Returns ``model`` (the parameter YAML's content) and ``hold_hz``. ValueError when the
+    device shows no usable motion or a fit fails."""
+    from mems_sim.devices.scanner import resolve_scanner
+
+    dev = resolve_scanner(dict(device, sense_gain_drift=0.0, sense_width_drift=0.0))
+    fn = math.nan
+    if search:
+        rec = bench_record(dev, seed, adc)
+        start = cutoff_index(rec["v"]) + int(math.ceil(MAX_PSD_DELAY_S * rec["fs"]))
+        fn = ringdown_fit(rec["psd"], rec["fs"], start).wn / (2.0 * math.pi)
+        dev = resolve_scanner(dict(dev, sweep_end_hz=hold_frequency(fn)))
+    rec = bench_record(dev, seed + 1, adc)
+    fs = rec["fs"]
+    cut = cutoff_index(rec["v"])
+    amp = float(np.abs(rec["psd"][cut : cut + int(0.01 * fs)]).max())
+    if amp < MIN_BENCH_AMPLITUDE:
+        raise ValueError(
+            f"ring-down amplitude {amp:.3g} rad < {MIN_BENCH_AMPLITUDE} rad with the hold at "
+            f"{dev['sweep_end_hz']:g} Hz: the drive programme does not reach the parametric "
+            "resonance"
+        )
+    model = identify(
+        rec["v"],
+        rec["y"],
+        rec["psd"],
+        fs,
+        int(round(dev["hold_time_s"] * fs)),
+        dev["sense_resistance"],
+        dev["bias_voltage"],
+    )
+    model["identification"].update(
+        search_natural_freq_hz=fn, hold_hz=float(dev["sweep_end_hz"]), bench_amplitude_rad=amp
+    )
+    return dict(model=model, hold_hz=float(dev["sweep_end_hz"]))
+
+
+def identified_parameters(model: Mapping[str, Any], **overrides) -> dict[str, Any]:
+    """The EKF's parameters (:data:`EKF_SPECS`, resolved) with the identified ``model``."""
+    return resolve(EKF_SPECS, dict({k: model[k] for k in MODEL_KEYS}, **overrides))
+
+
+def oracle_parameters(**overrides) -> dict[str, Any]:
+    """The ``oracle`` EKF parameters: the emulator's nominal table (the truth model of the
+    nominal device), for comparison only."""
+    from mems_sim.devices.scanner import resolve_scanner
+
+    return model_from_device(resolve_scanner({}), **overrides)
+
+
+def drift_evaluation(th, om, y, v, D, dp: dict, segs, P: dict | None = None) -> dict:
+    """Hybrid vs the full-Jacobian EKF on one record, with the device's PCRB; ``P``: the
+    filters' parameters (identified, :func:`identified_parameters`; None: the ``oracle``).
 
     Returns per segment (the ring-down segments, then overall): theta RMSE of the baseline
     (full-Jacobian plain EKF), the hybrid (:data:`HYBRID`, with the detections ``D``), the
@@ -264,9 +368,7 @@ def drift_evaluation(th, om, y, v, D, dp: dict, segs) -> dict:
     mean bound over the segment, :func:`pcrb_theta` for the device ``dp``); the mean and
     std of the detection error e_theta,th = theta(t_c) - theta_th per segment.
     """
-    from mems_sim.devices.scanner import resolve_scanner
-
-    P = model_from_device(resolve_scanner({}))
+    P = oracle_parameters() if P is None else P
     allseg = list(segs) + [(segs[0][0], segs[-1][1], math.nan)]
 
     def per_seg(est):
@@ -292,19 +394,32 @@ def drift_evaluation(th, om, y, v, D, dp: dict, segs) -> dict:
     return out
 
 
-def grid_trial(seed: int, gain_drift: float, width_drift: float) -> dict:
+#: The bench runs' noise seed: the run seed plus this (never the evaluation run's noise).
+BENCH_SEED_OFFSET = 1_000_000
+
+
+def grid_trial(seed: int, gain_drift: float, width_drift: float, oracle: bool = False) -> dict:
     """:func:`drift_evaluation` on an emulator record (ROS-free): the chapter-4 scanner with
     the sensing comb drifted by ``gain_drift``/``width_drift``, the online detector at
-    sigma_DOG = 45 (Sec. 4.6.1: large sigma_DOG better), noise seed ``seed``."""
+    sigma_DOG = 45 (Sec. 4.6.1: large sigma_DOG better), noise seed ``seed``; the filters'
+    model identified on the bench before the drift (:func:`bench_identification`, noise
+    seeds from ``seed`` + :data:`BENCH_SEED_OFFSET`), or the nominal table's (``oracle``).
+    The result has ``hold_hz``, the programme's hold frequency."""
     from mems_estimation.filters.scanner_threshold_detector import OnlineThresholdDetector
-    from mems_sim.devices.scanner import MicroScannerDevice
+    from mems_sim.devices.scanner import MicroScannerDevice, resolve_scanner
 
-    dev = MicroScannerDevice(
-        {"sense_gain_drift": gain_drift, "sense_width_drift": width_drift}, seed=seed
-    )
+    drift = {"sense_gain_drift": gain_drift, "sense_width_drift": width_drift}
+    P, hold = None, None
+    if not oracle:
+        bench = bench_identification(resolve_scanner({}), seed + BENCH_SEED_OFFSET)
+        P, hold = identified_parameters(bench["model"]), bench["hold_hz"]
+        drift["sweep_end_hz"] = hold
+    dev = MicroScannerDevice(drift, seed=seed)
     rec = dev.step(dev.total_samples)
     det = OnlineThresholdDetector(dog_sigma=45.0)
     n = rec.y.shape[0]
     D = Detections.concat([det.process(rec.y[a : a + 5000]) for a in range(0, n, 5000)])
     segs = snr_segments(rec.y_clean, dev.p["noise_std"], dev.plan.cutoff, dev.fs)
-    return drift_evaluation(rec.theta, rec.omega, rec.y, rec.drive, D, dev.p, segs)
+    out = drift_evaluation(rec.theta, rec.omega, rec.y, rec.drive, D, dev.p, segs, P)
+    out["hold_hz"] = hold
+    return out
