@@ -4,7 +4,8 @@ dependence and the stochastic terms of Petkov & Slavov.
 Measurement model, per sensor s (gyro, accel) and sample k, every vector over the axes
 x, y, z, SI units (rad/s for the gyro, m/s^2 for the accelerometer)::
 
-    y_k = D(T_k) C u_k  +  b_T (T_k - T_ref)  +  G f_k (gyro only)
+    y_k = D(T_k) C u_k  +  b_T (T_k - T_ref)  +  G f_k + G2 f_k^2 (gyro only)
+          + K2 u_k^2 (accelerometer only)
           + b  +  x_k  +  white_k  +  rw_k                                    (1)
     then an optional first-order output low-pass, then ADC quantisation
 
@@ -23,6 +24,11 @@ x, y, z, SI units (rad/s for the gyro, m/s^2 for the accelerometer)::
 * b_T: bias temperature coefficient per axis (unit/K), MATLAB's ``TemperatureBias``.
 * G: gyro g-sensitivity (linear-acceleration effect), 3x3, rad/s per m/s^2, G[a, b] the
   rate error on gyro axis a per unit specific force along b.
+* G2: gyro g^2 sensitivity, 3x3, rad/s per (m/s^2)^2, G2[a, b] the rate error on gyro axis a
+  per unit of f_b^2 (f^2 element-wise); K2: the accelerometer's second-order coefficient per
+  axis, 1/(m/s^2), output a += K2_a f_a^2 (IEEE Std 1293 model). A vibration of variance
+  sigma_b^2 along b rectifies through them to the means G2[a, b] sigma_b^2 and K2_a sigma_a^2
+  (a sinusoid of peak A: sigma^2 = A^2 / 2). Both 0 by default.
 * b = b_const + b_turnon: the constant bias (``{s}_bias``, every axis, plus
   ``{s}_axis_bias_{a}`` per axis) and a turn-on (run-to-run) bias drawn once per power-up,
   i.e. per model construction, N(0, sigma_on,a^2) per axis from its own random stream, as
@@ -300,7 +306,7 @@ def quantize(values: np.ndarray, lsb: float, bits: int) -> tuple[np.ndarray, np.
 
 
 def truth_motion(
-    kind: str, first_index: int, n: int, fs: float, **params
+    kind: str, first_index: int, n: int, fs: float, delay_s: float = 0.0, **params
 ) -> tuple[np.ndarray, np.ndarray]:
     """Ground-truth angular rate and specific force of simple motions, body frame.
 
@@ -308,7 +314,9 @@ def truth_motion(
     kind "constant_rate": rotation about z at ``rate`` rad/s (default 0.1).
     kind "sinusoid": rotation about z, rate = ``amplitude`` (rad/s, default 0.5) *
     sin(2 pi ``frequency`` (Hz, default 1) t + ``phase`` (rad, default 0)).
-    Rotation about the vertical z keeps the specific force [0, 0, g].
+    Rotation about the vertical z keeps the specific force [0, 0, g]. ``delay_s``: the motion
+    of t - delay_s (a sensor latency, s). The Earth's rate, other gravity models, vibration
+    and 6-DoF trajectories: :mod:`mems_sim.devices.imu_motion`.
 
     Args:
         kind: "static", "constant_rate" or "sinusoid".
@@ -327,6 +335,8 @@ def truth_motion(
         gyro[:, 2] = float(params.get("rate", 0.1))
     elif kind == "sinusoid":
         t = (first_index + np.arange(n)) / float(fs)
+        if delay_s != 0.0:
+            t = t - float(delay_s)
         amp, f = float(params.get("amplitude", 0.5)), float(params.get("frequency", 1.0))
         gyro[:, 2] = amp * np.sin(2.0 * math.pi * f * t + float(params.get("phase", 0.0)))
     else:
@@ -436,6 +446,8 @@ class SensorErrors:
         sf_tempco: (3,) s_T, 1/K.
         g_sensitivity: (3,3) G, rad/s per m/s^2 (zeros for the accelerometer).
         alpha: output low-pass gain (1.0: off).
+        g2_sensitivity: (3,3) G2, rad/s per (m/s^2)^2 (zeros for the accelerometer).
+        k2: (3,) K2, 1/(m/s^2) (zeros for the gyro).
     """
 
     matrix: np.ndarray
@@ -443,6 +455,8 @@ class SensorErrors:
     sf_tempco: np.ndarray
     g_sensitivity: np.ndarray
     alpha: float
+    g2_sensitivity: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    k2: np.ndarray = field(default_factory=lambda: np.zeros(3))
     lp_state: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
@@ -450,10 +464,12 @@ class SensorErrors:
         self._unit_matrix = bool(np.array_equal(self.matrix, np.eye(3)))
         self._temperature = bool(np.any(self.bias_tempco) or np.any(self.sf_tempco))
         self._g = bool(np.any(self.g_sensitivity))
+        self._g2 = bool(np.any(self.g2_sensitivity))
+        self._k2 = bool(np.any(self.k2))
 
     def apply(self, truth: np.ndarray, delta_k: np.ndarray, accel: np.ndarray) -> np.ndarray:
-        """D(T) C u + b_T dT + G f (eq. (1) before the bias and noise); ``truth`` itself when
-        every term is zero (bit-identical to the stochastic-only model).
+        """D(T) C u + b_T dT + G f + G2 f^2 + K2 u^2 (eq. (1) before the bias and noise);
+        ``truth`` itself when every term is zero (bit-identical to the stochastic-only model).
 
         Args:
             truth: (n,3) u, rad/s or m/s^2.
@@ -468,6 +484,10 @@ class SensorErrors:
             out = out * (1.0 + self.sf_tempco * dk) + self.bias_tempco * dk
         if self._g:
             out = out + accel @ self.g_sensitivity.T
+        if self._g2:
+            out = out + (accel * accel) @ self.g2_sensitivity.T
+        if self._k2:
+            out = out + self.k2 * (truth * truth)
         return out
 
     def lowpass(self, values: np.ndarray) -> np.ndarray:
@@ -569,15 +589,20 @@ class ImuNoiseModel:
             for j, b in enumerate(AXES):
                 if a != b:
                     c[i, j] = p[f"{s}_misalignment_{a}{b}"]
-        g = np.zeros((3, 3))
+        g, g2, k2 = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros(3)
         if s == "gyro":
             g = np.array([[p[f"gyro_g_sensitivity_{a}{b}"] for b in AXES] for a in AXES])
+            g2 = np.array([[p[f"gyro_g2_sensitivity_{a}{b}"] for b in AXES] for a in AXES])
+        else:
+            k2 = np.array([p[f"accel_k2_{a}"] for a in AXES])
         return SensorErrors(
             matrix=c,
             bias_tempco=np.array([p[f"{s}_bias_tempco_{a}"] for a in AXES]),
             sf_tempco=np.array([p[f"{s}_sf_tempco_{a}"] for a in AXES]),
             g_sensitivity=g,
             alpha=lowpass_alpha(p[f"{s}_bandwidth"], fs),
+            g2_sensitivity=g2,
+            k2=k2,
         )
 
     @property
@@ -623,7 +648,9 @@ class ImuNoiseModel:
         """:meth:`error_terms` as (name, value, SI unit) with the names of a calibration
         result: ``{s}_bias_{a}``, ``{s}_matrix_{a}{b}`` (element (a, b) of C),
         ``{s}_bias_tempco_{a}``, ``{s}_sf_tempco_{a}`` for s in gyro, accel and
-        ``gyro_g_sensitivity_{a}{b}``; a, b in x, y, z."""
+        ``gyro_g_sensitivity_{a}{b}``; a, b in x, y, z; then, only when set (so the rows
+        of the references are unchanged), ``gyro_g2_sensitivity_{a}{b}``, ``accel_k2_{a}``
+        and ``latency_s`` [s]."""
         rows: list[tuple[str, float, str]] = []
         terms = self.error_terms()
         for s in SENSORS:
@@ -649,6 +676,18 @@ class ImuNoiseModel:
             for i, a in enumerate(AXES)
             for j, b in enumerate(AXES)
         ]
+        # the second-order terms and the latency only when set (the references have none)
+        g2, k2 = self.errors["gyro"].g2_sensitivity, self.errors["accel"].k2
+        if np.any(g2):
+            rows += [
+                (f"gyro_g2_sensitivity_{a}{b}", float(g2[i, j]), "rad/s/(m/s^2)^2")
+                for i, a in enumerate(AXES)
+                for j, b in enumerate(AXES)
+            ]
+        if np.any(k2):
+            rows += [(f"accel_k2_{a}", float(k2[i]), "1/(m/s^2)") for i, a in enumerate(AXES)]
+        if self.params["latency_s"] != 0.0:
+            rows.append(("latency_s", float(self.params["latency_s"]), "s"))
         return rows
 
     def generate(

@@ -210,7 +210,13 @@ class ProfileTruth(NamedTuple):
 
 
 def profile_truth(
-    profile: ImuProfile, first_index: int, n: int, fs: float, temperature_c: float = 25.0
+    profile: ImuProfile,
+    first_index: int,
+    n: int,
+    fs: float,
+    temperature_c: float = 25.0,
+    g: float = G0,
+    delay_s: float = 0.0,
 ) -> ProfileTruth:
     """Truth of samples ``first_index .. first_index + n - 1`` of ``profile`` (module
     docstring: f = g up_body, w = rate up_body, linear temperature ramp per segment).
@@ -221,6 +227,9 @@ def profile_truth(
         n: number of samples, >= 0.
         fs: sample rate, Hz (> 0).
         temperature_c: device temperature, degC, for segments without their own.
+        g: magnitude of gravity, m/s^2 (default standard gravity).
+        delay_s: the truth of time t - delay_s for the sample of time t, s (a sensor's
+            latency; before the profile's start the first segment's state).
     Returns:
         :class:`ProfileTruth`.
     """
@@ -234,6 +243,8 @@ def profile_truth(
     t_start = profile.start_times_s()
     end = profile.n_samples(fs)
     idx = int(first_index) + np.arange(int(n), dtype=np.int64)
+    if delay_s != 0.0:
+        idx = idx - float(delay_s) * fs  # fractional sample positions of t - delay
     seg = np.searchsorted(starts, idx, side="right") - 1
     after = idx >= end
     seg = np.where(after, len(segs) - 1, np.maximum(seg, 0))
@@ -250,7 +261,7 @@ def profile_truth(
     frac = np.clip((t - t_start[seg]) / dur[seg], 0.0, 1.0)
     frac = np.where(after, 1.0, frac)
     temperature = t0[seg] + (t1[seg] - t0[seg]) * frac
-    accel = G0 * up[seg]
+    accel = g * up[seg]
     gyro = rate[seg, None] * up[seg]
     seg_out = np.where(after, -1, seg).astype(np.int32)
     return ProfileTruth(gyro, accel, temperature, seg_out)

@@ -24,6 +24,9 @@ __all__ = [
     "ACCEL_SPECS",
     "IMU_SPECS",
     "ERROR_SPECS",
+    "LATENCY_SPEC",
+    "ENVIRONMENT_SPECS",
+    "VIBRATION_SPECS",
     "PRESET_SPEC",
     "PRESETS",
     "PRESETS_NAMES",
@@ -345,6 +348,39 @@ def _error_specs(s: str) -> tuple[ParamSpec, ...]:
             for a in AXES
             for b in AXES
         ]
+        specs += [
+            ParamSpec(
+                f"gyro_g2_sensitivity_{a}{b}",
+                0.0,
+                "rad/s/(m/s^2)^2",
+                f"g^2 sensitivity G2[{a},{b}]: rate error on gyro {a} per unit of the square of "
+                f"the specific force along {b}; a vibration of variance sigma^2 along {b} "
+                f"rectifies to a mean G2 sigma^2 (eq. (1))",
+                zero + "; MEMS gyro datasheets give 'vibration rectification' of the order "
+                "1e-4 to 1e-2 deg/s/g^2 (1.8e-8 to 1.8e-6 rad/s/(m/s^2)^2; order of magnitude, "
+                "not one datasheet)",
+                min=-1.0e-3,
+                max=1.0e-3,
+            )
+            for a in AXES
+            for b in AXES
+        ]
+    else:
+        specs += [
+            ParamSpec(
+                f"accel_k2_{a}",
+                0.0,
+                "1/(m/s^2)",
+                f"second-order (quadratic) coefficient K2 of the {a} axis: output += K2 f_{a}^2; "
+                "a vibration of variance sigma^2 rectifies to a mean K2 sigma^2 (eq. (1); "
+                "IEEE Std 1293-2018 accelerometer model K2)",
+                zero + "; tactical and MEMS accelerometers: 10 to 1000 ug/g^2 (1e-6 to 1e-4 "
+                "1/(m/s^2); order of magnitude, not one datasheet)",
+                min=-1.0e-2,
+                max=1.0e-2,
+            )
+            for a in AXES
+        ]
     specs.append(
         ParamSpec(
             f"{s}_bandwidth",
@@ -359,9 +395,155 @@ def _error_specs(s: str) -> tuple[ParamSpec, ...]:
     return tuple(specs)
 
 
-ERROR_SPECS: tuple[ParamSpec, ...] = (PRESET_SPEC,) + _error_specs("gyro") + _error_specs("accel")
+LATENCY_SPEC = ParamSpec(
+    "latency_s",
+    0.0,
+    "s",
+    "sensor latency L: the sample stamped t measures the motion (rate, specific force) of "
+    "t - L (a driver's or filter's delay, what Kalibr's time-offset calibration estimates); "
+    "the truth topic carries the motion at t, truth_calibration the latency",
+    "0: no delay (the references); real parts: group delay of the digital filter, e.g. "
+    "a few ms at a 100 Hz ODR",
+    min=0.0,
+    max=10.0,
+)
 
-IMU_SPECS: tuple[ParamSpec, ...] = COMMON_SPECS + GYRO_SPECS + ACCEL_SPECS + ERROR_SPECS
+ERROR_SPECS: tuple[ParamSpec, ...] = (
+    (PRESET_SPEC,) + _error_specs("gyro") + _error_specs("accel") + (LATENCY_SPEC,)
+)
+
+#: Earth rate and gravity model (mems_sim.devices.imu_motion).
+ENVIRONMENT_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec(
+        "earth_rate",
+        False,
+        "-",
+        "add the Earth's rotation (7.292115e-5 rad/s) projected into the body frame by the "
+        "attitude to the true angular rate",
+        "WGS-84 (NIMA TR8350.2, Table 3.1); off by default (the references have no Earth rate)",
+    ),
+    ParamSpec(
+        "gravity_model",
+        "standard",
+        "-",
+        "magnitude of gravity: 'standard' g0 = 9.80665 m/s^2 everywhere, or 'wgs84' normal "
+        "gravity at latitude_deg and height_m (Somigliana with the second-order height term)",
+        "standard gravity (CGPM 1901); WGS-84 normal gravity, NIMA TR8350.2 eqs. (4-1), (4-3)",
+        choices=("standard", "wgs84"),
+    ),
+    ParamSpec(
+        "latitude_deg",
+        45.0,
+        "deg",
+        "geodetic latitude of the IMU (Earth rate components and normal gravity)",
+        "parameter of the site",
+        min=-90.0,
+        max=90.0,
+    ),
+    ParamSpec(
+        "height_m",
+        0.0,
+        "m",
+        "ellipsoidal height of the IMU (normal gravity)",
+        "parameter of the site; the height series of NIMA TR8350.2 eq. (4-3) holds to 20 km",
+        min=-1.0e4,
+        max=2.0e4,
+    ),
+)
+
+#: Vibration of the specific force (mems_sim.devices.imu_motion.Vibration).
+VIBRATION_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec(
+        "vibration",
+        "none",
+        "-",
+        "vibration added to the true specific force: 'none', 'sinusoid' (peak amplitude "
+        "vibration_amplitude_{a} at vibration_frequency_hz) or 'random' (band-limited, PSD "
+        "vibration_psd_{a} over [vibration_band_low_hz, vibration_band_high_hz])",
+        "gnss-ins-sim vibration definitions (sinusoidal, PSD); MATLAB imuSensor with a "
+        "vibrating trajectory",
+        choices=("none", "sinusoid", "random"),
+    ),
+)
+VIBRATION_SPECS += (
+    tuple(
+        ParamSpec(
+            f"vibration_amplitude_{a}",
+            0.0,
+            "m/s^2",
+            f"peak amplitude of the sinusoidal vibration along body {a}",
+            "parameter of the test (0: none)",
+            min=0.0,
+            max=1.0e4,
+        )
+        for a in AXES
+    )
+    + tuple(
+        ParamSpec(
+            f"vibration_psd_{a}",
+            0.0,
+            "(m/s^2)^2/Hz",
+            f"one-sided PSD of the random vibration along body {a} (1 g^2/Hz = 96.17 (m/s^2)^2/Hz)",
+            "parameter of the test (0: none)",
+            min=0.0,
+            max=1.0e6,
+        )
+        for a in AXES
+    )
+    + (
+        ParamSpec(
+            "vibration_frequency_hz",
+            10.0,
+            "Hz",
+            "frequency of the sinusoidal vibration (below fs/2)",
+            "parameter of the test",
+            min=0.0,
+            max=1.0e5,
+        ),
+        ParamSpec(
+            "vibration_phase_rad",
+            0.0,
+            "rad",
+            "phase of the sinusoidal vibration at t = 0",
+            "parameter of the test",
+            min=-10.0,
+            max=10.0,
+        ),
+        ParamSpec(
+            "vibration_band_low_hz",
+            1.0,
+            "Hz",
+            "lower edge of the random vibration's band",
+            "parameter of the test",
+            min=0.0,
+            max=1.0e5,
+        ),
+        ParamSpec(
+            "vibration_band_high_hz",
+            40.0,
+            "Hz",
+            "upper edge of the random vibration's band (below fs/2)",
+            "parameter of the test",
+            min=0.0,
+            max=1.0e5,
+            min_exclusive=True,
+        ),
+        ParamSpec(
+            "vibration_resolution_hz",
+            0.1,
+            "Hz",
+            "line spacing of the random vibration (a sum of sinusoids of random phase, one per "
+            "line; the record repeats after 2 / spacing)",
+            "Shinozuka & Deodatis, Appl. Mech. Rev. 44(4), 1991 (spectral representation)",
+            min=1.0e-4,
+            max=1.0e3,
+        ),
+    )
+)
+
+IMU_SPECS: tuple[ParamSpec, ...] = (
+    COMMON_SPECS + GYRO_SPECS + ACCEL_SPECS + ERROR_SPECS + ENVIRONMENT_SPECS + VIBRATION_SPECS
+)
 
 
 # --- presets --------------------------------------------------------------------------------

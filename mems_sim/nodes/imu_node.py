@@ -29,7 +29,13 @@ the model act around 25 C; the published covariances are the nominal ones, a dat
 ``EMULATOR_SPECS`` and the motion parameters below. ``motion`` 'profile' plays the truth
 motion and temperature of ``motion_profile`` (a built-in profile of
 ``mems_sim.devices.imu_profiles`` or a profile YAML file) and ends the stream at the
-profile's end unless ``duration_s`` is given (after the end the last state is held).
+profile's end unless ``duration_s`` is given (after the end the last state is held);
+``motion`` 'trajectory' plays the attitude (and position) rows of the CSV
+``motion_trajectory`` the same way. The Earth's rate, the gravity model, vibration of the
+specific force and the sensor latency are parameters of the table (``earth_rate``,
+``gravity_model``, ``latitude_deg``, ``height_m``, ``vibration*``, ``latency_s``;
+mems_sim.devices.imu_motion); the truth topic carries the motion at each sample's time, the
+ADC the motion of t - latency_s.
 """
 
 from __future__ import annotations
@@ -39,7 +45,7 @@ from rclpy.qos import QoSProfile
 from sensor_msgs.msg import Imu
 
 from mems_msgs.msg import CalibrationResult
-from mems_sim.devices import imu, imu_profiles
+from mems_sim.devices import imu, imu_motion, imu_profiles
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.frames import index_to_ns, make_adc_frame, ns_to_time
 from mems_sim.ros.imu_msg import ImuSerializer
@@ -52,11 +58,19 @@ MOTION_SPECS: tuple[ParamSpec, ...] = (
         "motion",
         "static",
         "-",
-        "true motion: at rest, constant rate or sinusoidal rate about z, or the positions, "
+        "true motion: at rest, constant rate or sinusoidal rate about z, the positions, "
         "rate-table runs and temperature of a calibration profile ('profile', "
-        "motion_profile)",
+        "motion_profile), or a 6-DoF trajectory CSV ('trajectory', motion_trajectory)",
         "",
-        choices=("static", "constant_rate", "sinusoid", "profile"),
+        choices=("static", "constant_rate", "sinusoid", "profile", "trajectory"),
+    ),
+    ParamSpec(
+        "motion_trajectory",
+        "",
+        "-",
+        "CSV file of motion 'trajectory': time_s, attitude (qw, qx, qy, qz or roll, pitch, "
+        "yaw), optionally x_m, y_m, z_m (ENU / FLU, mems_sim.devices.imu_motion)",
+        "6-DoF motion input as gnss-ins-sim's motion files and MATLAB's waypointTrajectory",
     ),
     ParamSpec(
         "motion_profile",
@@ -73,7 +87,7 @@ MOTION_SPECS: tuple[ParamSpec, ...] = (
         "auto",
         "-",
         "publish 'temperature_sensor' and 'truth_calibration': 'on', 'off', or 'auto' (on "
-        "with motion 'profile')",
+        "with motion 'profile' or a latency_s > 0, which truth_calibration records)",
         "truth of the error terms to evaluate calibrations against",
         choices=("auto", "on", "off"),
     ),
@@ -123,6 +137,7 @@ class ImuNode(EmulatorNode):
                 f"parameter 'motion_frequency' = {self.p['motion_frequency']!r} is out of range: "
                 f"allowed [0.0, {fs / 2!r}) Hz (below Nyquist of sample_rate_hz)"
             )
+        self.motion = self._make_motion(fs)
         self.model = imu.ImuNoiseModel(
             self.device_values(), seed=self.p["seed"], temperature_c=self.p["temperature_c"]
         )
@@ -142,7 +157,8 @@ class ImuNode(EmulatorNode):
         self.pub_adc, self.pub_truth = self.create_frame_publishers("adc", "truth")
         topics = self.p["calibration_topics"]
         self.pub_temperature = self.pub_truth_calibration = None
-        if topics == "on" or (topics == "auto" and self.profile is not None):
+        auto = self.profile is not None or self.p["latency_s"] > 0.0
+        if topics == "on" or (topics == "auto" and auto):
             (self.pub_temperature,) = self.create_frame_publishers("temperature_sensor")
             self.pub_truth_calibration = self.create_publisher(
                 CalibrationResult, "truth_calibration", RESULT_QOS
@@ -160,6 +176,45 @@ class ImuNode(EmulatorNode):
             self.pub_imu = self.create_publisher(Imu, "data", qos)
             self._imu_cdr = ImuSerializer(self.p["frame_id"], self._gyro_cov, self._accel_cov)
         return fs
+
+    def _make_motion(self, fs: float) -> imu_motion.ImuMotion:
+        """The true motion (mems_sim.devices.imu_motion) of the node's motion, environment
+        and vibration parameters; a bad trajectory file or combination is a ParameterError."""
+        p = self.p
+        trajectory = None
+        if p["motion"] == "trajectory":
+            try:
+                trajectory = imu_motion.load_trajectory(p["motion_trajectory"])
+            except imu_motion.TrajectoryError as exc:
+                raise ParameterError(
+                    f"parameter 'motion_trajectory' = {p['motion_trajectory']!r} is invalid: {exc}"
+                ) from None
+        try:
+            motion = imu_motion.ImuMotion(
+                p["motion"],
+                p,
+                p["seed"],
+                rate=p["motion_rate"],
+                amplitude=p["motion_amplitude"],
+                frequency=p["motion_frequency"],
+                profile=self.profile,
+                trajectory=trajectory,
+                temperature_c=p["temperature_c"],
+            )
+        except ValueError as exc:
+            raise ParameterError(str(exc)) from None
+        top = motion.vibration.max_frequency_hz()
+        if top >= fs / 2:
+            name = (
+                "vibration_frequency_hz"
+                if p["vibration"] == "sinusoid"
+                else "vibration_band_high_hz"
+            )
+            raise ParameterError(
+                f"parameter '{name}' = {top!r} is out of range: allowed below {fs / 2!r} Hz "
+                "(Nyquist of sample_rate_hz: the truth is sampled)"
+            )
+        return motion
 
     def preset_values(self) -> dict:
         """The nominal device: the defaults of the node's ``preset`` updated with the device
@@ -188,28 +243,15 @@ class ImuNode(EmulatorNode):
         values do not depend on the temperature)."""
 
     def schedule_samples(self) -> int | None:
-        """With motion 'profile' and no ``duration_s``: the profile's samples."""
-        if self.profile is not None and self.p["duration_s"] <= 0:
-            return self.profile.n_samples(self.model.fs)
+        """With motion 'profile' or 'trajectory' and no ``duration_s``: its samples."""
+        if self.p["duration_s"] <= 0:
+            return self.motion.n_samples(self.model.fs)
         return None
 
-    def _truth(self, first: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(gyro (n,3) rad/s, specific force (n,3) m/s^2, temperature (n,) degC)."""
-        p = self.p
-        fs = self.model.fs
-        if self.profile is not None:
-            t = imu_profiles.profile_truth(self.profile, first, n, fs, p["temperature_c"])
-            return t.gyro, t.accel, t.temperature_c
-        gyro, accel = imu.truth_motion(
-            p["motion"],
-            first,
-            n,
-            fs,
-            rate=p["motion_rate"],
-            amplitude=p["motion_amplitude"],
-            frequency=p["motion_frequency"],
-        )
-        return gyro, accel, np.full(n, float(p["temperature_c"]))
+    def _truth(self, first: int, n: int) -> imu_motion.MotionTruth:
+        """(gyro (n,3) rad/s, specific force (n,3) m/s^2, temperature (n,) degC) at the
+        samples' own times."""
+        return self.motion.truth(first, n, self.model.fs, self.p["temperature_c"])
 
     def publish_truth_calibration(self) -> None:
         """The realised error terms (the model's ``calibration_truth``) as a
@@ -232,8 +274,11 @@ class ImuNode(EmulatorNode):
     def publish_frame(self, first: int, n: int) -> None:
         if self.pub_truth_calibration is not None and first == 0:
             self.publish_truth_calibration()
-        truth_gyro, truth_accel, temperature = self._truth(first, n)
-        frame = self.model.generate(n, truth_gyro, truth_accel, temperature)
+        truth = self._truth(first, n)
+        truth_gyro, truth_accel, temperature = truth
+        # the sensor measures the motion of t - latency_s (truth itself without one)
+        seen = self.motion.measured(first, n, self.model.fs, truth)
+        frame = self.model.generate(n, seen.gyro, seen.accel, temperature)
         codes = np.hstack([frame.gyro_codes, frame.accel_codes])
         sat = int(frame.saturated.sum())
         if sat:
