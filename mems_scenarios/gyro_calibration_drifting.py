@@ -22,8 +22,14 @@ from mems_estimation.identification.stage_gyro_calibration import (
 from mems_scenarios.figures import Figure, cell, met_cell
 from mems_sim.devices.stage import MicroStage, off_axis_rejection_worst
 
-#: off-axis targets of the RMS reading, worst over the off-axis phase (share -> R_off)
+#: off-axis targets of the RMS reading, worst over the off-axis phase (share -> R_off): this
+#: project's criterion for the design layout of Chen 2018 Tables A.1/A.2, whose stators are
+#: symmetric in Y, so the leaked signal is second order in the off-axis share and R_off falls
+#: linearly with it (docs/stage.md, "Off-axis rejection"); the thesis' Table 3.4 values
+#: (:data:`OFF_AXIS_THESIS`) are beside them as context
 OFF_AXIS_WORST_TARGETS = {0.01: 0.9998, 0.1: 0.9997, 0.5: 0.9985}
+#: Chen 2018 Table 3.4: R_off measured on the thesis' device (share -> R_off)
+OFF_AXIS_THESIS = {0.01: 0.9998, 0.1: 0.9998, 0.5: 0.9990}
 #: off-axis target at 10 % with the device's stator misregistration (|dy| <= 0.5 um)
 OFF_AXIS_MISREG_TARGET = 0.999
 #: scale-factor error target of the drifting device [ppm RMS over T1/T2] (thesis 286 ppm)
@@ -37,6 +43,14 @@ INSTANCES = {"stage_t1": T1, "stage_t2": T2}
 DRIFTING = {"stage_d1": (T1, T1), "stage_d2": (T2, T1), "stage_d2r": (T2, T2)}
 #: row of the drifting device's table each instance gives
 DRIFTING_ROW = {"stage_d1": "ref_t1", "stage_d2": "ref_t1", "stage_d2r": "ref_t2"}
+
+
+def off_axis_target_text(share: float) -> str:
+    """The off-axis target of ``share`` (fraction) as a table prints it, in % with the thesis'
+    value beside it (:data:`OFF_AXIS_WORST_TARGETS`, :data:`OFF_AXIS_THESIS`)."""
+    return (
+        f">= {100 * OFF_AXIS_WORST_TARGETS[share]:g} % (paper {100 * OFF_AXIS_THESIS[share]:.2f} %)"
+    )
 
 
 def drifting_models(seed: int, plan: Plan, stage_params: dict | None = None) -> dict:
@@ -161,15 +175,23 @@ def drifting_table(cores: dict, graph_runs: dict | None = None) -> dict:
             r = runs[T][label]
             ev = r["eval"]
             key = f"drifting.{ns}" if label == "ref_t1" else f"drifting.{ns}.{label}"
+            # the model of 22.9 C used at 35.7 C cannot follow D_n: context, no verdict
+            context = T == T2 and label == "ref_t1"
             fr = Figure(
-                f"{key}.omega_rmse", ev["rmse"], "rad/s", "<= 0.114 rad/s", ev["rmse"] <= 0.114
+                f"{key}.omega_rmse",
+                ev["rmse"],
+                "rad/s",
+                *((None, None) if context else ("<= 0.114 rad/s", ev["rmse"] <= 0.114)),
             )
             fa = Figure(
                 f"{key}.alpha",
                 ev["alpha"],
                 "1",
-                "|alpha - 1| <= 8e-4",
-                abs(ev["alpha"] - 1) <= 8e-4,
+                *(
+                    (None, None)
+                    if context
+                    else ("|alpha - 1| <= 8e-4", abs(ev["alpha"] - 1) <= 8e-4)
+                ),
             )
             figures += [
                 fr,
@@ -189,8 +211,8 @@ def drifting_table(cores: dict, graph_runs: dict | None = None) -> dict:
                     "in-situ EKF omega RMSE / alpha",
                     cond,
                     f"{cell(ev['rmse'], '.4f')} rad/s / {cell(ev['alpha'], '.5f')}",
-                    "<= 0.114 / |a-1| <= 8e-4",
-                    "yes" if (fr.passed and fa.passed) else "NO",
+                    "context: D_n drift" if context else "<= 0.114 / |a-1| <= 8e-4",
+                    met_cell(fr, fa),
                 ],
                 [
                     f"SF_IMU by stage (true {cell(runs[T]['k_true'], '.5f')})",
@@ -201,13 +223,8 @@ def drifting_table(cores: dict, graph_runs: dict | None = None) -> dict:
                     "-",
                 ],
             ]
-    f1 = Figure(
-        "drifting.scale_factor_error_rms.ref_t1_only",
-        rms1,
-        "ppm",
-        f"<= {DRIFT_SF_TARGET_PPM:g} ppm",
-        rms1 <= DRIFT_SF_TARGET_PPM,
-    )
+    # context: without a reference at 35.7 C the D_n drift is unobservable (docs/stage.md)
+    f1 = Figure("drifting.scale_factor_error_rms.ref_t1_only", rms1, "ppm")
     fr = Figure(
         "drifting.scale_factor_error_rms",
         rms2,
@@ -232,8 +249,8 @@ def drifting_table(cores: dict, graph_runs: dict | None = None) -> dict:
             "row 1: SF error RMS, ref. 22.9 C only",
             f"{T1}/{T2} C",
             f"{cell(rms1, '.0f')} ppm",
-            "D_n drift unobservable w/o ref.",
-            met_cell(f1),
+            "context: D_n drift unobservable w/o ref.",
+            "-",
         ],
         [
             "context (cores): thesis w/o in-situ, RMS",

@@ -14,7 +14,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import replace
 from typing import Any
 
-from mems_sim.params import ParamSpec, Spread, draw_device, resolve
+from mems_sim.params import ParameterError, ParamSpec, Spread, draw_device, resolve
 
 __all__ = [
     "G0",
@@ -827,12 +827,21 @@ def draw_imu_device(
     g-sensitivities) drawn within the datasheet tolerance around 0
     (:func:`~mems_sim.params.draw_device`, per-parameter streams of ``device_seed``);
     ``device_seed`` None or negative: ``values`` unchanged (the preset's nominal device).
-    Names in ``fixed`` keep their values.
+    Names in ``fixed`` keep their values. Raises ParameterError for a ``device_seed`` >= 0 on a
+    preset without spreads ('petkov': the paper gives no batch tolerances), where a drawn
+    device would silently be the nominal one.
     """
-    specs = imu_specs(values.get("preset", "petkov"))
+    preset = values.get("preset", "petkov")
+    specs = imu_specs(preset)
     fixed = set(fixed)
     if device_seed is None or device_seed < 0:
         return dict(values)
+    if not any(spec.spread is not None for spec in specs):
+        with_spreads = [p for p in PRESETS_NAMES if any(s.spread for s in imu_specs(p))]
+        raise ParameterError(
+            f"device_seed {device_seed}: the IMU preset '{preset}' has no batch spreads to "
+            f"draw from (choose preset {' or '.join(with_spreads)})"
+        )
     centred = dict(values)
     for spec in specs:
         if spec.spread is not None and spec.name not in fixed:

@@ -149,6 +149,7 @@ def test_set_and_params_file_reach_the_nodes(tmp_path, domain_id, capsys):
         (["--set", "/imu/imu.frame_size=0"], ["frame_size", "= 0", "allowed [1,"]),
         (["--set", "imu.seed"], ["NODE.PARAM=VALUE"]),
         (["--params-file", "missing.yaml"], ["missing.yaml"]),
+        (["--device-seed", "5"], ["device_seed 5", "'petkov' has no batch spreads"]),
     ],
 )
 def test_bad_parameter_exits_2_with_one_line_before_the_run(

@@ -1,5 +1,5 @@
 """Outputs of ``run_scenario``: default outputs under ``runs/`` replaced only after the run
-succeeded (mems_scenarios/staged_outputs.py), and ``--out`` with the files beside it refused
+succeeded (:mod:`mems_scenarios.staged_outputs`), and ``--out`` with the files beside it refused
 when they are symbolic links or exist without ``--overwrite`` (before the run)."""
 
 from __future__ import annotations

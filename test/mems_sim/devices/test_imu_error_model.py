@@ -88,9 +88,10 @@ def test_all_new_terms_zero_is_bit_identical_to_stochastic_only_model(case):
     params, seed, digest = STOCHASTIC_ONLY[case]
     sizes = [1, 999, 500, 1500]
     assert _sha(_codes(params, seed, sizes)) == digest
-    # explicit preset, a temperature away from 25 C and a device draw change nothing either
+    # explicit preset, a temperature away from 25 C and the nominal draw change nothing
+    # either (a device seed on petkov, which has no spreads, is refused: see below)
     p = dict(params, preset="petkov")
-    m = ImuNoiseModel(draw_imu_device(imu_values(p), 5), seed=seed, temperature_c=60.0)
+    m = ImuNoiseModel(draw_imu_device(imu_values(p), -1), seed=seed, temperature_c=60.0)
     out, i = [], 0
     for n in sizes:
         g, a = truth_motion("sinusoid", i, n, m.fs)
@@ -323,6 +324,14 @@ def test_device_draw_within_datasheet_tolerance_and_deterministic():
     adis = imu_values({"preset": "adis16350"})
     b = np.array([draw_imu_device(adis, s)["gyro_axis_bias_z"] for s in range(400)])
     assert b.std() == pytest.approx(3 * DEG, rel=0.15)
+
+
+def test_a_device_seed_on_the_petkov_preset_is_refused():
+    """Petkov's preset has no batch spreads: a drawn device would be the nominal one, silently."""
+    petkov = imu_values({})
+    assert draw_imu_device(petkov, -1) == petkov  # nominal: nothing drawn, accepted
+    with pytest.raises(ParameterError, match="preset 'petkov' has no batch spreads"):
+        draw_imu_device(petkov, 5)
 
 
 def test_calibration_truth_names_units_and_values():
