@@ -83,6 +83,10 @@ setup(
             f"share/{PACKAGE}/config/foxglove",
             sorted(str(p.relative_to(HERE)) for p in (HERE / "config" / "foxglove").glob("*.json")),
         ),
+        (
+            f"share/{PACKAGE}/config/imu",
+            sorted(str(p.relative_to(HERE)) for p in (HERE / "config" / "imu").glob("*.csv")),
+        ),
     ],
     install_requires=locked(RUNTIME),
     extras_require={"test": locked(TEST)},
