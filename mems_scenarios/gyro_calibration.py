@@ -78,6 +78,7 @@ from mems_scenarios.stage_graph import (  # noqa: F401  (FRAME, RECORDED: public
     recorded_counters,
     run_stage_graph,
 )
+from mems_sim.bag.output_paths import write_output
 from mems_sim.devices.stage import STAGE_SPECS
 from mems_sim.devices.stage_gyro import GYRO_SPECS
 from mems_sim.table import format_table
@@ -130,7 +131,7 @@ def write_plots(out: Path, runs: dict, seed: int, paths: tuple | None = None) ->
     if paths is None:
         paths = (output_path(out, seed, "-period.png"), output_path(out, seed, "-peak_to_peak.png"))
     p = paths[0]
-    fig.savefig(p, dpi=100)
+    write_output(p, lambda tmp: fig.savefig(tmp, dpi=100), overwrite=True)
     plt.close(fig)
     written.append(p)
     fig, ax = plt.subplots(figsize=(6, 3.5))
@@ -153,7 +154,7 @@ def write_plots(out: Path, runs: dict, seed: int, paths: tuple | None = None) ->
     ax.legend(fontsize=8)
     fig.tight_layout()
     p = paths[1]
-    fig.savefig(p, dpi=100)
+    write_output(p, lambda tmp: fig.savefig(tmp, dpi=100), overwrite=True)
     plt.close(fig)
     written.append(p)
     return written

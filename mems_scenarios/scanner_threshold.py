@@ -66,6 +66,7 @@ from mems_estimation.studies.scanner_threshold import (
 )
 from mems_scenarios import bag_frames, base, contract, delivery
 from mems_scenarios.figures import Figure, cell, is_finite
+from mems_sim.bag.output_paths import write_output
 from mems_sim.devices.scanner import (
     SCANNER_SPECS,
     dc_transimpedance_output,
@@ -865,7 +866,7 @@ def plot(f: dict, path: Path, path2: Path) -> None:
     ax.set(xlabel="time [ms]", ylabel="[V]", title="(c) sensing signal and DOG response")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    write_output(path, lambda tmp: fig.savefig(tmp, dpi=100), overwrite=True)
     plt.close(fig)
 
     fig, ax = plt.subplots(1, 3, figsize=(15, 4.5))
@@ -907,7 +908,7 @@ def plot(f: dict, path: Path, path2: Path) -> None:
     ax[2].set(xlabel="e_theta,th [mrad]", title="Fig. 4.8/4.9: error vs normal")
     ax[2].legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path2, dpi=100)
+    write_output(path2, lambda tmp: fig.savefig(tmp, dpi=100), overwrite=True)
     plt.close(fig)
 
 

@@ -617,11 +617,17 @@ def model_from_dict(d: Mapping[str, Any]) -> StageModel:
 
 
 def save_model(m: StageModel, path: str) -> None:
-    """Write the identified parameters as YAML (the estimator's parameter file)."""
+    """Write the identified parameters as YAML (the estimator's parameter file), whole and
+    never through a symbolic link (:func:`mems_sim.bag.output_paths.write_output`;
+    BagWriteError)."""
+    from pathlib import Path
+
     import yaml
 
-    with open(path, "w") as fh:
-        yaml.safe_dump(model_to_dict(m), fh, sort_keys=False)
+    from mems_sim.bag.output_paths import write_output
+
+    text = yaml.safe_dump(model_to_dict(m), sort_keys=False)
+    write_output(path, lambda tmp: Path(tmp).write_text(text), overwrite=True)
 
 
 def load_model(path: str) -> StageModel:

@@ -342,11 +342,16 @@ def identify(
 
 
 def save_identification(model: Mapping[str, Any], path: str) -> None:
-    """Write the identified model as the estimator's parameter YAML."""
+    """Write the identified model as the estimator's parameter YAML, whole and never through
+    a symbolic link (:func:`mems_sim.bag.output_paths.write_output`; BagWriteError)."""
+    from pathlib import Path
+
     import yaml
 
-    with open(path, "w") as fh:
-        yaml.safe_dump(dict(model), fh, sort_keys=False)
+    from mems_sim.bag.output_paths import write_output
+
+    text = yaml.safe_dump(dict(model), sort_keys=False)
+    write_output(path, lambda tmp: Path(tmp).write_text(text), overwrite=True)
 
 
 def load_identification(path: str) -> dict[str, float]:
