@@ -24,7 +24,10 @@ inertial navigation systems", Meas. Sci. Technol. 18 (2007) 1897-1907):
    a known temperature ramp) is averaged after dropping its first ``settle_s``: measured means
    ybar_i (per channel) and the means of the known regressors over the same samples (true
    rate wbar_i and specific force fbar_i from the profile, dTbar_i = mean(T - T_ref),
-   mean(w_a dT), mean(f_a dT)).
+   mean(w_a dT), mean(f_a dT)). Data whose segment means do not follow the profile's (a
+   static record, another profile, a late start) are refused (CalibrationError, by
+   :func:`~mems_estimation.identification.imu_profile_check.profile_mismatch`): the fit
+   would succeed on them and be confidently wrong.
 2. Per output axis a, one linear model of the segment means,
    ``ybar_a,i = b_a + sum_b C_ab ubar_b,i + b_T,a dTbar_i + D_aa mean(u_a dT)_i
    (+ sum_b G_ab fbar_b,i)`` with D_aa = C_aa sf_T,a (the off-diagonal products sf_T,a C_ab,
@@ -64,6 +67,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+
+from mems_estimation.identification.imu_profile_check import profile_mismatch
 
 __all__ = [
     "T_REF_C",
@@ -581,6 +586,9 @@ def calibrate(
         aliased parameters.
     """
     st = segment_statistics(gyro, accel, truth, fs, settle_s, temperature, min_seconds, index)
+    mismatch = profile_mismatch(st)
+    if mismatch is not None:
+        raise CalibrationError(mismatch)
     if thermal is None:
         thermal = bool(np.ptp(st.dT) > 1.0) if st.dT.size else False
     noise_source = "given"

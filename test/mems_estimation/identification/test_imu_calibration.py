@@ -226,3 +226,21 @@ def test_bad_input_is_one_clear_error():
         ic.calibrate_profile(np.zeros((300, 3)), np.zeros((300, 3)), prof, FS)
     with pytest.raises(ic.CalibrationError, match="noise model"):
         icio.noise_option("/nonexistent.json")
+
+
+def test_data_that_do_not_follow_the_profile_are_refused():
+    """A static record, or a rate table that never turned, calibrated along multi_position:
+    the fit would succeed (accelerometer matrix ~0, z bias ~g) -- refused instead, naming
+    how many segments differ and the first one; the noisy data of the profile pass."""
+    prof, truth, tc, g, a = _data("multi_position", seed=5)
+    ic.calibrate_profile(g, a, prof, FS)  # the profile's own data: no refusal
+    static = np.tile(a[: truth.segment.size // 12].mean(0), (a.shape[0], 1))
+    still = np.where(np.abs(truth.gyro) > 0, 0.0, g)  # the table's rates missing
+    assert np.any(np.abs(truth.gyro) > 0.5)
+    moved = sum(s.up_body != prof.segments[0].up_body for s in prof.segments)
+    cases = ((g, static, "accel", f" {moved} of 12 segments"), (still, a, "gyro", " of 12 "))
+    for gyro, accel, sensor, count in cases:
+        with pytest.raises(ic.CalibrationError, match="do not follow the profile") as err:
+            ic.calibrate_profile(gyro, accel, prof, FS)
+        text = str(err.value)
+        assert f": {sensor} mean" in text and count in text and "\n" not in text, text
