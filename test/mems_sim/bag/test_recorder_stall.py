@@ -3,7 +3,6 @@ context: a publisher that sent steadily and then nothing for longer than the tim
 ``stalled: TOPIC (N s without data)``; the same silence over a gap its device declared (a
 scheduled device gap) is neither a stall nor transport loss."""
 
-
 from conftest import spin_until
 
 from mems_msgs.msg import AdcFrame
