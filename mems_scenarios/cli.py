@@ -33,6 +33,7 @@ from mems_sim.ros.end_of_stream import is_end_of_stream_topic
 from mems_sim.ros.env import MAX_DOMAIN_ID, apply_defaults, domain_id_problem
 from mems_sim.ros.params_file import Override, ParamsFileError, load_params_file, parse_set
 from mems_sim.ros.stop import StopRequest
+from mems_sim.table import fit_lines
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -366,9 +367,10 @@ def _run(args, module, options: ScenarioOptions, staged) -> int:
         return _fail(f"cannot move the outputs into runs/: {' '.join(str(exc).split())}")
     wall = time.monotonic() - start
     result["device_seed"], result["temperature_c"] = args.device_seed, args.temperature
+    # two lines: the run's settings, and its wall time (host-dependent, one "wall" line)
+    print("\n" + fit_lines(f"scenario {args.name}: seed {args.seed}, {device_text(args)},"))
     print(
-        f"\nscenario {args.name}: seed {args.seed}, {device_text(args)}, "
-        f"{result['duration_s']:g} s simulated in {wall:.1f} s wall "
+        f"  {result['duration_s']:g} s simulated in {wall:.1f} s wall "
         f"({'real time' if args.realtime else 'as fast as possible'})"
     )
     throughput = THROUGHPUT.summary()  # first frame to last: start-up excluded
@@ -377,19 +379,26 @@ def _run(args, module, options: ScenarioOptions, staged) -> int:
     print()
     if options.applied:
         print("parameters set (they override the scenario's values):")
-        print(applied_text(options.applied) + "\n")
-    print(result["table"])
+        print(fit_lines(applied_text(options.applied)) + "\n")
+    print(fit_lines(result["table"]))
     counts = {
         t: n
         for t, n in (rec.get("counts") or {}).items()
         if not is_end_of_stream_topic(t) and t != RUN_INFO_TOPIC
     }
     print(
-        f"\nrecorded {result['mcap']}: " + ", ".join(f"{t} {n}" for t, n in sorted(counts.items()))
+        "\n"
+        + fit_lines(
+            f"recorded {result['mcap']}: "
+            + ", ".join(f"{t} {n}" for t, n in sorted(counts.items()))
+        )
     )
     gaps = {t: g for t, g in (rec.get("gaps") or {}).items() if g}
     print(
-        "frame-index gaps: " + (", ".join(f"{t} {g}" for t, g in gaps.items()) if gaps else "none")
+        fit_lines(
+            "frame-index gaps: "
+            + (", ".join(f"{t} {g}" for t, g in gaps.items()) if gaps else "none")
+        )
     )
     if result.get("figure"):
         print(f"figure: {result['figure']}")
@@ -522,7 +531,7 @@ def analyse_main(args) -> int:
     args.result = {"figures": result.figures, "result": result}
     print(f"scenario {args.name}: analysis of {args.analyse}\n")
     if result.table:
-        print(result.table)
+        print(fit_lines(result.table))
     for path in result.plots:
         print(f"figure: {path}")
     for what in result.oracle_only:

@@ -52,10 +52,11 @@ class Throughput:
                 return
 
     def summary(self) -> str | None:
-        """One line: a single device's real-time factor, or several devices' samples
-        emulated per wall second against the sum of their sample rates; None if no graph
-        ran. Several graphs one after the other add up (samples, wall time, and the sum
-        of the rates weighted by each graph's wall time)."""
+        """A single device's real-time factor (one line), or several devices' samples
+        emulated per wall second against the sum of their sample rates (two lines, each
+        naming the wall time, under 120 columns); None if no graph ran. Several graphs one
+        after the other add up (samples, wall time, and the sum of the rates weighted by each
+        graph's wall time)."""
         runs = [r for r in self.runs if r["t_last"] is not None and r["t_last"] > r["t_first"]]
         if not runs:
             return None
@@ -70,7 +71,7 @@ class Throughput:
             )
         return (
             f"graph from its first frame to its last ({devices} devices): "
-            f"{samples / wall:.4g} samples emulated per wall second against {rate:.4g} "
+            f"{samples / wall:.4g} samples emulated per wall second\n  against {rate:.4g} "
             f"samples/s summed over their sample rates = {samples / wall / rate:.3g} x, "
             f"{wall:.2f} s wall"
         )

@@ -27,6 +27,7 @@ from reference_rule import figures_difference
 
 from mems_scenarios import SCENARIOS
 from mems_scenarios.figures import figures_of
+from mems_sim.table import MAX_WIDTH
 
 HERE = Path(__file__).resolve().parent
 REFERENCE = HERE / "reference"
@@ -73,8 +74,27 @@ def test_comparable_drops_host_lines():
 
 
 def recorded_lines(lines: list[str]) -> list[str]:
-    """The ``recorded ...`` lines (message counts per topic) of comparable table lines."""
-    return [line for line in lines if line.startswith("recorded ")]
+    """The ``recorded ...`` lines (message counts per topic) of comparable table lines, each
+    joined with its continuation lines (a summary wraps at 120 columns; topic names and
+    counts hold no colon, the next line, ``frame-index gaps: ...``, does)."""
+    out: list[str] = []
+    joining = False
+    for line in lines:
+        if line.startswith("recorded "):
+            out.append(line)
+            joining = True
+        elif joining and ":" not in line:
+            out[-1] += " " + line
+        else:
+            joining = False
+    return out
+
+
+def test_recorded_lines_join_wrapped_lines():
+    one = ["x", "recorded <out>/x-1.mcap: /a 1, /b 2, /c 3", "frame-index gaps: none"]
+    wrapped = ["x", "recorded <out>/x-1.mcap: /a 1,", "/b", "2, /c 3", "frame-index gaps: none"]
+    assert recorded_lines(one) == recorded_lines(wrapped) == [one[1]]
+    assert recorded_lines(wrapped[:3]) != recorded_lines(one)
 
 
 @pytest.mark.slow
@@ -88,6 +108,8 @@ def test_scenario_table_matches_reference(name, tmp_path, domain_id):
     document = json.loads(run.stdout)
     assert document["schema_version"] == 1 and document["scenario"] == name
     figures = figures_of(document)
+    summary = [line for line in run.stderr.splitlines() if not VOLATILE[0].search(line)]
+    assert max(map(len, summary)) <= MAX_WIDTH, max(summary, key=len)  # a terminal's width
     text = comparable(run.stderr)
     if os.environ.get("MEMS_UPDATE_REFERENCE") == "1":
         ref_json.write_text(json.dumps(figures, indent=1) + "\n")
