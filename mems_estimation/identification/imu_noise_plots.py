@@ -9,6 +9,18 @@ import numpy as np
 
 from mems_estimation.identification.imu_noise_fit import avar_gm
 from mems_sim.bag.output_paths import write_output
+from mems_sim.table import significant
+
+
+def term_labels(n: float, k: float, b: float, t: float) -> tuple[str, str, str]:
+    """Legend labels of the white-noise, random-walk and Gauss-Markov terms, every value
+    with its three significant digits (:func:`mems_sim.table.significant`): N [unit/sqrt(Hz)],
+    K [unit*sqrt(Hz)], B [unit], T [s]."""
+    return (
+        f"N/√τ, N={significant(n)}",
+        f"K√(τ/3), K={significant(k)}",
+        f"Gauss-Markov B={significant(b)}, T={significant(t)} s",
+    )
 
 
 def plot_allan(model, path: Path, overwrite: bool = True) -> None:
@@ -42,17 +54,10 @@ def plot_allan(model, path: Path, overwrite: bool = True) -> None:
                 tau, np.sqrt(total), "-", color=line.get_color(), lw=1, label=f"{axis.axis} fit"
             )
             if k == 0:
-                panel.loglog(tau, n / np.sqrt(tau), "k--", lw=0.8, label=f"N/√τ, N={n:.3g}")
-                panel.loglog(
-                    tau, kk * np.sqrt(tau / 3), "k-.", lw=0.8, label=f"K√(τ/3), K={kk:.3g}"
-                )
-                panel.loglog(
-                    tau,
-                    np.sqrt(np.maximum(gm, 1e-300)),
-                    "k:",
-                    lw=1,
-                    label=f"Gauss-Markov B={b:.3g}, T={t:.0f} s",
-                )
+                white, walk, markov = term_labels(n, kk, b, t)
+                panel.loglog(tau, n / np.sqrt(tau), "k--", lw=0.8, label=white)
+                panel.loglog(tau, kk * np.sqrt(tau / 3), "k-.", lw=0.8, label=walk)
+                panel.loglog(tau, np.sqrt(np.maximum(gm, 1e-300)), "k:", lw=1, label=markov)
         panel.set_xscale("log")
         panel.set_yscale("log")
         lo = min(np.min(np.asarray(a.adev)) for a in axes)
