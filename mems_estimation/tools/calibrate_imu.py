@@ -27,7 +27,9 @@ or ``data`` (estimated inside the segments: the bias intervals are then too narr
 prints the result as JSON on stdout (the table then goes to stderr). ``--out`` is checked
 before the calibration: a symbolic link (never followed), a directory, a missing directory
 or an existing file without ``--overwrite`` is refused; the file is written whole or not at
-all. Exit status 0, or 2 with one line for input it cannot use or an output it cannot write.
+all. Exit status 0, or 2 with one line for input it cannot use (e.g. a recording whose
+segment means do not follow the profile: a static bag given a multi-position profile) or an
+output it cannot write.
 """
 
 from __future__ import annotations
