@@ -420,3 +420,9 @@ class DuplicateFilter:
         if len(self._order) > self.window:
             self._keys.discard(self._order.popleft())
         return False
+
+
+def describe_missing_head(samples: int) -> str:
+    """The loss phrase of a missing head of ``samples`` sample indices (recorder summary,
+    ``mcap_info``)."""
+    return f"missing head ({samples} samples before the first frame)"

@@ -69,7 +69,12 @@ from mems_sim.ros.end_of_stream import (
     missing_tail,
     parse_end_of_stream,
 )
-from mems_sim.stream_index import DuplicateFilter, SequenceIndex, StreamIndex
+from mems_sim.stream_index import (
+    DuplicateFilter,
+    SequenceIndex,
+    StreamIndex,
+    describe_missing_head,
+)
 
 
 def _scan(files: list[str]) -> dict:
@@ -261,6 +266,8 @@ def losses(info: dict) -> list[str]:
     out = []
     for topic, t in sorted(info["topics"].items()):
         parts = []
+        if t.get("missing_head"):
+            parts.append(describe_missing_head(t["missing_head"]))
         if t.get("gaps"):
             parts.append(f"{t['gaps']} frame-index gaps ({t['missing_samples']} samples)")
         if t.get("sequence_gaps"):
@@ -354,6 +361,7 @@ def bag_info(path: str) -> dict:
                 frames=counter.frames,
                 gaps=counter.gaps,
                 missing_samples=counter.missing_samples,
+                missing_head=counter.missing_head,
                 resets=counter.resets,
             )
         topics[topic] = entry
@@ -431,6 +439,8 @@ def format_info(info: dict) -> str:
                 f", {t['total_samples']} samples @ {rate}, {t['gaps']} gaps"
                 f" ({t['missing_samples']} samples missing)"
             )
+            if t.get("missing_head"):
+                line += ", " + describe_missing_head(t["missing_head"])
         if t.get("duplicates"):
             line += f", {t['duplicates']} duplicates (stored twice, counted once)"
         if t.get("sequence_gaps"):

@@ -86,7 +86,7 @@ from mems_sim.ros.end_of_stream import (
 from mems_sim.ros.flow import ProgressReporter
 from mems_sim.ros.qos import FRAME_DEPTH
 from mems_sim.ros.qos_yaml import profiles_yaml
-from mems_sim.stream_index import DEVICE_GAP, PublicationStall
+from mems_sim.stream_index import DEVICE_GAP, PublicationStall, describe_missing_head
 
 _BEST_EFFORT = ReliabilityPolicy.BEST_EFFORT
 
@@ -468,13 +468,17 @@ class RecorderNode(Node):
         return out
 
     def losses(self) -> list[str]:
-        """One phrase per recorded topic that lost data: frame-index gaps, gaps of a
-        publisher's sequence numbers (topics that are not frames), a missing tail."""
+        """One phrase per recorded topic that lost data: a missing head (a frame topic whose
+        first recorded frame is after sample 0: the recorder joined late), frame-index gaps,
+        gaps of a publisher's sequence numbers (topics that are not frames), a missing
+        tail."""
         out = []
         details, seqs, tails = self.gap_details(), self.sequence_details(), self.tails()
         for topic in sorted(set(details) | set(seqs) | set(tails)):
             parts = []
             d = details.get(topic)
+            if d and d["missing_head"]:
+                parts.append(describe_missing_head(d["missing_head"]))
             if d and d["gaps"]:
                 parts.append(f"{d['gaps']} frame-index gaps ({d['missing_samples']} samples)")
             s = seqs.get(topic)

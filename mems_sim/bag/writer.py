@@ -665,11 +665,14 @@ class McapBagWriter:
             return {t: c.gaps for t, c in self._gap_counters.items()}
 
     def gap_details(self) -> dict[str, dict[str, int]]:
-        """Per frame topic: gaps, missing_samples, resets, frames, samples."""
+        """Per frame topic: gaps, missing_samples, resets, frames, samples, missing_head
+        (sample indices before the first frame written: a recording that started after its
+        stream, whose sample 0 it did not get)."""
         with self._lock:
             return {
                 t: {
                     "gaps": c.gaps,
+                    "missing_head": c.missing_head,
                     "missing_samples": c.missing_samples,
                     "resets": c.resets,
                     "frames": c.frames,

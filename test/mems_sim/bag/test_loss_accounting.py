@@ -120,3 +120,27 @@ def test_end_of_stream_record_reveals_a_missing_tail(tmp_path, capsys):
     out = capsys.readouterr()
     assert "missing tail of 3 of 10 messages (30 samples from sample 70)" in out.out
     assert out.err.count("lost data:") == 2
+
+
+def test_a_frame_topic_recorded_from_after_sample_0_has_a_missing_head(tmp_path, capsys):
+    """A recording whose first frame is sample 40,000 (the recorder joined late) lost the
+    head: the writer counts it, mcap_info prints it and lists it as loss."""
+    path = tmp_path / "head.mcap"
+    w = _writer(
+        path, ("/d/adc", "mems_msgs/msg/SignalFrame"), ("/d/truth", "mems_msgs/msg/SignalFrame")
+    )
+    for first in (40_000, 40_010):
+        w.write("/d/adc", _frame(first), first, first)
+    for first in (0, 10):
+        w.write("/d/truth", _frame(first), first, first)
+    w.close()
+    details = w.gap_details()
+    assert details["/d/adc"]["missing_head"] == 40_000 and details["/d/adc"]["gaps"] == 0
+    assert details["/d/truth"]["missing_head"] == 0
+    info = info_mod.bag_info(str(path))
+    assert info["topics"]["/d/adc"]["missing_head"] == 40_000
+    phrase = "missing head (40000 samples before the first frame)"
+    assert info_mod.losses(info) == [f"/d/adc: {phrase}"]
+    assert phrase in info_mod.format_info(info)
+    assert info_mod.main([str(path)]) == 0
+    assert f"lost data: /d/adc: {phrase}" in capsys.readouterr().err
