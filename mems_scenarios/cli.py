@@ -379,7 +379,7 @@ def _run(args, module, options: ScenarioOptions, staged) -> int:
     print()
     if options.applied:
         print("parameters set (they override the scenario's values):")
-        print(fit_lines(applied_text(options.applied)) + "\n")
+        print(applied_text(options.applied) + "\n")  # the user's own values, as given
     print(fit_lines(result["table"]))
     counts = {
         t: n
