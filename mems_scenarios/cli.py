@@ -32,7 +32,7 @@ from mems_sim.params import ParameterError
 from mems_sim.ros.end_of_stream import is_end_of_stream_topic
 from mems_sim.ros.env import MAX_DOMAIN_ID, apply_defaults, domain_id_problem
 from mems_sim.ros.params_file import Override, ParamsFileError, load_params_file, parse_set
-from mems_sim.ros.stop import StopRequest
+from mems_sim.ros.stop import StopRequest, StopSignal
 from mems_sim.table import fit_lines
 
 
@@ -346,8 +346,16 @@ def _run(args, module, options: ScenarioOptions, staged) -> int:
     try:
         # SIGTERM and SIGHUP (a closed terminal) stop the run as SIGINT does: the graph
         # unwinds and the recording is finalised
-        with StopRequest(raising=True):
-            result = args.result = module.run(options)
+        with StopRequest(raising=True) as stop:
+            try:
+                result = args.result = module.run(options)
+            except RuntimeError:
+                # a stop signal raised while rclpy's C++ code called back into Python (a
+                # take converting its message) surfaces as pybind's "Unable to convert call
+                # argument"; the graph unwound all the same: it is the stop request
+                if not stop:
+                    raise
+                raise StopSignal(stop.signals[0]) from None
     except (ScenarioError, ParameterError) as exc:
         return _failed_run(staged, _fail(str(exc)))
     except OSError as exc:  # e.g. the output directory cannot be created, the disk is full

@@ -47,3 +47,33 @@ def test_a_stop_signal_finalises_the_recording(name, tmp_path, subprocess_env):
     with AnyReader([out]) as reader:
         adc = [c for c in reader.connections if c.topic == "/imu/adc"]
         assert adc and reader.message_count > 0
+
+
+def test_a_stop_signal_that_rclpy_turned_into_a_runtime_error_is_the_stop(capsys):
+    """A stop signal raised while rclpy's C++ take called back into Python surfaces as
+    pybind's RuntimeError ("Unable to convert call argument"): it is the stop request, exit
+    128 + N and one line, no traceback (it gave a traceback and exit 1, seen under load)."""
+    import os
+    import types
+
+    from mems_scenarios import cli
+
+    def run(options):
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)  # the handler raises StopSignal here ...
+            time.sleep(1.0)
+        except KeyboardInterrupt:
+            pass  # ... which the C++ layer swallows,
+        raise RuntimeError("Unable to convert call argument '0' to Python object")
+
+    args = types.SimpleNamespace(result=None)
+    assert cli._run(args, types.SimpleNamespace(run=run), None, None) == 128 + signal.SIGTERM
+    err = capsys.readouterr().err
+    assert err.startswith("run_scenario: error: interrupted by SIGTERM") and "Traceback" not in err
+    # a RuntimeError without a stop request stays an error
+    with pytest.raises(RuntimeError, match="not a stop"):
+        cli._run(args, types.SimpleNamespace(run=_raise_runtime_error), None, None)
+
+
+def _raise_runtime_error(options):
+    raise RuntimeError("not a stop")
