@@ -686,6 +686,8 @@ launch:
     - {name: realtime_factor, value: $(var rate)}
     - {name: frame_size, value: 100}
     - {name: seed, value: 1}
+    - {name: start_when_matched, value: true}
+    - {name: wait_for_subscribers, value: "adc:2"}
 - include:
     file: INNER
     arg:
@@ -706,6 +708,8 @@ launch:
     param:
     - {name: realtime_factor, value: $(var rate)}
     - {name: seed, value: 2}
+    - {name: start_when_matched, value: true}
+    - {name: wait_for_subscribers, value: "adc:2"}
     - from: PARAMS
     remap:
     - {from: truth, to: $(var truth_topic)}
