@@ -78,6 +78,15 @@ INPUT_SPECS: tuple[ParamSpec, ...] = (
         max=2**31 - 1,
     ),
     ParamSpec(
+        "exit_when_input_ended",
+        False,
+        "-",
+        "once the primary input's device announced its end (end-of-stream record) and "
+        "every sample up to it is done, the node publishes its final results and its "
+        "process exits with status 0 (run_graph then ends); false: runs until shut down",
+        "",
+    ),
+    ParamSpec(
         "max_gap_samples",
         2**32,
         "samples",
@@ -290,12 +299,17 @@ class EstimatorNode(MemsNode):
         #: End sample index of the input announced by the device, until reached.
         self.announced_end: int | None = None
         self._end_topic: str | None = None
+        #: True once the announced end of the input was reached (:meth:`input_ended`).
+        self.input_done = False
 
-    def follow_end_of_stream(self, name: str = "adc") -> None:
+    def follow_end_of_stream(self, name: str = "adc", topic: str | None = None) -> None:
         """Subscribe to the device's end-of-stream record (latched): once the node has
         finished with its primary input up to the end sample index announced for the
-        device's topic ``name``, :meth:`input_ended` is called (once per announcement)."""
-        self._end_topic = self.resolve_topic_name(self.device_topic(name))
+        device's topic ``name`` (or ``topic``, its own input topic), :meth:`input_ended` is
+        called (once per announcement). Once only: a second call changes nothing."""
+        if self._end_topic is not None:
+            return
+        self._end_topic = self.resolve_topic_name(topic or self.device_topic(name))
         self.create_subscription(
             DiagnosticArray,
             self.device_topic(END_OF_STREAM),
@@ -315,6 +329,18 @@ class EstimatorNode(MemsNode):
         if end is not None and self.progress is not None and self.progress >= end:
             self.announced_end = None
             self.input_ended()
+            self.input_done = True
+
+    def _end_with_input(self, topic: str) -> None:
+        """``exit_when_input_ended``: follow the end of the primary input ``topic``."""
+        if self.p.get("exit_when_input_ended"):
+            self.follow_end_of_stream(topic=topic)
+
+    def run_ended(self) -> bool:
+        """True once the node's process may exit (``exit_when_input_ended`` and the
+        announced end of the input reached); the process's main
+        (:func:`~mems_sim.ros.node_main.run_nodes`) then closes the node (final results)."""
+        return bool(self.p.get("exit_when_input_ended")) and self.input_done
 
     def input_ended(self) -> None:
         """The input announced as ended is all done (:meth:`follow_end_of_stream`);
@@ -511,6 +537,7 @@ class EstimatorNode(MemsNode):
         self.primary = "input"
         callback = partial(self._on_single, decode, check_rate)
         topic = self.device_topic(name) if topic is None else topic
+        self._end_with_input(topic)
         return self.create_subscription(msg_type, topic, callback, FRAME_QOS)
 
     def _on_single(self, decode, check_rate: bool, msg) -> None:
@@ -541,6 +568,7 @@ class EstimatorNode(MemsNode):
             (first[0], second[0]), self._limit("max_unpaired_samples"), FRAME_DEPTH
         )
         self.primary = first[0]
+        self._end_with_input(self.device_topic(first[0]))
         for name, msg_type, decode in (first, second):
             callback = partial(self._on_frame, name, decode, check_rate)
             self.create_subscription(msg_type, self.device_topic(name), callback, FRAME_QOS)

@@ -34,7 +34,7 @@ from mems_sim.ros.end_of_stream import (
 from mems_sim.ros.frames import make_signal_frame
 from mems_sim.ros.pacing import PacedEmulator
 from mems_sim.ros.params import declare_specs
-from mems_sim.ros.qos import FRAME_QOS
+from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS
 
 #: Parameters every emulator node has, besides its device table.
 EMULATOR_SPECS: tuple[ParamSpec, ...] = (
@@ -129,14 +129,30 @@ EMULATOR_SPECS: tuple[ParamSpec, ...] = (
     ),
     ParamSpec(
         "exit_when_acknowledged",
-        False,
+        True,
         "-",
         "once the duration (or the device's schedule) is published and every subscriber "
         "acknowledged its samples, the process exits with status 0 (1 if they are not "
-        "acknowledged within 30 s); needs an end (duration_s > 0 or a schedule)",
+        "acknowledged within 30 s); a node without an end (duration_s 0, no schedule) runs "
+        "until shut down (given explicitly as true, it is refused); false: idles until "
+        "shut down",
         "",
     ),
+    ParamSpec(
+        "consumers",
+        "",
+        "-",
+        "flow control: nodes 'NODE,NODE' (a relative name is in the node's namespace) "
+        "whose ~/progress gates publishing: a frame goes out only within "
+        "CONSUMER_CREDIT_FRAMES frames of the slowest one's progress (the pacing then "
+        "falls behind instead of losing samples)",
+        "the progress protocol of mems_sim.ros.flow",
+    ),
 )
+
+#: Frames an emulator with ``consumers`` may publish beyond the slowest consumer's
+#: progress: half the subscription's queue (FRAME_QOS depth), so none is overwritten.
+CONSUMER_CREDIT_FRAMES = FRAME_DEPTH // 2
 
 
 #: Reference temperature [degC] of a device table whose source gives none (assumption:
@@ -337,7 +353,9 @@ class EmulatorNode(PacedEmulator, MemsNode):
         )
         self.end_of_stream_sent = False
         self.wait_for = self._subscriber_needs()
-        if self.p["exit_when_acknowledged"] and self.total_samples is None:
+        self.consumer_progress = self._consumer_subscribers()
+        explicit = "exit_when_acknowledged" in self._parameter_overrides
+        if explicit and self.p["exit_when_acknowledged"] and self.total_samples is None:
             raise ParameterError(
                 "parameter 'exit_when_acknowledged' = True needs an end: set duration_s > 0 "
                 "(the node has no schedule of its own)"
@@ -366,6 +384,22 @@ class EmulatorNode(PacedEmulator, MemsNode):
                 )
             need[self.resolve_topic_name(topic)] = int(count)
         return {t: n for t, n in need.items() if n > 0}
+
+    def _consumer_subscribers(self) -> list:
+        """One :class:`~mems_sim.ros.flow.ProgressSubscriber` per node of ``consumers``."""
+        from mems_sim.ros.flow import ProgressSubscriber
+
+        names = [x.strip() for x in self.p["consumers"].split(",") if x.strip()]
+        return [ProgressSubscriber(self, self.resolve_topic_name(n)) for n in names]
+
+    def flow_allows(self, first: int, n: int) -> bool:
+        """True if the frame ``[first, first + n)`` is within the credit of every consumer
+        of ``consumers`` (:func:`~mems_sim.ros.flow.may_send`; before a consumer's first
+        report the credit counts from sample 0)."""
+        from mems_sim.ros.flow import may_send
+
+        credit = CONSUMER_CREDIT_FRAMES * int(self.p["frame_size"])
+        return all(may_send(first, n, c.value, credit, start=0) for c in self.consumer_progress)
 
     def missing_subscribers(self) -> dict[str, tuple[int, int]]:
         """Topics short of the subscriptions ``start_when_matched`` waits for: topic ->

@@ -35,7 +35,9 @@ class PacedEmulator:
       clock source need not agree. Nothing is published before the first /clock message;
       a /clock that goes backwards (a replay that loops) restarts the pacing from there.
 
-    Each tick does at most :data:`TICK_BUDGET_S` of work and continues at the next tick.
+    Each tick does at most :data:`TICK_BUDGET_S` of work and continues at the next tick, and
+    publishes no frame that :meth:`flow_allows` holds back (the node's consumers are behind:
+    the pacing falls behind and catches up once they report progress).
 
     /clock (``publish_clock`` > 0): the node is the graph's clock source and publishes its
     sensor time (:meth:`sensor_time_ns`) on /clock that many times per wall-clock second while
@@ -223,9 +225,15 @@ class PacedEmulator:
                     not self.finished
                     and self.next_index + self.p["frame_size"] <= due
                     and time.monotonic() < budget
+                    and self.flow_allows(self.next_index, self.next_frame_size())
                 ):
                     self.step()
         self.publish_clock_if_due()
+
+    def flow_allows(self, first: int, n: int) -> bool:
+        """True if the frame of samples ``[first, first + n)`` may be published now (flow
+        control by the node's consumers; here: always)."""
+        return True
 
     def publish_clock_if_due(self) -> None:
         """Publish the sensor time on /clock when ``publish_clock`` says so (wall-clock

@@ -24,10 +24,10 @@ PARAMS = dict(
 FRAMES = 20
 
 
-def _device(env: dict, **params) -> subprocess.Popen:
+def _device(env: dict, node: str = "accelerometer_node", **params) -> subprocess.Popen:
     args = [a for k, v in params.items() for a in ("-p", f"{k}:={str(v).lower()}")]
     return subprocess.Popen(
-        [sys.executable, "-m", "mems_sim.nodes.accelerometer_node", "--ros-args", *args],
+        [sys.executable, "-m", f"mems_sim.nodes.{node}", "--ros-args", *args],
         env=env,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
@@ -81,3 +81,66 @@ def test_wait_for_subscribers_is_checked(subprocess_env):
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 2
     assert "wait_for_subscribers" in err
+
+
+def test_a_node_with_a_duration_exits_on_its_own(subprocess_env):
+    """``accelerometer_node -p duration_s:=...`` publishes its duration and exits with
+    status 0 (nobody subscribed: nothing to wait for); it idled until SIGINT before."""
+    proc = _device(subprocess_env, seed=7, duration_s=0.01, realtime_factor=0.05)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err[-2000:]
+
+
+def test_exit_when_acknowledged_false_keeps_the_node_until_shut_down(subprocess_env):
+    proc = _device(
+        subprocess_env, duration_s=0.01, realtime_factor=0.05, exit_when_acknowledged=False
+    )
+    try:
+        time.sleep(6.0)
+        assert proc.poll() is None, "the node exited although exit_when_acknowledged is false"
+        proc.send_signal(2)
+        _, err = proc.communicate(timeout=30)
+        assert proc.returncode == 0, err[-2000:]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_consumers_progress_gates_the_frames(graph, subprocess_env):
+    """With ``consumers``, the node publishes at most CONSUMER_CREDIT_FRAMES frames beyond
+    the consumer's progress (from sample 0 before its first report), however fast it is
+    paced; a progress report lets exactly that many more out."""
+    from std_msgs.msg import UInt64
+
+    from mems_msgs.msg import AdcFrame
+    from mems_sim.ros.node_base import CONSUMER_CREDIT_FRAMES
+    from mems_sim.ros.qos import FRAME_QOS, PROGRESS_QOS
+
+    _, ex, probe = graph
+    got: list = []
+    probe.create_subscription(AdcFrame, "/imu/adc", got.append, FRAME_QOS)
+    progress = probe.create_publisher(UInt64, "/imu/fake_consumer/progress", PROGRESS_QOS)
+    proc = _device(
+        subprocess_env,
+        "imu_node",
+        frame_size=1,
+        realtime_factor=1000.0,
+        duration_s=100.0,
+        consumers="fake_consumer",
+        start_when_matched=True,
+        wait_for_subscribers="adc:1",
+        min_subscribers=0,
+    )
+    try:
+        credit = CONSUMER_CREDIT_FRAMES
+        assert spin_until(ex, lambda: len(got) >= credit, timeout=60.0), len(got)
+        spin_until(ex, lambda: False, timeout=2.0)  # 2 s at 1000x: 200,000 samples due
+        assert len(got) == credit
+        progress.publish(UInt64(data=100))
+        assert spin_until(ex, lambda: len(got) >= credit + 100, timeout=30.0), len(got)
+        spin_until(ex, lambda: False, timeout=1.0)
+        assert [m.first_sample_index for m in got] == list(range(credit + 100))
+    finally:
+        proc.kill()
+        proc.wait()
