@@ -409,7 +409,7 @@ def _run(args, module, options: ScenarioOptions, staged) -> int:
         )
     )
     if result.get("figure"):
-        print(f"figure: {result['figure']}")
+        print(fit_lines(f"figure: {result['figure']}"))
     if rec.get("losses"):  # a loss the run did not stop for (e.g. of an estimator's topic)
         print(
             "run_scenario: error: lost data, the recording is incomplete: "
@@ -541,7 +541,7 @@ def analyse_main(args) -> int:
     if result.table:
         print(fit_lines(result.table))
     for path in result.plots:
-        print(f"figure: {path}")
+        print(fit_lines(f"figure: {path}"))
     for what in result.oracle_only:
         print(f"oracle only (needs the simulation): {what}")
     for what, why in result.unavailable:
