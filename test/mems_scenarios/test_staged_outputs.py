@@ -48,9 +48,10 @@ def _argv(*extra):
     return ["imu_noise", "--duration", "120", "--seed", "2", "--no-progress", *extra]
 
 
-def test_failed_run_leaves_previous_runs_output(tmp_path, monkeypatch, capsys):
+def test_failed_run_leaves_previous_runs_output(tmp_path, monkeypatch, capsys, domain_id):
     monkeypatch.chdir(tmp_path)
-    monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)  # a free domain leased per run
+    # the test's own domain: a leased free one may be another xdist worker's next domain
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain_id))
     mcap, figure = Path("runs/imu_noise-2.mcap"), Path("runs/imu_noise-seed2-allan.png")
     assert run_scenario(_argv()) == 0
     first = mcap.read_bytes(), figure.read_bytes()
