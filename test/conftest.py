@@ -28,7 +28,22 @@ def next_domain_id() -> int:
     acceptance`` (64, even) 101..200, so the two can run side by side."""
     span = 100 - 100 % _WORKERS
     tier = 100 * (_BASE % 2 == 0)
-    return 1 + tier + (_BASE * 7 * _WORKERS + _WORKER + _WORKERS * next(_domains)) % span
+    for _ in range(span // _WORKERS):  # skip a domain a scenario graph still leases
+        domain = 1 + tier + (_BASE * 7 * _WORKERS + _WORKER + _WORKERS * next(_domains)) % span
+        if _not_leased(domain):
+            break
+    return domain
+
+
+def _not_leased(domain: int) -> bool:
+    """True unless a scenario graph (of this process or another) holds ``domain``'s lease."""
+    from mems_scenarios.domain import DomainLease
+
+    lease = DomainLease.try_acquire(domain)
+    if lease is None:
+        return False
+    lease.release()
+    return True
 
 
 @pytest.fixture
