@@ -13,8 +13,10 @@ import os
 import sys
 import time
 import warnings
+import weakref
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -198,6 +200,7 @@ class Graph:
         self.recorders: list = []
         self._cut = dict(cut or {})
         self._alone_checked = False
+        _OPEN.add(self)
         self.context = Context()
         try:
             rclpy.init(
@@ -480,7 +483,8 @@ class Graph:
         self._alone_checked = True
 
     def close(self) -> None:
-        """Destroy nodes, shut the context down and end the domain lease."""
+        """Destroy nodes, shut the context down and end the domain lease (idempotent)."""
+        _OPEN.discard(self)
         try:
             for node in self.nodes:
                 try:
@@ -495,6 +499,23 @@ class Graph:
             if getattr(self, "live_view", None) is not None:  # graph_for's, if any
                 self.live_view.stop()
             self.lease.release()
+
+
+#: The Graphs made and not yet closed in this process.
+_OPEN: weakref.WeakSet[Graph] = weakref.WeakSet()
+
+
+@contextmanager
+def graphs_closed() -> Iterator[None]:
+    """Close, at the end of the block, every Graph made in it and still open: a scenario
+    that failed while building its graph (a refused parameter, a device that cannot be
+    drawn) leaves no node, context or domain lease behind in a process that goes on."""
+    before = set(_OPEN)
+    try:
+        yield
+    finally:
+        for graph in [g for g in _OPEN if g not in before]:
+            graph.close()
 
 
 def output_path(out: Path | str, seed: int, suffix: str) -> Path:

@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 
 from mems_scenarios import SCENARIOS, load
-from mems_scenarios.base import ScenarioError, ScenarioOptions
+from mems_scenarios.base import ScenarioError, ScenarioOptions, graphs_closed
 from mems_scenarios.contract import RUN_INFO_TOPIC, AnalysisError
 from mems_scenarios.delivery import THROUGHPUT
 from mems_sim.cli_values import quiet_on_broken_pipe
@@ -346,7 +346,7 @@ def _run(args, module, options: ScenarioOptions, staged) -> int:
     try:
         # SIGTERM and SIGHUP (a closed terminal) stop the run as SIGINT does: the graph
         # unwinds and the recording is finalised
-        with StopRequest(raising=True) as stop:
+        with StopRequest(raising=True) as stop, graphs_closed():
             try:
                 result = args.result = module.run(options)
             except RuntimeError:

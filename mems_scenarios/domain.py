@@ -33,6 +33,15 @@ from pathlib import Path
 DEFAULT_DOMAINS: tuple[int, ...] = tuple(d for d in range(1, 102) if not 61 <= d <= 65) + (0,)
 
 
+#: Domains whose lease this process holds (a lock taken and not yet released).
+_HELD: set[int] = set()
+
+
+def held_domains() -> frozenset[int]:
+    """The domains this process holds a lease on (pending ones included)."""
+    return frozenset(_HELD)
+
+
 class DomainBusy(RuntimeError):
     """The domain is leased by another graph (the message is one line)."""
 
@@ -94,6 +103,7 @@ class DomainLease:
             os.write(fd, (_holder_text() + "\n").encode())
         except OSError:
             pass
+        _HELD.add(int(domain_id))
         return cls(domain_id, fd, path)
 
     @property
@@ -109,6 +119,7 @@ class DomainLease:
             finally:
                 os.close(self._fd)
                 self._fd = None
+                _HELD.discard(int(self.domain_id))
 
 
 def holder(domain_id: int) -> str:

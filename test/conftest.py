@@ -46,6 +46,18 @@ def _not_leased(domain: int) -> bool:
     return True
 
 
+@pytest.fixture(autouse=True)
+def _no_domain_lease_left():
+    """Every test ends the ROS domain leases it took: a lease left held (a graph not closed
+    on a failure path) makes a later test on that domain refused as "in use"."""
+    from mems_scenarios.domain import held_domains
+
+    before = held_domains()
+    yield
+    left = sorted(held_domains() - before)
+    assert not left, f"the test left the lease of ROS domain(s) {left} held"
+
+
 @pytest.fixture
 def domain_id():
     """A ROS domain id of this test's own."""

@@ -52,7 +52,7 @@ ALLOWED = {
 #: the graph-only entry with the graph's documented layout (benchmarks run the graph alone).
 #: The library of mems_scenarios, public to tests and benchmarks: the skeleton, its delivery
 #: and frame reading, the contract, figure records, command lines, campaigns, the node
-#: container and run_graph's launch reader (tools, not scenarios).
+#: container, run_graph's launch reader and the domain leases (tools, not scenarios).
 SCENARIO_LIBRARY = {
     "base",
     "delivery",
@@ -65,6 +65,7 @@ SCENARIO_LIBRARY = {
     "run_graph",
     "launch_file",
     "staged_outputs",
+    "domain",
 }
 SCENARIO_PUBLIC = {
     "run",
