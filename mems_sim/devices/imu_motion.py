@@ -77,8 +77,9 @@ import numba
 import numpy as np
 
 from mems_sim import bounded_yaml
+from mems_sim.devices.imu_motion_specs import AXES, ENVIRONMENT_SPECS, VIBRATION_SPECS
 from mems_sim.devices.imu_profiles import ImuProfile, profile_truth
-from mems_sim.devices.imu_specs import AXES, G0
+from mems_sim.devices.imu_specs import G0, LATENCY_SPEC
 
 __all__ = [
     "EARTH_RATE",
@@ -424,7 +425,7 @@ class Vibration:
 
     @classmethod
     def from_values(cls, values: Mapping[str, Any], seed: int = 0) -> Vibration:
-        """From the parameters of :data:`~mems_sim.devices.imu_specs.VIBRATION_SPECS`."""
+        """From the parameters of :data:`~mems_sim.devices.imu_motion_specs.VIBRATION_SPECS`."""
         v = values
         return cls(
             kind=v["vibration"],
@@ -529,7 +530,6 @@ class ImuMotion:
         trajectory: Trajectory | None = None,
         temperature_c: float = 25.0,
     ) -> None:
-        from mems_sim.devices.imu_specs import ENVIRONMENT_SPECS, LATENCY_SPEC, VIBRATION_SPECS
         from mems_sim.params import resolve
 
         specs = ENVIRONMENT_SPECS + VIBRATION_SPECS + (LATENCY_SPEC,)
