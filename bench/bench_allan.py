@@ -28,12 +28,12 @@ sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..")
 import allantools
 
 from mems_estimation.identification.allan import (
-    StreamingAllan,
     _sum_sq_second_diff,
     oadev,
     rate_to_phase,
     tau_grid,
 )
+from mems_estimation.identification.allan_stream import StreamingAllan
 from mems_estimation.identification.imu_noise_fit import identify_stream
 from mems_sim.devices.imu import ImuNoiseModel
 

@@ -653,7 +653,7 @@ def allan_batch() -> list[np.ndarray]:
 def allan_streaming() -> list[np.ndarray]:
     """StreamingAllan.add in 100-sample frames (_stream_update) and sums() (_pending_sums),
     with the default exact range and with a small one (the thinned sums)."""
-    from mems_estimation.identification.allan import StreamingAllan
+    from mems_estimation.identification.allan_stream import StreamingAllan
 
     y = _allan_data()
     out = []

@@ -41,12 +41,11 @@ from scipy import optimize
 
 from mems_estimation.identification.allan import (
     AllanResult,
-    StreamingAllan,
     allan_analysis,
     chi2_interval,
     edf_from_slope,
-    stream_results,
 )
+from mems_estimation.identification.allan_stream import StreamingAllan, stream_results
 
 __all__ = [
     "NoiseModelFit",

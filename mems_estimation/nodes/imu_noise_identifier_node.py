@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mems_estimation.identification.allan import StreamingAllan
+from mems_estimation.identification.allan_stream import StreamingAllan
 from mems_estimation.identification.imu_noise_fit import identify_axes, identify_stream
 from mems_estimation.nodes.frame_input import EstimatorNode, input_specs
 from mems_estimation.nodes.imu_noise_messages import noise_model_msg
@@ -85,7 +85,7 @@ class NoiseAccumulator:
     """ROS-free accumulation of one stream of AdcFrames (validated, gap-aware).
 
     For the "octave" and "decade" grids the samples are not kept: a
-    :class:`~mems_estimation.identification.allan.StreamingAllan` keeps the overlapping
+    :class:`~mems_estimation.identification.allan_stream.StreamingAllan` keeps the overlapping
     Allan sums and the channel means online, so memory does not grow with the record
     (about 48 MB for six channels). The "all" grid (every m up to L/2, O(L^2) work) keeps
     the samples (``chunks``) and computes in one batch.

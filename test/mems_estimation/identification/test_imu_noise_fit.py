@@ -20,7 +20,8 @@ import pytest
 
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", "..")))
 
-from mems_estimation.identification.allan import StreamingAllan, allan_analysis
+from mems_estimation.identification.allan import allan_analysis
+from mems_estimation.identification.allan_stream import StreamingAllan
 from mems_estimation.identification.imu_noise_fit import (
     avar_gm,
     avar_model,
