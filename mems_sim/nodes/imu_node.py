@@ -41,7 +41,6 @@ ADC the motion of t - latency_s.
 from __future__ import annotations
 
 import numpy as np
-from rclpy.qos import QoSProfile
 from sensor_msgs.msg import Imu
 
 from mems_msgs.msg import CalibrationResult
@@ -51,7 +50,7 @@ from mems_sim.ros.frames import index_to_ns, make_adc_frame, ns_to_time
 from mems_sim.ros.imu_msg import ImuSerializer
 from mems_sim.ros.node_base import EMULATOR_SPECS, EmulatorNode, variation_specs
 from mems_sim.ros.node_main import run_node
-from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS, RESULT_QOS
+from mems_sim.ros.qos import RESULT_QOS, sample_stream_qos
 
 MOTION_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
@@ -165,14 +164,8 @@ class ImuNode(EmulatorNode):
             )
         self.pub_imu = None
         if self.p["publish_imu"]:
-            # one message per sample: the history holds a whole frame of them on top of the
-            # frames' depth, so a reader up to FRAME_DEPTH messages behind loses none
-            qos = QoSProfile(
-                reliability=FRAME_QOS.reliability,
-                durability=FRAME_QOS.durability,
-                history=FRAME_QOS.history,
-                depth=FRAME_DEPTH + int(self.p["frame_size"]),
-            )
+            # one message per sample: the history holds a frame and seconds of samples
+            qos = sample_stream_qos(fs, self.p["frame_size"])
             self.pub_imu = self.create_publisher(Imu, "data", qos)
             self._imu_cdr = ImuSerializer(self.p["frame_id"], self._gyro_cov, self._accel_cov)
         return fs
