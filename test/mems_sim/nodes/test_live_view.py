@@ -5,8 +5,10 @@ process of the run has a socket beyond loopback.
 The client side of the Foxglove WebSocket protocol (JSON ``serverInfo``/``advertise`` from
 the server, ``subscribe`` from the client, binary Message Data frames: opcode 1, u32
 subscription id, u64 log time, payload; all little-endian) is written here on the
-``websockets`` library. The SDK's server speaks the protocol under the subprotocol name
-``foxglove.sdk.v1`` and refuses the handshake of the older name ``foxglove.websocket.v1``.
+``websockets`` library from the specification (foxglove/ws-protocol, docs/spec.md), not from
+the server's code, and asks for the spec's subprotocol ``foxglove.websocket.v1``, which
+ws-protocol clients and older Foxglove and Lichtblick versions send; the live view's front end
+serves it beside the SDK's ``foxglove.sdk.v1`` (the handshake of both: test_foxglove_front).
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ import pytest
 from proc_sockets import non_loopback_sockets, process_tree
 
 BIN = Path(sys.executable).parent
-SUBPROTOCOL = "foxglove.sdk.v1"
+SUBPROTOCOL = "foxglove.websocket.v1"
 ESTIMATE = "/scanner/estimate"
 URL_LINE = re.compile(r"live view: ws://127\.0\.0\.1:(\d+)")
 MESSAGE_DATA = 1
