@@ -4,18 +4,24 @@ One layout per device, in the layout format the Foxglove app imports and exports
 (``configById`` with one entry per panel, ``layout`` a tree of splits naming them): a Plot of
 the estimate against the truth, a Plot of the raw ADC codes, and the diagnostics summary.
 Topics are those of the device's default namespace (its node executables and reference
-bags); a scenario that runs a device under another namespace needs the paths edited in the
-app. Plot paths take element 0..k of a frame: the first sample of each frame (the live view
-forwards at most ``max_rate_hz`` frames per second, so a plot shows the frames' first samples,
-not every sample).
+bags); for a device run under another namespace (a scenario's ``/stage_d1``, ``/acc_pi_1g``)
+``--namespace NS DEVICE`` prints the device's layout with its topics there. Plot paths take
+element 0..k of a frame: the first sample of each frame (the live view forwards at most
+``max_rate_hz`` frames per second, so a plot shows the frames' first samples, not every
+sample).
 
-Run with the venv's python after changing a device's topics; a test checks that the files
-are what this script writes.
+Run with the venv's python after changing a device's topics (a test checks that the files
+are what this script writes)::
+
+    .venv/bin/python tools/foxglove_layouts.py                               # config/foxglove/
+    .venv/bin/python tools/foxglove_layouts.py --namespace /stage_d1 stage > stage_d1.json
 """
 
 from __future__ import annotations
 
+import argparse
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -100,15 +106,25 @@ def plot(title: str, series: list[tuple[str, str]]) -> dict:
     }
 
 
-def layout(device: str) -> dict:
-    """The layout of one device."""
+def in_namespace(path: str, device: str, namespace: str | None) -> str:
+    """A message path of ``device``'s default namespace ``/<device>`` moved to ``namespace``
+    (None: kept)."""
+    if namespace is None:
+        return path
+    return "/" + namespace.strip("/") + path.removeprefix("/" + device)
+
+
+def layout(device: str, namespace: str | None = None) -> dict:
+    """The layout of one device, its topics in ``namespace`` (None: the default one)."""
     spec = DEVICES[device]
     title, series = spec["estimate"]
+    series = [(in_namespace(p, device, namespace), label) for p, label in series]
+    adc = [(in_namespace(p, device, namespace), label) for p, label in spec["adc"]]
     ids = {"estimate": "Plot!estimate", "adc": "Plot!adc", "diag": "DiagnosticSummary!diag"}
     return {
         "configById": {
             ids["estimate"]: plot(title, series),
-            ids["adc"]: plot("raw ADC codes", spec["adc"]),
+            ids["adc"]: plot("raw ADC codes", adc),
             ids["diag"]: {"topicToRender": "/diagnostics", "sortByLevel": True},
         },
         "globalVariables": {},
@@ -128,12 +144,26 @@ def layout(device: str) -> dict:
     }
 
 
-def render(device: str) -> str:
-    """The file text of one device's layout."""
-    return json.dumps(layout(device), indent=2) + "\n"
+def render(device: str, namespace: str | None = None) -> str:
+    """The file text of one device's layout (its topics in ``namespace``, None: default)."""
+    return json.dumps(layout(device, namespace), indent=2) + "\n"
 
 
-def main() -> int:
+_NAMESPACE = re.compile(r"/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*/?")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--namespace", help="print DEVICE's layout with its topics in NAMESPACE")
+    parser.add_argument("device", nargs="?", choices=sorted(DEVICES), help="with --namespace")
+    args = parser.parse_args(argv)
+    if (args.namespace is None) != (args.device is None):
+        parser.error("--namespace and DEVICE go together")
+    if args.namespace is not None:
+        if not _NAMESPACE.fullmatch(args.namespace):
+            parser.error(f"--namespace {args.namespace!r} is not a ROS namespace")
+        sys.stdout.write(render(args.device, args.namespace))
+        return 0
     OUT.mkdir(parents=True, exist_ok=True)
     for device in DEVICES:
         (OUT / f"{device}.json").write_text(render(device))

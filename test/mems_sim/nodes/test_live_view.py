@@ -234,3 +234,23 @@ def test_foxglove_layouts_are_generated_and_name_recorded_topics():
             for series in config.get("paths", []):
                 topic = series["value"].split(".", 1)[0]
                 assert topic in topics, f"{path.name}: {panel} plots {topic}, not in the bag"
+
+
+def test_a_layout_moved_to_a_scenario_namespace_names_its_recorded_topics():
+    """``tools/foxglove_layouts.py --namespace /stage_t1 stage``: every plotted topic is one
+    gyro_calibration records under that namespace; a bad namespace is refused (exit 2)."""
+    from mems_scenarios import gyro_calibration
+
+    repo = Path(__file__).resolve().parents[3]
+    tool = [sys.executable, str(repo / "tools" / "foxglove_layouts.py")]
+    for ns in gyro_calibration.INSTANCES:
+        run = subprocess.run(
+            [*tool, "--namespace", f"/{ns}", "stage"], capture_output=True, text=True
+        )
+        assert run.returncode == 0, run.stderr
+        layout = json.loads(run.stdout)
+        paths = [s["value"] for c in layout["configById"].values() for s in c.get("paths", [])]
+        recorded = {f"/{ns}/{t}" for t in gyro_calibration.RECORDED}
+        assert paths and all(p.split(".", 1)[0] in recorded for p in paths), paths
+    bad = subprocess.run([*tool, "--namespace", "a b", "stage"], capture_output=True, text=True)
+    assert bad.returncode == 2 and "not a ROS namespace" in bad.stderr
