@@ -139,8 +139,10 @@ class GraphSpec:
         """The graph for a runner of processes (``run_graph``): every emulator paces itself
         at ``realtime_factor``, starts once its consumers and the recorder are matched
         (``start_when_matched``, its :attr:`NodeEntry.consumers`) and exits once they
-        acknowledged its last sample (``exit_when_acknowledged``); ``record``: the path of
-        the run record (JSON), published by a ``scenario_run_record`` node."""
+        acknowledged its last sample (``exit_when_acknowledged``); every node that reads a
+        device's frames exits once its input ended and is done (``exit_when_input_ended``),
+        so that the graph ends by itself; ``record``: the path of the run record (JSON),
+        published by a ``scenario_run_record`` node."""
         from dataclasses import replace
 
         nodes = []
@@ -153,6 +155,8 @@ class GraphSpec:
                     wait_for_subscribers=n.consumers,
                 )
                 n = replace(n, parameters={**n.parameters, **lifecycle})
+            elif "exit_when_input_ended" in {s.name for s in node_class(n.executable).SPECS}:
+                n = replace(n, parameters={**n.parameters, "exit_when_input_ended": True})
             nodes.append(n)
         if record is not None:
             nodes.append(
