@@ -186,6 +186,8 @@ def analyse_stream(
     skip: int = 50_000,
     f0_error: float | None = None,
     seed: int | None = None,
+    f0: float = F0,
+    q: float = Q,
 ) -> SeedRun:
     """Run the exact-model steady-state observer on one recorded stream; its statistics.
 
@@ -197,14 +199,18 @@ def analyse_stream(
         skip: start-up samples excluded.  f0_error: if given, also run an observer with this
             relative f0 error.  seed: the device's run seed (one-bit streams: the comparator
             input is replayed from it, :func:`replay_comparator_input`).
+        f0, q: the observer model's resonance [Hz] and quality factor [-] (default: the
+            nominal Colinet Sec. 6 values; a scenario passes its identified model).
     """
     io = (bits, pulses, starts, widths)
+    f0_model, q_model = f0, q
 
-    def observer(f0: float) -> KalmanObserver:
-        """The steady-state observer of the model at resonance f0 [Hz], initial covariance 0."""
+    def observer(f0_hz: float) -> KalmanObserver:
+        """The steady-state observer of the model at resonance f0_hz [Hz], initial
+        covariance 0."""
         return KalmanObserver(
-            f0,
-            Q,
+            f0_hz,
+            q_model,
             FS,
             output_noise_std,
             state_noise_std,
@@ -213,7 +219,7 @@ def analyse_stream(
             initial_cov=np.zeros((6, 6)),
         )
 
-    ko = observer(F0)
+    ko = observer(f0_model)
     xf = ko.step_states(*io)[skip:]
     innov = ko.last_innovations[skip:]
     x = np.asarray(position, dtype=float)[skip:]
@@ -241,7 +247,7 @@ def analyse_stream(
             out.q_std = float(q[skip:].std())
             out.q_overload = float(np.mean(np.abs(q[skip:]) > 2.0))
     if f0_error is not None:
-        wrong = observer(F0 * (1.0 + f0_error))
+        wrong = observer(f0_model * (1.0 + f0_error))
         pw, _ = wrong.step(*io)
         ew = pw[skip:] - x
         out.wrong_err_std = float(ew.std())

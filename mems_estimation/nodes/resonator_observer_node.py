@@ -16,6 +16,10 @@ another length than its drive frame is rejected and counted on /diagnostics (inp
 stream reset, or a divergence (non-finite state or covariance not positive definite, or,
 adaptive, f0 outside (0, fs/2); counted ``divergences``, that frame's estimates not
 published), starts it again from its prior.
+Model: ``params_yaml`` names the identified model's YAML
+(:mod:`mems_estimation.identification.resonator_identification`): its ``f0_hz`` and
+``quality_factor`` replace the parameters' values (the node then runs with and reports
+the identified model); empty: the parameters' values.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from mems_estimation.filters.resonator_adaptive_observer import AdaptiveObserver
+from mems_estimation.identification.resonator_identification import load_identification
 from mems_estimation.nodes.frame_input import (
     DEVICE_NAMESPACE,
     Diverged,
@@ -40,6 +45,14 @@ from mems_sim.ros.qos import FRAME_QOS
 
 OBSERVER_SPECS: tuple[ParamSpec, ...] = (
     DEVICE_NAMESPACE,
+    ParamSpec(
+        "params_yaml",
+        "",
+        "-",
+        "identified model YAML (resonator_identification): its f0_hz and quality_factor "
+        "replace the parameters'; empty: the parameters' values",
+        "the device identified on the bench from its own ring-downs, not its parameter table",
+    ),
     ParamSpec(
         "adaptive",
         False,
@@ -183,6 +196,9 @@ class ResonatorObserverNode(EstimatorNode):
     def __init__(self, **node_kwargs) -> None:
         super().__init__(**node_kwargs)
         p = self.p
+        if p["params_yaml"]:
+            # the node runs with (and reports) the identified model
+            p.update(self.parameter_file("params_yaml", load_identification))
         self.fs = p["sample_rate_hz"]
         if p["f0_hz"] >= p["sample_rate_hz"] / 2:
             raise ParameterError(
