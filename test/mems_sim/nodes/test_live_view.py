@@ -5,7 +5,7 @@ process of the run has a socket beyond loopback.
 The client side of the Foxglove WebSocket protocol (JSON ``serverInfo``/``advertise`` from
 the server, ``subscribe`` from the client, binary Message Data frames: opcode 1, u32
 subscription id, u64 log time, payload; all little-endian) is written here on the
-``websockets`` library from the specification (foxglove/ws-protocol, docs/spec.md), not from
+``websockets`` library from the Foxglove WebSocket protocol specification, not from
 the server's code, and asks for the spec's subprotocol ``foxglove.websocket.v1``, which
 ws-protocol clients and older Foxglove and Lichtblick versions send; the live view's front end
 serves it beside the SDK's ``foxglove.sdk.v1`` (the handshake of both: test_foxglove_front).
