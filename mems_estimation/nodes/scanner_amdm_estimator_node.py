@@ -32,6 +32,7 @@ import numpy as np
 
 from mems_estimation.filters import scanner_amdm_model as sam
 from mems_estimation.filters import scanner_amdm_tracking as su
+from mems_estimation.identification.scanner_amdm_identification import load_identification
 from mems_estimation.nodes.frame_input import (
     DEVICE_NAMESPACE,
     Diverged,
@@ -55,6 +56,15 @@ from mems_sim.ros.qos import FRAME_QOS
 NODE_SPECS: tuple[ParamSpec, ...] = (
     DEVICE_NAMESPACE,
     ParamSpec("frame_id", "scanner", "-", "frame_id of the published estimates", ""),
+    ParamSpec(
+        "params_yaml",
+        "",
+        "-",
+        "identified model YAML (scanner_amdm_identification): its inertia, spring_constant "
+        "and damping replace the parameters' (empty: the parameters as given, by default "
+        "the nominal device's: the oracle model)",
+        "Chen 2018 Sec. 5.5.1 (bench identification)",
+    ),
 )
 
 STATE_NAMES, STATE_UNITS = ("theta", "omega"), ("rad", "rad/s")
@@ -91,6 +101,9 @@ class ScannerAmdmEstimatorNode(EstimatorNode):
     def __init__(self, **node_kwargs) -> None:
         super().__init__(**node_kwargs)
         p = self.p
+        if p["params_yaml"]:
+            # the node runs with (and reports) the identified model
+            p.update(self.parameter_file("params_yaml", load_identification))
         est = self.values_of(sam.ESTIMATOR_SPECS)
         self.est_params = est
         self.fs = p["sample_rate_hz"]
