@@ -42,9 +42,7 @@ from scipy.interpolate import CubicSpline
 
 from mems_estimation.filters import scanner_amdm_model as sam
 from mems_estimation.filters import scanner_amdm_tracking as su
-from mems_estimation.identification import scanner_amdm_identification as sai
 from mems_scenarios import bag_frames, base, contract, delivery
-from mems_scenarios import scanner_shared_electrodes_bench as ssb
 from mems_scenarios.figures import Figure, cell, met_cell
 from mems_sim.bag.output_paths import write_output
 from mems_sim.devices import scanner_amdm as sa
@@ -119,17 +117,12 @@ def recorded_topics(ns: str) -> list[str]:
     return [f"/{ns}/{t}" for t in names]
 
 
-def graph(options: base.ScenarioOptions, duration_s: float, bench=None) -> contract.GraphSpec:
-    """The scenario's graph: both devices (:func:`cases`; /scanner_amdm swept through the
-    window its bench found, ``bench``: :func:`~mems_scenarios.scanner_shared_electrodes_bench.
-    identified`, None: run here), then their estimators (the bench's model, ``params_yaml``;
-    the chain delay of the nominal device, :func:`nominal_delay`); recorded: every topic of
+def graph(options: base.ScenarioOptions, duration_s: float) -> contract.GraphSpec:
+    """The scenario's graph: both devices (:func:`cases`), then their estimators (the
+    chain delay of the nominal device, :func:`nominal_delay`); recorded: every topic of
     both, /diagnostics (the estimators' end state) and the run record."""
-    bench = bench or ssb.identified(options, DEVICE, "scanner_amdm", NAME)
-    window = {k: bench[k] for k in ("sweep_start_hz", "sweep_end_hz")}
     devices, estimators, recorded = [], [], []
     for k, (ns, dev) in enumerate(cases().items()):
-        dev = dict(dev, **window) if ns == "scanner_amdm" else dev
         p = dict(
             dev, seed=int(options.seed) * 10 + k, duration_s=float(duration_s), frame_size=10000
         )
@@ -142,12 +135,7 @@ def graph(options: base.ScenarioOptions, duration_s: float, bench=None) -> contr
                 "scanner_amdm_estimator_node",
                 ESTIMATOR_NODE,
                 f"{ns}/estimator",
-                dict(
-                    {m: bench["model"][m] for m in sai.MODEL_KEYS},
-                    device_namespace=f"/{ns}",
-                    chain_delay_s=nominal_delay(p),
-                    params_yaml=str(bench["path"]),
-                ),
+                dict(device_namespace=f"/{ns}", chain_delay_s=nominal_delay(p)),
             )
         )
         recorded += recorded_topics(ns)
