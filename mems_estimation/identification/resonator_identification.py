@@ -36,6 +36,8 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.signal import butter, lfilter
 
+from mems_estimation.identification.model_yaml import load_model, save_model
+
 __all__ = [
     "MODEL_KEYS",
     "RingdownFit",
@@ -137,34 +139,11 @@ def save_identification(model: Mapping[str, Any], path: str) -> None:
     """Write the identified model (:data:`MODEL_KEYS`, plus any extra numbers) as the
     observer's parameter YAML, whole and never through a symbolic link
     (:func:`mems_sim.bag.output_paths.write_output`; BagWriteError)."""
-    from pathlib import Path
-
-    import yaml
-
-    from mems_sim.bag.output_paths import write_output
-
-    text = yaml.safe_dump({k: float(v) for k, v in model.items()}, sort_keys=False)
-    write_output(path, lambda tmp: Path(tmp).write_text(text), overwrite=True)
+    save_model(model, path)
 
 
 def load_identification(path: str) -> dict[str, float]:
     """The model parameters (:data:`MODEL_KEYS`: f0_hz [Hz], quality_factor [-]) of a
     parameter YAML written by :func:`save_identification`; FileNotFoundError / ValueError
     with a clear message."""
-    from mems_sim import bounded_yaml
-
-    d = bounded_yaml.load_mapping(path, "resonator parameter YAML")
-    missing = [k for k in MODEL_KEYS if k not in d]
-    if missing:
-        raise ValueError(f"resonator parameter YAML {path!r} lacks {', '.join(missing)}")
-    out = {}
-    for k in MODEL_KEYS:
-        x = d[k]
-        if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
-            raise ValueError(
-                f"resonator parameter YAML {path!r}: {k} = {x!r} is not a finite number"
-            )
-        if x <= 0:
-            raise ValueError(f"resonator parameter YAML {path!r}: {k} = {x!r} is not positive")
-        out[k] = float(x)
-    return out
+    return load_model(path, MODEL_KEYS, "resonator parameter YAML", positive=True)

@@ -23,6 +23,8 @@ from typing import Any
 import numpy as np
 import scipy.optimize
 
+from mems_estimation.identification.model_yaml import load_model, save_model
+
 #: The parameters the identification YAML holds (the estimator's ESTIMATOR_SPECS names).
 MODEL_KEYS = ("inertia", "spring_constant", "damping")
 
@@ -211,29 +213,10 @@ def save_identification(model: Mapping[str, Any], path: str) -> None:
     """Write the identified model (:data:`MODEL_KEYS` and the fit's figures) as the
     estimator's parameter YAML at ``path``, whole and never through a symbolic link
     (:func:`mems_sim.bag.output_paths.write_output`)."""
-    from pathlib import Path
-
-    import yaml
-
-    from mems_sim.bag.output_paths import write_output
-
-    text = yaml.safe_dump({k: float(v) for k, v in model.items()}, sort_keys=False)
-    write_output(path, lambda tmp: Path(tmp).write_text(text), overwrite=True)
+    save_model(model, path)
 
 
 def load_identification(path: str) -> dict[str, float]:
     """The model parameters (:data:`MODEL_KEYS`: J [kg m^2], k [N m/rad], b [N m s/rad]) of
     a YAML written by :func:`save_identification`; FileNotFoundError / ValueError."""
-    from mems_sim import bounded_yaml
-
-    d = bounded_yaml.load_mapping(path, "scanner AMDM parameter YAML")
-    missing = [k for k in MODEL_KEYS if k not in d]
-    if missing:
-        raise ValueError(f"scanner AMDM parameter YAML {path!r} lacks {', '.join(missing)}")
-    out = {}
-    for k in MODEL_KEYS:
-        x = d[k]
-        if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x) or x <= 0:
-            raise ValueError(f"scanner AMDM parameter YAML {path!r}: {k} = {x!r} is not > 0")
-        out[k] = float(x)
-    return out
+    return load_model(path, MODEL_KEYS, "scanner AMDM parameter YAML", positive=True)

@@ -40,6 +40,8 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy.optimize import least_squares, minimize_scalar
 
+from mems_estimation.identification.model_yaml import load_model, save_model
+
 __all__ = [
     "DESIGN_INERTIA",
     "MODEL_KEYS",
@@ -344,29 +346,10 @@ def identify(
 def save_identification(model: Mapping[str, Any], path: str) -> None:
     """Write the identified model as the estimator's parameter YAML, whole and never through
     a symbolic link (:func:`mems_sim.bag.output_paths.write_output`; BagWriteError)."""
-    from pathlib import Path
-
-    import yaml
-
-    from mems_sim.bag.output_paths import write_output
-
-    text = yaml.safe_dump(dict(model), sort_keys=False)
-    write_output(path, lambda tmp: Path(tmp).write_text(text), overwrite=True)
+    save_model(model, path)
 
 
 def load_identification(path: str) -> dict[str, float]:
     """The model parameters (:data:`MODEL_KEYS`) of a parameter YAML written by
     :func:`save_identification`; FileNotFoundError / ValueError with a clear message."""
-    from mems_sim import bounded_yaml
-
-    d = bounded_yaml.load_mapping(path, "scanner parameter YAML")
-    missing = [k for k in MODEL_KEYS if k not in d]
-    if missing:
-        raise ValueError(f"scanner parameter YAML {path!r} lacks {', '.join(missing)}")
-    out = {}
-    for k in MODEL_KEYS:
-        x = d[k]
-        if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
-            raise ValueError(f"scanner parameter YAML {path!r}: {k} = {x!r} is not a finite number")
-        out[k] = float(x)
-    return out
+    return load_model(path, MODEL_KEYS, "scanner parameter YAML", positive=False)
