@@ -15,7 +15,7 @@ imports inside functions included). The package's top-level modules (``mems_sim.
 ``bounded_yaml``, ``cli_values``, ``cpu_pins``, ``table``, ``stream_index``, ``views``) are
 the base every sub-package may use; they import no sub-package. Then, for ``mems_sim``::
 
-    base < kernels < devices            (the numerical core, ROS-free)
+    base < kernels < hardware < devices (the numerical core, ROS-free)
     base < ros < bag                    (ROS plumbing, then the MCAP tools)
     nodes: above devices, kernels, ros and bag
 
@@ -26,7 +26,7 @@ and for ``mems_estimation``::
 
 (``devices`` and ``ros`` do not see each other; ``studies`` and ``nodes`` neither;
 ``mems_scenarios`` has no sub-packages.) The ROS-free core (:data:`ROS_FREE`:
-``mems_sim.devices``, ``mems_sim.kernels``, ``mems_estimation.filters``,
+``mems_sim.devices``, ``mems_sim.hardware``, ``mems_sim.kernels``, ``mems_estimation.filters``,
 ``mems_estimation.identification``) imports no ROS client library or message package
 (:func:`is_ros_module`), neither itself nor through any project module it imports, at any
 depth. :func:`test_the_layering_catches_a_wrong_import` feeds deliberate wrong imports (a
@@ -89,10 +89,11 @@ SCENARIO_PUBLIC = {
 SUBPACKAGE_RULE = {
     "mems_sim": {
         "kernels": set(),
-        "devices": {"kernels"},
+        "hardware": {"kernels"},
+        "devices": {"kernels", "hardware"},
         "ros": set(),
         "bag": {"ros"},
-        "nodes": {"kernels", "devices", "ros", "bag"},
+        "nodes": {"kernels", "hardware", "devices", "ros", "bag"},
     },
     "mems_estimation": {
         "filters": set(),
@@ -105,6 +106,7 @@ SUBPACKAGE_RULE = {
 #: The ROS-free numerical core: no ROS import, directly or through a project module.
 ROS_FREE = (
     "mems_sim.devices",
+    "mems_sim.hardware",
     "mems_sim.kernels",
     "mems_estimation.filters",
     "mems_estimation.identification",
