@@ -726,18 +726,26 @@ def processes_naming(text: str) -> list[str]:
 
 
 def processes_naming_with_pid(text: str) -> list[str]:
-    """``PID COMMAND LINE`` of the running processes whose command line contains ``text``."""
-    found = []
+    """``PID COMMAND LINE`` of the running processes whose command line contains ``text``.
+
+    A child whose parent also matches is left out: it is a fork that has not yet
+    exec'd (a shell's subshell on its way to ``sleep`` carries the shell's command
+    line for a moment), not another process of its own. Once its parent is gone it
+    is listed, so nothing left running is hidden.
+    """
+    lines, parents = {}, {}
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit() or int(entry.name) == os.getpid():
             continue
         try:
             line = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            stat = (entry / "stat").read_text()
         except OSError:
             continue
         if text in line:
-            found.append(f"{entry.name} {line}")
-    return found
+            lines[entry.name] = line
+            parents[entry.name] = stat.rsplit(")", 1)[1].split()[1]
+    return [f"{pid} {line}" for pid, line in lines.items() if parents[pid] not in lines]
 
 
 def stderr_of(f) -> str:
