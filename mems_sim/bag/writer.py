@@ -87,6 +87,7 @@ import time
 
 from mcap.writer import Writer
 
+from mems_sim.bag.bag_metadata import message_count, rosbag2_metadata, write_metadata
 from mems_sim.bag.compression import (
     _COMPRESSION,
     _ZSTD,
@@ -106,9 +107,6 @@ from mems_sim.bag.output_paths import (
 )
 from mems_sim.bag.schema import GAP_CHECKED_TYPES, normalize_type_name, peek_frame_index
 from mems_sim.stream_index import GAP, SequenceIndex, StreamIndex
-
-#: rosbag2 metadata version written (rosbag2_storage).
-METADATA_VERSION = 9
 
 
 class _WriteThroughFile:
@@ -432,82 +430,17 @@ class McapBagWriter:
         self._write_metadata()
 
     def _metadata(self) -> dict:
-        """rosbag2's ``metadata.yaml`` content (``rosbag2_bagfile_information``, version 9)."""
-        import yaml  # only bag directories need it
-
+        """rosbag2's ``metadata.yaml`` content for the files written so far."""
         files = list(self._done_files)
         if self._stream is not None or self._writer is not None:
             files.append(self._file_info())
-        totals: dict[int, int] = {}
-        for f in files:
-            for cid, n in f["counts"].items():
-                totals[cid] = totals.get(cid, 0) + n
-        firsts = [f["first"] for f in files if f["first"] is not None]
-        lasts = [f["last"] for f in files if f["last"] is not None]
-        start = min(firsts) if firsts else 0
-        topics = []
-        for bag_id, (topic, type_name, _, metadata) in enumerate(self._topic_defs, 1):
-            qos = yaml.safe_load(metadata.get("offered_qos_profiles") or "[]") or []
-            topics.append(
-                {
-                    "topic_metadata": {
-                        "name": topic,
-                        "type": type_name,
-                        "serialization_format": "cdr",
-                        "offered_qos_profiles": qos,
-                        "type_description_hash": metadata.get("topic_type_hash", ""),
-                    },
-                    "message_count": totals.get(bag_id, 0),
-                }
-            )
-        return {
-            "rosbag2_bagfile_information": {
-                "version": METADATA_VERSION,
-                "storage_identifier": "mcap",
-                "duration": {"nanoseconds": (max(lasts) - start) if lasts else 0},
-                "starting_time": {"nanoseconds_since_epoch": start},
-                "message_count": sum(totals.values()),
-                "topics_with_message_count": topics,
-                "compression_format": "",
-                "compression_mode": "",
-                "relative_file_paths": [f["path"] for f in files],
-                "files": [
-                    {
-                        "path": f["path"],
-                        "starting_time": {"nanoseconds_since_epoch": f["first"] or 0},
-                        "duration": {
-                            "nanoseconds": (f["last"] - f["first"]) if f["first"] is not None else 0
-                        },
-                        "message_count": sum(f["counts"].values()),
-                    }
-                    for f in files
-                ],
-                "custom_data": None,
-                "ros_distro": os.environ.get("ROS_DISTRO", ""),
-            }
-        }
+        return rosbag2_metadata(files, self._topic_defs)
 
     def _write_metadata(self) -> None:
-        """Write ``metadata.yaml`` atomically (a temporary file renamed over it)."""
-        import yaml
-
+        """Write ``metadata.yaml`` atomically; remember how many messages it lists."""
         metadata = self._metadata()
-        text = yaml.safe_dump(metadata, sort_keys=False, default_flow_style=False)
-        final = os.path.join(self.path, METADATA_FILE)
-        tmp = final + ".tmp"
-        try:
-            with open(tmp, "w", encoding="utf-8") as handle:
-                handle.write(text)
-                handle.flush()
-                os.fsync(handle.fileno())
-            os.replace(tmp, final)
-            self._metadata_listed = _message_count(metadata)
-        except OSError as exc:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
-            raise BagWriteError(describe_error(final, exc)) from None
+        write_metadata(self.path, metadata)
+        self._metadata_listed = message_count(metadata)
 
     def files(self) -> list[str]:
         """Paths of the output files so far (one file, or a bag directory's split files)."""
@@ -792,7 +725,7 @@ class McapBagWriter:
         if self._metadata_problem:  # one line: which of the three is short
             text += (
                 f"; {self._metadata_problem}: it lists {self._metadata_listed} of the "
-                f"{_message_count(self._metadata())} messages in the files"
+                f"{message_count(self._metadata())} messages in the files"
             )
         return exc if text == str(exc) and isinstance(exc, BagWriteError) else BagWriteError(text)
 
@@ -807,11 +740,6 @@ class McapBagWriter:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-def _message_count(metadata: dict) -> int:
-    """Messages a ``metadata.yaml`` content (:meth:`McapBagWriter._metadata`) lists."""
-    return int(metadata["rosbag2_bagfile_information"]["message_count"])
 
 
 def gap_summary(details: dict[str, dict[str, int]]) -> tuple[int, int]:

@@ -24,6 +24,7 @@ import pytest
 import yaml
 from bagtool_helpers import BIN, reference_frames, start_publisher, stop_process
 
+from mems_sim.bag import bag_metadata
 from mems_sim.bag import writer as writer_module
 from mems_sim.bag.writer import BagWriteError, McapBagWriter
 
@@ -119,7 +120,7 @@ class _Disk:
         monkeypatch.setattr(writer_module._WriteThroughFile, "write", write)
         monkeypatch.setattr(writer_module._WriteThroughFile, "__init__", init)
         if metadata:
-            monkeypatch.setattr(writer_module, "open", self._open, raising=False)
+            monkeypatch.setattr(bag_metadata, "open", self._open, raising=False)
 
     def _open(self, path, mode="r", **kwargs):
         handle = open(path, mode, **kwargs)
