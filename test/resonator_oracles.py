@@ -17,7 +17,8 @@ import numpy as np
 
 import mems_estimation.filters.resonator_adaptive_observer as rao
 import mems_sim.devices.resonator as rdev
-from mems_estimation.filters.resonator_adaptive_observer import AdaptiveObserver, _pulse_scaled
+from mems_estimation.filters.resonator_adaptive_jacobian import _pulse_scaled
+from mems_estimation.filters.resonator_adaptive_observer import AdaptiveObserver
 from mems_sim.devices.resonator import (
     SdResonatorDevice,
     _pulse_general,

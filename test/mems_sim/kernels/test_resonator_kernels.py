@@ -258,7 +258,7 @@ def test_zoh_f0_derivative_analytic(f0, q, dt):
     resonator_zoh_t's bit for bit, the derivative (f0 d/df0 of Phi and Gam, eqs. (7)-(9) of
     Colinet et al.) matches a fine central difference (1e-8 of each block's largest entry,
     in the observer's velocity scaling; the old step-1e-7 difference was ~1e-9)."""
-    from mems_estimation.filters.resonator_adaptive_observer import _zoh_dlog_t
+    from mems_estimation.filters.resonator_adaptive_jacobian import _zoh_dlog_t
     from mems_sim.kernels.resonator_models import resonator_zoh_t
 
     z = _zoh_dlog_t(f0, q, FS, dt)
@@ -292,7 +292,7 @@ def test_pulse_f0_derivative_analytic(spill_u, spill_end, u, s, w):
     """The exact sub-sample pulse term as the adaptive observer forms it (_pulse_dlog): its
     value equal bit for bit to interval_input's, its f0 derivative against a fine central
     difference of interval_input itself."""
-    from mems_estimation.filters.resonator_adaptive_observer import _pulse_dlog, _zoh_dlog_t
+    from mems_estimation.filters.resonator_adaptive_jacobian import _pulse_dlog, _zoh_dlog_t
     from mems_sim.kernels.resonator_models import interval_input
 
     def pulse_term(f0, q):
