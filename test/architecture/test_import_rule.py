@@ -297,7 +297,7 @@ def test_the_layering_catches_a_wrong_import():
     lazy = "def f():\n    from ..nodes.stage_node import StageNode\n"  # relative, lazy
     assert layering_violations(lazy, "mems_sim.devices.stage") == [
         "mems_sim.devices.stage:2 imports mems_sim.nodes.stage_node (mems_sim.devices may "
-        "import only base, devices, kernels of mems_sim)"
+        "import only base, devices, hardware, kernels of mems_sim)"
     ]
     assert layering_violations("from mems_sim.bag.schema import schema_text\n", "mems_sim.ros.x")
     study = "from mems_estimation.studies.scanner_threshold import rmse\n"
