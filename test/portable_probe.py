@@ -666,6 +666,22 @@ def allan_streaming() -> list[np.ndarray]:
     return out
 
 
+def piezo_hysteresis() -> list[np.ndarray]:
+    """PiezoActuator.step (_piezo_run: the exact n = 1 segment map travel_n1 with _phi, the
+    RK4 path _travel_rk4 with _rate for n = 2, the creep bank) in two blocks."""
+    from mems_sim.hardware.piezo_hysteresis import PiezoActuator
+
+    t = np.arange(6000) / 625e3
+    u = 0.2 + np.sin(2 * np.pi * 1700 * t) + 0.3 * np.sin(2 * np.pi * 5610 * t + 0.4)
+    out = []
+    for params in ({}, {"bw_alpha": 0.3, "bw_beta": 0.6, "bw_gamma": 0.2, "bw_n": 2.0}):
+        act = PiezoActuator(params, gain=3.26e-5, sample_rate_hz=625e3)
+        for a, b in ((0, 2500), (2500, 6000)):
+            out += list(act.step(u[a:b]))
+        out.append(act.state)
+    return out
+
+
 FAMILIES = {
     "imu_device": imu_device,
     "accelerometer_device": accelerometer_device,
@@ -687,6 +703,7 @@ FAMILIES = {
     "resonator_adaptive_observer": resonator_adaptive_observer,
     "allan_batch": allan_batch,
     "allan_streaming": allan_streaming,
+    "piezo_hysteresis": piezo_hysteresis,
 }
 
 
