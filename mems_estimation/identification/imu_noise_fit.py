@@ -184,9 +184,10 @@ def avar_model(taus, N: float, B: float, K: float, T: float, Q: float = 0.0) -> 
     return N**2 / taus + K**2 * taus / 3.0 + gm + 3.0 * Q**2 / taus**2
 
 
-def _nnls_for_T(taus, avar, sd, T):
-    """Weighted NNLS of c = (N^2, K^2, B^2, Q^2) at fixed T -> (c, chi2)."""
-    A = _basis(taus, T) / sd[:, None]
+def _nnls(basis, avar, sd):
+    """Weighted NNLS of the coefficients c >= 0 of the basis columns (u^2 per unit
+    coefficient; at fixed T c = (N^2, K^2, B^2, Q^2)), sd the points' s.d., u^2 -> (c, chi2)."""
+    A = basis / sd[:, None]
     scale = np.linalg.norm(A, axis=0)
     scale[scale == 0] = 1.0
     c, rnorm = optimize.nnls(A / scale, avar / sd)
@@ -203,12 +204,16 @@ def _deviance(avar, model, edf):
 def _ml_at_T(taus, avar, edf, T, model0):
     """Linear coefficients c >= 0 maximising the Gamma likelihood at fixed T (IRLS: weighted
     NNLS with sd = model sqrt(2/edf), reweighted until the model settles) -> (c, deviance)."""
+    return _ml_linear(avar, edf, _basis(taus, T), model0)
+
+
+def _ml_linear(avar, edf, basis, model0):
+    """:func:`_ml_at_T` for any basis (columns: AVAR per unit coefficient, u^2) -> (c, deviance)."""
     model = model0
-    basis = _basis(taus, T)
     c = None
     for _ in range(12):
         sd = np.maximum(model, 1e-300) * np.sqrt(2.0 / edf)
-        c, _ = _nnls_for_T(taus, avar, sd, T)
+        c, _ = _nnls(basis, avar, sd)
         new = np.maximum(basis @ c, 1e-300)
         done = np.max(np.abs(new / model - 1.0)) < 1e-6
         model = new
@@ -266,6 +271,12 @@ def _uncertainty(taus, c, T, sd):
     free = np.ones(5, dtype=bool)
     if c[2] <= 0.0:
         free[4] = False  # T undefined without a GM term
+    return _inverse_fisher(J, free)
+
+
+def _inverse_fisher(J, free):
+    """Covariance (J_f^T J_f)^-1 of the free columns of J (points, 5) by a column-scaled
+    pseudo-inverse; a zero column's entries stay inf, a fixed ln T's row and column are nan."""
     cov = np.full((5, 5), np.inf)
     Jf = J[:, free]
     norms = np.linalg.norm(Jf, axis=0)
@@ -282,16 +293,17 @@ def _uncertainty(taus, c, T, sd):
     return cov
 
 
-def _summarise(c, T, cov):
+def _summarise(c, T, cov, inflation=None):
     """Values, standard errors and 95 % intervals of N, B, K, T, Q.
 
     A positive coefficient gets a log-scale (Wald) interval, value x exp(+-1.96 k se_rel),
-    k the parameter's :data:`INFLATION`; a coefficient fitted as 0 gets [0, upper] with
-    upper^2 = 1.96 k se(c)."""
+    k the parameter's inflation (default :data:`INFLATION`); a coefficient fitted as 0 gets
+    [0, upper] with upper^2 = 1.96 k se(c)."""
+    inflation = INFLATION if inflation is None else inflation
     order = {"N": 0, "K": 1, "B": 2, "Q": 3}
     vals, se, ci = {}, {}, {}
     for p, i in order.items():
-        k = INFLATION[p]
+        k = inflation[p]
         sc = math.sqrt(cov[i, i]) * k if cov[i, i] >= 0 else math.inf
         v = math.sqrt(max(c[i], 0.0))
         vals[p] = v
@@ -304,7 +316,7 @@ def _summarise(c, T, cov):
             se[p] = math.sqrt(sc) if np.isfinite(sc) else math.nan
             ci[p] = (0.0, math.sqrt(_Z95 * sc) if np.isfinite(sc) else math.inf)
     if c[2] > 0 and cov[4, 4] >= 0:
-        s = math.sqrt(cov[4, 4]) * INFLATION["T"]
+        s = math.sqrt(cov[4, 4]) * inflation["T"]
         # a short record leaves log T almost undetermined: the interval may reach [0, inf]
         z = min(_Z95 * s, 700.0)
         hi = T * math.exp(z) if z < 700.0 else math.inf
@@ -362,6 +374,11 @@ def fit_allan(
 def _with_model_ci(allan: AllanResult, fit: NoiseModelFit) -> AllanResult:
     """Allan result whose edf/CI use the fitted model's local slope."""
     model = avar_model(allan.taus, fit.N, fit.B, fit.K, fit.T, fit.Q)
+    return _with_curve_ci(allan, model)
+
+
+def _with_curve_ci(allan: AllanResult, model: np.ndarray) -> AllanResult:
+    """Allan result whose edf/CI use the local slope of a model curve (u^2 at allan.taus)."""
     model = np.maximum(model, 1e-300)
     slope = np.gradient(np.log(model), np.log(allan.taus)) if allan.taus.size > 1 else -1.0
     edf = edf_from_slope(allan.n_samples + 1, allan.m, slope)
