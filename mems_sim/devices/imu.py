@@ -561,6 +561,18 @@ class ImuNoiseModel:
         self.errors = {s: self._make_errors(s, fs) for s in SENSORS}
         self.temperature_c = float(temperature_c)
         self.next_index = 0
+        #: Scheduled sensor faults (mems_sim.hardware.sensor_faults), acting on the low-passed
+        #: analog values before the ADC, channels gyro_x..z, accel_x..z; None: no faults.
+        self.faults = None
+
+    def white_sample_stds(self) -> tuple[float, ...]:
+        """Standard deviation per sample of the white noise of each channel (gyro_x..z
+        [rad/s], accel_x..z [m/s^2]): N sqrt(fs), the level a ``noise_burst`` multiplies."""
+        return tuple(
+            white_sample_std(self.params[f"{s}_noise_density"], self.fs)
+            for s in SENSORS
+            for _ in AXES
+        )
 
     def _bias(self, s: str) -> np.ndarray:
         p = self.params
@@ -721,9 +733,12 @@ class ImuNoiseModel:
             raise ValueError(f"temperature_c must be a number or shape ({n},), got {temp.shape}")
         delta_k = temp - T_REF_C
         out = []
-        for s, truth in (("gyro", tg), ("accel", ta)):
+        for j, (s, truth) in enumerate((("gyro", tg), ("accel", ta))):
             e, sensor = self.errors[s], self.sensors[s]
-            out.append(sensor.quantize(e.lowpass(sensor.analog(e.apply(truth, delta_k, ta)))))
+            analog = e.lowpass(sensor.analog(e.apply(truth, delta_k, ta)))
+            if self.faults:
+                analog = self.faults.apply(analog, self.next_index, slice(3 * j, 3 * j + 3))
+            out.append(sensor.quantize(analog))
         (gc, gsi, gsat), (ac, asi, asat) = out
         self.next_index += n
         return ImuFrame(gc, ac, gsi, asi, np.concatenate([gsat, asat]))

@@ -18,6 +18,9 @@ Topics (relative to the node namespace, default ``/imu``):
                                    ``{s}_bias_tempco_{a}``, ``{s}_sf_tempco_{a}``,
                                    ``gyro_g_sensitivity_{a}{b}`` (SI units, standard errors 0);
                                    with ``calibration_topics``
+    ``faults`` mems_msgs/FaultEvent (reliable, transient local): each fault of
+                                   ``fault_schedule`` when it begins (labelled truth; sensor
+                                   faults act on the low-passed analog values before the ADC)
     ``/diagnostics``               frames, saturated samples
 Input: ``temperature`` sensor_msgs/Temperature: the device's temperature (``temperature_c``).
 Parameters: the table ``mems_sim.devices.imu.IMU_SPECS`` (units, ranges, sources; ``preset``
@@ -45,6 +48,7 @@ from sensor_msgs.msg import Imu
 
 from mems_msgs.msg import CalibrationResult
 from mems_sim.devices import imu, imu_motion, imu_profiles
+from mems_sim.nodes.fault_topic import FAULT_SCHEDULE_SPEC, FaultTopic
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.frames import index_to_ns, make_adc_frame, ns_to_time
 from mems_sim.ros.imu_msg import ImuSerializer
@@ -116,7 +120,9 @@ class ImuNode(EmulatorNode):
 
     NODE_NAME = "imu"
     DEFAULT_NAMESPACE = "imu"
-    SPECS = imu.IMU_SPECS + variation_specs() + EMULATOR_SPECS + MOTION_SPECS
+    SPECS = (
+        imu.IMU_SPECS + variation_specs() + EMULATOR_SPECS + MOTION_SPECS + (FAULT_SCHEDULE_SPEC,)
+    )
     DEVICE_SPECS = imu.IMU_SPECS
     DIAGNOSTICS_TITLE = "IMU emulator"
 
@@ -140,6 +146,10 @@ class ImuNode(EmulatorNode):
         self.model = imu.ImuNoiseModel(
             self.device_values(), seed=self.p["seed"], temperature_c=self.p["temperature_c"]
         )
+        self.fault_topic = FaultTopic(
+            self, CHANNELS, UNITS, fs, white_std=self.model.white_sample_stds()
+        )
+        self.model.faults = self.fault_topic.injector
         gyro_var, accel_var = imu.imu_covariances(self.nominal)
         self._gyro_cov = imu.covariance9(gyro_var)
         self._accel_cov = imu.covariance9(accel_var)
@@ -271,6 +281,7 @@ class ImuNode(EmulatorNode):
         truth_gyro, truth_accel, temperature = truth
         # the sensor measures the motion of t - latency_s (truth itself without one)
         seen = self.motion.measured(first, n, self.model.fs, truth)
+        self.fault_topic.publish_starting(first, n)
         frame = self.model.generate(n, seen.gyro, seen.accel, temperature)
         codes = np.hstack([frame.gyro_codes, frame.accel_codes])
         sat = int(frame.saturated.sum())

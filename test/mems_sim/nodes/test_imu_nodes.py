@@ -261,3 +261,70 @@ def test_profile_parameter_errors(ros_context, tmp_path):
                 parameter_overrides=params(motion="profile", motion_profile=value),
             )
         assert "motion_profile" in str(err.value) and field in str(err.value)
+
+
+def test_fault_schedule_acts_and_is_labelled_on_the_faults_topic(graph, tmp_path):
+    """A stuck gyro_x and a permanent accel_z bias step: the codes freeze and move where
+    the schedule says, and the faults topic carries the schedule, stamped in sensor time."""
+    from mems_msgs.msg import FaultEvent
+    from mems_sim.nodes.fault_topic import fault_qos
+
+    schedule = tmp_path / "faults.yaml"
+    schedule.write_text(
+        "faults:\n"
+        "  - {kind: stuck_at, channel: gyro_x, start_sample: 30, duration_samples: 40}\n"
+        "  - {kind: bias_step, channel: accel_z, start_s: 0.7, magnitude: 0.5}\n"
+    )
+    ctx, ex, probe = graph
+    emu = ImuNode(
+        context=ctx,
+        drive_externally=True,
+        parameter_overrides=params(
+            seed=2, frame_size=20, publish_imu=False, fault_schedule=str(schedule)
+        ),
+    )
+    ex.add_node(emu)
+    adc, events = [], []
+    probe.create_subscription(AdcFrame, "/imu/adc", adc.append, FRAME_QOS)
+    probe.create_subscription(FaultEvent, "/imu/faults", events.append, fault_qos(2))
+    assert spin_until(ex, lambda: emu.pub_adc.get_subscription_count() == 1)
+    for _ in range(5):
+        emu.step()
+    assert spin_until(ex, lambda: len(adc) == 5 and len(events) == 2)
+    codes = np.concatenate([np.asarray(m.codes).reshape(-1, 6) for m in adc])
+    clean = imu.ImuNoiseModel(seed=2).generate(100)
+    clean = np.hstack([clean.gyro_codes, clean.accel_codes])
+    assert np.all(codes[30:70, 0] == clean[30, 0]) and np.ptp(clean[30:70, 0]) > 0
+    np.testing.assert_array_equal(codes[:30], clean[:30])
+    lsb = imu.imu_values()["accel_lsb"]
+    assert np.all(np.abs(codes[70:, 5] - clean[70:, 5] - 0.5 / lsb) <= 1)
+    np.testing.assert_array_equal(codes[:70, 1:], clean[:70, 1:])
+    stuck, step = sorted(events, key=lambda m: m.number)
+    assert (stuck.kind, stuck.channel, stuck.first_sample_index, stuck.num_samples) == (
+        "stuck_at",
+        "gyro_x",
+        30,
+        40,
+    )
+    assert not stuck.permanent and (stuck.start.nanosec, stuck.end.nanosec) == (3e8, 7e8)
+    assert (step.kind, step.channel, step.first_sample_index, step.permanent) == (
+        "bias_step",
+        "accel_z",
+        70,
+        True,
+    )
+    assert (step.magnitude, step.magnitude_unit, step.header.stamp.nanosec) == (0.5, "m/s^2", 7e8)
+
+
+def test_bad_fault_schedule_is_one_parameter_error(ros_context, tmp_path):
+    schedule = tmp_path / "faults.yaml"
+    schedule.write_text("faults:\n  - {kind: stuck_at, channel: gyro_w, start_s: 1}\n")
+    with pytest.raises(ParameterError) as err:
+        ImuNode(
+            context=ros_context,
+            drive_externally=True,
+            parameter_overrides=params(fault_schedule=str(schedule)),
+        )
+    text = str(err.value)
+    assert text.startswith("parameter 'fault_schedule'") and "gyro_w" in text
+    assert "\n" not in text
