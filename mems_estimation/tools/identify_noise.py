@@ -15,7 +15,7 @@ and ``accel_x..z`` [m/s^2] (``linear_acceleration``), REP-145's raw IMU data.
 
 Usage:
     identify_noise BAG [--topic T] [--grid octave|decade|all] [--plot FILE.png]
-                   [--json] [--kalibr FILE.yaml]
+                   [--json] [--kalibr FILE.yaml] [--model gm|auto|flicker]
 
 ``--json`` prints the model as JSON on stdout (the table then goes to stderr); ``--kalibr``
 writes a Kalibr IMU file (``imu.yaml``: ``accelerometer_noise_density`` [m/s^2/sqrt(Hz)],
@@ -23,6 +23,11 @@ writes a Kalibr IMU file (``imu.yaml``: ``accelerometer_noise_density`` [m/s^2/s
 [rad/s/sqrt(Hz)], ``gyroscope_random_walk`` [rad/s^2/sqrt(Hz)], ``rostopic``,
 ``update_rate`` [Hz]; Kalibr's continuous-time densities are the Allan fit's N and K, and
 Kalibr takes one value per sensor: the largest of the three axes, the conservative choice).
+``--model auto`` (or ``flicker``) adds a second table (and a ``model_choice`` JSON list):
+per axis the flicker-floor model and the Gauss-Markov model fitted to the same Allan points,
+the BIC and AIC of both, and the model BIC chooses (or the flicker model) with its
+parameters and 95 % intervals; the first table, ``--kalibr`` and ``--plot`` stay those of the
+Gauss-Markov model (``--model gm``, the default, reports only that).
 Exit status: 0, or 2 with one line for a file or topic it cannot use (too little data
 included).
 """
@@ -70,6 +75,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--kalibr", type=Path, default=None, help="write a Kalibr imu.yaml")
     p.add_argument(
         "--overwrite", action="store_true", help="replace existing --kalibr/--plot files"
+    )
+    p.add_argument(
+        "--model",
+        default="gm",
+        choices=("gm", "auto", "flicker"),
+        help="gm (default): Gauss-Markov fit only; auto/flicker: also the model-choice table",
     )
     return p
 
@@ -168,9 +179,9 @@ def sampling(stamps_ns: np.ndarray) -> dict:
 
 def identify_imu(path: Path, topic: str, grid: str, duplicates: DuplicateFilter | None = None):
     """NoiseModel identified from the sensor_msgs/Imu messages of ``topic`` (each duplicated
-    message once, counted in ``duplicates``); also returns the sampling report. The bag is
-    read before the identification stack (scipy) is imported, so a hostile bag meets only
-    the reader's memory."""
+    message once, counted in ``duplicates``); also returns the sampling report and the
+    accumulator. The bag is read before the identification stack (scipy) is imported, so a
+    hostile bag meets only the reader's memory."""
     stamps, values = read_imu(path, topic, duplicates)
     if stamps.size == 0:
         raise ValueError(f"{path}: no sensor_msgs/Imu messages on topic {topic}")
@@ -187,7 +198,7 @@ def identify_imu(path: Path, topic: str, grid: str, duplicates: DuplicateFilter 
     acc = NoiseAccumulator(grid)
     acc.start(report["sample_rate_hz"], 0, IMU_CHANNELS, IMU_UNITS)
     acc.extend(values[report.pop("order")])
-    return identify_message(acc, grid, final=True), report
+    return identify_message(acc, grid, final=True), report, acc
 
 
 def identify_bag(path: Path, topic: str, grid: str, duplicates: DuplicateFilter | None = None):
@@ -386,6 +397,18 @@ def _write_outputs(args, model, kalibr: dict | None, notes: list[str], out) -> N
         print(f"figure: {args.plot}", file=out)
 
 
+def _model_choices(option: str, acc, out) -> list | None:
+    """``--model auto|flicker``: the model choice of every channel, its table printed; None
+    for ``gm``."""
+    if option == "gm":
+        return None
+    from mems_estimation.tools.noise_choice_report import axis_choices, format_choices
+
+    choices = axis_choices(acc)
+    print("\n" + format_choices(choices, acc.channels, acc.units, option), file=out)
+    return choices
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``identify_noise``."""
     args = _parser().parse_args(argv)
@@ -407,7 +430,7 @@ def main(argv: list[str] | None = None) -> int:
         topics = bag_topics(args.bag)
         topic = choose_topic(topics, args.topic, args.bag)
         if topics[topic] in IMU_TYPES:
-            model, rep = identify_imu(args.bag, topic, args.grid, duplicates)
+            model, rep, acc = identify_imu(args.bag, topic, args.grid, duplicates)
             head = (
                 f"{args.bag}: {topic} (sensor_msgs/Imu), {model.num_samples} samples at "
                 f"{model.sample_rate_hz:.6g} Hz from the stamps; {rep['irregular_intervals']} "
@@ -431,6 +454,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     print(head + "\n", file=out)
     print(format_model(model), file=out)
+    choices = _model_choices(args.model, acc, out)
     try:
         _write_outputs(args, model, kalibr, notes, out)
     except BagWriteError as exc:  # e.g. the disk filled up, or a link appeared meanwhile
@@ -442,6 +466,10 @@ def main(argv: list[str] | None = None) -> int:
         d["duplicates"] = duplicates.total
         if rep is not None:
             d["sampling"] = rep
+        if choices is not None:
+            from mems_estimation.tools.noise_choice_report import choices_to_dicts
+
+            d["model_choice"] = choices_to_dicts(choices, acc.channels, args.model)
         print(json.dumps(d))
     return 0
 
