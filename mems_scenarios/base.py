@@ -428,7 +428,21 @@ class Graph:
         """Add the scenario's recorder (the last node): :meth:`check_overrides` first, so a
         bad override is refused before the MCAP file is opened."""
         self.check_overrides()
+        if kwargs.get("topics") is not None:
+            kwargs["topics"] = list(kwargs["topics"]) + [
+                t for t in sorted(self.fault_topics()) if t not in kwargs["topics"]
+            ]
         return self.add(RecorderNode(output, context=self.context, **kwargs))
+
+    def fault_topics(self) -> set[str]:
+        """The ``faults`` topics (labelled truth of a fault schedule) of this graph's
+        emulators: recorded with whatever the scenario records."""
+        return {
+            p.topic_name
+            for n in self.nodes
+            for p in n.publishers
+            if p.topic_name.rsplit("/", 1)[-1] == "faults" and p.msg_type.__name__ == "FaultEvent"
+        }
 
     def publish_clock(self, ns: int) -> None:
         """Publish simulated time on /clock (not again while it has not moved)."""

@@ -89,8 +89,8 @@ class FaultTopic:
         m.header.frame_id = kw["frame_id"]
         m.kind = entry.kind
         m.channel = entry.channel
-        m.first_sample_index = entry.first
-        m.num_samples = 0 if entry.count is None else entry.count
+        m.first_faulty_sample = entry.first
+        m.faulty_samples = 0 if entry.count is None else entry.count
         m.permanent = entry.permanent
         m.start = start
         m.end = start if entry.end is None else ns_to_time(index_to_ns(entry.end, fs, t0))

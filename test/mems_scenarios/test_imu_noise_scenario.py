@@ -398,3 +398,64 @@ def test_kalibr_values_are_positive_and_name_the_imu_topic():
     assert kalibr_topic(topics, "/imu/adc") == "/imu/data"
     with pytest.raises(ValueError, match="no sensor_msgs/Imu"):
         kalibr_topic({"/imu/adc": "mems_msgs/msg/AdcFrame"}, "/imu/adc")
+
+
+def test_fault_schedule_is_recorded_as_labelled_truth(subprocess_env, tmp_path):
+    """``--set imu.fault_schedule=FILE``: the recording holds the faulty codes and, on
+    ``/imu/faults``, the schedule itself (kind, channel, samples, magnitude, sensor time),
+    with no loss; a bad schedule is one line, exit 2, and no recording."""
+    from mems_msgs.msg import AdcFrame, FaultEvent
+
+    schedule = tmp_path / "faults.yaml"
+    schedule.write_text(
+        "faults:\n"
+        "  - {kind: stuck_at, channel: accel_x, start_s: 20.0, duration_s: 5.0}\n"
+        "  - {kind: bias_step, channel: gyro_z, start_sample: 3000, magnitude: 0.01}\n"
+    )
+    out = tmp_path / "f.mcap"
+    cmd = [str(BIN / "run_scenario"), "imu_noise", "--duration", "60", "--out", str(out)]
+    run = subprocess.run(
+        [*cmd, "--set", f"imu.fault_schedule={schedule}"],
+        env=subprocess_env,
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
+    assert run.returncode == 0, run.stderr
+    events = sorted(
+        (deserialize_message(m.data, FaultEvent) for m in iter_messages(str(out), ["/imu/faults"])),
+        key=lambda e: e.number,
+    )
+    labels = [
+        (e.kind, e.channel, e.first_faulty_sample, e.faulty_samples, e.permanent, e.magnitude)
+        for e in events
+    ]
+    assert labels == [
+        ("stuck_at", "accel_x", 2000, 500, False, 0.0),
+        ("bias_step", "gyro_z", 3000, 0, True, 0.01),
+    ]
+    assert time_to_ns(events[0].start) == 20 * 10**9 and time_to_ns(events[0].end) == 25 * 10**9
+    codes = np.concatenate(
+        [
+            np.asarray(deserialize_message(m.data, AdcFrame).codes).reshape(-1, 6)
+            for m in iter_messages(str(out), ["/imu/adc"])
+        ]
+    )
+    assert np.all(codes[2000:2500, 3] == codes[2000, 3]) and np.ptp(codes[1500:2000, 3]) > 0
+    faults = bag_info(str(out))["topics"]["/imu/faults"]
+    assert faults["count"] == 2 and faults["end_of_stream"] == {"messages": 2}
+    assert faults["sequence_gaps"] == faults["missing_messages"] == faults["tail"]["messages"] == 0
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("faults:\n  - {kind: bias_step, channel: gyro_q, start_s: 1}\n")
+    out = tmp_path / "g.mcap"
+    cmd[-1] = str(out)
+    run = subprocess.run(
+        [*cmd, "--set", f"imu.fault_schedule={bad}"],
+        env=subprocess_env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1 and "gyro_q" in lines[0], run.stderr
+    assert not out.exists()

@@ -300,14 +300,14 @@ def test_fault_schedule_acts_and_is_labelled_on_the_faults_topic(graph, tmp_path
     assert np.all(np.abs(codes[70:, 5] - clean[70:, 5] - 0.5 / lsb) <= 1)
     np.testing.assert_array_equal(codes[:70, 1:], clean[:70, 1:])
     stuck, step = sorted(events, key=lambda m: m.number)
-    assert (stuck.kind, stuck.channel, stuck.first_sample_index, stuck.num_samples) == (
+    assert (stuck.kind, stuck.channel, stuck.first_faulty_sample, stuck.faulty_samples) == (
         "stuck_at",
         "gyro_x",
         30,
         40,
     )
     assert not stuck.permanent and (stuck.start.nanosec, stuck.end.nanosec) == (3e8, 7e8)
-    assert (step.kind, step.channel, step.first_sample_index, step.permanent) == (
+    assert (step.kind, step.channel, step.first_faulty_sample, step.permanent) == (
         "bias_step",
         "accel_z",
         70,
