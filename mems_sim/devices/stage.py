@@ -204,6 +204,15 @@ def _readout(
     return sat
 
 
+def requantize(y: np.ndarray, inv_lsb: float, code_max: float) -> tuple[np.ndarray, int]:
+    """The ADC of :func:`_readout` on given readout voltages ``y`` (n, 4) [V]: codes
+    rint(y / lsb) clipped to [-code_max - 1, code_max] (the same floats), and the number of
+    clipped samples. ``inv_lsb`` [1/V]."""
+    q = np.rint(y * inv_lsb)
+    sat = int(np.count_nonzero((q > code_max) | (q < -code_max)))
+    return np.clip(q, -code_max - 1.0, code_max).astype(np.int32), sat
+
+
 def readout_noise_std(p: Mapping[str, Any]) -> float:
     """RMS output noise of one transimpedance channel per sample [V] (module doc formula)."""
     B = p["sample_rate_hz"] / 2.0
@@ -560,6 +569,9 @@ class MicroStage:
         self._segn = segs[:, 2].copy()
         self._st = np.zeros(7)
         self._next = 0
+        #: Scheduled sensor faults (mems_sim.hardware.sensor_faults) on the readout voltages
+        #: of CHANNELS before the ADC; None: no faults.
+        self.faults = None
         d = p["ldv_delay_s"] * self.fs
         self._ldv_m = int(math.ceil(d))
         self._ldv_hist = np.zeros((3, self._ldv_m))
@@ -695,6 +707,9 @@ class MicroStage:
             y,
             codes,
         )
+        if self.faults:
+            y = self.faults.apply(y, self._next)
+            codes, sat = requantize(y, 1.0 / self.lsb, float(self.code_max))
         self.last_applied = applied  # drive incl. amplifier noise, held over each sample
         ldv = self._ldv(th[:, 0], om[:, 0], applied)
         self._next += n

@@ -20,7 +20,9 @@ Input: ``temperature`` sensor_msgs/Temperature: the device's temperature (``temp
 Parameters: ``SCANNER_SPECS`` + ``device_seed`` and ``temperature_c`` (the device drawn from the
 table's spreads at a temperature, reference 25 C; ``dc_transimpedance`` only: the
 ``shared_amdm`` front end here is the nominal Table 5.2 device, ``scanner_amdm_node`` draws
-it) + ``front_end`` + ``drive_frequency_hz`` + ``EMULATOR_SPECS``
+it) + ``front_end`` + ``drive_frequency_hz`` + ``fault_schedule`` (``dc_transimpedance``:
+sensor faults on the readout voltage before the ADC, channel ``y_cap``, labelled on
+``faults``; docs/faults.md) + ``EMULATOR_SPECS``
 (default ``frame_size`` 10000 samples = 20 ms: with the estimator and the recorder in one
 process the graph keeps up with 500 kHz only with frames of ~10^4 samples, as measured by make bench).
 """
@@ -30,7 +32,8 @@ from __future__ import annotations
 import numpy as np
 
 from mems_sim.devices import scanner as micro_scanner
-from mems_sim.params import ParamSpec
+from mems_sim.nodes.fault_topic import FAULT_SCHEDULE_SPEC, FaultTopic
+from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.frames import make_adc_frame
 from mems_sim.ros.node_base import EmulatorNode, emulator_specs, variation_specs
 from mems_sim.ros.node_main import run_node
@@ -91,7 +94,7 @@ class ScannerNode(EmulatorNode):
 
     NODE_NAME = "scanner"
     DEFAULT_NAMESPACE = "scanner"
-    SPECS = micro_scanner.SCANNER_SPECS + variation_specs() + NODE_SPECS
+    SPECS = micro_scanner.SCANNER_SPECS + variation_specs() + NODE_SPECS + (FAULT_SCHEDULE_SPEC,)
     DEVICE_SPECS = micro_scanner.SCANNER_SPECS
     DIAGNOSTICS_TITLE = staticmethod(lambda p: f"micro-scanner ({p['front_end']})")
 
@@ -109,6 +112,14 @@ class ScannerNode(EmulatorNode):
             from mems_sim.devices import scanner_amdm
 
             self.device = scanner_amdm.AmdmScannerDevice(seed=p["seed"])
+            if p["fault_schedule"]:
+                raise ParameterError(
+                    f"parameter 'fault_schedule' = {p['fault_schedule']!r} is invalid: front_end "
+                    "'shared_amdm' has no fault schedule yet (front_end 'dc_transimpedance' has)"
+                )
+        self.fault_topic = FaultTopic(
+            self, (ADC_CHANNEL,), ("V",), self.device.fs, white_std=(self._noise_std(),)
+        )
         self.pub_adc, self.pub_drive, self.pub_truth = self.create_frame_publishers(
             "adc", "drive", "truth"
         )
@@ -122,7 +133,10 @@ class ScannerNode(EmulatorNode):
         """(codes, lsb, saturated, drive, f_drive, theta, omega, psd or None) of n samples."""
         if self.front_end == "dc_transimpedance":
             f = self.device.step(n)
-            codes, lsb, sat = quantize(f.y, self.p["adc_bits"], self.p["adc_full_scale"])
+            y = f.y
+            if self.fault_topic.injector:
+                y = self.fault_topic.injector.apply(y.reshape(n, 1), first)[:, 0]
+            codes, lsb, sat = quantize(y, self.p["adc_bits"], self.p["adc_full_scale"])
             if self.device.const_freq is not None:
                 fd = np.full(n, self.device.const_freq)
             else:
@@ -143,7 +157,12 @@ class ScannerNode(EmulatorNode):
             None,
         )
 
+    def _noise_std(self) -> float:
+        """White readout noise per sample of the ADC input [V] (a noise_burst's sigma)."""
+        return float(getattr(self.device, "p", {}).get("noise_std", 0.0))
+
     def publish_frame(self, first: int, n: int) -> None:
+        self.fault_topic.publish_starting(first, n)
         codes, lsb, sat, v, fd, th, om, psd = self._frame(first, n)
         common = self.frame_kwargs
         fsc = (

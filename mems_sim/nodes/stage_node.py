@@ -14,12 +14,15 @@ Topics (relative to the namespace, default ``/stage``):
                                             epoch: its time base)
     ``gyro/imu``     sensor_msgs/Imu        the same samples (angular_velocity.y = main axis),
                                            with publish_imu and while subscribed
+    ``faults``       mems_msgs/FaultEvent   each fault of ``fault_schedule`` when it begins
+                                            (sensor faults on the readout voltages of
+                                            1A..2B before the ADC; docs/faults.md)
     ``/diagnostics``
 Input: ``temperature_input`` sensor_msgs/Temperature: the stage's temperature follows it
 (``temperature_c``, from the next frame; ``temperature`` is the node's output).
 Parameters: STAGE_SPECS (its own ``device_seed``: the channel gain mismatch; its own
 ``temperature_c`` with ``ref_temperature_c``), GYRO_SPECS, SCHEDULE_SPECS (``gyro_seed``: the
-gyro's noise seed, -1 = the node's ``seed``) and EMULATOR_SPECS.
+gyro's noise seed, -1 = the node's ``seed``), ``fault_schedule`` and EMULATOR_SPECS.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from sensor_msgs.msg import Imu, Temperature
 
 from mems_sim.devices import stage as micro_stage
 from mems_sim.devices.stage_gyro import GYRO_SPECS, MemsGyro
+from mems_sim.nodes.fault_topic import FAULT_SCHEDULE_SPEC, FaultTopic
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.frames import index_to_ns, make_adc_frame, ns_to_time
 from mems_sim.ros.node_base import EmulatorNode, emulator_specs
@@ -162,7 +166,9 @@ class StageNode(EmulatorNode):
 
     NODE_NAME = "stage"
     DEFAULT_NAMESPACE = "stage"
-    SPECS = micro_stage.STAGE_SPECS + GYRO_SPECS + SCHEDULE_SPECS + NODE_SPECS
+    SPECS = (
+        micro_stage.STAGE_SPECS + GYRO_SPECS + SCHEDULE_SPECS + NODE_SPECS + (FAULT_SCHEDULE_SPEC,)
+    )
     DEVICE_SPECS = micro_stage.STAGE_SPECS
     DIAGNOSTICS_TITLE = "piezo tilt micro-stage"
     #: ``temperature`` is the stage's output (its temperature as emulated).
@@ -175,6 +181,14 @@ class StageNode(EmulatorNode):
         self.device = micro_stage.MicroStage(
             dev, schedule, seed=self.p["seed"], fixed=getattr(self, "fixed_parameters", ())
         )
+        self.fault_topic = FaultTopic(
+            self,
+            micro_stage.CHANNELS,
+            CHANNEL_UNITS,
+            self.device.fs,
+            white_std=(self.device.noise_std,) * len(micro_stage.CHANNELS),
+        )
+        self.device.faults = self.fault_topic.injector
         # load the compiled (numba) kernels now: at the first frame a paced node would
         # publish ~1 s late (a throwaway device: the node's own device is untouched)
         micro_stage.MicroStage(dev, schedule, seed=0).step(2)
@@ -238,6 +252,7 @@ class StageNode(EmulatorNode):
             pub(m)
 
     def publish_frame(self, first: int, n: int) -> None:
+        self.fault_topic.publish_starting(first, n)
         f = self.device.step(n)
         common = self.frame_kwargs
         lsb = self.device.lsb

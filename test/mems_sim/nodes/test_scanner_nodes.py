@@ -237,3 +237,45 @@ def test_threshold_node_publishes_its_last_estimates_at_the_end_of_the_stream(gr
     for _ in range(20):
         ex.spin_once(timeout_sec=0.01)
     assert len(got["estimate"]) == 5 and len(got["estimate_plain"]) == 5
+
+
+def test_fault_schedule_on_the_readout_voltage(graph, tmp_path):
+    """dc_transimpedance: a sign flip of y_cap over samples 1500..3499 and a stuck readout
+    from 4200: the codes are the fault-free run's outside, mirrored and frozen inside, and
+    the faults topic labels both; shared_amdm refuses a schedule."""
+    from mems_msgs.msg import FaultEvent
+    from mems_sim.nodes.fault_topic import fault_qos
+
+    schedule = tmp_path / "faults.yaml"
+    schedule.write_text(
+        "faults:\n"
+        "  - {kind: sign_flip, channel: y_cap, start_sample: 1500, duration_samples: 2000}\n"
+        "  - {kind: stuck_at, channel: y_cap, start_sample: 4200}\n"
+    )
+    ctx, ex, probe = graph
+    dev = ScannerNode(
+        context=ctx,
+        drive_externally=True,
+        parameter_overrides=params(seed=7, frame_size=1000, fault_schedule=str(schedule), **DECAY),
+    )
+    ex.add_node(dev)
+    got = _subscribe(probe, "/scanner", ("adc",))
+    events = []
+    probe.create_subscription(FaultEvent, "/scanner/faults", events.append, fault_qos(2))
+    assert wait_matched(ex, dev.pub_adc)
+    for _ in range(5):
+        dev.step()
+    assert spin_until(ex, lambda: len(got["adc"]) == 5 and len(events) == 2)
+    codes = np.concatenate([np.asarray(m.codes) for m in got["adc"]])
+    clean, _, _ = quantize(MicroScannerDevice(DECAY, seed=7).step(5000).y, 16, 10.0)
+    np.testing.assert_array_equal(codes[:1500], clean[:1500])
+    np.testing.assert_array_equal(codes[3500:4200], clean[3500:4200])
+    assert np.all(np.abs(codes[1500:3500] + clean[1500:3500]) <= 1)
+    assert np.all(codes[4200:] == clean[4200]) and np.ptp(clean[4200:]) > 0
+    assert sorted((e.kind, e.first_faulty_sample, e.permanent) for e in events) == [
+        ("sign_flip", 1500, False),
+        ("stuck_at", 4200, True),
+    ]
+    emulator_refuses(
+        ScannerNode, ctx, "shared_amdm", front_end="shared_amdm", fault_schedule=str(schedule)
+    )

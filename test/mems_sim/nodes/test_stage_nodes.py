@@ -230,6 +230,9 @@ def test_refusals(ros_context, yaml_path, tmp_path):
         )
     emulator_refuses(StageNode, ros_context, "safe_tilt_rad", amp_hi_v=4.0)
     emulator_refuses(StageNode, ros_context, "sample_rate_hz", sample_rate_hz=0.0)
+    bad = tmp_path / "faults.yaml"
+    bad.write_text("faults:\n  - {kind: stuck_at, channel: 3C, start_s: 0.1}\n")
+    emulator_refuses(StageNode, ros_context, "fault_schedule.*'3C'", fault_schedule=str(bad))
 
 
 def test_nonfinite_frames_rejected_and_counted(graph, yaml_path):
