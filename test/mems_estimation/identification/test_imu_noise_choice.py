@@ -260,7 +260,8 @@ ACCEPTANCE_SAMPLES = int(8 * 3600 * FS)
 @pytest.mark.slow
 def test_acceptance_kasdin_8h_coverage_and_choice():
     """6 axes x 20 seeds x 8 h at 200 Hz: the flicker model chosen in >= 97 % of the 120
-    runs, the 95 % intervals of N, B and K covering the truth in 88-99 % each."""
+    runs, the 95 % intervals of N, B and K covering the truth in 88-99 % each (measured:
+    flicker 100 %, coverage N 93.3 %, B 96.7 %, K 95.8 %; about 10 minutes)."""
     runs = []
     for i, truth in enumerate(ACCEPTANCE_AXES):
         seeds = [s * 10 + i for s in ACCEPTANCE_SEEDS]
