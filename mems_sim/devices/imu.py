@@ -94,6 +94,7 @@ from mems_sim.devices.imu_specs import (
     COMMON_SPECS,
     DEG,
     ERROR_SPECS,
+    FLICKER_SPECS,
     G0,
     GYRO_SPECS,
     IMU_SPECS,
@@ -107,6 +108,15 @@ from mems_sim.devices.imu_specs import (
     imu_specs,
     imu_values,
 )
+from mems_sim.hardware.flicker import flicker_config
+from mems_sim.hardware.flicker_stream import FlickerChannels
+from mems_sim.params import ParameterError
+
+#: Each sensor's flicker table (the four FLICKER_SPECS named ``<sensor>_flicker_*``).
+FLICKER_SPEC_TABLES = {
+    s: tuple(spec for spec in FLICKER_SPECS if spec.name.startswith(f"{s}_flicker_"))
+    for s in ("gyro", "accel")
+}
 
 __all__ = [
     "G0",
@@ -398,6 +408,8 @@ class SensorNoise:
     fs: float
     bits: int
     streams: tuple
+    #: Flicker bias instability on top of x (None: off), :class:`FlickerChannels` of 3 axes.
+    flicker: FlickerChannels | None = None
     x_state: np.ndarray = field(init=False)
     rw_state: np.ndarray = field(init=False)
     saturated_total: np.ndarray = field(init=False)
@@ -422,6 +434,8 @@ class SensorNoise:
         _noise_recursion(
             self.bias, self.a_d, self.eta_gain, self.x_state, eta, white, self.rw_state, rw_inc, out
         )
+        if self.flicker is not None:
+            out += self.flicker.next(n)
         return out
 
     def quantize(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -544,8 +558,11 @@ class ImuNoiseModel:
     ) -> None:
         self.params = imu_values(params)
         self.seed = int(seed)
-        children = np.random.SeedSequence(self.seed).spawn(_N_STREAMS)
-        gens = [np.random.Generator(np.random.PCG64(c)) for c in children]
+        # children 0.._N_STREAMS-1 as ever; one more per sensor for its flicker term (spawn
+        # keys are the children's indices, so the first ones do not change)
+        children = np.random.SeedSequence(self.seed).spawn(_N_STREAMS + len(SENSORS))
+        self._flicker_seeds = dict(zip(SENSORS, children[_N_STREAMS:], strict=True))
+        gens = [np.random.Generator(np.random.PCG64(c)) for c in children[:_N_STREAMS]]
         fs, bits = self.params["sample_rate_hz"], self.params["bits"]
         p = self.params
         #: Turn-on bias of this power-up per sensor, (3,) rad/s or m/s^2.
@@ -591,7 +608,23 @@ class ImuNoiseModel:
             fs=fs,
             bits=bits,
             streams=streams,
+            flicker=self._make_flicker(s, fs),
         )
+
+    def _make_flicker(self, s: str, fs: float) -> FlickerChannels | None:
+        """The flicker term of sensor ``s`` (None when its coefficient is 0); its band's
+        upper corner must lie below the Nyquist frequency (a ParameterError otherwise)."""
+        table = FLICKER_SPEC_TABLES[s]
+        values = {spec.name: self.params[spec.name] for spec in table}
+        config = flicker_config(values, f"{s}_flicker", table)
+        if config.coefficient == 0.0:
+            return None
+        if config.f_high_hz > fs / 2:
+            raise ParameterError(
+                f"parameter '{s}_flicker_f_high_hz' = {config.f_high_hz!r} is out of range: "
+                f"allowed up to the Nyquist frequency {fs / 2!r} Hz of sample_rate_hz"
+            )
+        return FlickerChannels(config, fs, 3, self._flicker_seeds[s])
 
     def _make_errors(self, s: str, fs: float) -> SensorErrors:
         p = self.params

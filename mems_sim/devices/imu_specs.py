@@ -15,6 +15,7 @@ from dataclasses import replace
 from typing import Any
 
 from mems_sim.devices.imu_motion_specs import AXES, ENVIRONMENT_SPECS, VIBRATION_SPECS
+from mems_sim.hardware.flicker import flicker_specs
 from mems_sim.params import ParameterError, ParamSpec, Spread, draw_device, resolve
 
 __all__ = [
@@ -25,6 +26,7 @@ __all__ = [
     "ACCEL_SPECS",
     "IMU_SPECS",
     "ERROR_SPECS",
+    "FLICKER_SPECS",
     "LATENCY_SPEC",
     "ENVIRONMENT_SPECS",
     "VIBRATION_SPECS",
@@ -412,8 +414,29 @@ ERROR_SPECS: tuple[ParamSpec, ...] = (
     (PRESET_SPEC,) + _error_specs("gyro") + _error_specs("accel") + (LATENCY_SPEC,)
 )
 
+#: Flicker (1/f) bias instability of each sensor, on top of Petkov's Gauss-Markov term: the
+#: flat Allan floor real parts show (IEEE Std 952-1997, Annex C); 0 (the default) is off.
+FLICKER_SPECS: tuple[ParamSpec, ...] = flicker_specs(
+    "gyro_flicker",
+    "rad/s",
+    coefficient_source="IEEE Std 952-1997, Annex C: bias instability B (Allan floor 0.664 B); "
+    "0: off, Petkov's model has the Gauss-Markov term only",
+) + flicker_specs(
+    "accel_flicker",
+    "m/s^2",
+    coefficient_max=10.0,
+    coefficient_source="IEEE Std 952-1997, Annex C, applied to the accelerometer (IEEE Std "
+    "1293-2018); 0: off, Petkov's model has the Gauss-Markov term only",
+)
+
 IMU_SPECS: tuple[ParamSpec, ...] = (
-    COMMON_SPECS + GYRO_SPECS + ACCEL_SPECS + ERROR_SPECS + ENVIRONMENT_SPECS + VIBRATION_SPECS
+    COMMON_SPECS
+    + GYRO_SPECS
+    + ACCEL_SPECS
+    + ERROR_SPECS
+    + ENVIRONMENT_SPECS
+    + VIBRATION_SPECS
+    + FLICKER_SPECS
 )
 
 
