@@ -728,10 +728,11 @@ def processes_naming(text: str) -> list[str]:
 def processes_naming_with_pid(text: str) -> list[str]:
     """``PID COMMAND LINE`` of the running processes whose command line contains ``text``.
 
-    A child whose parent also matches is left out: it is a fork that has not yet
-    exec'd (a shell's subshell on its way to ``sleep`` carries the shell's command
-    line for a moment), not another process of its own. Once its parent is gone it
-    is listed, so nothing left running is hidden.
+    A child with its parent's very command line is left out: it is a fork that has not
+    yet exec'd (a shell's subshell on its way to ``sleep`` carries the shell's command
+    line for a moment), not another process of its own. A child that exec'd a program
+    of its own (``mcap_record`` under ``run_graph``) is listed, and so is a fork whose
+    parent is gone, so nothing left running is hidden.
     """
     lines, parents = {}, {}
     for entry in Path("/proc").iterdir():
@@ -745,7 +746,7 @@ def processes_naming_with_pid(text: str) -> list[str]:
         if text in line:
             lines[entry.name] = line
             parents[entry.name] = stat.rsplit(")", 1)[1].split()[1]
-    return [f"{pid} {line}" for pid, line in lines.items() if parents[pid] not in lines]
+    return [f"{pid} {line}" for pid, line in lines.items() if lines.get(parents[pid]) != line]
 
 
 def stderr_of(f) -> str:
