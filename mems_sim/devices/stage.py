@@ -42,13 +42,8 @@ Misprints found in the source (the physics is implemented):
   the RMS of the single-axis signal.
 
 Electronic noise (never tuned to a result) is the sum of the documented physical sources
-of the transimpedance readout, white over the ADC's Nyquist band B = fs/2 (brick-wall
-anti-alias filter, no averaging across periods):
-
-    S_y = 4 k T R_s + (i_n R_s)^2 + e_n^2 |1 + j 2 pi f R_s C_in|^2
-    sigma_y^2 = (4 k T R_s + i_n^2 R_s^2) B + e_n^2 (B + (2 pi R_s C_in)^2 B^3 / 3)
-
-plus the ADC's own quantisation (codes are rounded).  The transimpedance bandwidth is
+of the transimpedance readout (:mod:`mems_sim.devices.stage_readout`), plus the ADC's own
+quantisation (codes are rounded).  The transimpedance bandwidth is
 assumed >> fs, so no signal phase lag is modelled.
 
 Temperature (on by default; linear in T - T_ref): D_n(T) = D_n0 (1 + gap_tempco (T -
@@ -86,6 +81,7 @@ from mems_sim.devices.stage_capacitance import (
     dual_axis_gradient,
     single_axis_dcdtheta,
 )
+from mems_sim.devices.stage_readout import K_BOLTZMANN, readout_noise_std, requantize
 from mems_sim.devices.stage_specs import STAGE_SPECS, draw_spread, validate_params
 from mems_sim.params import ParameterError, resolve
 
@@ -116,7 +112,6 @@ __all__ = [
     "record",
 ]
 
-K_BOLTZMANN = 1.380649e-23  # J/K
 CHANNELS = ("1A", "1B", "2A", "2B")
 
 
@@ -202,26 +197,6 @@ def _readout(
                 q = min(max(q, -code_max - 1.0), code_max)
             codes[i, c] = np.int32(q)
     return sat
-
-
-def requantize(y: np.ndarray, inv_lsb: float, code_max: float) -> tuple[np.ndarray, int]:
-    """The ADC of :func:`_readout` on given readout voltages ``y`` (n, 4) [V]: codes
-    rint(y / lsb) clipped to [-code_max - 1, code_max] (the same floats), and the number of
-    clipped samples. ``inv_lsb`` [1/V]."""
-    q = np.rint(y * inv_lsb)
-    sat = int(np.count_nonzero((q > code_max) | (q < -code_max)))
-    return np.clip(q, -code_max - 1.0, code_max).astype(np.int32), sat
-
-
-def readout_noise_std(p: Mapping[str, Any]) -> float:
-    """RMS output noise of one transimpedance channel per sample [V] (module doc formula)."""
-    B = p["sample_rate_hz"] / 2.0
-    rs = p["r_s_ohm"]
-    thermal = 4.0 * K_BOLTZMANN * p["readout_temperature_k"] * rs * B
-    current = (p["amp_current_noise"] * rs) ** 2 * B
-    k = 2.0 * math.pi * rs * p["input_capacitance_f"]
-    voltage = p["amp_voltage_noise"] ** 2 * (B + k * k * B**3 / 3.0)
-    return p.get("readout_noise_scale", 1.0) * math.sqrt(thermal + current + voltage)
 
 
 def off_axis_rejection(

@@ -4,7 +4,8 @@ other channels and samples are untouched."""
 
 import numpy as np
 
-from mems_sim.devices.stage import CHANNELS, DriveSchedule, MicroStage, requantize
+from mems_sim.devices.stage import CHANNELS, DriveSchedule, MicroStage
+from mems_sim.devices.stage_readout import requantize
 from mems_sim.hardware.fault_schedule import parse_schedule
 from mems_sim.hardware.sensor_faults import SensorFaultInjector
 
