@@ -16,6 +16,7 @@ and ``accel_x..z`` [m/s^2] (``linear_acceleration``), REP-145's raw IMU data.
 Usage:
     identify_noise BAG [--topic T] [--grid octave|decade|all] [--plot FILE.png]
                    [--json] [--kalibr FILE.yaml] [--model gm|auto|flicker]
+                   [--twin TWIN.yaml]
 
 ``--json`` prints the model as JSON on stdout (the table then goes to stderr); ``--kalibr``
 writes a Kalibr IMU file (``imu.yaml``: ``accelerometer_noise_density`` [m/s^2/sqrt(Hz)],
@@ -28,6 +29,10 @@ per axis the flicker-floor model and the Gauss-Markov model fitted to the same A
 the BIC and AIC of both, and the model BIC chooses (or the flicker model) with its
 parameters and 95 % intervals; the first table, ``--kalibr`` and ``--plot`` stay those of the
 Gauss-Markov model (``--model gm``, the default, reports only that).
+``--twin`` writes a ROS 2 parameter file for ``imu_node`` (``--ros-args --params-file``)
+that emulates the recorded IMU: rate, resolution, per-axis mean and the stochastic terms,
+each sensor with the bias-instability model its Allan variance prefers
+(:mod:`mems_estimation.identification.imu_twin`).
 Exit status: 0, or 2 with one line for a file or topic it cannot use (too little data
 included).
 """
@@ -74,7 +79,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the model as JSON on stdout")
     p.add_argument("--kalibr", type=Path, default=None, help="write a Kalibr imu.yaml")
     p.add_argument(
-        "--overwrite", action="store_true", help="replace existing --kalibr/--plot files"
+        "--twin",
+        type=Path,
+        default=None,
+        help="write the imu_node parameter file of a digital twin of the recorded IMU",
+    )
+    p.add_argument(
+        "--overwrite", action="store_true", help="replace existing --kalibr/--plot/--twin files"
     )
     p.add_argument(
         "--model",
@@ -193,11 +204,13 @@ def identify_imu(path: Path, topic: str, grid: str, duplicates: DuplicateFilter 
             "of squares would overflow)"
         )
     report = sampling(stamps)
+    from mems_estimation.identification.imu_twin import value_resolution
     from mems_estimation.nodes.imu_noise_identifier_node import NoiseAccumulator, identify_message
 
     acc = NoiseAccumulator(grid)
     acc.start(report["sample_rate_hz"], 0, IMU_CHANNELS, IMU_UNITS)
     acc.extend(values[report.pop("order")])
+    acc.steps = tuple(value_resolution(values[:, j]) for j in range(values.shape[1]))
     return identify_message(acc, grid, final=True), report, acc
 
 
@@ -244,6 +257,9 @@ def identify_bag(path: Path, topic: str, grid: str, duplicates: DuplicateFilter 
             frames += 1
         except FrameError:
             rejected += 1
+            continue
+        if frames == 1:
+            acc.steps = tuple(float(q) for q in msg.lsb)  # the converter's own step
     if frames == 0:
         raise ValueError(f"{path}: no AdcFrame messages on topic {topic}")
     return identify_message(acc, grid, final=True), frames, rejected, acc
@@ -377,10 +393,32 @@ def format_model(model) -> str:
     return format_table(["axis", "param", "unit", "identified", "95 % CI", "CRB s.e."], rows)
 
 
-def _write_outputs(args, model, kalibr: dict | None, notes: list[str], out) -> None:
-    """Write ``--kalibr`` and ``--plot`` (each whole or not at all, never through a
-    symbolic link: :func:`~mems_sim.bag.output_paths.write_output`); BagWriteError."""
+def twin_text(acc, choices, source: str) -> tuple[str, dict]:
+    """The ``--twin`` parameter file of the accumulator's record and its parameters;
+    ``choices``: the model choice per channel (computed here when None)."""
+    from mems_estimation.identification.imu_twin import twin_parameters, twin_yaml
+
+    if choices is None:
+        from mems_estimation.tools.noise_choice_report import axis_choices
+
+        choices = axis_choices(acc)
+    _, means = acc.results()
+    params = twin_parameters(
+        choices, acc.channels, acc.fs, acc.duration_s(), [float(m) for m in means], acc.steps
+    )
+    return twin_yaml(params, source), params
+
+
+def _write_outputs(args, model, kalibr: dict | None, notes: list[str], out, twin=None) -> None:
+    """Write ``--kalibr``, ``--plot`` and ``--twin`` (each whole or not at all, never through
+    a symbolic link: :func:`~mems_sim.bag.output_paths.write_output`); BagWriteError."""
     from mems_sim.bag.output_paths import write_output
+
+    if args.twin:
+        text, params = twin
+        write_output(args.twin, lambda tmp: Path(tmp).write_text(text), args.overwrite)
+        models = ", ".join(f"{s} {m}" for s, m in params["_models"].items())
+        print(f"twin: {args.twin} (imu_node --params-file; {models})", file=out)
 
     if args.kalibr:
         import yaml
@@ -418,7 +456,7 @@ def main(argv: list[str] | None = None) -> int:
     out = sys.stderr if args.json else sys.stdout
     from mems_sim.bag.output_paths import BagWriteError, output_problem
 
-    for option, path in (("--kalibr", args.kalibr), ("--plot", args.plot)):
+    for option, path in (("--kalibr", args.kalibr), ("--plot", args.plot), ("--twin", args.twin)):
         # before the analysis: a symbolic link, a directory or an existing file (without
         # --overwrite) is refused, an unwritable directory too
         problem = None if path is None else output_problem(str(path), args.overwrite)
@@ -456,7 +494,14 @@ def main(argv: list[str] | None = None) -> int:
     print(format_model(model), file=out)
     choices = _model_choices(args.model, acc, out)
     try:
-        _write_outputs(args, model, kalibr, notes, out)
+        twin = None
+        if args.twin:
+            try:
+                twin = twin_text(acc, choices, f"{args.bag} {topic}")
+            except ValueError as exc:
+                print(f"identify_noise: error: --twin: {exc}", file=sys.stderr)
+                return 2
+        _write_outputs(args, model, kalibr, notes, out, twin)
     except BagWriteError as exc:  # e.g. the disk filled up, or a link appeared meanwhile
         print(f"identify_noise: error: {exc}", file=sys.stderr)
         return 2
