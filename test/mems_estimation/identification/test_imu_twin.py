@@ -106,3 +106,33 @@ def test_twin_allan_deviation_agrees_with_the_record(record, twin):
         inside += int(ok.sum())
         total += ok.size
     assert inside >= 0.9 * total, f"{inside} of {total} octave taus inside"
+
+
+def test_twin_model_inside_the_record_95_percent_band(record, twin):
+    """The twin model's analytic Allan deviation (white N^2/tau, random walk K^2 tau/3, the
+    emulator's flicker generator in closed form, quantisation LSB^2/12 as white noise of one
+    sample) inside the record's 95 % chi-square band (edf for its local slope) at >= 90 %
+    of the octave taus pooled over the 6 axes."""
+    from mems_sim.hardware.flicker import FlickerConfig, flicker_avar
+
+    inside, total = 0, 0
+    for j, name in enumerate(CHANNELS):
+        s = name.split("_")[0]
+        rec = allan_analysis(record[:, j], FS, "octave")
+        rec = allan_analysis(
+            record[:, j], FS, "octave", confidence=0.95, slope=local_slope(rec.taus, rec.avar)
+        )
+        taus = rec.taus
+        config = FlickerConfig(
+            twin[f"{s}_flicker_coefficient"],
+            twin[f"{s}_flicker_f_low_hz"],
+            twin[f"{s}_flicker_f_high_hz"],
+            2,
+        )
+        white = twin[f"{s}_noise_density"] ** 2 + twin[f"{s}_lsb"] ** 2 / 12 / FS
+        avar = white / taus + twin[f"{s}_random_walk"] ** 2 * taus / 3
+        adev = np.sqrt(avar + flicker_avar(taus, FS, config))
+        ok = (adev >= rec.ci_low) & (adev <= rec.ci_high)
+        inside += int(ok.sum())
+        total += ok.size
+    assert inside >= 0.9 * total, f"{inside} of {total} octave taus inside"
