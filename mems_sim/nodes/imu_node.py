@@ -9,9 +9,10 @@ Topics (relative to the node namespace, default ``/imu``):
                                    driver converts them, model covariances, no orientation
                                    (REP-145 raw IMU data: remap to ``data_raw`` for imu_tools)
     ``temperature_sensor`` mems_msgs/SignalFrame  the IMU's own temperature reading per
-                                   sample, channel ``temperature`` [degC] (an ideal sensor:
-                                   the device temperature the model used), same frames as
-                                   ``adc``; with ``calibration_topics``
+                                   sample, channel ``temperature`` [degC] (by default an
+                                   ideal sensor: the device temperature the model used;
+                                   ``temp_sensor_*`` add lag, noise, offset, resolution),
+                                   same frames as ``adc``; with ``calibration_topics``
     ``truth_calibration``  mems_msgs/CalibrationResult (transient local, once, at the first
                                    frame): the realised error terms, method "truth", names
                                    ``{s}_bias_{a}``, ``{s}_matrix_{a}{b}``,
@@ -43,11 +44,14 @@ ADC the motion of t - latency_s.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from sensor_msgs.msg import Imu
 
 from mems_msgs.msg import CalibrationResult
 from mems_sim.devices import imu, imu_motion, imu_profiles
+from mems_sim.hardware.sensor_lag import TEMPERATURE_SENSOR_SPECS, LaggedTemperatureSensor
 from mems_sim.nodes.fault_topic import FAULT_SCHEDULE_SPEC, FaultTopic
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.frames import index_to_ns, make_adc_frame, ns_to_time
@@ -107,6 +111,24 @@ MOTION_SPECS: tuple[ParamSpec, ...] = (
     ),
 )
 
+#: The IMU's own temperature sensor (``temperature_sensor``): lag, noise, offset and
+#: resolution of the reading; by default an ideal sensor that reads the device temperature.
+_IDEAL_READING = {
+    "temp_sensor_time_constant_s": 0.0,
+    "temp_sensor_noise_k": 0.0,
+    "temp_sensor_resolution_k": 0.0,
+}
+TEMPERATURE_READING_SPECS: tuple[ParamSpec, ...] = tuple(
+    replace(
+        spec,
+        default=_IDEAL_READING.get(spec.name, spec.default),
+        source=spec.source + "; imu_node default: an ideal reading (0)"
+        if spec.name in _IDEAL_READING
+        else spec.source,
+    )
+    for spec in TEMPERATURE_SENSOR_SPECS
+)
+
 CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 UNITS = ("rad/s",) * 3 + ("m/s^2",) * 3
 
@@ -121,7 +143,12 @@ class ImuNode(EmulatorNode):
     NODE_NAME = "imu"
     DEFAULT_NAMESPACE = "imu"
     SPECS = (
-        imu.IMU_SPECS + variation_specs() + EMULATOR_SPECS + MOTION_SPECS + (FAULT_SCHEDULE_SPEC,)
+        imu.IMU_SPECS
+        + variation_specs()
+        + EMULATOR_SPECS
+        + MOTION_SPECS
+        + (FAULT_SCHEDULE_SPEC,)
+        + TEMPERATURE_READING_SPECS
     )
     DEVICE_SPECS = imu.IMU_SPECS
     DIAGNOSTICS_TITLE = "IMU emulator"
@@ -166,9 +193,11 @@ class ImuNode(EmulatorNode):
         self.pub_adc, self.pub_truth = self.create_frame_publishers("adc", "truth")
         topics = self.p["calibration_topics"]
         self.pub_temperature = self.pub_truth_calibration = None
+        self.temperature_reading = None
         auto = self.profile is not None or self.p["latency_s"] > 0.0
         if topics == "on" or (topics == "auto" and auto):
             (self.pub_temperature,) = self.create_frame_publishers("temperature_sensor")
+            self.temperature_reading = self._make_temperature_reading(fs)
             self.pub_truth_calibration = self.create_publisher(
                 CalibrationResult, "truth_calibration", RESULT_QOS
             )
@@ -179,6 +208,16 @@ class ImuNode(EmulatorNode):
             self.pub_imu = self.create_publisher(Imu, "data", qos)
             self._imu_cdr = ImuSerializer(self.p["frame_id"], self._gyro_cov, self._accel_cov)
         return fs
+
+    def _make_temperature_reading(self, fs: float):
+        """The temperature sensor's model (mems_sim.hardware.sensor_lag) and its generator,
+        or None for the ideal reading (every term 0: the device temperature itself)."""
+        values = {spec.name: self.p[spec.name] for spec in TEMPERATURE_READING_SPECS}
+        if all(values[k] == 0.0 for k in _IDEAL_READING) and values["temp_sensor_offset_k"] == 0:
+            return None
+        sensor = LaggedTemperatureSensor(1.0 / fs, values)
+        rng = np.random.Generator(np.random.PCG64([self.p["seed"], 0x7E4D]))
+        return sensor, rng
 
     def _make_motion(self, fs: float) -> imu_motion.ImuMotion:
         """The true motion (mems_sim.devices.imu_motion) of the node's motion, environment
@@ -302,8 +341,12 @@ class ImuNode(EmulatorNode):
             self.pub_truth, first, np.hstack([truth_gyro, truth_accel]), CHANNELS, UNITS
         )
         if self.pub_temperature is not None:
+            reading = temperature
+            if self.temperature_reading is not None:
+                sensor, rng = self.temperature_reading
+                reading = sensor.measure(temperature, rng).reading_c
             self.publish_signals(
-                self.pub_temperature, first, temperature[:, None], ("temperature",), ("degC",)
+                self.pub_temperature, first, reading[:, None], ("temperature",), ("degC",)
             )
         if self.pub_imu is not None:
             self._publish_imu(first, frame.gyro_si, frame.accel_si)

@@ -328,3 +328,39 @@ def test_bad_fault_schedule_is_one_parameter_error(ros_context, tmp_path):
     text = str(err.value)
     assert text.startswith("parameter 'fault_schedule'") and "gyro_w" in text
     assert "\n" not in text
+
+
+def test_temperature_reading_with_lag_offset_and_resolution(graph):
+    """temp_sensor_*: the reading of a device at 30.3 C through a sensor with a lag, an
+    offset of 0.5 K and a resolution of 1/256 K is 25 C + round(5.8 K * 256) / 256 (the
+    lag starts at the first input, so a constant temperature stays); by default the reading
+    is the device temperature itself."""
+    ctx, ex, probe = graph
+    emu = ImuNode(
+        context=ctx,
+        drive_externally=True,
+        parameter_overrides=params(
+            seed=1,
+            frame_size=20,
+            publish_imu=False,
+            calibration_topics="on",
+            temperature_c=30.3,
+            temp_sensor_time_constant_s=2.0,
+            temp_sensor_offset_k=0.5,
+            temp_sensor_resolution_k=1.0 / 256.0,
+        ),
+    )
+    ex.add_node(emu)
+    got = []
+    probe.create_subscription(SignalFrame, "/imu/temperature_sensor", got.append, FRAME_QOS)
+    assert spin_until(ex, lambda: emu.pub_temperature.get_subscription_count() == 1)
+    for _ in range(3):
+        emu.step()
+    assert spin_until(ex, lambda: len(got) == 3)
+    reading = np.concatenate([np.asarray(m.data) for m in got])
+    assert np.all(reading == 25.0 + np.round(5.8 * 256) / 256)
+    ideal = ImuNode(
+        context=ctx, drive_externally=True, parameter_overrides=params(calibration_topics="on")
+    )
+    assert ideal.temperature_reading is None
+    ideal.destroy_node()
