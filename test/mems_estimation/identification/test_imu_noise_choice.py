@@ -33,6 +33,7 @@ import sys
 import numpy as np
 import pytest
 from allantools.noise_kasdin import Noise
+from kasdin_records import kasdin_rate
 
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", "..")))
 
@@ -59,22 +60,6 @@ def levels(B: float, tau_white: float, tau_walk: float) -> dict:
     tau_white (s) and the random walk at tau_walk (s)."""
     floor = FLICKER_AVAR * B**2
     return {"N": math.sqrt(floor * tau_white), "B": B, "K": math.sqrt(3.0 * floor / tau_walk)}
-
-
-def kasdin_rate(n: int, fs: float, N: float, B: float, K: float, seed: int) -> np.ndarray:
-    """White + flicker + random-walk rate noise (module doc), n samples at fs (Hz), seeded
-    (the generator draws from numpy's global state, restored afterwards)."""
-    state = np.random.get_state()
-    np.random.seed(seed)
-    try:
-        out = np.zeros(n)
-        for b, qd in ((0, N**2 * fs), (-1, B**2), (-2, K**2 / fs)):
-            noise = Noise(nr=n, qd=qd, b=b)
-            noise.generateNoise()
-            out += noise.time_series
-    finally:
-        np.random.set_state(state)
-    return out
 
 
 def flicker_runs(seeds, n: int, truth: dict) -> list[dict]:

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from allantools.noise_kasdin import Noise
+from kasdin_records import kasdin_rate
 
 from mems_estimation.identification.allan import allan_analysis, local_slope
 from mems_estimation.identification.imu_twin import (
@@ -31,30 +31,13 @@ LEVELS = {
 }
 
 
-def kasdin(n: int, N: float, B: float, K: float, seed: int) -> np.ndarray:
-    """White + flicker + random-walk rate noise of Allan coefficients N, B, K (qd = N^2 fs,
-    B^2, K^2/fs for b = 0, -1, -2: Kasdin & Walter, Proc. IEEE FCS 1992, the rate taken
-    as the generated series), seeded through numpy's global state (restored)."""
-    state = np.random.get_state()
-    np.random.seed(seed)
-    try:
-        out = np.zeros(n)
-        for b, qd in ((0, N**2 * FS), (-1, B**2), (-2, K**2 / FS)):
-            noise = Noise(nr=n, qd=qd, b=b)
-            noise.generateNoise()
-            out += noise.time_series
-    finally:
-        np.random.set_state(state)
-    return out
-
-
 @pytest.fixture(scope="module")
 def record():
     cols = []
     for i, s in enumerate(("gyro", "accel")):
         N, B, K, lsb, means = LEVELS[s]
         for j, m in enumerate(means):
-            x = kasdin(N_SAMPLES, N, B, K, seed=100 + 3 * i + j) + m
+            x = kasdin_rate(N_SAMPLES, FS, N, B, K, seed=100 + 3 * i + j) + m
             cols.append(np.rint(x / lsb) * lsb)
     return np.column_stack(cols)
 

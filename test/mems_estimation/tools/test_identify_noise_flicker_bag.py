@@ -12,7 +12,7 @@ import json
 import math
 
 import numpy as np
-from allantools.noise_kasdin import Noise
+from kasdin_records import kasdin_rate
 
 from mems_estimation.tools.identify_noise import main
 
@@ -21,23 +21,6 @@ N_SAMPLES = 1 << 17
 #: Allan coefficients N [u sqrt(s)], B [u], K [u/sqrt(s)]: the flicker floor meets the white
 #: noise near tau = 0.2 s and the random walk near tau = 300 s.
 LEVELS = (3e-4, 1e-3, 6e-5)
-
-
-def kasdin(n: int, seed: int) -> np.ndarray:
-    """The record of one axis (qd = N^2 fs, B^2, K^2/fs for b = 0, -1, -2), seeded through
-    numpy's global state (restored)."""
-    N, B, K = LEVELS
-    state = np.random.get_state()
-    np.random.seed(seed)
-    try:
-        out = np.zeros(n)
-        for b, qd in ((0, N**2 * FS), (-1, B**2), (-2, K**2 / FS)):
-            noise = Noise(nr=n, qd=qd, b=b)
-            noise.generateNoise()
-            out += noise.time_series
-    finally:
-        np.random.set_state(state)
-    return out
 
 
 def write_bag(path, data: np.ndarray) -> None:
@@ -71,7 +54,7 @@ def write_bag(path, data: np.ndarray) -> None:
 
 
 def test_flicker_record_through_identify_noise(tmp_path):
-    data = np.column_stack([kasdin(N_SAMPLES, 40 + j) for j in range(6)])
+    data = np.column_stack([kasdin_rate(N_SAMPLES, FS, *LEVELS, seed=40 + j) for j in range(6)])
     write_bag(tmp_path / "bag", data)
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
