@@ -10,23 +10,16 @@
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 from pathlib import Path
 
 from bag_builders import fuzz_ros1, fuzz_sqlite, imu_bag, rechunked_mcap
+from identify_noise_helpers import IMU_BAG, run_identify_noise
 
-from mems_estimation.tools.identify_noise import main
-
-BAG = Path(__file__).resolve().parents[3] / "bags" / "imu.mcap"
+BAG = IMU_BAG
 
 
-def _run(args: list) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main([str(a) for a in args])
-    return code, out.getvalue(), err.getvalue()
+_run = run_identify_noise
 
 
 def _model(path: Path) -> tuple[dict, str]:

@@ -4,22 +4,15 @@ printed before the option existed; ``auto`` and ``flicker`` add the model-choice
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import math
-from pathlib import Path
 
-from mems_estimation.tools.identify_noise import main
+from identify_noise_helpers import IMU_BAG, run_identify_noise
 
-BAG = Path(__file__).resolve().parents[3] / "bags" / "imu.mcap"
+BAG = IMU_BAG
 
 
-def _run(args: list) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main([str(a) for a in args])
-    return code, out.getvalue(), err.getvalue()
+_run = run_identify_noise
 
 
 def test_default_gm_and_auto_outputs():

@@ -3,25 +3,17 @@ resolution and mean; refused onto an existing file without --overwrite."""
 
 from __future__ import annotations
 
-import contextlib
-import io
-from pathlib import Path
-
 import numpy as np
 import yaml
+from identify_noise_helpers import IMU_BAG, run_identify_noise
 
-from mems_estimation.tools.identify_noise import main
 from mems_sim.devices.imu import ImuNoiseModel
 from mems_sim.nodes.imu_node import ImuNode
 
-BAG = Path(__file__).resolve().parents[3] / "bags" / "imu.mcap"
+BAG = IMU_BAG
 
 
-def _run(args: list) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main([str(a) for a in args])
-    return code, out.getvalue(), err.getvalue()
+_run = run_identify_noise
 
 
 def test_twin_file_is_an_imu_node_parameter_file(tmp_path):
