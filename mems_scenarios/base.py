@@ -123,7 +123,8 @@ def options_record(options: ScenarioOptions) -> dict:
 def default_domain_id() -> int:
     """ROS_DOMAIN_ID from the environment, else a free domain leased for this process
     (:func:`~mems_scenarios.domain.lease_default_domain`: the first of 1..101 without
-    61-65, then 0, that no other graph of this package holds). The :class:`Graph` made on
+    61-65, then 0, or of ``$MEMS_FREE_DOMAINS``, that no other graph of this package
+    holds). The :class:`Graph` made on
     it keeps the lease; an explicit domain is leased by the Graph (or refused). A value of
     ROS_DOMAIN_ID that rcl would misread or Fast DDS cannot use raises ScenarioError
     (:func:`~mems_sim.ros.env.domain_id_problem`)."""
@@ -135,7 +136,7 @@ def default_domain_id() -> int:
         return int(env)
     try:
         return lease_default_domain()
-    except DomainBusy as exc:
+    except (DomainBusy, ValueError) as exc:
         raise ScenarioError(str(exc)) from None
 
 

@@ -118,8 +118,8 @@ def _parser() -> argparse.ArgumentParser:
         type=int,
         default=None,
         metavar="ID",
-        help="ROS domain of the graph (default: $ROS_DOMAIN_ID, else a free one of 0..101 "
-        "leased for the run); a domain another run holds, or where another graph publishes "
+        help="ROS domain of the graph (default: $ROS_DOMAIN_ID, else a free one of 0..101, "
+        "or of $MEMS_FREE_DOMAINS, leased for the run); a domain another run holds, or where another graph publishes "
         "this scenario's topics, is refused",
     )
     # fault injection for the tests of the loss reporting: TOPIC:N hands only the first N

@@ -10,8 +10,11 @@ domains are); the lock file names the holder (process id and command) for the re
 message of the next one.
 
 :func:`lease_default_domain` picks the domain of a run that was given none: the first
-free one of :data:`DEFAULT_DOMAINS`, starting at a place derived from the process id so
-that concurrent runs rarely try the same one first. A domain given explicitly is leased
+free one of :func:`free_domains` (:data:`DEFAULT_DOMAINS`, or the ranges of
+``$MEMS_FREE_DOMAINS`` such as ``66-101``), starting at a place derived from the process
+id so that concurrent runs rarely try the same one first. A test suite that hands its
+tests domains of their own confines the runs it starts without one (a campaign's) to
+other domains this way. A domain given explicitly is leased
 as it is, or refused (:class:`DomainBusy`) when another graph holds it.
 
 The lease only coordinates graphs of this package; a graph started otherwise (``ros2
@@ -31,6 +34,36 @@ from pathlib import Path
 #: (61-65), then 0 (the default domain of every ROS tool, so the last choice). Above 101
 #: the ports Fast DDS derives from the domain leave the range it is guaranteed on Linux.
 DEFAULT_DOMAINS: tuple[int, ...] = tuple(d for d in range(1, 102) if not 61 <= d <= 65) + (0,)
+
+
+#: The variable naming the domains a run given none may pick: ``A-B`` ranges and single
+#: ids, separated by commas, each in [0, :data:`MAX_FREE_DOMAIN`].
+FREE_DOMAINS_VARIABLE = "MEMS_FREE_DOMAINS"
+
+#: The highest domain :data:`FREE_DOMAINS_VARIABLE` may name (Fast DDS's ports of domain
+#: 232 reach 65535).
+MAX_FREE_DOMAIN = 232
+
+
+def free_domains() -> tuple[int, ...]:
+    """The domains :func:`lease_default_domain` may pick, in order of preference:
+    ``$MEMS_FREE_DOMAINS`` if set (e.g. ``66-101`` or ``3,5,70-80``), else
+    :data:`DEFAULT_DOMAINS`. A malformed value raises ValueError (one line)."""
+    text = os.environ.get(FREE_DOMAINS_VARIABLE, "").strip()
+    if not text:
+        return DEFAULT_DOMAINS
+    out: list[int] = []
+    for part in text.split(","):
+        first, dash, last = part.strip().partition("-")
+        numbers = (first, last) if dash else (first, first)
+        low, high = (int(n) if n.isascii() and n.isdigit() else -1 for n in numbers)
+        if not 0 <= low <= high <= MAX_FREE_DOMAIN:
+            raise ValueError(
+                f"{FREE_DOMAINS_VARIABLE} = {text!r} is invalid: expected domain ids and "
+                f"ranges A-B (0 <= A <= B <= {MAX_FREE_DOMAIN}) separated by commas"
+            )
+        out.extend(d for d in range(low, high + 1) if d not in out)
+    return tuple(out)
 
 
 #: Domains whose lease this process holds (a lock taken and not yet released).
@@ -137,20 +170,27 @@ _PENDING: dict[int, DomainLease] = {}
 
 
 def lease_default_domain() -> int:
-    """Lease the first free domain of :data:`DEFAULT_DOMAINS` (from a pid-derived start)
-    and return it; the lease waits in this process for :func:`lease_domain`."""
-    candidates = DEFAULT_DOMAINS[:-1]
+    """Lease the first free domain of :func:`free_domains` (from a pid-derived start; the
+    last one of them is tried last) and return it; the lease waits in this process for
+    :func:`lease_domain`. A malformed ``$MEMS_FREE_DOMAINS`` raises ValueError."""
+    domains = free_domains()
+    candidates = domains[:-1] or domains
     start = os.getpid() % len(candidates)
-    for domain_id in candidates[start:] + candidates[:start] + DEFAULT_DOMAINS[-1:]:
+    for domain_id in dict.fromkeys(candidates[start:] + candidates[:start] + domains[-1:]):
         if domain_id in _PENDING:
             continue
         lease = DomainLease.try_acquire(domain_id)
         if lease is not None:
             _PENDING[domain_id] = lease
             return domain_id
+    which = (
+        f"${FREE_DOMAINS_VARIABLE} ({os.environ[FREE_DOMAINS_VARIABLE].strip()})"
+        if domains is not DEFAULT_DOMAINS
+        else "0..101 (except 61-65)"
+    )
     raise DomainBusy(
-        f"no free ROS domain: every one of 0..101 (except 61-65) is leased by another "
-        f"graph (lock files in {lease_dir()}); pass --domain-id"
+        f"no free ROS domain: every one of {which} is leased by another graph (lock files "
+        f"in {lease_dir()}); pass --domain-id"
     )
 
 

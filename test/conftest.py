@@ -19,17 +19,23 @@ _BASE = int(os.environ.get("ROS_DOMAIN_ID", "63"))
 _WORKER = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0)
 _WORKERS = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
 _domains = itertools.count(0)
+# The two tiers' domains: ``make test`` (ROS_DOMAIN_ID 63, odd) hands its tests 1..60 and
+# lets the runs they start without a domain (a campaign's run_scenario processes) lease
+# 66..101; ``make acceptance`` (64, even) 102..201 and 202..231. Disjoint, so that a
+# campaign's run never leases a domain a test of either tier is about to use.
+_ACCEPTANCE = _BASE % 2 == 0
+_FIRST, _SPAN = (102, 100) if _ACCEPTANCE else (1, 60)
+os.environ["MEMS_FREE_DOMAINS"] = "202-231" if _ACCEPTANCE else "66-101"
 
 
 def next_domain_id() -> int:
     """A domain id for one test, distinct from the other tests of this run, of the other
-    xdist workers (worker i of n gets the ids that are i modulo n) and of a run of the other
-    tier at the same time: ``make test`` (ROS_DOMAIN_ID 63, odd) takes 1..100 and ``make
-    acceptance`` (64, even) 101..200, so the two can run side by side."""
-    span = 100 - 100 % _WORKERS
-    tier = 100 * (_BASE % 2 == 0)
+    xdist workers (worker i of n gets the ids that are i modulo n), of a run of the other
+    tier at the same time and of the runs the tests start without a domain (see
+    ``MEMS_FREE_DOMAINS`` above)."""
+    span = _SPAN - _SPAN % _WORKERS
     for _ in range(span // _WORKERS):  # skip a domain a scenario graph still leases
-        domain = 1 + tier + (_BASE * 7 * _WORKERS + _WORKER + _WORKERS * next(_domains)) % span
+        domain = _FIRST + (_BASE * 7 * _WORKERS + _WORKER + _WORKERS * next(_domains)) % span
         if _not_leased(domain):
             break
     return domain

@@ -29,15 +29,18 @@ import pytest
 from mems_scenarios import imu_noise
 from mems_scenarios.base import (
     DEFAULT_DOMAINS,
+    DomainBusy,
     DomainLease,
     Graph,
     ScenarioError,
     ScenarioOptions,
+    default_domain_id,
     holder,
     lease_default_domain,
     lease_domain,
 )
 from mems_scenarios.cli import main as run_scenario
+from mems_scenarios.domain import free_domains
 from mems_scenarios.figures import figures_of
 from mems_sim.bag import info as info_mod
 from mems_sim.bag.player import read_messages
@@ -218,3 +221,29 @@ def test_default_domains_are_leased_distinct(tmp_path, monkeypatch):
     assert again is not None and again.held
     again.release()
     lease_domain(b).release()
+
+
+def test_free_domains_confine_the_default_lease(tmp_path, monkeypatch):
+    monkeypatch.setenv("MEMS_DOMAIN_LEASE_DIR", str(tmp_path))
+    monkeypatch.setenv("MEMS_FREE_DOMAINS", "70-71, 75")
+    assert free_domains() == (70, 71, 75)
+    taken = [lease_default_domain() for _ in range(3)]
+    assert sorted(taken) == [70, 71, 75]
+    with pytest.raises(DomainBusy, match=r"MEMS_FREE_DOMAINS \(70-71, 75\)"):
+        lease_default_domain()
+    for d in taken:
+        lease_domain(d).release()
+    monkeypatch.delenv("MEMS_FREE_DOMAINS")
+    assert free_domains() == DEFAULT_DOMAINS
+
+
+@pytest.mark.parametrize("value", ["66-", "a-b", "90-80", "233", "-3", "5,,6"])
+def test_malformed_free_domains_is_one_line(monkeypatch, value):
+    monkeypatch.setenv("MEMS_FREE_DOMAINS", value)
+    with pytest.raises(ValueError) as exc:
+        free_domains()
+    text = str(exc.value)
+    assert text.startswith(f"MEMS_FREE_DOMAINS = {value!r} is invalid") and "\n" not in text
+    monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)
+    with pytest.raises(ScenarioError, match="MEMS_FREE_DOMAINS"):
+        default_domain_id()
