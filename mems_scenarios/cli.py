@@ -77,6 +77,15 @@ def _parser() -> argparse.ArgumentParser:
         "repeatable, applied after --params-file; overrides the scenario's own value",
     )
     p.add_argument(
+        "--faults",
+        action="append",
+        default=[],
+        metavar="[NODE=]FILE",
+        help="a fault schedule (YAML, docs/faults.md) for the scenario's emulators that take "
+        "one (with NODE=: those whose name matches NODE); repeatable; the recording holds "
+        "each emulator's 'faults' topic",
+    )
+    p.add_argument(
         "--params-file",
         action="append",
         default=[],
@@ -204,6 +213,8 @@ def validate(args) -> str | None:
             return f"--cut = {cut!r} is invalid: TOPIC:MESSAGES"
     try:
         args.overrides = overrides(args)
+        if args.faults:
+            args.overrides += faults_of(args)
     except ParamsFileError as exc:
         return str(exc)
     if args.out is not None and args.out.suffix != ".mcap":
@@ -233,6 +244,28 @@ def overrides(args) -> list[Override]:
     for path in args.params_file:
         out += load_params_file(path)
     return out + [parse_set(text) for text in args.set_params]
+
+
+def faults_of(args) -> list[Override]:
+    """The ``fault_schedule`` overrides of ``--faults`` on the scenario's graph
+    (:func:`~mems_scenarios.faults_option.fault_overrides`)."""
+    from mems_scenarios.faults_option import fault_overrides
+
+    module = load(args.name)
+    if not hasattr(module, "graph"):
+        raise ParamsFileError(
+            f"--faults: scenario {args.name} has no graph as data yet: use --set "
+            "NODE.fault_schedule=FILE"
+        )
+    duration = module.DEFAULT_DURATION_S if args.duration is None else args.duration
+    options = ScenarioOptions(
+        duration_s=duration,
+        seed=args.seed,
+        overrides=args.overrides,
+        device_seed=args.device_seed,
+        temperature_c=args.temperature,
+    )
+    return fault_overrides(module.graph(options, duration), args.faults)
 
 
 def device_text(args) -> str:
@@ -461,9 +494,11 @@ def write_launch_main(args) -> int:
     """``run_scenario NAME --write-launch FILE``: the scenario's graph as a launch file for
     a runner of processes (:meth:`~mems_scenarios.contract.GraphSpec.as_processes`)."""
     import math
+    from dataclasses import replace
 
     from mems_scenarios.base import options_record
-    from mems_scenarios.contract import full_parameters, run_info
+    from mems_scenarios.contract import full_parameters, given_parameters, run_info
+    from mems_scenarios.faults_option import fault_topics
 
     module = load(args.name)
     if not hasattr(module, "graph"):
@@ -502,6 +537,10 @@ def write_launch_main(args) -> int:
     except ParameterError as exc:
         return _fail(str(exc))
     record = run_info(spec.scenario, options_record(options), nodes, duration_s=duration)
+    given = tuple(
+        replace(e, parameters=given_parameters(e, args.overrides, variation)) for e in spec.nodes
+    )
+    spec = replace(spec, nodes=given, recorded=spec.recorded + fault_topics(given))
     text = spec.as_processes(args.realtime_factor, str(record_file.resolve())).to_launch_yaml()
     try:
         for path, content in ((args.write_launch, text), (record_file, record + "\n")):

@@ -188,22 +188,32 @@ def _emulator_base() -> type:
 
 def full_parameters(entry: NodeEntry, overrides=(), variation: dict | None = None) -> dict:
     """Every parameter value node ``entry`` runs with, without making the node: its
-    table's defaults, the entry's values, then ``variation`` (``device_seed``,
-    ``temperature_c`` of an emulator) and the matching ``overrides``
-    (:class:`~mems_sim.ros.params_file.Override`), each validated against the table."""
+    table's defaults, then :func:`given_parameters`, each validated against the table."""
+    from mems_sim.params import spec_table
+
+    specs = spec_table(node_class(entry.executable).SPECS)
+    values = {name: spec.default for name, spec in specs.items()}
+    values.update(given_parameters(entry, overrides, variation))
+    return {name: specs[name].validate(v) if name in specs else v for name, v in values.items()}
+
+
+def given_parameters(entry: NodeEntry, overrides=(), variation: dict | None = None) -> dict:
+    """The parameter values given to node ``entry`` (those a launch file of the run names):
+    the entry's values, then ``variation`` (``device_seed``, ``temperature_c`` of an
+    emulator) and the matching ``overrides``
+    (:class:`~mems_sim.ros.params_file.Override`) that its table has."""
     from mems_sim.params import spec_table
     from mems_sim.ros.params_file import node_matches
 
     cls = node_class(entry.executable)
     specs = spec_table(cls.SPECS)
-    values = {name: spec.default for name, spec in specs.items()}
-    values.update(entry.parameters)
+    values = dict(entry.parameters)
     if variation and issubclass(cls, _emulator_base()):
         values.update({k: v for k, v in variation.items() if v is not None and k in specs})
     for o in overrides:
         if node_matches(o.node, entry.fqn) and o.name in specs:
             values[o.name] = o.value
-    return {name: specs[name].validate(v) if name in specs else v for name, v in values.items()}
+    return values
 
 
 def _jsonable(value):
