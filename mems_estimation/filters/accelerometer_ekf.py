@@ -15,7 +15,7 @@ from mems_sim.kernels.accelerometer_ekf import (
     HybridEkfConfig,
     ekf_init,
     ekf_predict,
-    ekf_update,
+    ekf_update_innovation,
     is_positive_definite,
 )
 from mems_sim.kernels.divergence import covariance_ok, state_ok
@@ -24,10 +24,11 @@ __all__ = ["HybridEkf", "HybridEkfConfig"]
 
 
 @numba.njit(cache=True)
-def _run(y, v_f, dt, q, r, mv, s, pm, est, var, innov, pd):
-    """Filter a block: update with y[i], record, predict with v_f[i] (Fig. 17 timing)."""
+def _run(y, v_f, dt, q, r, mv, s, pm, est, var, innov, sv, pd):
+    """Filter a block: update with y[i], record, predict with v_f[i] (Fig. 17 timing);
+    innov[i] and sv[i] are the innovation and its variance S = H P H^T + R (eq. 4-55)."""
     for i in range(y.shape[0]):
-        innov[i] = ekf_update(s, pm, y[i], r, mv)
+        innov[i], sv[i] = ekf_update_innovation(s, pm, y[i], r, mv)
         for j in range(3):
             est[i, j] = s[j]
             var[i, j] = pm[j, j]
@@ -69,7 +70,10 @@ class HybridEkf:
         """Filter readout samples y [V] with the feedback voltages v_f [V] applied after them.
 
         Returns dict with ``estimate`` (n, 3), ``variance`` (n, 3), ``innovation`` (n,)
-        and ``positive_definite`` (n,) of the a-posteriori covariance (Sylvester).
+        [V], ``innovation_variance`` (n,) [V^2] (its predicted variance
+        ``S = h'^2 P00 + R`` from the a-priori covariance, eq. 4-55: ``innovation^2 / S`` is
+        the normalised innovation squared) and ``positive_definite`` (n,) of the
+        a-posteriori covariance (Sylvester).
         """
         y = np.ascontiguousarray(y, dtype=np.float64)
         v_f = np.ascontiguousarray(v_f, dtype=np.float64)
@@ -77,9 +81,16 @@ class HybridEkf:
         est = np.empty((n, 3))
         var = np.empty((n, 3))
         innov = np.empty(n)
+        sv = np.empty(n)
         pd = np.empty(n, np.bool_)
         c = self.config
-        _run(y, v_f, c.dt, c.q, c.r, c.model, self.s, self.pm, est, var, innov, pd)
+        _run(y, v_f, c.dt, c.q, c.r, c.model, self.s, self.pm, est, var, innov, sv, pd)
         self.samples += n
         self.not_positive_definite += int(n - np.count_nonzero(pd))
-        return {"estimate": est, "variance": var, "innovation": innov, "positive_definite": pd}
+        return {
+            "estimate": est,
+            "variance": var,
+            "innovation": innov,
+            "innovation_variance": sv,
+            "positive_definite": pd,
+        }

@@ -169,10 +169,20 @@ def measurement(x, mv):
 
 @numba.njit(cache=True)
 def ekf_update(s, pm, y, r, mv):
-    """Measurement update with y [V] (eqs. 4-54 .. 4-57, Joseph form); returns the innovation.
+    """Measurement update with y [V] (eqs. 4-54 .. 4-57, Joseph form); returns the innovation
+    ``y - h(x_hat)`` [V] (:func:`ekf_update_innovation`, the same floats)."""
+    return ekf_update_innovation(s, pm, y, r, mv)[0]
 
-    With ``H = [h', 0, 0]``: ``K = P[:, 0] h' / (h'^2 P00 + R)`` and
-    ``P+ = (I - K H) P (I - K H)^T + K R K^T``.
+
+@numba.njit(cache=True)
+def ekf_update_innovation(s, pm, y, r, mv):
+    """Measurement update with y [V] (eqs. 4-54 .. 4-57, Joseph form); returns the innovation
+    ``nu = y - h(x_hat)`` [V] and its predicted variance ``S = H P H^T + R = h'^2 P00 + R``
+    [V^2], the denominator of the gain (4-55), from the a-priori P.
+
+    With ``H = [h', 0, 0]``: ``K = P[:, 0] h' / S`` (4-55) and
+    ``P+ = (I - K H) P (I - K H)^T + K R K^T`` (4-57 in Joseph form). ``nu^2 / S`` is the
+    normalised innovation squared of a consistency test.
     """
     hx, hd = measurement(s[0], mv)
     innov = y - hx
@@ -200,7 +210,7 @@ def ekf_update(s, pm, y, r, mv):
     pm[0, 1] = pm[1, 0] = p01
     pm[0, 2] = pm[2, 0] = p02
     pm[1, 2] = pm[2, 1] = p12
-    return innov
+    return innov, sv
 
 
 @numba.njit(cache=True)
