@@ -118,15 +118,22 @@ class NisMonitor:
     def update(self, nis: np.ndarray) -> list[WindowVerdict]:
         """Add the NIS of the next samples; the windows completed by them, in order. The sum
         of a window is accumulated sample by sample in index order (the same floats at any
-        block size)."""
+        block size: ``np.add.accumulate`` adds one value after the other; a non-finite
+        value marks the window and adds nothing, as 0.0 does)."""
         out = []
-        for value in np.asarray(nis, dtype=float).ravel().tolist():
-            if math.isfinite(value):
-                self._sum += value
-            else:
+        values = np.asarray(nis, dtype=float).ravel()
+        pos = 0
+        while pos < values.size:
+            take = min(self.window - self._count, values.size - pos)
+            chunk = values[pos : pos + take]
+            finite = np.isfinite(chunk)
+            if not finite.all():
                 self._bad = True
-            self._count += 1
-            self.next_index += 1
+                chunk = np.where(finite, chunk, 0.0)
+            self._sum = float(np.add.accumulate(np.concatenate(([self._sum], chunk)))[-1])
+            self._count += take
+            self.next_index += take
+            pos += take
             if self._count == self.window:
                 out.append(self._close())
         return out
