@@ -59,3 +59,13 @@ def sample_stream_qos(fs: float, frame_size: int) -> QoSProfile:
         history=FRAME_QOS.history,
         depth=depth,
     )
+
+
+#: Health verdicts of an estimator (``<device>/health``, diagnostic_msgs/DiagnosticStatus,
+#: one per completed window of its consistency monitor): reliable, volatile, depth 10.
+HEALTH_QOS = QoSProfile(
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+)
