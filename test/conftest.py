@@ -19,23 +19,27 @@ _BASE = int(os.environ.get("ROS_DOMAIN_ID", "63"))
 _WORKER = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0)
 _WORKERS = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
 _domains = itertools.count(0)
-# The two tiers' domains: ``make test`` (ROS_DOMAIN_ID 63, odd) hands its tests 1..60 and
-# lets the runs they start without a domain (a campaign's run_scenario processes) lease
-# 66..101; ``make acceptance`` (64, even) 102..201 and 202..231. Disjoint, so that a
-# campaign's run never leases a domain a test of either tier is about to use.
+# The two tiers' domains: ``make test`` (ROS_DOMAIN_ID 63, odd) hands its tests 1..100
+# without the Makefile's 61-65 and lets the runs they start without a domain (a campaign's
+# run_scenario processes) lease 101..120; ``make acceptance`` (64, even) 121..210 and
+# 211..232. Disjoint, so that a campaign's run never leases a domain a test of either tier
+# is about to use; many, so that a domain comes round again only after the participants of
+# a killed process on it have left discovery (Fast DDS's lease duration).
 _ACCEPTANCE = _BASE % 2 == 0
-_FIRST, _SPAN = (102, 100) if _ACCEPTANCE else (1, 60)
-os.environ["MEMS_FREE_DOMAINS"] = "202-231" if _ACCEPTANCE else "66-101"
+_TEST_DOMAINS = (
+    tuple(range(121, 211)) if _ACCEPTANCE else tuple(d for d in range(1, 101) if not 61 <= d <= 65)
+)
+os.environ["MEMS_FREE_DOMAINS"] = "211-232" if _ACCEPTANCE else "101-120"
 
 
 def next_domain_id() -> int:
     """A domain id for one test, distinct from the other tests of this run, of the other
-    xdist workers (worker i of n gets the ids that are i modulo n), of a run of the other
-    tier at the same time and of the runs the tests start without a domain (see
+    xdist workers (worker i of n gets every n-th domain from the i-th), of a run of the
+    other tier at the same time and of the runs the tests start without a domain (see
     ``MEMS_FREE_DOMAINS`` above)."""
-    span = _SPAN - _SPAN % _WORKERS
+    span = len(_TEST_DOMAINS) - len(_TEST_DOMAINS) % _WORKERS
     for _ in range(span // _WORKERS):  # skip a domain a scenario graph still leases
-        domain = _FIRST + (_BASE * 7 * _WORKERS + _WORKER + _WORKERS * next(_domains)) % span
+        domain = _TEST_DOMAINS[(_BASE * 7 * _WORKERS + _WORKER + _WORKERS * next(_domains)) % span]
         if _not_leased(domain):
             break
     return domain
