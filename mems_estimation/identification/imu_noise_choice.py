@@ -43,6 +43,7 @@ from mems_estimation.identification.imu_noise_fit import (
     _with_curve_ci,
     avar_model,
     fit_allan,
+    fit_record,
 )
 
 __all__ = [
@@ -170,20 +171,8 @@ def fit_flicker(allan: AllanResult, iterations: int = 3) -> NoiseModelFit:
     taus, avar, m = _points(allan, N_PARAMS["flicker"])
     c, model, edf = _fit_flicker_coefficients(taus, avar, m, allan.n_samples + 1, iterations)
     sd = model * np.sqrt(2.0 / edf)
-    chi2 = float(np.sum(((model - avar) / sd) ** 2))
-    dof = max(int(taus.size) - N_PARAMS["flicker"], 1)
-    cov = _flicker_covariance(taus, sd)
-    vals, se, ci = _summarise(c, math.nan, cov, FLICKER_INFLATION)
-    return NoiseModelFit(
-        **vals,
-        se=se,
-        ci95=ci,
-        chi2=chi2,
-        dof=dof,
-        chi2_reduced=chi2 / dof,
-        rms_log_residual=float(np.sqrt(np.mean(np.log(avar / model) ** 2))),
-        n_points=int(taus.size),
-    )
+    summary = _summarise(c, math.nan, _flicker_covariance(taus, sd), FLICKER_INFLATION)
+    return fit_record(taus, avar, model, sd, N_PARAMS["flicker"], summary)
 
 
 def _model_curve(name: str, fit: NoiseModelFit, taus) -> np.ndarray:

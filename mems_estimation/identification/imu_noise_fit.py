@@ -354,10 +354,25 @@ def fit_allan(
         model = np.maximum(_basis(taus, T) @ c, 1e-300)
     edf = _model_edf(taus, model, n_phase, m)
     sd = model * np.sqrt(2.0 / edf)
-    chi2 = float(np.sum(((model - avar) / sd) ** 2))
-    dof = max(int(taus.size) - 5, 1)
     vals, se, ci = _summarise(c, T, _uncertainty(taus, c, T, sd))
     crb = crb_relative_se(vals["N"], vals["B"], vals["K"], vals["T"], allan.fs, allan.n_samples)
+    return fit_record(taus, avar, model, sd, 5, (vals, se, ci), crb)
+
+
+def fit_record(taus, avar, model, sd, n_params: int, summary, crb=None) -> NoiseModelFit:
+    """The :class:`NoiseModelFit` of a weighted least-squares Allan fit: its values,
+    standard errors and intervals (``summary``: :func:`_summarise`'s triple), the
+    chi-square of the residuals against their standard deviations, its degrees of freedom
+    (points - ``n_params``, at least 1) and the RMS log residual.
+
+    Args:
+        taus: averaging times [s]; avar, model: measured and fitted AVAR [u^2];
+        sd: standard deviation of each AVAR point [u^2]; crb: Cramer-Rao relative errors
+            (None: none).
+    """
+    vals, se, ci = summary
+    chi2 = float(np.sum(((model - avar) / sd) ** 2))
+    dof = max(int(taus.size) - n_params, 1)
     return NoiseModelFit(
         **vals,
         se=se,
@@ -367,7 +382,7 @@ def fit_allan(
         chi2_reduced=chi2 / dof,
         rms_log_residual=float(np.sqrt(np.mean(np.log(avar / model) ** 2))),
         n_points=int(taus.size),
-        crb=crb,
+        crb=crb or {},
     )
 
 
