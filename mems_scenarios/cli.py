@@ -257,6 +257,12 @@ def faults_of(args) -> list[Override]:
             f"--faults: scenario {args.name} has no graph as data yet: use --set "
             "NODE.fault_schedule=FILE"
         )
+    return fault_overrides(graph_of(module, args)[0], args.faults)
+
+
+def graph_of(module, args):
+    """``(GraphSpec, ScenarioOptions, duration [s])`` of the run ``args`` ask for, without
+    running it (the scenario's ``graph``)."""
     duration = module.DEFAULT_DURATION_S if args.duration is None else args.duration
     options = ScenarioOptions(
         duration_s=duration,
@@ -265,7 +271,7 @@ def faults_of(args) -> list[Override]:
         device_seed=args.device_seed,
         temperature_c=args.temperature,
     )
-    return fault_overrides(module.graph(options, duration), args.faults)
+    return module.graph(options, duration), options, duration
 
 
 def device_text(args) -> str:
@@ -516,15 +522,7 @@ def write_launch_main(args) -> int:
         problem = output_problem(str(path), overwrite=args.overwrite)
         if problem is not None:
             return _fail(f"--write-launch: {problem}")
-    duration = module.DEFAULT_DURATION_S if args.duration is None else args.duration
-    options = ScenarioOptions(
-        duration_s=duration,
-        seed=args.seed,
-        overrides=args.overrides,
-        device_seed=args.device_seed,
-        temperature_c=args.temperature,
-    )
-    spec = module.graph(options, duration)
+    spec, options, duration = graph_of(module, args)
     variation = dict(device_seed=args.device_seed, temperature_c=args.temperature)
     try:
         nodes = {
