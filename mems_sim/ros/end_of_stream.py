@@ -27,7 +27,9 @@ transport that loses a topic's tail would.
 from __future__ import annotations
 
 from collections.abc import Iterable
+from functools import partial
 
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 #: Topic of the end-of-stream record, relative to the emulator's namespace.
@@ -66,6 +68,9 @@ class StreamAccount:
         messages: messages the node published on the topic.
         sent: messages handed to the middleware (less than ``messages`` only after
             :meth:`cut`).
+        refused: messages the middleware refused (a reliable writer whose history stayed
+            full of samples a stopped subscriber did not acknowledge): lost at the source,
+            counted in the record so a recorder sees them missing.
         end_sample_index: first sample index after the last frame (None: no frame yet or
             not a frame topic).
         samples: samples in the frames published.
@@ -77,6 +82,7 @@ class StreamAccount:
         self.topic: str = publisher.topic_name
         self.messages = 0
         self.sent = 0
+        self.refused = 0
         self.end_sample_index: int | None = None
         self.samples = 0
         self.frames = False
@@ -85,6 +91,8 @@ class StreamAccount:
         self.depth: int | None = int(qos.depth) if keep_last else None
         self._keep: int | None = None
         self._publish = publisher.publish
+        #: Called with the topic at the first refused message (a warning of the node).
+        self.on_refused = None
 
     def wrap(self) -> StreamAccount:
         """Route the publisher's ``publish`` through this account; return self."""
@@ -103,7 +111,13 @@ class StreamAccount:
         if self._keep is not None and self.sent >= self._keep:
             return
         self.sent += 1
-        self._publish(msg)
+        try:
+            self._publish(msg)
+        except _rclpy.RCLError:  # 'cannot publish data': the middleware refused it
+            self.sent -= 1
+            self.refused += 1
+            if self.refused == 1 and self.on_refused is not None:
+                self.on_refused(self.topic)
 
     def cut(self, keep_messages: int) -> None:
         """Fault injection: hand only the first ``keep_messages`` messages to the middleware."""
@@ -130,7 +144,16 @@ def account_publishers(node, skip: Iterable[str] = ()) -> dict[str, StreamAccoun
         if topic in skipped or is_end_of_stream_topic(topic) or topic in accounts:
             continue
         accounts[topic] = StreamAccount(pub).wrap()
+        accounts[topic].on_refused = partial(_warn_refused, node)
     return accounts
+
+
+def _warn_refused(node, topic: str) -> None:
+    """One warning of ``node`` at the first message of ``topic`` the middleware refused."""
+    node.get_logger().warning(
+        f"{topic}: the middleware refused a message (a subscriber's history stayed full); "
+        "refused messages are lost at the source and counted in the end-of-stream record"
+    )
 
 
 def end_of_stream_message(accounts: dict[str, StreamAccount], stamp, hardware_id: str):
