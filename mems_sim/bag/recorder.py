@@ -236,6 +236,9 @@ class RecorderNode(Node):
         self._rx_counts: dict[str, int] = {}
         self._stamped: dict[str, bool] = {}
         self._eos_topics: set[str] = set()
+        #: End-of-stream topics without a record whose publishers had all left when the
+        #: subscriptions were destroyed (:meth:`stop_taking`); None before.
+        self._silent_ends: set[str] | None = None
         self._end_of_stream: dict[str, dict[str, int]] = {}
         self._rec_closed = False
         self._graph_clock_ns: int | None = None
@@ -467,15 +470,38 @@ class RecorderNode(Node):
                 out[topic] = tail
         return out
 
+    def silent_ends(self) -> set[str]:
+        """End-of-stream topics whose emulators left without their record reaching the
+        recorder: subscribed (a publisher was there), no record received, no publisher
+        left. An emulator publishes its record before it exits, latched; missing, the
+        recording cannot show whether the streams' tails arrived (a recorder stopped long
+        enough for the emulator's participant to drop it receives nothing more, so no gap
+        shows either). A live emulator (the recorder stopped first) is not counted."""
+        if self._silent_ends is not None:
+            return set(self._silent_ends)
+        return {
+            t
+            for t in self._eos_topics
+            if self._rx_counts.get(t) == 0
+            and t in self._topic_subs
+            and self._topic_subs[t].get_publisher_count() == 0
+        }
+
     def losses(self) -> list[str]:
         """One phrase per recorded topic that lost data: a missing head (a frame topic whose
         first recorded frame is after sample 0: the recorder joined late), frame-index gaps,
         gaps of a publisher's sequence numbers (topics that are not frames), a missing
-        tail."""
+        tail, an end-of-stream record that never came (:meth:`silent_ends`)."""
         out = []
         details, seqs, tails = self.gap_details(), self.sequence_details(), self.tails()
-        for topic in sorted(set(details) | set(seqs) | set(tails)):
+        silent = self.silent_ends()
+        for topic in sorted(set(details) | set(seqs) | set(tails) | silent):
             parts = []
+            if topic in silent:
+                parts.append(
+                    "the emulator left without its end-of-stream record reaching the "
+                    "recorder (its streams' tails are unverified)"
+                )
             d = details.get(topic)
             if d and d["missing_head"]:
                 parts.append(describe_missing_head(d["missing_head"]))
@@ -543,6 +569,7 @@ class RecorderNode(Node):
 
     def stop_taking(self) -> None:
         """Stop discovery and destroy the subscriptions: nothing more is received."""
+        self._silent_ends = self.silent_ends()
         self._rec_closed = True
         self._discovery_timer.cancel()
         for sub in self._topic_subs.values():
