@@ -95,8 +95,9 @@ class ParamSpec:
         description: one line: what it is.
         source: where the default comes from (document, table, equation).
         min: smallest allowed value (inclusive unless ``min_exclusive``).
-        max: largest allowed value (inclusive).
+        max: largest allowed value (inclusive unless ``max_exclusive``).
         min_exclusive: True if ``min`` itself is not allowed.
+        max_exclusive: True if ``max`` itself is not allowed.
         choices: allowed values for string parameters.
         spread: manufacturing spread (:class:`Spread`), where physics gives one.
         tempco: temperature coefficient (:class:`TempCo`), where physics gives one.
@@ -110,6 +111,7 @@ class ParamSpec:
     min: float | None = None
     max: float | None = None
     min_exclusive: bool = False
+    max_exclusive: bool = False
     choices: tuple[str, ...] | None = None
     spread: Spread | None = None
     tempco: TempCo | None = None
@@ -125,7 +127,7 @@ class ParamSpec:
         lo = "-inf" if self.min is None else repr(self.min)
         hi = "inf" if self.max is None else repr(self.max)
         left = "(" if (self.min is None or self.min_exclusive) else "["
-        right = ")" if self.max is None else "]"
+        right = ")" if (self.max is None or self.max_exclusive) else "]"
         return f"{left}{lo}, {hi}{right} {self.unit}".rstrip()
 
     def validate(self, value: Any) -> Any:
@@ -174,7 +176,9 @@ class ParamSpec:
         low_bad = self.min is not None and (
             value <= self.min if self.min_exclusive else value < self.min
         )
-        high_bad = self.max is not None and value > self.max
+        high_bad = self.max is not None and (
+            value >= self.max if self.max_exclusive else value > self.max
+        )
         if low_bad or high_bad:
             raise ParameterError(
                 f"parameter '{self.name}' = {value!r} is out of range: allowed {self.range_text()}"

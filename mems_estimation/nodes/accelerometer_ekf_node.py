@@ -49,7 +49,7 @@ from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.devices import accelerometer
 from mems_sim.kernels.accelerometer_ekf import STATE_NAMES, STATE_UNITS
 from mems_sim.kernels.divergence import state_ok
-from mems_sim.params import ParameterError, ParamSpec
+from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import adc_physical, make_state_estimate, signal_data
 from mems_sim.ros.node_main import run_node
 from mems_sim.ros.qos import FRAME_QOS, HEALTH_QOS
@@ -77,6 +77,7 @@ NODE_SPECS: tuple[ParamSpec, ...] = (
         min=0.0,
         max=0.5,
         min_exclusive=True,
+        max_exclusive=True,
     ),
 )
 
@@ -104,11 +105,6 @@ class AccelerometerEkfNode(EstimatorNode):
         self.pub = self.create_publisher(
             StateEstimate, p["output_topic"] or self.device_topic("estimate"), FRAME_QOS
         )
-        if not p["health_false_alarm"] < 0.5:
-            raise ParameterError(
-                f"parameter 'health_false_alarm' = {p['health_false_alarm']!r} is out of "
-                "range: allowed (0.0, 0.5)"
-            )
         self.new_monitor()
         self.pub_health = self.create_publisher(
             DiagnosticStatus, self.device_topic("health"), HEALTH_QOS

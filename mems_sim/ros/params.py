@@ -80,11 +80,10 @@ def descriptor(spec: ParamSpec, *, runtime: bool = False) -> ParameterDescriptor
         low = _int_bound(spec.min, INT64_MIN, math.ceil)
         if spec.min_exclusive and spec.min is not None and float(spec.min).is_integer():
             low += 1
-        desc.integer_range = [
-            IntegerRange(
-                from_value=low, to_value=_int_bound(spec.max, INT64_MAX, math.floor), step=0
-            )
-        ]
+        high = _int_bound(spec.max, INT64_MAX, math.floor)
+        if spec.max_exclusive and spec.max is not None and float(spec.max).is_integer():
+            high -= 1
+        desc.integer_range = [IntegerRange(from_value=low, to_value=high, step=0)]
     return desc
 
 
