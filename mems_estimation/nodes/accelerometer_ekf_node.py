@@ -31,13 +31,9 @@ window (the incomplete one is dropped); a window continues over a gap.
 
 from __future__ import annotations
 
-from collections import deque
-
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
 from mems_estimation.filters.accelerometer_ekf import HybridEkf
-from mems_estimation.filters.consistency_monitor import NisMonitor, WindowVerdict
 from mems_estimation.nodes.frame_input import (
     DEVICE_NAMESPACE,
     Diverged,
@@ -45,6 +41,7 @@ from mems_estimation.nodes.frame_input import (
     input_specs,
     output_frame,
 )
+from mems_estimation.nodes.health import HealthReporter, health_specs
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.devices import accelerometer
 from mems_sim.kernels.accelerometer_ekf import STATE_NAMES, STATE_UNITS
@@ -52,37 +49,13 @@ from mems_sim.kernels.divergence import state_ok
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import adc_physical, make_state_estimate, signal_data
 from mems_sim.ros.node_main import run_node
-from mems_sim.ros.qos import FRAME_QOS, HEALTH_QOS
+from mems_sim.ros.qos import FRAME_QOS
 
 NODE_SPECS: tuple[ParamSpec, ...] = (
     DEVICE_NAMESPACE,
     ParamSpec("output_topic", "", "-", "StateEstimate topic; empty: the device's 'estimate'", ""),
-    ParamSpec(
-        "health_window",
-        10_000,
-        "samples",
-        "samples per window of the innovation consistency monitor (NIS summed over the "
-        "window against chi-square thresholds); one verdict on 'health' per window",
-        "chosen: 10 ms at 1 MHz, 100 verdicts/s",
-        min=1,
-        max=2**31 - 1,
-    ),
-    ParamSpec(
-        "health_false_alarm",
-        1e-3,
-        "-",
-        "designed false-alarm probability per window of the consistency monitor: WARN "
-        "above the chi-square quantile 1 - alpha, ERROR above 1 - alpha/100; below 0.5",
-        "chosen",
-        min=0.0,
-        max=0.5,
-        min_exclusive=True,
-        max_exclusive=True,
-    ),
+    *health_specs(10_000, "chosen: 10 ms at 1 MHz, 100 verdicts/s"),
 )
-
-#: diagnostic_msgs/DiagnosticStatus level of a window's verdict level 0, 1, 2.
-LEVELS = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)
 
 
 class AccelerometerEkfNode(EstimatorNode):
@@ -105,34 +78,18 @@ class AccelerometerEkfNode(EstimatorNode):
         self.pub = self.create_publisher(
             StateEstimate, p["output_topic"] or self.device_topic("estimate"), FRAME_QOS
         )
-        self.new_monitor()
-        self.pub_health = self.create_publisher(
-            DiagnosticStatus, self.device_topic("health"), HEALTH_QOS
-        )
-        self.diag.counters.update(
-            health_verdict="none",
-            health_statistic="none",
-            health_windows=0,
-            health_warn_windows=0,
-            health_error_windows=0,
-        )
+        self.health = HealthReporter(self, self.fs, "hybrid EKF")
+        self.pub_health = self.health.pub
         self.subscribe_pair(
             ("adc", AdcFrame, lambda msg: adc_physical(msg)[:, 0]),
             ("drive", SignalFrame, lambda msg: signal_data(msg)[:, 0]),
         )
 
-    def new_monitor(self) -> None:
-        """A consistency monitor whose first window starts with the next filtered sample."""
-        self.monitor = NisMonitor(self.p["health_window"], self.p["health_false_alarm"])
-        #: (monitor sample index, stream sample index) of the first sample of each frame
-        #: fed to the monitor since the start of its current window
-        self._frames: deque[tuple[int, int]] = deque()
-
     def reset_estimator(self) -> None:
         """The hybrid EKF starts again from its prior (x0 = 0, P0); so does the monitor's
         window."""
         self.filter.reset()
-        self.new_monitor()
+        self.health.reset()
 
     def process_pair(self, first: int, stamp_ns: int, y: np.ndarray, v_f: np.ndarray) -> None:
         """Filter one readout frame y [V] with its feedback voltage v_F [V]; publish."""
@@ -158,58 +115,8 @@ class AccelerometerEkfNode(EstimatorNode):
             frame_id="accelerometer",
         )
         self.pub.publish(msg)
-        self.monitor_frame(first, out["innovation"], out["innovation_variance"])
-
-    def monitor_frame(self, first: int, innov: np.ndarray, sv: np.ndarray) -> None:
-        """Feed the NIS of the frame at ``first`` to the monitor; report completed windows."""
-        self._frames.append((self.monitor.next_index, first))
-        for v in self.monitor.update(innov * innov / sv):
-            self.report_window(v)
-        w = self.monitor.window
-        start = self.monitor.next_index // w * w  # the open window's first sample
-        while len(self._frames) > 1 and self._frames[1][0] <= start:
-            self._frames.popleft()
-
-    def stream_index(self, monitor_index: int) -> int:
-        """Stream sample index of the monitor's sample ``monitor_index`` (of a frame held)."""
-        base, first = next(f for f in reversed(self._frames) if f[0] <= monitor_index)
-        return first + monitor_index - base
-
-    def report_window(self, v: WindowVerdict) -> None:
-        """Publish one window's verdict on ``health`` and account it on /diagnostics."""
-        m = self.monitor
-        first = self.stream_index(v.first)
-        values = {
-            "first_sample_index": first,
-            "samples": v.n,
-            "statistic": repr(v.statistic),
-            "threshold_warn": repr(m.thresholds[0]),
-            "threshold_error": repr(m.thresholds[1]),
-            "threshold_low": repr(m.lower),
-            "low": str(v.low).lower(),
-            "false_alarm": repr(m.false_alarm),
-            "designed_false_alarms_per_hour": repr(m.designed_rate_per_hour(self.fs)),
-        }
-        self.pub_health.publish(
-            DiagnosticStatus(
-                level=LEVELS[v.level],
-                name=self.get_name(),
-                message=v.verdict,
-                hardware_id=self.get_fully_qualified_name(),
-                values=[KeyValue(key=k, value=str(x)) for k, x in values.items()],
-            )
-        )
-        self.diag.count("health_windows")
-        self.diag.counters["health_verdict"] = v.verdict
-        self.diag.counters["health_statistic"] = repr(v.statistic)
-        if v.level == 1:
-            self.diag.count("health_warn_windows")
-        elif v.level == 2:
-            self.diag.count("health_error_windows")
-            self.diag.warn(
-                f"hybrid EKF innovations inconsistent (ERROR) in the window from index {first}: "
-                f"NIS sum {v.statistic:.6g} over {v.n} samples, threshold {m.thresholds[1]:.6g}"
-            )
+        innov = out["innovation"]
+        self.health.monitor_frame(first, innov * innov / out["innovation_variance"])
 
 
 def main(argv: list[str] | None = None) -> int:
