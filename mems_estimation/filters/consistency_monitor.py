@@ -14,7 +14,9 @@ apart, as ``low``. The verdict of a window: ``OK``, ``WARN`` (above the alpha qu
 
 Where the innovations are not Gaussian (the one-bit sigma-delta loop) the thresholds must
 come from training data instead (:meth:`NisMonitor.from_training`: the empirical quantiles
-of fault-free windows).
+of fault-free windows), or, with far fewer training windows, from the two moments of their
+sums (:func:`nis_moments`, :meth:`NisMonitor.moment_matched`: a scaled chi-square g chi2(h)
+of the same mean and variance, Satterthwaite 1946, Box 1954).
 """
 
 from __future__ import annotations
@@ -103,6 +105,40 @@ class NisMonitor:
         m.lower = float(np.quantile(sums, false_alarm))
         return m
 
+    @classmethod
+    def moment_matched(
+        cls,
+        window: int,
+        false_alarm: float,
+        nis_mean: float,
+        dispersion: float,
+        error_factor: float = 100.0,
+    ) -> NisMonitor:
+        """A monitor whose thresholds are those of the scaled chi-square g chi2(h) with the
+        mean ``nis_mean W`` and variance ``2 dispersion W`` of a fault-free window sum
+        (Satterthwaite 1946; Box 1954): g = dispersion / nis_mean,
+        h = nis_mean^2 W / dispersion. ``nis_mean`` (mean NIS per sample, -) and
+        ``dispersion`` (variance of a window sum over that of chi2(W), -) come from
+        fault-free training data (:func:`nis_moments`); 1 and 1: the chi-square monitor.
+
+        Raises:
+            ValueError: ``nis_mean`` or ``dispersion`` not finite and > 0, or the
+                constructor's reasons.
+        """
+        m = cls(window, false_alarm, 1, error_factor)
+        for name, val in (("nis_mean", nis_mean), ("dispersion", dispersion)):
+            if not (math.isfinite(val) and val > 0):
+                raise ValueError(f"{name} = {val!r} is invalid: finite and > 0")
+        if nis_mean == 1.0 and dispersion == 1.0:
+            return m
+        g, h = dispersion / nis_mean, nis_mean * nis_mean * window / dispersion
+        m.thresholds = (
+            g * float(stats.chi2.isf(false_alarm, h)),
+            g * float(stats.chi2.isf(false_alarm / error_factor, h)),
+        )
+        m.lower = g * float(stats.chi2.ppf(false_alarm, h))
+        return m
+
     def designed_rate_per_hour(self, fs: float) -> float:
         """Designed false alarms per hour at sample rate ``fs`` [Hz]: alpha fs / W * 3600."""
         return self.false_alarm * fs / self.window * 3600.0
@@ -150,3 +186,18 @@ def window_sums(nis: np.ndarray, window: int) -> np.ndarray:
             s += v
         sums[i] = s
     return sums
+
+
+def nis_moments(nis: np.ndarray, window: int) -> tuple[float, float]:
+    """(mean NIS per sample, dispersion) of fault-free training NIS (per sample, -) over
+    windows of ``window`` samples: the mean window sum over W, and the variance of the
+    window sums over 2 W (that of chi2(W)); the moments of
+    :meth:`NisMonitor.moment_matched`.
+
+    Raises:
+        ValueError: fewer than 30 complete windows, or a non-finite window sum.
+    """
+    sums = window_sums(np.asarray(nis, dtype=float), window)
+    if sums.size < 30 or not np.all(np.isfinite(sums)):
+        raise ValueError(f"{sums.size} training windows (all finite): at least 30 needed")
+    return float(sums.mean() / window), float(sums.var(ddof=1) / (2.0 * window))

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from mems_estimation.filters.consistency_monitor import NisMonitor, window_sums
+from mems_estimation.filters.consistency_monitor import NisMonitor, nis_moments, window_sums
 
 FS = 100.0
 Q, R = 1e-4, 1.0  # random-walk increment and measurement variances per sample
@@ -96,3 +96,40 @@ def test_same_windows_at_any_block_size_and_non_finite_is_error():
     for args in ((0, 0.1), (10, 0.0), (10, 0.6), (10, 0.1, 0)):
         with pytest.raises(ValueError):
             NisMonitor(*args)
+
+
+def test_moment_matched_thresholds_for_correlated_non_gaussian_innovations():
+    """Correlated bounded 'innovations' (uniform through an MA(1)) of a variance 1.2 S, as a
+    one-bit loop's:
+    the scaled chi-square of the moments of training windows (nis_moments) gives the designed
+    rate on other data within [0.5, 2]x; the chi-square thresholds do not. A scaled
+    chi-square of twice the NIS (mean 2, dispersion 4) has twice the chi-square thresholds;
+    moments 1 and 1 are the chi-square monitor itself."""
+    window, alpha = 50, 1e-2
+
+    def nis(n, seed):
+        u = np.random.default_rng(seed).uniform(-1.0, 1.0, n + 1)
+        e = u[1:] + 0.8 * u[:-1]
+        return 1.2 * e**2 / np.mean(e**2)  # S understated by 20 %
+
+    mu, d = nis_moments(nis(window * 20_000, 1), window)
+    # exact: 1.2^2 (var NIS + 2 (W-1)/W cov lag 1) / 2 = 1.44 (1.37113 + 0.98 * 0.38074) / 2
+    assert mu == pytest.approx(1.2, abs=1e-9) and d == pytest.approx(1.2558, abs=0.04)
+    test = nis(window * 20_000, 2)
+    verdicts = NisMonitor.moment_matched(window, alpha, mu, d).update(test)
+    rate = sum(v.level >= 1 for v in verdicts) / len(verdicts)
+    chi2 = NisMonitor(window, alpha).update(test)
+    chi2_rate = sum(v.level >= 1 for v in chi2) / len(chi2)
+    print(f"\nmoments {mu:.4f} {d:.4f}: rate {rate:.4f}, chi-square {chi2_rate:.4f}, alpha {alpha}")
+    assert 0.5 <= rate / alpha <= 2.0
+    assert chi2_rate > 4.0 * alpha  # the mean 1.2 W is one chi-square sd above W at W = 50
+    m, twice = NisMonitor(window, alpha), NisMonitor.moment_matched(window, alpha, 2.0, 4.0)
+    assert twice.thresholds == pytest.approx(tuple(2 * t for t in m.thresholds), rel=1e-12)
+    assert twice.lower == pytest.approx(2 * m.lower, rel=1e-12)
+    same = NisMonitor.moment_matched(window, alpha, 1.0, 1.0)
+    assert (same.thresholds, same.lower) == (m.thresholds, m.lower)
+    for bad in ((0.0, 1.0), (1.0, -1.0), (float("nan"), 1.0)):
+        with pytest.raises(ValueError):
+            NisMonitor.moment_matched(window, alpha, *bad)
+    with pytest.raises(ValueError, match="training windows"):
+        nis_moments(test[: window * 29], window)
