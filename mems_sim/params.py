@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import zlib
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -101,6 +101,10 @@ class ParamSpec:
         choices: allowed values for string parameters.
         spread: manufacturing spread (:class:`Spread`), where physics gives one.
         tempco: temperature coefficient (:class:`TempCo`), where physics gives one.
+        realistic: the value of a real part under the ``realistic`` hardware profile
+            (:func:`profile_specs`), where it differs from ``default`` (then the idealised
+            device's value); None: the same under both profiles.
+        realistic_source: where ``realistic`` comes from (datasheet, paper, assumption).
     """
 
     name: str
@@ -115,6 +119,15 @@ class ParamSpec:
     choices: tuple[str, ...] | None = None
     spread: Spread | None = None
     tempco: TempCo | None = None
+    realistic: Any = None
+    realistic_source: str = ""
+
+    def __post_init__(self) -> None:
+        if self.realistic is not None:
+            try:
+                self.validate(self.realistic)
+            except ParameterError as exc:
+                raise ValueError(f"realistic value of {self.name!r}: {exc}") from None
 
     def range_text(self) -> str:
         """Human-readable allowed range, e.g. ``(0, 1e3] s``."""
@@ -184,6 +197,41 @@ class ParamSpec:
                 f"parameter '{self.name}' = {value!r} is out of range: allowed {self.range_text()}"
             )
         return value
+
+
+#: Hardware profiles: ``ideal`` (every real-part term at its idealised value, the devices of
+#: the papers) and ``realistic`` (each term at the level its datasheet or paper gives).
+HARDWARE_PROFILES: tuple[str, ...] = ("ideal", "realistic")
+
+#: The ``hardware`` parameter of every emulator: the profile whose defaults it starts from.
+HARDWARE_SPEC = ParamSpec(
+    "hardware",
+    "ideal",
+    "-",
+    "hardware profile of the defaults: 'ideal' (real-part terms off: the idealised device) or "
+    "'realistic' (each term at its datasheet or paper level); a parameter set explicitly wins",
+    "'ideal' reproduces the devices of the references bit for bit",
+    choices=HARDWARE_PROFILES,
+)
+
+
+def profile_specs(specs: Iterable[ParamSpec], profile: str) -> tuple[ParamSpec, ...]:
+    """``specs`` with the defaults of hardware ``profile`` (:data:`HARDWARE_PROFILES`):
+    unchanged for ``ideal``; for ``realistic`` each spec's ``realistic`` value, where it has
+    one, as its default (its source the ``realistic_source``).
+
+    Raises:
+        ParameterError: for an unknown profile.
+    """
+    profile = HARDWARE_SPEC.validate(profile)
+    if profile == "ideal":
+        return tuple(specs)
+    return tuple(
+        s
+        if s.realistic is None
+        else replace(s, default=s.realistic, source=s.realistic_source or s.source)
+        for s in specs
+    )
 
 
 def spec_table(specs: Iterable[ParamSpec]) -> dict[str, ParamSpec]:

@@ -23,7 +23,14 @@ from rclpy.publisher import Publisher
 from sensor_msgs.msg import Temperature
 
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
-from mems_sim.params import ParameterError, ParamSpec, draw_device, spec_table
+from mems_sim.params import (
+    HARDWARE_SPEC,
+    ParameterError,
+    ParamSpec,
+    draw_device,
+    profile_specs,
+    spec_table,
+)
 from mems_sim.ros.diagnostics import DiagnosticsReporter
 from mems_sim.ros.end_of_stream import (
     END_OF_STREAM,
@@ -36,8 +43,10 @@ from mems_sim.ros.pacing import PacedEmulator
 from mems_sim.ros.params import declare_specs
 from mems_sim.ros.qos import FRAME_DEPTH, FRAME_QOS
 
-#: Parameters every emulator node has, besides its device table.
+#: Parameters every emulator node has, besides its device table (``hardware``: the
+#: profile of the defaults, :func:`~mems_sim.params.profile_specs`).
 EMULATOR_SPECS: tuple[ParamSpec, ...] = (
+    HARDWARE_SPEC,
     ParamSpec(
         "seed",
         0,
@@ -242,7 +251,10 @@ class MemsNode(Node):
         node_kwargs.setdefault("namespace", self.DEFAULT_NAMESPACE)
         super().__init__(self.NODE_NAME, **node_kwargs)
         self.p = declare_specs(
-            self, self.SPECS, runtime=self.RUNTIME_PARAMETERS, on_change=self.parameter_changed
+            self,
+            self.declared_specs(),
+            runtime=self.RUNTIME_PARAMETERS,
+            on_change=self.parameter_changed,
         )
         title = self.DIAGNOSTICS_TITLE
         title = title if isinstance(title, str) else title(self.p)
@@ -250,6 +262,10 @@ class MemsNode(Node):
         self.diag = DiagnosticsReporter(
             self, f"{self.get_name()}: {title}", hardware_id=hardware_id, now_ns=self.graph_time_ns
         )
+
+    def declared_specs(self) -> tuple[ParamSpec, ...]:
+        """The parameter table the node declares: :attr:`SPECS`."""
+        return tuple(self.SPECS)
 
     def graph_time_ns(self) -> int:
         """Time of the node's diagnostics stamps [ns]: its ROS clock (the wall clock, or
@@ -456,6 +472,23 @@ class EmulatorNode(PacedEmulator, MemsNode):
         except Exception:  # a failed warm-up leaves the loading to the first frame
             return False
         return True
+
+    def declared_specs(self) -> tuple[ParamSpec, ...]:
+        """:attr:`SPECS` with the defaults of the hardware profile the node is given
+        (``hardware``, :func:`~mems_sim.params.profile_specs`; a parameter set explicitly
+        wins over the profile's default). The names whose default the profile changed are
+        kept in :attr:`profile_changed`."""
+        given = self._parameter_overrides.get(HARDWARE_SPEC.name)
+        profile = HARDWARE_SPEC.default if given is None else given.value
+        try:
+            specs = profile_specs(self.SPECS, profile)
+        except ParameterError:  # declared as given, the value is refused in one line
+            specs = tuple(self.SPECS)
+        #: Parameters whose default the node's hardware profile changed.
+        self.profile_changed = frozenset(
+            new.name for old, new in zip(self.SPECS, specs, strict=True) if new is not old
+        )
+        return specs
 
     def make_device(self) -> float:
         """Build the device and the publishers from ``self.p``; return the sample rate [Hz]."""

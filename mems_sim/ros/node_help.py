@@ -11,6 +11,7 @@ from __future__ import annotations
 import inspect
 import sys
 import textwrap
+from dataclasses import replace
 
 from mems_sim.params import ParamSpec
 
@@ -40,6 +41,15 @@ def default_text(spec: ParamSpec) -> str:
 def spec_row(spec: ParamSpec) -> tuple[str, str, str, str]:
     """The table cells of one parameter: name, unit, default, range."""
     return spec.name, spec.unit or "-", default_text(spec), spec.range_text()
+
+
+def description_text(spec: ParamSpec) -> str:
+    """A parameter's description, with its default under the ``realistic`` hardware profile
+    where that differs (:func:`~mems_sim.params.profile_specs`)."""
+    if spec.realistic is None:
+        return spec.description
+    real = replace(spec, default=spec.realistic)
+    return f"{spec.description} (hardware:=realistic: {default_text(real)})"
 
 
 def executable_name(node_class: type) -> str:
@@ -99,6 +109,5 @@ def node_help(node_class: type, width: int = 100) -> str:
         if k == 0:
             lines.append("  " + "  ".join("-" * w for w in widths))
             continue
-        description = specs[k - 1].description
-        lines.extend(_wrap(description, width, indent))
+        lines.extend(_wrap(description_text(specs[k - 1]), width, indent))
     return "\n".join(lines) + "\n"
