@@ -81,6 +81,8 @@ class ScenarioOptions:
             or the scenario's own); a ``--set`` of it wins.
         temperature_c: ``temperature_c`` of every emulator node [degC] (None: each
             device's reference temperature, or the scenario's own); a ``--set`` wins.
+        hardware: ``hardware`` profile of every emulator node, ``ideal`` or ``realistic``
+            (None: the nodes' default); a ``--set`` wins.
         applied: filled by the run: (node, parameter) -> (value, origin) of every override
             applied to a node (the run's graphs share it).
         live_view: serve the run to Foxglove on this loopback port (None: no live view).
@@ -101,6 +103,7 @@ class ScenarioOptions:
     applied: dict = field(default_factory=dict)
     device_seed: int | None = None
     temperature_c: float | None = None
+    hardware: str | None = None
     live_view: int | None = None
     cut: dict = field(default_factory=dict)
     short: bool = False
@@ -161,9 +164,10 @@ class Graph:
         overrides: node parameters the user set (:class:`ScenarioOptions`), applied by
             :meth:`node` and :meth:`add_device` on top of the scenario's values and checked
             by :meth:`check_overrides`.
-        device_seed, temperature_c: ``device_seed`` and ``temperature_c`` of every emulator
-            node (None: not set; :class:`ScenarioOptions`), applied on top of the scenario's
-            values, under the overrides; a scenario that sets one of them itself refuses it.
+        device_seed, temperature_c, hardware: ``device_seed``, ``temperature_c`` and
+            ``hardware`` of every emulator node (None: not set; :class:`ScenarioOptions`),
+            applied on top of the scenario's values, under the overrides; a scenario that
+            sets one of them itself refuses it.
     """
 
     def __init__(
@@ -174,14 +178,16 @@ class Graph:
         overrides: list[Override] | None = None,
         device_seed: int | None = None,
         temperature_c: float | None = None,
+        hardware: str | None = None,
     ) -> None:
         apply_defaults()
         self.overrides = list(overrides or [])
-        self.variation = {
-            k: v
-            for k, v in (("device_seed", device_seed), ("temperature_c", temperature_c))
-            if v is not None
-        }
+        given = (
+            ("device_seed", device_seed),
+            ("temperature_c", temperature_c),
+            ("hardware", hardware),
+        )
+        self.variation = {k: v for k, v in given if v is not None}
         #: (node, parameter) -> (value, origin) of every override applied, in order.
         self.applied: dict[tuple[str, str], tuple[object, str]] = {}
         #: Fully qualified name -> class of every node made by :meth:`node`.
@@ -311,13 +317,18 @@ class Graph:
         such an override counts as used only if another node takes it). Each value is checked
         against the node's parameter table first: a value out of range raises
         :class:`ScenarioError` naming the node, the parameter, the value and the range.
-        An emulator node gets the graph's ``device_seed`` / ``temperature_c`` first (a
-        scenario that sets one itself refuses it: the scenario is about that value)."""
+        An emulator node gets the graph's ``device_seed`` / ``temperature_c`` / ``hardware``
+        first (a scenario that sets one itself refuses it: the scenario is about that
+        value)."""
         fqn = self.fqn(node_class, namespace)
         self.node_classes[fqn] = node_class
         specs = spec_table(node_class.SPECS)
         out = dict(params)
-        origin = {"device_seed": "--device-seed", "temperature_c": "--temperature"}
+        origin = {
+            "device_seed": "--device-seed",
+            "temperature_c": "--temperature",
+            "hardware": "--hardware",
+        }
         for name, value in self.variation.items() if issubclass(node_class, EmulatorNode) else ():
             if name in params:
                 self.close()
@@ -570,6 +581,7 @@ def graph_for(options: ScenarioOptions) -> Graph:
         overrides=options.overrides,
         device_seed=options.device_seed,
         temperature_c=options.temperature_c,
+        hardware=options.hardware,
     )
     graph.applied = options.applied
     if options.live_view is not None:  # run_scenario --live-view [PORT]
@@ -640,8 +652,8 @@ def run_recorded(
     Returns:
         dict with ``table``, ``figures`` (the :class:`~mems_scenarios.figures.Figure`
         records), ``values`` (the result's values), ``mcap``, ``figure`` (first PNG),
-        ``figure_paths``, ``recorder``, ``published``, ``duration_s``, ``device_seed`` and
-        ``temperature_c`` (the options', None: not set) and ``result`` (the
+        ``figure_paths``, ``recorder``, ``published``, ``duration_s``, ``device_seed``,
+        ``temperature_c`` and ``hardware`` (the options', None: not set) and ``result`` (the
         :class:`~mems_scenarios.contract.ScenarioResult`).
     """
     duration = default_duration_s if options.duration_s is None else options.duration_s
@@ -669,6 +681,7 @@ def run_recorded(
         duration_s=duration,
         device_seed=options.device_seed,
         temperature_c=options.temperature_c,
+        hardware=options.hardware,
         result=result,
     )
 

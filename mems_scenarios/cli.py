@@ -28,7 +28,7 @@ from mems_scenarios.base import ScenarioError, ScenarioOptions, graphs_closed
 from mems_scenarios.contract import RUN_INFO_TOPIC, AnalysisError
 from mems_scenarios.delivery import THROUGHPUT
 from mems_sim.cli_values import quiet_on_broken_pipe
-from mems_sim.params import ParameterError
+from mems_sim.params import HARDWARE_PROFILES, ParameterError
 from mems_sim.ros.end_of_stream import is_end_of_stream_topic
 from mems_sim.ros.env import MAX_DOMAIN_ID, apply_defaults, domain_id_problem
 from mems_sim.ros.params_file import Override, ParamsFileError, load_params_file, parse_set
@@ -56,6 +56,14 @@ def _parser() -> argparse.ArgumentParser:
         help="device seed of every emulator node: one device of the batch, each parameter "
         "with a manufacturing spread drawn from N (default: the nominal devices); separate "
         "from the run seed (the noise); a --set of device_seed wins",
+    )
+    p.add_argument(
+        "--hardware",
+        choices=HARDWARE_PROFILES,
+        default=None,
+        help="hardware profile of every emulator node: 'ideal' (the idealised devices of "
+        "the references) or 'realistic' (the real-part terms at their datasheet or paper "
+        "level; docs/hardware.md); default: the nodes' own ('ideal'); a --set of hardware wins",
     )
     p.add_argument(
         "--temperature",
@@ -270,20 +278,22 @@ def graph_of(module, args):
         overrides=args.overrides,
         device_seed=args.device_seed,
         temperature_c=args.temperature,
+        hardware=args.hardware,
     )
     return module.graph(options, duration), options, duration
 
 
 def device_text(args) -> str:
-    """The devices of the run, e.g. ``device seed 3 at 40 C`` or ``nominal devices at
-    their reference temperatures``."""
+    """The devices of the run, e.g. ``device seed 3 at 40 C, realistic hardware`` or
+    ``nominal devices at their reference temperatures`` (the profile when given)."""
     who = "nominal devices" if args.device_seed is None else f"device seed {args.device_seed}"
     at = (
         "at their reference temperatures"
         if args.temperature is None
         else f"at {args.temperature:g} C"
     )
-    return f"{who} {at}"
+    profile = "" if args.hardware is None else f", {args.hardware} hardware"
+    return f"{who} {at}{profile}"
 
 
 def applied_text(applied: dict) -> str:
@@ -357,6 +367,7 @@ def _main(args) -> int:
         overrides=args.overrides,
         device_seed=args.device_seed,
         temperature_c=args.temperature,
+        hardware=args.hardware,
     )
     if args.cut:
         options.cut = {c.rpartition(":")[0]: int(c.rpartition(":")[2]) for c in args.cut}
@@ -414,6 +425,7 @@ def _run(args, module, options: ScenarioOptions, staged) -> int:
         return _fail(f"cannot move the outputs into runs/: {' '.join(str(exc).split())}")
     wall = time.monotonic() - start
     result["device_seed"], result["temperature_c"] = args.device_seed, args.temperature
+    result["hardware"] = args.hardware
     # two lines: the run's settings, and its wall time (host-dependent, one "wall" line)
     print("\n" + fit_lines(f"scenario {args.name}: seed {args.seed}, {device_text(args)},"))
     print(
@@ -523,7 +535,9 @@ def write_launch_main(args) -> int:
         if problem is not None:
             return _fail(f"--write-launch: {problem}")
     spec, options, duration = graph_of(module, args)
-    variation = dict(device_seed=args.device_seed, temperature_c=args.temperature)
+    variation = dict(
+        device_seed=args.device_seed, temperature_c=args.temperature, hardware=args.hardware
+    )
     try:
         nodes = {
             e.fqn: dict(

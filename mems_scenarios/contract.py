@@ -188,19 +188,25 @@ def _emulator_base() -> type:
 
 def full_parameters(entry: NodeEntry, overrides=(), variation: dict | None = None) -> dict:
     """Every parameter value node ``entry`` runs with, without making the node: its
-    table's defaults, then :func:`given_parameters`, each validated against the table."""
-    from mems_sim.params import spec_table
+    table's defaults under its hardware profile (``hardware``, as the node takes them:
+    :func:`~mems_sim.params.profile_specs`), then :func:`given_parameters`, each validated
+    against the table."""
+    from mems_sim.params import HARDWARE_SPEC, profile_specs, spec_table
 
-    specs = spec_table(node_class(entry.executable).SPECS)
+    table = node_class(entry.executable).SPECS
+    given = given_parameters(entry, overrides, variation)
+    if HARDWARE_SPEC.name in spec_table(table):
+        table = profile_specs(table, given.get(HARDWARE_SPEC.name, HARDWARE_SPEC.default))
+    specs = spec_table(table)
     values = {name: spec.default for name, spec in specs.items()}
-    values.update(given_parameters(entry, overrides, variation))
+    values.update(given)
     return {name: specs[name].validate(v) if name in specs else v for name, v in values.items()}
 
 
 def given_parameters(entry: NodeEntry, overrides=(), variation: dict | None = None) -> dict:
     """The parameter values given to node ``entry`` (those a launch file of the run names):
-    the entry's values, then ``variation`` (``device_seed``, ``temperature_c`` of an
-    emulator) and the matching ``overrides``
+    the entry's values, then ``variation`` (``device_seed``, ``temperature_c``, ``hardware``
+    of an emulator) and the matching ``overrides``
     (:class:`~mems_sim.ros.params_file.Override`) that its table has."""
     from mems_sim.params import spec_table
     from mems_sim.ros.params_file import node_matches
