@@ -9,9 +9,10 @@ Topics (relative to the node namespace, default ``/imu``):
                                    driver converts them, model covariances, no orientation
                                    (REP-145 raw IMU data: remap to ``data_raw`` for imu_tools)
     ``temperature_sensor`` mems_msgs/SignalFrame  the IMU's own temperature reading per
-                                   sample, channel ``temperature`` [degC] (by default an
-                                   ideal sensor: the device temperature the model used;
-                                   ``temp_sensor_*`` add lag, noise, offset, resolution),
+                                   sample, channel ``temperature`` [degC] (under the
+                                   ideal hardware profile the device temperature the model
+                                   used; ``temp_sensor_*``, or ``hardware:=realistic``,
+                                   add lag, noise, offset, resolution),
                                    same frames as ``adc``; with ``calibration_topics``
     ``truth_calibration``  mems_msgs/CalibrationResult (transient local, once, at the first
                                    frame): the realised error terms, method "truth", names
@@ -111,23 +112,31 @@ MOTION_SPECS: tuple[ParamSpec, ...] = (
     ),
 )
 
+#: The terms of the IMU's temperature reading that the ideal hardware profile switches off
+#: (0: no lag, no noise, no rounding); the realistic profile has the sensor's own values.
+_READING_TERMS = ("temp_sensor_time_constant_s", "temp_sensor_noise_k", "temp_sensor_resolution_k")
 #: The IMU's own temperature sensor (``temperature_sensor``): lag, noise, offset and
-#: resolution of the reading; by default an ideal sensor that reads the device temperature.
-_IDEAL_READING = {
-    "temp_sensor_time_constant_s": 0.0,
-    "temp_sensor_noise_k": 0.0,
-    "temp_sensor_resolution_k": 0.0,
-}
+#: resolution of the reading; under the ideal profile (``hardware``) it reads the device
+#: temperature itself, under the realistic one with the sensor table's lag, noise and
+#: resolution (the offset is a batch spread around 0).
 TEMPERATURE_READING_SPECS: tuple[ParamSpec, ...] = tuple(
     replace(
         spec,
-        default=_IDEAL_READING.get(spec.name, spec.default),
-        source=spec.source + "; imu_node default: an ideal reading (0)"
-        if spec.name in _IDEAL_READING
-        else spec.source,
+        default=0.0,
+        source="ideal hardware: 0",
+        realistic=spec.default,
+        realistic_source=spec.source,
     )
+    if spec.name in _READING_TERMS
+    else spec
     for spec in TEMPERATURE_SENSOR_SPECS
 )
+#: The ideal reading's values: the temperature sensor is the identity.
+_IDEAL_READING = {
+    spec.name: spec.default
+    for spec in TEMPERATURE_READING_SPECS
+    if spec.name in _READING_TERMS or spec.name == "temp_sensor_offset_k"
+}
 
 CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 UNITS = ("rad/s",) * 3 + ("m/s^2",) * 3
@@ -213,7 +222,7 @@ class ImuNode(EmulatorNode):
         """The temperature sensor's model (mems_sim.hardware.sensor_lag) and its generator,
         or None for the ideal reading (every term 0: the device temperature itself)."""
         values = {spec.name: self.p[spec.name] for spec in TEMPERATURE_READING_SPECS}
-        if all(values[k] == 0.0 for k in _IDEAL_READING) and values["temp_sensor_offset_k"] == 0:
+        if all(values[k] == v for k, v in _IDEAL_READING.items()):
             return None
         sensor = LaggedTemperatureSensor(1.0 / fs, values)
         rng = np.random.Generator(np.random.PCG64([self.p["seed"], 0x7E4D]))
@@ -261,7 +270,7 @@ class ImuNode(EmulatorNode):
     def preset_values(self) -> dict:
         """The nominal device: the defaults of the node's ``preset`` updated with the device
         parameters given explicitly at construction (those override the preset's)."""
-        given = set(self._parameter_overrides) | set(self.fixed_parameters)
+        given = set(self._parameter_overrides) | set(self.fixed_parameters) | self.profile_changed
         values = {
             name: self.p[name]
             for name in (s.name for s in imu.IMU_SPECS)
