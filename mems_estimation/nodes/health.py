@@ -9,7 +9,9 @@ name the node's name, message the verdict, values the window's first stream samp
 samples, statistic, thresholds and the designed false alarms per hour) and keeps on
 /diagnostics the last verdict and statistic and the counts of windows, WARN and ERROR
 windows. A window continues over a gap (its first sample index is the stream's);
-:meth:`HealthReporter.reset` (the filter re-initialised) drops the open window.
+:meth:`HealthReporter.reset` (the filter re-initialised) drops the open window. The
+thresholds are chi-square quantiles, or, for a node with :func:`calibration_specs`, those
+of the scaled chi-square of the measured fault-free moments.
 """
 
 from __future__ import annotations
@@ -57,6 +59,38 @@ def health_specs(window: int, window_source: str) -> tuple[ParamSpec, ParamSpec]
     )
 
 
+def calibration_specs(nis_mean: float, dispersion: float, source: str) -> tuple[ParamSpec, ...]:
+    """The parameters ``health_nis_mean`` and ``health_nis_dispersion`` (defaults
+    ``nis_mean`` and ``dispersion``, -, their source text ``source``): the moments of a
+    fault-free window's NIS sum, for innovations that are not Gaussian (the scaled
+    chi-square of :meth:`~mems_estimation.filters.consistency_monitor.NisMonitor.moment_matched`,
+    Satterthwaite 1946); 1 and 1: the chi-square of Kalman theory."""
+    return (
+        ParamSpec(
+            "health_nis_mean",
+            nis_mean,
+            "-",
+            "mean NIS per sample of the fault-free filter (measured: nis_moments of "
+            "fault-free data); 1: Kalman theory",
+            source,
+            min=0.0,
+            max=1.0e6,
+            min_exclusive=True,
+        ),
+        ParamSpec(
+            "health_nis_dispersion",
+            dispersion,
+            "-",
+            "variance of a fault-free window's NIS sum over that of chi-square(window) "
+            "(measured: nis_moments of fault-free data); 1: Kalman theory",
+            source,
+            min=0.0,
+            max=1.0e6,
+            min_exclusive=True,
+        ),
+    )
+
+
 class HealthReporter:
     """Windowed NIS verdicts of one estimator node on ``health`` and /diagnostics.
 
@@ -83,7 +117,12 @@ class HealthReporter:
         """A new monitor whose first window starts with the next sample fed (the open
         window is dropped): the filter was re-initialised."""
         p = self.node.p
-        self.monitor = NisMonitor(p["health_window"], p["health_false_alarm"])
+        self.monitor = NisMonitor.moment_matched(
+            p["health_window"],
+            p["health_false_alarm"],
+            p.get("health_nis_mean", 1.0),
+            p.get("health_nis_dispersion", 1.0),
+        )
         #: (monitor sample index, stream sample index) of the first sample of each frame
         #: fed to the monitor since the start of its current window
         self._frames: deque[tuple[int, int]] = deque()
