@@ -16,7 +16,9 @@ Per stage sample k (sample period dt = 1/fs, everything carried across frames)::
     feedthrough = -R_s C_ft,c du/dt (the parasitic capacitance C_ft from the drive to the
                   amplifier input carries a current C_ft du/dt; du/dt of the DAC's
                   reconstruction (analog) output, i.e. of the continuous sinusoid)
-    code_c(k)   = round(y_c(k) / lsb) clipped to the ADC range
+    code_c(k)   = round(y_c(k) / lsb) clipped to the ADC range (ideal ADC, the default), or
+                  the code of channel c's converter with static errors (offset, gain, INL,
+                  DNL, missing codes; :mod:`mems_sim.devices.stage_readout`)
 
 ``V_b`` is the sensing bias: ON on odd drive periods, OFF on even ones (period index =
 floor(drive phase / 2 pi)); schedule changes take effect only at the start of an even
@@ -81,7 +83,13 @@ from mems_sim.devices.stage_capacitance import (
     dual_axis_gradient,
     single_axis_dcdtheta,
 )
-from mems_sim.devices.stage_readout import K_BOLTZMANN, readout_noise_std, requantize
+from mems_sim.devices.stage_readout import (
+    K_BOLTZMANN,
+    channel_converters,
+    convert_channels,
+    readout_noise_std,
+    requantize,
+)
 from mems_sim.devices.stage_specs import STAGE_SPECS, draw_spread, validate_params
 from mems_sim.params import ParameterError, resolve
 
@@ -538,6 +546,9 @@ class MicroStage:
         self.noise_std = readout_noise_std(p)
         self.lsb = p["adc_full_scale_v"] / 2 ** (p["adc_bits"] - 1)
         self.code_max = 2 ** (p["adc_bits"] - 1) - 1
+        #: One converter per channel with the ADC static errors (stage_readout module doc);
+        #: None when they are all 0 (the fused kernel's ideal ADC, bit for bit).
+        self.converters = channel_converters(p, len(CHANNELS))
         self.w_std = p["drive_noise_density"] * math.sqrt(self.fs / 2)
         segs = np.array(self.schedule.segments, float)
         self._segf, self._sega = segs[:, 0].copy(), segs[:, 1].copy()
@@ -684,6 +695,9 @@ class MicroStage:
         )
         if self.faults:
             y = self.faults.apply(y, self._next)
+        if self.converters is not None:
+            codes, sat = convert_channels(self.converters, y)
+        elif self.faults:
             codes, sat = requantize(y, 1.0 / self.lsb, float(self.code_max))
         self.last_applied = applied  # drive incl. amplifier noise, held over each sample
         ldv = self._ldv(th[:, 0], om[:, 0], applied)

@@ -10,17 +10,37 @@ anti-alias filter, no averaging across periods):
 (Johnson-Nyquist noise of R_s; the amplifier's current noise i_n through R_s and its
 voltage noise e_n raised by the noise gain of the input capacitance C_in.) The ADC rounds
 y / lsb to the nearest code, half to even, clipped to the signed 16-bit range.
+
+ADC static errors (all off by default): with any of ``adc_offset_lsb``, ``adc_gain_error``,
+``adc_inl_lsb``, ``adc_dnl_lsb``, ``adc_missing_codes`` non-zero, each channel's codes come
+from its own :class:`~mems_sim.hardware.converter.Converter` (IEEE Std 1241-2010 transition
+table: G T[k]/Q + V_os/Q = k - 1/2 + INL[k], DNL[k] = G W[k]/Q - 1), the same offset, gain
+and INL bow on every channel and a DNL pattern (and missing-code draw) of its own, seeded by
+:func:`adc_seed` from ``device_seed`` and the channel index. Its clipped count is the
+converter's over-range flag (the input beyond half a code outside the code range).
 """
 
 from __future__ import annotations
 
 import math
+import zlib
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
+from mems_sim.hardware.converter import Converter
+
 K_BOLTZMANN = 1.380649e-23  # J/K
+
+#: The stage's ADC static-error parameters and the converter parameter each one sets.
+ADC_ERRORS: dict[str, str] = {
+    "adc_offset_lsb": "offset_lsb",
+    "adc_gain_error": "gain_error",
+    "adc_inl_lsb": "inl_peak_lsb",
+    "adc_dnl_lsb": "dnl_sd_lsb",
+    "adc_missing_codes": "missing_codes",
+}
 
 
 def readout_noise_std(p: Mapping[str, Any]) -> float:
@@ -46,3 +66,43 @@ def requantize(y: np.ndarray, inv_lsb: float, code_max: float) -> tuple[np.ndarr
     q = np.rint(y * inv_lsb)
     sat = int(np.count_nonzero((q > code_max) | (q < -code_max)))
     return np.clip(q, -code_max - 1.0, code_max).astype(np.int32), sat
+
+
+def adc_seed(device_seed: int, channel: int) -> int:
+    """Seed [-] of channel ``channel``'s converter (its DNL pattern and missing codes): the
+    first 63 bits of ``np.random.SeedSequence([device_seed, crc32("stage_adc"), channel])``,
+    so every channel of a device has its own part and every device its own four."""
+    ss = np.random.SeedSequence([int(device_seed), zlib.crc32(b"stage_adc"), int(channel)])
+    return int(ss.generate_state(1, np.uint64)[0] >> np.uint64(1))
+
+
+def channel_converters(p: Mapping[str, Any], n_channels: int) -> tuple[Converter, ...] | None:
+    """One converter per channel with the stage's ADC static errors (module doc), or None
+    when every error is 0: then the fused kernel's ideal ADC is the stage's ADC.
+
+    ``p``: the stage's parameters (``adc_bits`` [bits], ``adc_full_scale_v`` [V],
+    ``device_seed`` [-] and the :data:`ADC_ERRORS` [LSB, -], ``adc_inl_shape``);
+    ``n_channels`` [-]."""
+    if all(p[name] == 0 for name in ADC_ERRORS):
+        return None
+    common = {conv: p[name] for name, conv in ADC_ERRORS.items()}
+    common.update(
+        bits=int(p["adc_bits"]),
+        full_scale=float(p["adc_full_scale_v"]),
+        inl_shape=p["adc_inl_shape"],
+    )
+    return tuple(
+        Converter({**common, "seed": adc_seed(p["device_seed"], c)}) for c in range(n_channels)
+    )
+
+
+def convert_channels(converters: tuple[Converter, ...], y: np.ndarray) -> tuple[np.ndarray, int]:
+    """Codes (n, nch) int32 of readout voltages ``y`` (n, nch) [V], column c by
+    ``converters[c]`` (:meth:`~mems_sim.hardware.converter.Converter.quantize`), and the
+    number of over-range samples."""
+    codes = np.empty(y.shape, np.int32)
+    sat = 0
+    for c, conv in enumerate(converters):
+        codes[:, c], over = conv.quantize(y[:, c])
+        sat += int(np.count_nonzero(over))
+    return codes, sat

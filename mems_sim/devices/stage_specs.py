@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from mems_sim.hardware.converter import INL_SHAPES
 from mems_sim.params import ParameterError, ParamSpec, Spread, spec_table
 
 __all__ = ["STAGE_SPECS", "validate_params", "draw_spread"]
@@ -297,6 +298,68 @@ STAGE_SPECS: tuple[ParamSpec, ...] = (
         max=100.0,
     ),
     ParamSpec(
+        "adc_offset_lsb",
+        0.0,
+        "LSB",
+        "offset error V_os/Q of each channel's ADC (IEEE Std 1241-2010 independently based "
+        "offset; positive: codes above the input). Any static error non-zero: the codes come "
+        "from a converter model per channel (mems_sim.hardware.converter)",
+        "nominal part: 0 (an ideal quantiser). A 16-bit SAR part is specified at a few LSB "
+        "(from memory, unchecked)",
+        min=-256.0,
+        max=256.0,
+    ),
+    ParamSpec(
+        "adc_gain_error",
+        0.0,
+        "-",
+        "relative gain error G - 1 of each channel's ADC (positive: codes grow faster than the "
+        "input)",
+        "nominal part: 0. A 16-bit SAR part is specified at order 1e-3 of full scale (from "
+        "memory, unchecked)",
+        min=-0.1,
+        max=0.1,
+    ),
+    ParamSpec(
+        "adc_inl_lsb",
+        0.0,
+        "LSB",
+        "peak of the smooth INL bow of each channel's ADC (shape: adc_inl_shape)",
+        "nominal part: 0. A 16-bit SAR part is specified at +-1 to +-3 LSB INL (from memory, "
+        "unchecked)",
+        min=-16.0,
+        max=16.0,
+    ),
+    ParamSpec(
+        "adc_inl_shape",
+        "parabola",
+        "-",
+        "shape of the INL bow: parabola (even order, peak at mid-scale) or cubic (odd order)",
+        "assumption (the converter model's two shapes)",
+        choices=INL_SHAPES,
+    ),
+    ParamSpec(
+        "adc_dnl_lsb",
+        0.0,
+        "LSB",
+        "standard deviation of the seeded code-width pattern DNL[k]; each channel has its own "
+        "pattern, drawn from device_seed and the channel index",
+        "nominal part: 0. A 16-bit SAR part is specified at +-0.5 to +-1 LSB DNL max, no "
+        "missing codes (from memory, unchecked)",
+        min=0.0,
+        max=0.5,
+    ),
+    ParamSpec(
+        "adc_missing_codes",
+        0,
+        "-",
+        "number of interior codes of each channel's ADC drawn to be missing (zero width; "
+        "drawn from device_seed and the channel index)",
+        "nominal part: none (a datasheet guarantees no missing codes; more are a fault)",
+        min=0,
+        max=2**24 - 2,
+    ),
+    ParamSpec(
         "drive_noise_density",
         1.0e-6,
         "V/sqrt(Hz)",
@@ -349,7 +412,8 @@ STAGE_SPECS: tuple[ParamSpec, ...] = (
 
 
 def validate_params(p: Mapping[str, Any]) -> None:
-    """Cross-parameter checks: drive frequency content below Nyquist, stators fit, W_R >= W_SA."""
+    """Cross-parameter checks: drive frequency content below Nyquist, stators fit, W_R >= W_SA,
+    missing ADC codes fewer than the interior codes."""
     if p["natural_freq_hz"] >= p["sample_rate_hz"] / 2:
         raise ParameterError(
             f"parameter 'natural_freq_hz' = {p['natural_freq_hz']!r} is out of "
@@ -359,6 +423,11 @@ def validate_params(p: Mapping[str, Any]) -> None:
         raise ParameterError(
             f"parameter 'w_m' = {p['w_m']!r} is out of range: must hold two "
             "stator pairs, >= 2 (W_SA + D_W + W_SB)"
+        )
+    if p["adc_missing_codes"] > 2 ** p["adc_bits"] - 2:
+        raise ParameterError(
+            f"parameter 'adc_missing_codes' = {p['adc_missing_codes']!r} is out of range: a "
+            f"{p['adc_bits']}-bit ADC has {2 ** p['adc_bits'] - 2} interior codes"
         )
     if p["w_r_m"] < p["w_sa_m"]:
         raise ParameterError(
