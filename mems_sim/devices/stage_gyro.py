@@ -17,8 +17,29 @@ perfectly synchronised time base. The rate at t_j is exact: the stage state at t
 is propagated over t_j - t_k with its held drive (ZOH, eq. 34) using the emulator's true
 dynamics (this is the physical input of the gyro, not an estimate).
 
-No digital low-pass is modelled (the MPU-6500 at 8 kHz with the DLPF bypassed has a
-wide band; a filter would make the effective scale factor at 1.7 kHz differ from k_I).
+Digital low-pass filter (off by default: ``gyro_dlpf_cfg = -1``, no filter, the
+MPU-6500 at 8 kHz with its DLPF bypassed read as wide band). ``gyro_dlpf_cfg`` = 0..7 is
+DLPF_CFG of the MPU-6500's CONFIG register (InvenSense MPU-6500 Register Map and
+Descriptions, rev. 2.1, register 26 CONFIG, with FCHOICE_B = 00), whose table gives the
+gyro's -3 dB bandwidth f_c, its delay tau and the internal rate (:data:`DLPF_TABLE`; the
+numbers from memory, unchecked against the document). The register map does not give the
+filter itself; the model is a stated stand-in with the table's bandwidth and delay::
+
+    H(z) = z^-d H_1(z),  H_1: first-order Butterworth low-pass at f_c, bilinear transform
+                         (prewarped, scipy.signal.butter(1, f_c, fs=f_g)) at the gyro's rate
+    |H(e^jw)|^2 = 1 / (1 + Omega^2),  Omega = tan(pi f / f_g) / tan(pi f_c / f_g)
+    tau_1(0) = 1/2 - a_1 / (1 + a_1) samples (DC group delay of H_1, a_1 its pole term)
+    d = max(0, round(tau f_g - tau_1(0)))   whole samples, so the DC group delay
+                                            tau_1(0) + d is the table's tau within 1/2 sample
+
+It acts on the rate signal k_I omega + omega_I0 before the noise (``gyro_noise_rms`` stays
+the output's RMS noise) and the output quantiser; its state is carried across frames
+(``scipy.signal.sosfilt`` with ``zi``, a sequential recurrence: the samples are the same at
+any frame size and on any CPU) and starts in steady state at the first sample. The filter
+runs at the gyro's output rate (SMPLRT_DIV = 0), so ``gyro_nominal_rate_hz`` must be the
+table's internal rate of that row (8 kHz for DLPF_CFG 0 and 7, 1 kHz for 1-6). The
+apparent scale factor at a drive frequency f is then k_I |H(e^{j 2 pi f / f_g})|
+(:meth:`MemsGyro.dlpf_response`), no longer k_I.
 """
 
 from __future__ import annotations
@@ -28,10 +49,11 @@ from collections.abc import Mapping
 from typing import Any, NamedTuple
 
 import numpy as np
+import scipy.signal
 
-from mems_sim.params import ParamSpec, resolve
+from mems_sim.params import ParameterError, ParamSpec, resolve
 
-__all__ = ["GYRO_SPECS", "GyroFrame", "MemsGyro", "DPS"]
+__all__ = ["GYRO_SPECS", "GyroFrame", "MemsGyro", "DPS", "DLPF_TABLE", "Dlpf"]
 
 DPS = math.pi / 180.0
 
@@ -127,7 +149,33 @@ GYRO_SPECS: tuple[ParamSpec, ...] = (
         max=100.0,
     ),
     ParamSpec("gyro_bits", 16, "bits", "output word length", "MPU-6500: 16-bit", min=8, max=32),
+    ParamSpec(
+        "gyro_dlpf_cfg",
+        -1,
+        "-",
+        "DLPF_CFG of the gyro's digital low-pass (0..7: the register map's row, with "
+        "FCHOICE_B = 00; gyro_nominal_rate_hz must be that row's internal rate); -1: no "
+        "filter (the DLPF bypassed, a wide-band gyro)",
+        "InvenSense MPU-6500 Register Map and Descriptions rev. 2.1, register 26 CONFIG "
+        "(bandwidth, delay and rate of each row from memory, unchecked); -1 the default: the "
+        "thesis' 8 kHz gyro with no filter modelled",
+        min=-1,
+        max=7,
+    ),
 )
+
+#: MPU-6500 gyro DLPF, DLPF_CFG -> (-3 dB bandwidth [Hz], delay [s], internal rate [Hz])
+#: with FCHOICE_B = 00 (Register Map rev. 2.1, register 26 CONFIG; from memory, unchecked).
+DLPF_TABLE: dict[int, tuple[float, float, float]] = {
+    0: (250.0, 0.97e-3, 8000.0),
+    1: (184.0, 2.9e-3, 1000.0),
+    2: (92.0, 3.9e-3, 1000.0),
+    3: (41.0, 5.9e-3, 1000.0),
+    4: (20.0, 9.9e-3, 1000.0),
+    5: (10.0, 17.85e-3, 1000.0),
+    6: (5.0, 33.48e-3, 1000.0),
+    7: (3600.0, 0.17e-3, 8000.0),
+}
 
 
 class GyroFrame(NamedTuple):
@@ -154,6 +202,63 @@ def _omega_after(theta, omega, u, wn, zeta, b_c, dt):
     return a10 * theta + a11 * omega + b1 * u
 
 
+class Dlpf:
+    """The gyro's DLPF stand-in H(z) = z^-d H_1(z) of the module doc, with its state.
+
+    Args:
+        bandwidth_hz: -3 dB bandwidth f_c [Hz] (< rate_hz / 2).
+        delay_s: the delay tau the DC group delay is matched to [s].
+        rate_hz: the filter's sample rate f_g [Hz].
+    """
+
+    def __init__(self, bandwidth_hz: float, delay_s: float, rate_hz: float) -> None:
+        self.bandwidth_hz = float(bandwidth_hz)
+        self.rate_hz = float(rate_hz)
+        lowpass = scipy.signal.butter(1, self.bandwidth_hz, fs=self.rate_hz, output="sos")
+        a1 = float(lowpass[0, 4])
+        #: DC group delay of H_1 [samples]: 1/2 - a_1/(1 + a_1) (b_0 = b_1, module doc)
+        self.lowpass_delay = 0.5 - a1 / (1.0 + a1)
+        #: whole samples of pure delay d [-]
+        self.delay_samples = max(0, int(round(delay_s * self.rate_hz - self.lowpass_delay)))
+        unit_delay = np.array([[0.0, 1.0, 0.0, 1.0, 0.0, 0.0]])  # z^-1 as a section, exact
+        self.sos = np.vstack([lowpass] + [unit_delay] * self.delay_samples)
+        self._zi: np.ndarray | None = None
+
+    @property
+    def group_delay_s(self) -> float:
+        """DC group delay of H [s]: (tau_1(0) + d) / f_g."""
+        return (self.lowpass_delay + self.delay_samples) / self.rate_hz
+
+    def response(self, freq_hz: np.ndarray | float) -> np.ndarray:
+        """H(e^{j 2 pi f / f_g}) [-] at ``freq_hz`` [Hz] (``scipy.signal.sosfreqz``)."""
+        f = np.atleast_1d(np.asarray(freq_hz, float))
+        return scipy.signal.sosfreqz(self.sos, worN=f, fs=self.rate_hz)[1]
+
+    def steady_state(self, x0: float) -> np.ndarray:
+        """Section states (n_sections, 2) of the transposed direct form II at rest under
+        the constant input ``x0``: per section with DC gain g = sum(b)/sum(a) and output
+        y = g x, z_1 = b_2 x - a_2 y and z_0 = b_1 x - a_1 y + z_1 (closed form, no solver)."""
+        zi = np.empty((self.sos.shape[0], 2))
+        x = float(x0)
+        for i, (b0, b1, b2, _, a1, a2) in enumerate(self.sos):
+            y = (b0 + b1 + b2) / (1.0 + a1 + a2) * x
+            zi[i, 1] = b2 * x - a2 * y
+            zi[i, 0] = b1 * x - a1 * y + zi[i, 1]
+            x = y
+        return zi
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        """Filter the next samples ``x`` [input unit] (state carried; the first sample ever
+        starts the state at rest, :meth:`steady_state`)."""
+        x = np.asarray(x, float)
+        if x.size == 0:
+            return x.copy()
+        if self._zi is None:
+            self._zi = self.steady_state(x[0])
+        y, self._zi = scipy.signal.sosfilt(self.sos, x, zi=self._zi)
+        return y
+
+
 class MemsGyro:
     """Gyro with its own clock (module doc). ``seed``: run seed of the noise stream."""
 
@@ -168,6 +273,18 @@ class MemsGyro:
         self._gen = np.random.Generator(np.random.PCG64(np.random.SeedSequence(int(seed) + 7919)))
         self.temperature_c = float(temperature_c)
         self._next = 0
+        #: the digital low-pass (module doc), None when ``gyro_dlpf_cfg`` is -1
+        self.dlpf = None
+        cfg = int(p["gyro_dlpf_cfg"])
+        if cfg >= 0:
+            bandwidth, delay, internal = DLPF_TABLE[cfg]
+            if p["gyro_nominal_rate_hz"] != internal:
+                raise ParameterError(
+                    f"parameter 'gyro_nominal_rate_hz' = {p['gyro_nominal_rate_hz']!r} is out "
+                    f"of range: gyro_dlpf_cfg = {cfg} runs at {internal!r} Hz (the output rate "
+                    "is the filter's internal rate)"
+                )
+            self.dlpf = Dlpf(bandwidth, delay, self.rate)
 
     def scale_factor(self, temperature_c: float | None = None) -> float:
         """True k_I(T) [-]."""
@@ -176,6 +293,13 @@ class MemsGyro:
         return p["gyro_scale_factor_ref"] * (
             1.0 + p["gyro_sf_tempco_per_k"] * (t - p["gyro_ref_temperature_c"])
         )
+
+    def dlpf_response(self, freq_hz: np.ndarray | float) -> np.ndarray:
+        """H at ``freq_hz`` [Hz] of the digital low-pass (:meth:`Dlpf.response`), 1 without
+        it: the apparent scale factor at f is k_I |H| (module doc)."""
+        if self.dlpf is None:
+            return np.ones(np.atleast_1d(freq_hz).shape, complex)
+        return self.dlpf.response(freq_hz)
 
     def bias(self, temperature_c: float | None = None) -> float:
         """True omega_I0(T) [rad/s]."""
@@ -210,6 +334,8 @@ class MemsGyro:
         dt = t - (k + k0) / fs
         w = _omega_after(theta[k], omega[k], u[k], wn, zeta, b_c, dt)
         val = self.scale_factor() * w + self.bias()
+        if self.dlpf is not None:
+            val = self.dlpf(val)
         if p["gyro_noise_rms"] > 0:
             val = val + self._gen.standard_normal(w.size) * p["gyro_noise_rms"]
         codes = np.rint(val / self.lsb)
