@@ -22,8 +22,9 @@ MPU-6500 at 8 kHz with its DLPF bypassed read as wide band). ``gyro_dlpf_cfg`` =
 DLPF_CFG of the MPU-6500's CONFIG register (InvenSense MPU-6500 Register Map and
 Descriptions, rev. 2.1, register 26 CONFIG, with FCHOICE_B = 00), whose table gives the
 gyro's -3 dB bandwidth f_c, its delay tau and the internal rate (:data:`DLPF_TABLE`; the
-numbers from memory, unchecked against the document). The register map does not give the
-filter itself; the model is a stated stand-in with the table's bandwidth and delay::
+revision and the numbers from memory, unchecked against the document). The register map
+does not give the filter itself; the model is a stated stand-in with the table's bandwidth
+and delay::
 
     H(z) = z^-d H_1(z),  H_1: first-order Butterworth low-pass at f_c, bilinear transform
                          (prewarped, scipy.signal.butter(1, f_c, fs=f_g)) at the gyro's rate
@@ -157,8 +158,8 @@ GYRO_SPECS: tuple[ParamSpec, ...] = (
         "FCHOICE_B = 00; gyro_nominal_rate_hz must be that row's internal rate); -1: no "
         "filter (the DLPF bypassed, a wide-band gyro)",
         "InvenSense MPU-6500 Register Map and Descriptions rev. 2.1, register 26 CONFIG "
-        "(bandwidth, delay and rate of each row from memory, unchecked); -1 the default: the "
-        "thesis' 8 kHz gyro with no filter modelled",
+        "(revision, bandwidth, delay and rate of each row from memory, unchecked); -1 the "
+        "default: the thesis' 8 kHz gyro with no filter modelled",
         min=-1,
         max=7,
     ),
