@@ -4,7 +4,7 @@ its default NIS moments are those of fault-free runs (seeds 1 and 2) and agree w
 seed's; with them a fault-free run of seed 3 gives WARN windows at no more than the designed
 rate (the chi-square thresholds of Kalman theory would mark it all ERROR); an observer f0
 1 % off or 1 % of the bits flipped are ERROR in every window, a Q 25 % off alarms in most;
-window indices over a gap and after a stream reset; parameters refused."""
+window indices over a gap, after a stream reset and a divergence; parameters refused."""
 
 import numpy as np
 import pytest
@@ -65,9 +65,15 @@ def _drive(first, fr, sl):
     )
 
 
+def _handled(node) -> int:
+    """Pairs the node finished with: estimated, or diverged (not published)."""
+    return node.frames_done + node.diag.counters.get("divergences", 0)
+
+
 def _feed(graph, node, fr, firsts, size, bits=None):
     """Publish frames of ``size`` samples of run ``fr`` (``bits`` instead of its bits) at
-    the stream indices ``firsts``; the health messages received once all are done."""
+    the stream indices ``firsts``, one after the node handled the last; the health
+    messages received."""
     ctx, ex, probe = graph
     ex.add_node(node)
     pub_b = probe.create_publisher(AdcFrame, "/resonator/adc", FRAME_QOS)
@@ -82,7 +88,7 @@ def _feed(graph, node, fr, firsts, size, bits=None):
             one_channel_adc(first, bits[sl], FS, bits=1, name="sd_bit", lsb=1.0, full_scale=1.0)
         )
         pub_p.publish(_drive(first, fr, sl))
-        assert spin_until(ex, lambda k=k: node.frames_done == k + 1, timeout=60.0)
+        assert spin_until(ex, lambda k=k: _handled(node) == k + 1, timeout=60.0)
         # a frame's windows (at most HEALTH_QOS's depth) arrive before the next frame
         windows = node.diag.counters["health_windows"]
         assert spin_until(ex, lambda w=windows: len(got) == w)
@@ -189,6 +195,23 @@ def test_windows_map_to_stream_indices_over_a_gap_and_start_again_after_a_reset(
     assert {status_values(m)["samples"] for m in got} == {"1200"}
     c = node.diag.counters
     assert c["stream_resets"] == 1 and c["gaps"] == 1 and c["health_windows"] == 6
+
+
+def test_a_divergence_drops_the_open_window_and_its_frame(graph):
+    """Windows of 1200 samples: frames of 1000 at 0 and 1000, then one whose pulse of 1e12 V
+    drives the state beyond KalmanObserver.STATE_LIMIT (a divergence: the observer and the
+    window start again, the frame and the open 800 samples not monitored), then frames at
+    3000 and 4000: windows from 0 and 3000."""
+    ctx = graph[0]
+    node = ResonatorObserverNode(
+        context=ctx, parameter_overrides=params(**OBSERVER, health_window=1200)
+    )
+    fr = _run(6, 5000)
+    fr.pulses[2500] = 1e12
+    fr.pulse_start[2500], fr.pulse_width[2500] = 0.0, 5e-8
+    got = _feed(graph, node, fr, range(0, 5000, 1000), 1000)
+    assert node.diag.counters["divergences"] == 1 and node.frames_done == 4
+    assert [int(status_values(m)["first_sample_index"]) for m in got] == [0, 3000]
 
 
 @pytest.mark.parametrize(
