@@ -14,10 +14,15 @@ from typing import Any
 
 import numpy as np
 
+from mems_sim.devices.stage_readout import ADC_ERRORS
 from mems_sim.hardware.converter import INL_SHAPES
 from mems_sim.params import ParameterError, ParamSpec, Spread, spec_table
 
 __all__ = ["STAGE_SPECS", "validate_params", "draw_spread"]
+
+#: Largest ADC resolution with static errors: each channel's converter table holds 2^N + 1
+#: floats (and its construction a few times that), 8 MB at 20 bits, 134 MB at 24.
+ADC_ERROR_MAX_BITS = 20
 
 STAGE_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
@@ -413,7 +418,8 @@ STAGE_SPECS: tuple[ParamSpec, ...] = (
 
 def validate_params(p: Mapping[str, Any]) -> None:
     """Cross-parameter checks: drive frequency content below Nyquist, stators fit, W_R >= W_SA,
-    missing ADC codes fewer than the interior codes."""
+    missing ADC codes fewer than the interior codes, ADC static errors at most
+    :data:`ADC_ERROR_MAX_BITS` bits."""
     if p["natural_freq_hz"] >= p["sample_rate_hz"] / 2:
         raise ParameterError(
             f"parameter 'natural_freq_hz' = {p['natural_freq_hz']!r} is out of "
@@ -423,6 +429,12 @@ def validate_params(p: Mapping[str, Any]) -> None:
         raise ParameterError(
             f"parameter 'w_m' = {p['w_m']!r} is out of range: must hold two "
             "stator pairs, >= 2 (W_SA + D_W + W_SB)"
+        )
+    if p["adc_bits"] > ADC_ERROR_MAX_BITS and any(p[k] != 0 for k in ADC_ERRORS):
+        raise ParameterError(
+            f"parameter 'adc_bits' = {p['adc_bits']!r} is out of range: with ADC static errors "
+            f"at most {ADC_ERROR_MAX_BITS} (each channel's converter holds a table of 2^N "
+            "transitions)"
         )
     if p["adc_missing_codes"] > 2 ** p["adc_bits"] - 2:
         raise ParameterError(

@@ -167,6 +167,10 @@ def test_fault_schedule_with_adc_errors_requantises_through_the_converters():
     np.testing.assert_array_equal(c1[mask], c0[mask])
 
 
-def test_too_many_missing_codes_refused():
+def test_too_many_missing_codes_and_too_many_bits_refused():
     with pytest.raises(ParameterError, match="adc_missing_codes"):
         MicroStage({"adc_bits": 8, "adc_missing_codes": 255}, SCHEDULE)
+    MicroStage({"adc_bits": 8, "adc_missing_codes": 254}, SCHEDULE)
+    with pytest.raises(ParameterError, match="adc_bits.*at most 20"):
+        MicroStage({"adc_bits": 21, "adc_dnl_lsb": 0.1}, SCHEDULE)
+    assert MicroStage({"adc_bits": 24}, SCHEDULE).converters is None  # ideal: any width
