@@ -6,6 +6,7 @@ recorder stopped first) is none, and neither is one whose record came."""
 import rclpy
 from conftest import spin_until
 from diagnostic_msgs.msg import DiagnosticArray
+from node_helpers import one_channel_adc
 
 from mems_msgs.msg import AdcFrame
 from mems_sim.bag.recorder import RecorderNode
@@ -17,15 +18,8 @@ FRAMES = 5
 
 
 def frame(first: int) -> AdcFrame:
-    msg = AdcFrame()
-    msg.sample_rate_hz = 200.0
-    msg.num_samples = NUM
-    msg.bits = 16
-    msg.channel_names, msg.channel_units = ["a"], ["V"]
-    msg.lsb, msg.offset, msg.full_scale = [1e-3], [0.0], [32.767]
-    msg.first_sample_index = first
-    msg.codes = [0] * NUM
-    return msg
+    """A one-channel frame of ``NUM`` zero codes from sample index ``first`` at 200 Hz."""
+    return one_channel_adc(first, [0] * NUM, 200.0, bits=16, name="a", lsb=1e-3, full_scale=32.767)
 
 
 def emulator(ctx, name: str):
