@@ -296,6 +296,12 @@ def run_block(
     lsb,
     code_max,
     state,
+    faults_on,
+    f_gain,
+    f_offset,
+    f_rail,
+    f_hold,
+    f_state,
     ekf_x,
     ekf_p,
     ekf_q,
@@ -322,6 +328,11 @@ def run_block(
         noise_f: Brownian force per sample [N]; noise_v: readout noise per sample [V].
         mode: 0 open loop, 1 PI on the readout, 2 PI on the hybrid EKF estimate.
         state: [x, v, integrator, contact] carried between blocks (updated in place).
+        faults_on: whether the readout has scheduled faults this block; f_gain, f_offset
+            [V], f_rail [V], f_hold per sample: the faulty readout
+            hold(clip(gain y + offset, -rail, rail)) before the ADC
+            (:meth:`~mems_sim.hardware.sensor_faults.SensorFaultInjector.loop_terms`);
+            f_state: [held entry + 1, held value V] carried between blocks (in place).
         ekf_x, ekf_p: EKF state [x, v, a] and covariance (in place); ekf_q = (q_F, q_a)
             continuous PSDs; ekf_r the measurement variance [V^2]; ekf_mv its model.
     Outputs (per sample): true x [m], v [m/s] at the sample instant, ADC code, v_F [V],
@@ -334,6 +345,17 @@ def run_block(
     v1, c4, ea, d0 = mv[6], mv[7], mv[4], mv[5]
     for i in range(n):
         y = -2.0 * ea * x * v1 / (c4 * (d0 * d0 - x * x)) + noise_v[i]
+        if faults_on:
+            y = f_gain[i] * y + f_offset[i]
+            if y > f_rail[i]:
+                y = f_rail[i]
+            elif y < -f_rail[i]:
+                y = -f_rail[i]
+            if f_hold[i] != f_state[0]:
+                f_state[0] = f_hold[i]
+                f_state[1] = y
+            if f_hold[i] > 0:
+                y = f_state[1]
         code = math.floor(y / lsb + 0.5)
         if code > code_max:
             code = code_max
@@ -398,6 +420,10 @@ def run_block(
     return n
 
 
+#: The loop fault terms of a block without faults (not read by the kernel).
+_NO_FAULTS = (np.ones(1), np.zeros(1), np.full(1, np.inf), np.zeros(1, np.int64))
+
+
 @dataclass
 class AccelFrame:
     """One block of samples of :class:`ForceRebalanceAccelerometer`."""
@@ -452,6 +478,10 @@ class ForceRebalanceAccelerometer:
         self.next_index = 0
         self.ekf_config = ekf_config(self.nominal, self.v_b)
         self.ekf_x, self.ekf_p = ekf_init(self.ekf_config.p0_diag)
+        #: Scheduled sensor faults on the readout voltage before the ADC, inside the loop
+        #: (mems_sim.hardware.sensor_faults; channel ``readout``); None: no faults.
+        self.faults = None
+        self.fault_state = np.zeros(2)
 
     def retune(self, params: Mapping[str, Any]) -> None:
         """The device's physical parameters moved (a temperature change): the plant, the
@@ -475,6 +505,7 @@ class ForceRebalanceAccelerometer:
         t = (first + np.arange(2 * sub * n + 1) / (2 * sub)) * self.dt
         acc = self.input_at(t)
         noise = self.rng.standard_normal((n, 2))
+        terms = self.faults.loop_terms(first, n) if self.faults else None
         out = AccelFrame(
             first,
             acc[: -1 : 2 * sub].copy(),
@@ -505,6 +536,9 @@ class ForceRebalanceAccelerometer:
             self.lsb,
             self.code_max,
             self.state,
+            terms is not None,
+            *(terms if terms is not None else _NO_FAULTS),
+            self.fault_state,
             self.ekf_x,
             self.ekf_p,
             c.q,

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -33,6 +34,16 @@ from mems_sim.hardware.fault_schedule import FaultEntry
 CHUNK = 4096
 #: Stream tag of the fault draws in the seed sequence (keeps them apart from device noise).
 _FAULT_STREAM = 0xFA17
+
+
+class LoopTerms(NamedTuple):
+    """Per-sample fault terms of one channel inside a loop (:meth:`SensorFaultInjector.loop_terms`):
+    gain [-], offset and rail [channel unit], hold (stuck_at entry number + 1, 0: none)."""
+
+    gain: np.ndarray
+    offset: np.ndarray
+    rail: np.ndarray
+    hold: np.ndarray
 
 
 class SensorFaultInjector:
@@ -88,32 +99,71 @@ class SensorFaultInjector:
             out[:, sel] = table[:, k[sel] - int(c) * CHUNK]
         return out
 
-    def _apply_one(self, entry: FaultEntry, col: np.ndarray, k: np.ndarray) -> np.ndarray:
-        """``col`` (the faulty samples of one channel, sample indices ``k``) with ``entry``."""
+    def _affine(self, entry: FaultEntry, k: np.ndarray) -> tuple[float, np.ndarray | float]:
+        """The affine kinds as ``x -> gain x + offset`` on samples ``k`` of ``entry``: the
+        gain [-] and the offset [channel unit] (a scalar or one value per sample)."""
         m = entry.magnitude
         kind = entry.kind
-        if kind == "stuck_at":
-            if k[0] == entry.first or entry.number not in self._held:
-                self._held[entry.number] = float(col[0])
-            return np.full_like(col, self._held[entry.number])
         if kind == "bias_step":
-            return col + m
+            return 1.0, m
         if kind == "bias_ramp":
-            return col + m * ((k - entry.first) / self.fs)
+            return 1.0, m * ((k - entry.first) / self.fs)
         if kind == "scale_step":
-            return col * (1.0 + m)
+            return 1.0 + m, 0.0
         if kind == "sign_flip":
-            return -col
-        if kind == "saturation":
-            return np.clip(col, -m, m)
+            return -1.0, 0.0
         if kind == "noise_burst":
             sigma = self.white_std[entry.channel_index] * math.sqrt(m * m - 1.0)
-            return col + sigma * self._draws(entry, k, 1)[0]
+            return 1.0, sigma * self._draws(entry, k, 1)[0]
         if kind == "spikes":
             u = self._draws(entry, k, 2)
             hit = u[0] < entry.rate_hz / self.fs
-            return col + np.where(hit, np.where(u[1] < 0.5, -m, m), 0.0)
-        raise ValueError(f"{kind!r} is not a sensor fault")
+            return 1.0, np.where(hit, np.where(u[1] < 0.5, -m, m), 0.0)
+        raise ValueError(f"{kind!r} is not an affine sensor fault")
+
+    def _apply_one(self, entry: FaultEntry, col: np.ndarray, k: np.ndarray) -> np.ndarray:
+        """``col`` (the faulty samples of one channel, sample indices ``k``) with ``entry``."""
+        if entry.kind == "stuck_at":
+            if k[0] == entry.first or entry.number not in self._held:
+                self._held[entry.number] = float(col[0])
+            return np.full_like(col, self._held[entry.number])
+        if entry.kind == "saturation":
+            return np.clip(col, -entry.magnitude, entry.magnitude)
+        gain, offset = self._affine(entry, k)
+        if gain == 1.0:
+            return col + offset
+        return col * gain + offset
+
+    def loop_terms(self, first: int, n: int, channel: int = 0) -> LoopTerms:
+        """The faults of ``channel`` on samples ``first .. first + n - 1`` as per-sample terms
+        for a converter inside a feedback loop, where each sample's analog value exists only
+        in the loop: ``y -> hold(clip(gain y + offset, -rail, rail))``.
+
+        The affine kinds (bias step and ramp, scale step, sign flip, noise burst, spikes)
+        compose in schedule order, then the lowest active rail of ``saturation`` clips, then
+        ``stuck_at`` holds the result of its onset sample (``hold`` is the entry's number
+        plus one on its samples, 0 elsewhere; a later entry wins where two overlap).
+        """
+        gain = np.ones(n)
+        offset = np.zeros(n)
+        rail = np.full(n, np.inf)
+        hold = np.zeros(n, np.int64)
+        for entry in self.entries:
+            if entry.channel_index != channel:
+                continue
+            lo, hi = entry.overlap(first, n)
+            if lo == hi:
+                continue
+            if entry.kind == "saturation":
+                rail[lo:hi] = np.minimum(rail[lo:hi], entry.magnitude)
+            elif entry.kind == "stuck_at":
+                hold[lo:hi] = entry.number + 1
+            else:
+                k = np.arange(first + lo, first + hi, dtype=np.int64)
+                g, c = self._affine(entry, k)
+                gain[lo:hi] *= g
+                offset[lo:hi] = offset[lo:hi] * g + c
+        return LoopTerms(gain, offset, rail, hold)
 
     def apply(self, values: np.ndarray, first: int, columns: slice | None = None) -> np.ndarray:
         """``values`` ``(n, c)`` of samples ``first .. first + n - 1`` with the faults applied.

@@ -8,6 +8,9 @@ Topics (relative to the namespace, default ``/accelerometer``):
                                                contact (1 at the stop), saturated (1: v_F clipped)
     ``loop_estimate``  mems_msgs/StateEstimate the in-loop hybrid EKF's [x, v, a] with
                                                variances (``ekf_rebalance`` only)
+    ``faults``         mems_msgs/FaultEvent    each fault of ``fault_schedule`` when it begins
+                                               (sensor faults on the readout voltage before
+                                               the ADC, inside the loop; docs/faults.md)
     ``/diagnostics``   contact with the stop, feedback saturation, input beyond the dynamic
                        range, ADC saturation, non-positive-definite covariance: WARN.
 Input: ``temperature`` sensor_msgs/Temperature: the device's temperature (``temperature_c``).
@@ -23,6 +26,7 @@ import numpy as np
 
 from mems_sim.devices import accelerometer
 from mems_sim.kernels.accelerometer_ekf import STATE_NAMES, STATE_UNITS
+from mems_sim.nodes.fault_topic import FAULT_SCHEDULE_SPEC, FaultTopic
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import make_adc_frame, make_state_estimate
 from mems_sim.ros.node_base import EmulatorNode, emulator_specs, variation_specs
@@ -44,7 +48,12 @@ class AccelerometerNode(EmulatorNode):
 
     NODE_NAME = "accelerometer"
     DEFAULT_NAMESPACE = "accelerometer"
-    SPECS = accelerometer.ACCEL_SPECS + variation_specs(REFERENCE_TEMPERATURE_C) + NODE_SPECS
+    SPECS = (
+        accelerometer.ACCEL_SPECS
+        + variation_specs(REFERENCE_TEMPERATURE_C)
+        + NODE_SPECS
+        + (FAULT_SCHEDULE_SPEC,)
+    )
     DEVICE_SPECS = accelerometer.ACCEL_SPECS
     DIAGNOSTICS_TITLE = "force-rebalance accelerometer"
 
@@ -54,6 +63,10 @@ class AccelerometerNode(EmulatorNode):
             seed=self.p["seed"],
             nominal=self.values_of(accelerometer.ACCEL_SPECS),
         )
+        self.fault_topic = FaultTopic(
+            self, ("readout",), ("V",), self.device.fs, white_std=(self.device.v_noise_std,)
+        )
+        self.device.faults = self.fault_topic.injector
         self.ekf_mode = self.p["mode"] == "ekf_rebalance"
         self.pub_adc, self.pub_drive, self.pub_truth = self.create_frame_publishers(
             "adc", "drive", "truth"
@@ -104,6 +117,7 @@ class AccelerometerNode(EmulatorNode):
 
     def publish_frame(self, first: int, n: int) -> None:
         d = self.device
+        self.fault_topic.publish_starting(first, n)
         f = d.step(n)
         common = self.frame_kwargs
         sat = int(np.count_nonzero((f.code >= d.code_max) | (f.code <= -d.code_max - 1)))

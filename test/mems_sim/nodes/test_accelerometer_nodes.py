@@ -180,3 +180,64 @@ def test_nodes_refuse_non_physical_parameters(ros_context, name, value):
     emulator_refuses(AccelerometerNode, ros_context, name, **{name: value})
     with pytest.raises(ParameterError, match=name):
         AccelerometerEkfNode(context=ros_context, parameter_overrides=params(**{name: value}))
+
+
+def test_fault_schedule_acts_in_the_loop_and_is_labelled(graph, tmp_path):
+    """A readout bias step inside the loop: the codes are the core device's with the same
+    injector, and the faults topic carries the entry, stamped in sensor time."""
+    from mems_msgs.msg import FaultEvent
+    from mems_sim.hardware.fault_schedule import load_schedule
+    from mems_sim.hardware.sensor_faults import SensorFaultInjector
+    from mems_sim.nodes.fault_topic import fault_qos
+
+    schedule = tmp_path / "faults.yaml"
+    schedule.write_text(
+        "faults:\n"
+        "  - {kind: bias_step, channel: readout, start_sample: 2500, duration_s: 0.004,"
+        " magnitude: 0.002}\n"
+    )
+    ctx, ex, probe = graph
+    dev = AccelerometerNode(
+        context=ctx,
+        drive_externally=True,
+        parameter_overrides=params(seed=4, frame_size=2000, fault_schedule=str(schedule)),
+    )
+    ex.add_node(dev)
+    got = _collect(probe, "/accelerometer", ("adc",))
+    events = []
+    probe.create_subscription(FaultEvent, "/accelerometer/faults", events.append, fault_qos(1))
+    assert spin_until(ex, lambda: dev.pub_adc.get_subscription_count() == 1)
+    for _ in range(5):
+        dev.step()
+    assert spin_until(ex, lambda: len(got["adc"]) == 5 and len(events) == 1)
+    ref = accelerometer.ForceRebalanceAccelerometer(seed=4)
+    ref.faults = SensorFaultInjector(
+        load_schedule(str(schedule), ("readout",), ("V",), ref.fs), ref.fs, 4, (ref.v_noise_std,)
+    )
+    clean = accelerometer.ForceRebalanceAccelerometer(seed=4).step(10_000).code
+    codes = _cat(got["adc"], "codes", 1)[:, 0]
+    np.testing.assert_array_equal(codes, ref.step(10_000).code)
+    np.testing.assert_array_equal(codes[:2500], clean[:2500])
+    assert np.any(codes[2500:] != clean[2500:])
+    (e,) = events
+    assert (e.kind, e.channel, e.first_faulty_sample, e.faulty_samples, e.permanent) == (
+        "bias_step",
+        "readout",
+        2500,
+        4000,
+        False,
+    )
+    assert (e.magnitude, e.magnitude_unit) == (0.002, "V")
+    assert (e.start.nanosec, e.end.nanosec, e.header.stamp.nanosec) == (
+        2_500_000,
+        6_500_000,
+        2_500_000,
+    )
+
+
+def test_bad_fault_schedule_is_refused(ros_context, tmp_path):
+    bad = tmp_path / "faults.yaml"
+    bad.write_text("faults:\n  - {kind: stuck_at, channel: gyro_x, start_s: 0.1}\n")
+    emulator_refuses(
+        AccelerometerNode, ros_context, "fault_schedule.*'gyro_x'", fault_schedule=str(bad)
+    )
