@@ -19,8 +19,11 @@ continues without the missing samples.
 Health: an innovation consistency monitor
 (:class:`~mems_estimation.filters.consistency_monitor.NisMonitor`) sums the normalised
 innovation squared ``nu^2 / S`` of every sample whose estimate is published over windows of
-``health_window`` samples against the chi-square thresholds of ``health_false_alarm``;
-each completed window is published on the device's ``health``
+``health_window`` samples against the thresholds of ``health_false_alarm``: those of the
+scaled chi-square with the filter's measured fault-free moments (``health_nis_mean``,
+``health_nis_dispersion``; Satterthwaite 1946), since the plain chi-square of a mean NIS
+of 0.99 gives a quarter of the designed false alarms at 1e-3; each completed window is
+published on the device's ``health``
 (diagnostic_msgs/DiagnosticStatus: level OK, WARN or ERROR, name the node's name, message
 the verdict, values the window's first sample index, samples, statistic, thresholds and
 the designed false alarms per hour), and /diagnostics carries the last verdict and
@@ -33,7 +36,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from mems_estimation.filters.accelerometer_ekf import HybridEkf
+from mems_estimation.filters.accelerometer_ekf import (
+    FAULT_FREE_NIS_DISPERSION,
+    FAULT_FREE_NIS_MEAN,
+    HEALTH_MOMENTS_SOURCE,
+    HEALTH_WINDOW,
+    HybridEkf,
+)
 from mems_estimation.nodes.frame_input import (
     DEVICE_NAMESPACE,
     Diverged,
@@ -41,7 +50,7 @@ from mems_estimation.nodes.frame_input import (
     input_specs,
     output_frame,
 )
-from mems_estimation.nodes.health import HealthReporter, health_specs
+from mems_estimation.nodes.health import HealthReporter, calibration_specs, health_specs
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
 from mems_sim.devices import accelerometer
 from mems_sim.kernels.accelerometer_ekf import STATE_NAMES, STATE_UNITS
@@ -54,7 +63,12 @@ from mems_sim.ros.qos import FRAME_QOS
 NODE_SPECS: tuple[ParamSpec, ...] = (
     DEVICE_NAMESPACE,
     ParamSpec("output_topic", "", "-", "StateEstimate topic; empty: the device's 'estimate'", ""),
-    *health_specs(10_000, "chosen: 10 ms at 1 MHz, 100 verdicts/s"),
+    *health_specs(
+        HEALTH_WINDOW,
+        "chosen: 1 ms at 1 MHz (1000 verdicts/s), short against the loop's "
+        "nulling of a readout fault",
+    ),
+    *calibration_specs(FAULT_FREE_NIS_MEAN, FAULT_FREE_NIS_DISPERSION, HEALTH_MOMENTS_SOURCE),
 )
 
 

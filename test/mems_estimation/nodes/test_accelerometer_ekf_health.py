@@ -9,7 +9,11 @@ from conftest import params, spin_until
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from node_helpers import diagnostics_show, one_channel_adc, status_values, wait_matched
 
-from mems_estimation.filters.accelerometer_ekf import HybridEkf
+from mems_estimation.filters.accelerometer_ekf import (
+    FAULT_FREE_NIS_DISPERSION,
+    FAULT_FREE_NIS_MEAN,
+    HybridEkf,
+)
 from mems_estimation.filters.consistency_monitor import NisMonitor
 from mems_estimation.nodes.accelerometer_ekf_node import AccelerometerEkfNode
 from mems_msgs.msg import AdcFrame, SignalFrame, StateEstimate
@@ -52,7 +56,7 @@ def test_one_health_message_per_window_ok_on_fault_free_data(graph):
     )
     f = d.step(20_000)
     ref = HybridEkf(d.ekf_config).run(f.code * d.lsb, f.v_f)
-    monitor = NisMonitor(4000, 1e-3)
+    monitor = NisMonitor.moment_matched(4000, 1e-3, FAULT_FREE_NIS_MEAN, FAULT_FREE_NIS_DISPERSION)
     windows = monitor.update(ref["innovation"] ** 2 / ref["innovation_variance"])
     assert [m.level for m in health] == [DiagnosticStatus.OK] * 5
     assert {m.name for m in health} == {"accelerometer_ekf"}
