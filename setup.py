@@ -119,6 +119,7 @@ setup(
             "scanner_amdm_estimator_node = mems_estimation.nodes.scanner_amdm_estimator_node:main",
             "identify_noise = mems_estimation.tools.identify_noise:main",
             "calibrate_imu = mems_estimation.tools.calibrate_imu:main",
+            "calibrate_health = mems_estimation.tools.calibrate_health:main",
             "imu_calibration_node = mems_estimation.nodes.imu_calibration_node:main",
             "imu_corrector_node = mems_estimation.nodes.imu_corrector_node:main",
             "mcap_record = mems_sim.bag.record_cli:main",

@@ -197,7 +197,19 @@ def nis_moments(nis: np.ndarray, window: int) -> tuple[float, float]:
     Raises:
         ValueError: fewer than 30 complete windows, or a non-finite window sum.
     """
-    sums = window_sums(np.asarray(nis, dtype=float), window)
+    return window_moments(window_sums(np.asarray(nis, dtype=float), window), window)
+
+
+def window_moments(sums: np.ndarray, window: int) -> tuple[float, float]:
+    """(mean NIS per sample, dispersion) of fault-free window sums ``sums`` (each over
+    ``window`` samples, -): the mean sum over W, and the sums' variance over 2 W (that of
+    chi2(W)), the moments of :meth:`NisMonitor.moment_matched` (:func:`nis_moments` of the
+    per-sample NIS; a recording's ``health`` statistics).
+
+    Raises:
+        ValueError: fewer than 30 windows, or a non-finite sum.
+    """
+    sums = np.asarray(sums, dtype=float)
     if sums.size < 30 or not np.all(np.isfinite(sums)):
         raise ValueError(f"{sums.size} training windows (all finite): at least 30 needed")
     return float(sums.mean() / window), float(sums.var(ddof=1) / (2.0 * window))

@@ -67,7 +67,7 @@ def test_error_recovers_after_every_fault_but_the_sign_flip(campaigns):
     strict=True,
     reason="a sign flip drives the PI loop to its rail; its integrator keeps a wound-up "
     "offset (about 0.3 mV on v_f, decaying over about 0.6 s) that the EKF's nominal model "
-    "turns into acceleration error on a drawn device (up to 4x the fault-free RMS 5-15 ms "
+    "turns into acceleration error on a drawn device (up to 7.8x the fault-free RMS 5-15 ms "
     "after the fault): needs the identified model (bench identification)",
 )
 def test_sign_flip_recovery_on_drawn_devices(campaigns):
