@@ -108,6 +108,7 @@ from mems_sim.devices.imu_specs import (
     imu_specs,
     imu_values,
 )
+from mems_sim.hardware.converter import device_converters, part_seed
 from mems_sim.hardware.flicker import flicker_config
 from mems_sim.hardware.flicker_stream import FlickerChannels
 from mems_sim.params import ParameterError
@@ -410,6 +411,8 @@ class SensorNoise:
     streams: tuple
     #: Flicker bias instability on top of x (None: off), :class:`FlickerChannels` of 3 axes.
     flicker: FlickerChannels | None = None
+    #: One converter per axis with the ADC's static errors (None: the ideal quantiser).
+    converters: tuple | None = None
     x_state: np.ndarray = field(init=False)
     rw_state: np.ndarray = field(init=False)
     saturated_total: np.ndarray = field(init=False)
@@ -439,8 +442,16 @@ class SensorNoise:
         return out
 
     def quantize(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(codes int32 (n,3), value of the codes (n,3) SI, saturated count per axis (3,))."""
-        codes, sat = quantize(values, self.lsb, self.bits)
+        """(codes int32 (n,3), value of the codes (n,3) SI, saturated count per axis (3,)):
+        :func:`quantize`, or each axis' converter when the ADC has static errors."""
+        if self.converters is None:
+            codes, sat = quantize(values, self.lsb, self.bits)
+        else:
+            values = np.asarray(values, dtype=float)
+            codes = np.empty(values.shape, np.int32)
+            sat = np.empty(values.shape, bool)
+            for j, conv in enumerate(self.converters):
+                codes[:, j], sat[:, j] = conv.quantize(values[:, j])
         counts = sat.sum(axis=0).astype(np.int64)
         self.saturated_total += counts
         return codes, codes * self.lsb, counts
@@ -609,7 +620,19 @@ class ImuNoiseModel:
             bits=bits,
             streams=streams,
             flicker=self._make_flicker(s, fs),
+            converters=self._make_converters(s, bits),
         )
+
+    def _make_converters(self, s: str, bits: int) -> tuple | None:
+        """Sensor ``s``'s converters, one per axis, with its ADC static errors
+        (``{s}_adc_*``; None when all are 0), their patterns drawn for ``adc_part_seed``
+        and the axis (:func:`~mems_sim.hardware.converter.part_seed`, tag "imu_adc",
+        channel 0..5 in the order gyro_x..z, accel_x..z)."""
+        p = self.params
+        first = 3 * SENSORS.index(s)
+        seeds = [part_seed(p["adc_part_seed"], "imu_adc", first + j) for j in range(3)]
+        full_scale = p[f"{s}_lsb"] * 2.0 ** (bits - 1)
+        return device_converters(p, f"{s}_adc_", bits, full_scale, seeds)
 
     def _make_flicker(self, s: str, fs: float) -> FlickerChannels | None:
         """The flicker term of sensor ``s`` (None when its coefficient is 0); its band's

@@ -23,24 +23,22 @@ converter's over-range flag (the input beyond half a code outside the code range
 from __future__ import annotations
 
 import math
-import zlib
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
-from mems_sim.hardware.converter import Converter
+from mems_sim.hardware.converter import (
+    STATIC_ERRORS,
+    Converter,
+    device_converters,
+    part_seed,
+)
 
 K_BOLTZMANN = 1.380649e-23  # J/K
 
 #: The stage's ADC static-error parameters and the converter parameter each one sets.
-ADC_ERRORS: dict[str, str] = {
-    "adc_offset_lsb": "offset_lsb",
-    "adc_gain_error": "gain_error",
-    "adc_inl_lsb": "inl_peak_lsb",
-    "adc_dnl_lsb": "dnl_sd_lsb",
-    "adc_missing_codes": "missing_codes",
-}
+ADC_ERRORS: dict[str, str] = {f"adc_{name}": conv for name, conv in STATIC_ERRORS.items()}
 
 
 def readout_noise_std(p: Mapping[str, Any]) -> float:
@@ -69,11 +67,11 @@ def requantize(y: np.ndarray, inv_lsb: float, code_max: float) -> tuple[np.ndarr
 
 
 def adc_seed(device_seed: int, channel: int) -> int:
-    """Seed [-] of channel ``channel``'s converter (its DNL pattern and missing codes): the
-    first 63 bits of ``np.random.SeedSequence([device_seed, crc32("stage_adc"), channel])``,
-    so every channel of a device has its own part and every device its own four."""
-    ss = np.random.SeedSequence([int(device_seed), zlib.crc32(b"stage_adc"), int(channel)])
-    return int(ss.generate_state(1, np.uint64)[0] >> np.uint64(1))
+    """Seed [-] of channel ``channel``'s converter (its DNL pattern and missing codes):
+    :func:`~mems_sim.hardware.converter.part_seed` of ``device_seed``, tag "stage_adc" and
+    the channel, so every channel of a device has its own part and every device its own
+    four."""
+    return part_seed(device_seed, "stage_adc", channel)
 
 
 def channel_converters(p: Mapping[str, Any], n_channels: int) -> tuple[Converter, ...] | None:
@@ -83,17 +81,8 @@ def channel_converters(p: Mapping[str, Any], n_channels: int) -> tuple[Converter
     ``p``: the stage's parameters (``adc_bits`` [bits], ``adc_full_scale_v`` [V],
     ``device_seed`` [-] and the :data:`ADC_ERRORS` [LSB, -], ``adc_inl_shape``);
     ``n_channels`` [-]."""
-    if all(p[name] == 0 for name in ADC_ERRORS):
-        return None
-    common = {conv: p[name] for name, conv in ADC_ERRORS.items()}
-    common.update(
-        bits=int(p["adc_bits"]),
-        full_scale=float(p["adc_full_scale_v"]),
-        inl_shape=p["adc_inl_shape"],
-    )
-    return tuple(
-        Converter({**common, "seed": adc_seed(p["device_seed"], c)}) for c in range(n_channels)
-    )
+    seeds = [adc_seed(p["device_seed"], c) for c in range(n_channels)]
+    return device_converters(p, "adc_", int(p["adc_bits"]), float(p["adc_full_scale_v"]), seeds)
 
 
 def convert_channels(converters: tuple[Converter, ...], y: np.ndarray) -> tuple[np.ndarray, int]:

@@ -58,7 +58,16 @@ import numpy as np
 
 from mems_sim.params import ParameterError, ParamSpec, Spread, draw_device, resolve
 
-__all__ = ["ADC_SPECS", "INL_SHAPES", "Converter", "code_range"]
+__all__ = [
+    "ADC_SPECS",
+    "DEVICE_MAX_BITS",
+    "INL_SHAPES",
+    "STATIC_ERRORS",
+    "Converter",
+    "code_range",
+    "device_converters",
+    "part_seed",
+]
 
 INL_SHAPES = ("parabola", "cubic")
 #: Largest resolution: the table holds 2^N + 1 floats.
@@ -466,3 +475,64 @@ class Converter:
     def value(self, codes: np.ndarray) -> np.ndarray:
         """The nominal input of ``codes``: code * Q [input unit] (as the devices report)."""
         return np.asarray(codes) * self.lsb
+
+
+# ------------------------------------------------------------------ a device's converters
+#: A device's ADC static-error parameters (the name after the device's prefix, e.g.
+#: ``adc_`` + ``offset_lsb``) and the :data:`ADC_SPECS` parameter each one sets.
+STATIC_ERRORS: dict[str, str] = {
+    "offset_lsb": "offset_lsb",
+    "gain_error": "gain_error",
+    "inl_lsb": "inl_peak_lsb",
+    "dnl_lsb": "dnl_sd_lsb",
+    "missing_codes": "missing_codes",
+}
+#: Largest resolution of a device's converter model (each channel holds a table of 2^N
+#: transitions: 8 MB at 20 bits).
+DEVICE_MAX_BITS = 20
+
+
+def part_seed(device_seed: int, tag: str, channel: int) -> int:
+    """Seed [-] of one channel's converter of one part (its DNL pattern and missing
+    codes): the first 63 bits of ``np.random.SeedSequence([device_seed, crc32(tag),
+    channel])``, so every channel of a part and every part have their own."""
+    ss = np.random.SeedSequence([int(device_seed), zlib.crc32(tag.encode()), int(channel)])
+    return int(ss.generate_state(1, np.uint64)[0] >> np.uint64(1))
+
+
+def device_converters(
+    p: Mapping[str, Any],
+    prefix: str,
+    bits: int,
+    full_scale: float,
+    seeds: Iterable[int],
+) -> tuple[Converter, ...] | None:
+    """One :class:`Converter` per seed with a device's static errors, or None when every
+    error is 0 (the device's ideal quantiser then is its ADC, bit for bit).
+
+    ``p``: the device's parameters, holding ``prefix + name`` for every name of
+    :data:`STATIC_ERRORS` [LSB, -] and ``prefix + "inl_shape"``; ``bits`` [-] and
+    ``full_scale`` [input unit] of the ADC; ``seeds``: one per channel
+    (:func:`part_seed`).
+
+    Raises:
+        ParameterError: static errors at more than :data:`DEVICE_MAX_BITS` bits, or more
+            missing codes than interior codes (named by the device's parameter).
+    """
+    if all(p[prefix + name] == 0 for name in STATIC_ERRORS):
+        return None
+    if bits > DEVICE_MAX_BITS:
+        raise ParameterError(
+            f"parameter 'bits' = {bits!r} is out of range: with ADC static errors "
+            f"({prefix}*) at most {DEVICE_MAX_BITS} (each channel's converter holds a "
+            "table of 2^N transitions)"
+        )
+    missing = p[prefix + "missing_codes"]
+    if missing > 2**bits - 2:
+        raise ParameterError(
+            f"parameter '{prefix}missing_codes' = {missing!r} is out of range: a {bits}-bit "
+            f"ADC has {2**bits - 2} interior codes"
+        )
+    common = {conv: p[prefix + name] for name, conv in STATIC_ERRORS.items()}
+    common.update(bits=int(bits), full_scale=float(full_scale), inl_shape=p[prefix + "inl_shape"])
+    return tuple(Converter({**common, "seed": int(s)}) for s in seeds)
