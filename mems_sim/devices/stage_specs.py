@@ -15,14 +15,14 @@ from typing import Any
 import numpy as np
 
 from mems_sim.devices.stage_readout import ADC_ERRORS
-from mems_sim.hardware.converter import INL_SHAPES
+from mems_sim.hardware.converter import DEVICE_MAX_BITS, INL_SHAPES
 from mems_sim.params import ParameterError, ParamSpec, Spread, spec_table
 
 __all__ = ["STAGE_SPECS", "validate_params", "draw_spread"]
 
 #: Largest ADC resolution with static errors: each channel's converter table holds 2^N + 1
 #: floats (and its construction a few times that), 8 MB at 20 bits, 134 MB at 24.
-ADC_ERROR_MAX_BITS = 20
+ADC_ERROR_MAX_BITS = DEVICE_MAX_BITS
 
 STAGE_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
