@@ -15,7 +15,7 @@ from dataclasses import replace
 from typing import Any
 
 from mems_sim.devices.imu_motion_specs import AXES, ENVIRONMENT_SPECS, VIBRATION_SPECS
-from mems_sim.hardware.converter import INL_SHAPES
+from mems_sim.hardware.converter import inl_shape_spec
 from mems_sim.hardware.flicker import flicker_specs
 from mems_sim.params import ParameterError, ParamSpec, Spread, draw_device, resolve
 
@@ -467,14 +467,7 @@ def _adc_error_specs(s: str) -> tuple[ParamSpec, ...]:
             min=-16.0,
             max=16.0,
         ),
-        ParamSpec(
-            f"{s}_adc_inl_shape",
-            "parabola",
-            "-",
-            "shape of the INL bow: parabola (even order, peak at mid-scale) or cubic (odd order)",
-            "assumption (the converter model's two shapes)",
-            choices=INL_SHAPES,
-        ),
+        inl_shape_spec(f"{s}_adc_inl_shape"),
         ParamSpec(
             f"{s}_adc_dnl_lsb",
             0.0,

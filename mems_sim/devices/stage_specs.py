@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from mems_sim.devices.stage_readout import ADC_ERRORS
-from mems_sim.hardware.converter import DEVICE_MAX_BITS, INL_SHAPES
+from mems_sim.hardware.converter import DEVICE_MAX_BITS, inl_shape_spec
 from mems_sim.params import ParameterError, ParamSpec, Spread, spec_table
 
 __all__ = ["STAGE_SPECS", "validate_params", "draw_spread"]
@@ -335,14 +335,7 @@ STAGE_SPECS: tuple[ParamSpec, ...] = (
         min=-16.0,
         max=16.0,
     ),
-    ParamSpec(
-        "adc_inl_shape",
-        "parabola",
-        "-",
-        "shape of the INL bow: parabola (even order, peak at mid-scale) or cubic (odd order)",
-        "assumption (the converter model's two shapes)",
-        choices=INL_SHAPES,
-    ),
+    inl_shape_spec("adc_inl_shape"),
     ParamSpec(
         "adc_dnl_lsb",
         0.0,

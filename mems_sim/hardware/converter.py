@@ -66,6 +66,7 @@ __all__ = [
     "Converter",
     "code_range",
     "device_converters",
+    "inl_shape_spec",
     "part_seed",
 ]
 
@@ -490,6 +491,18 @@ STATIC_ERRORS: dict[str, str] = {
 #: Largest resolution of a device's converter model (each channel holds a table of 2^N
 #: transitions: 8 MB at 20 bits).
 DEVICE_MAX_BITS = 20
+
+
+def inl_shape_spec(name: str) -> ParamSpec:
+    """The parameter ``name`` choosing a device ADC's INL bow shape (:data:`INL_SHAPES`)."""
+    return ParamSpec(
+        name,
+        "parabola",
+        "-",
+        "shape of the INL bow: parabola (even order, peak at mid-scale) or cubic (odd order)",
+        "assumption (the converter model's two shapes)",
+        choices=INL_SHAPES,
+    )
 
 
 def part_seed(device_seed: int, tag: str, channel: int) -> int:
