@@ -128,6 +128,10 @@ def write_plot(path: Path, res: dict) -> Path:
         ax.set_ylim(-0.05, 1.05)
         ax.set_title(kind, fontsize=9)
         ax.set_xlabel(UNITS.get(kind, ""), fontsize=8)
+        if m.size == 1:  # a kind without a magnitude (stuck_at, sign_flip)
+            ax.set_xticks(m, ["(no magnitude)"])
+        elif m.min() > 0 and m.max() / m.min() >= 50:
+            ax.set_xscale("log")
         ax.grid(True, alpha=0.3)
     for ax in list(axes.flat)[len(kinds) :]:
         ax.set_visible(False)
