@@ -22,7 +22,9 @@ innovation squared ``nu^2 / S`` of every sample whose estimate is published over
 ``health_window`` samples against the thresholds of ``health_false_alarm``: those of the
 scaled chi-square with the filter's measured fault-free moments (``health_nis_mean``,
 ``health_nis_dispersion``; Satterthwaite 1946), since the plain chi-square of a mean NIS
-of 0.99 gives a quarter of the designed false alarms at 1e-3; each completed window is
+of 0.99 gives a quarter of the designed false alarms at 1e-3 (the defaults are the nominal
+device's; a drawn device or a real part has its own, measured on a fault-free recording of
+its ``health`` by the ``calibrate_health`` tool); each completed window is
 published on the device's ``health``
 (diagnostic_msgs/DiagnosticStatus: level OK, WARN or ERROR, name the node's name, message
 the verdict, values the window's first sample index, samples, statistic, thresholds and
