@@ -113,25 +113,27 @@ class NisMonitor:
         nis_mean: float,
         dispersion: float,
         error_factor: float = 100.0,
+        dof: int = 1,
     ) -> NisMonitor:
         """A monitor whose thresholds are those of the scaled chi-square g chi2(h) with the
-        mean ``nis_mean W`` and variance ``2 dispersion W`` of a fault-free window sum
+        mean ``nis_mean m W`` and variance ``2 dispersion m W`` of a fault-free window sum
         (Satterthwaite 1946; Box 1954): g = dispersion / nis_mean,
-        h = nis_mean^2 W / dispersion. ``nis_mean`` (mean NIS per sample, -) and
-        ``dispersion`` (variance of a window sum over that of chi2(W), -) come from
-        fault-free training data (:func:`nis_moments`); 1 and 1: the chi-square monitor.
+        h = nis_mean^2 m W / dispersion, m = ``dof`` measurements per sample. ``nis_mean``
+        (mean NIS per sample and degree of freedom, -) and ``dispersion`` (variance of a
+        window sum over that of chi2(m W), -) come from fault-free training data
+        (:func:`nis_moments`); 1 and 1: the chi-square monitor.
 
         Raises:
             ValueError: ``nis_mean`` or ``dispersion`` not finite and > 0, or the
                 constructor's reasons.
         """
-        m = cls(window, false_alarm, 1, error_factor)
+        m = cls(window, false_alarm, dof, error_factor)
         for name, val in (("nis_mean", nis_mean), ("dispersion", dispersion)):
             if not (math.isfinite(val) and val > 0):
                 raise ValueError(f"{name} = {val!r} is invalid: finite and > 0")
         if nis_mean == 1.0 and dispersion == 1.0:
             return m
-        g, h = dispersion / nis_mean, nis_mean * nis_mean * window / dispersion
+        g, h = dispersion / nis_mean, nis_mean * nis_mean * (dof * window) / dispersion
         m.thresholds = (
             g * float(stats.chi2.isf(false_alarm, h)),
             g * float(stats.chi2.isf(false_alarm / error_factor, h)),
@@ -188,23 +190,24 @@ def window_sums(nis: np.ndarray, window: int) -> np.ndarray:
     return sums
 
 
-def nis_moments(nis: np.ndarray, window: int) -> tuple[float, float]:
-    """(mean NIS per sample, dispersion) of fault-free training NIS (per sample, -) over
-    windows of ``window`` samples: the mean window sum over W, and the variance of the
-    window sums over 2 W (that of chi2(W)); the moments of
-    :meth:`NisMonitor.moment_matched`.
+def nis_moments(nis: np.ndarray, window: int, dof: int = 1) -> tuple[float, float]:
+    """(mean NIS per sample and degree of freedom, dispersion) of fault-free training NIS
+    (per sample, -; ``dof`` measurements m per sample) over windows of ``window`` samples:
+    the mean window sum over m W, and the variance of the window sums over 2 m W (that of
+    chi2(m W)); the moments of :meth:`NisMonitor.moment_matched`.
 
     Raises:
         ValueError: fewer than 30 complete windows, or a non-finite window sum.
     """
-    return window_moments(window_sums(np.asarray(nis, dtype=float), window), window)
+    return window_moments(window_sums(np.asarray(nis, dtype=float), window), window, dof)
 
 
-def window_moments(sums: np.ndarray, window: int) -> tuple[float, float]:
+def window_moments(sums: np.ndarray, window: int, dof: int = 1) -> tuple[float, float]:
     """(mean NIS per sample, dispersion) of fault-free window sums ``sums`` (each over
     ``window`` samples, -): the mean sum over W, and the sums' variance over 2 W (that of
     chi2(W)), the moments of :meth:`NisMonitor.moment_matched` (:func:`nis_moments` of the
-    per-sample NIS; a recording's ``health`` statistics).
+    per-sample NIS; a recording's ``health`` statistics). With ``dof`` measurements m per
+    sample: per degree of freedom, over m W and 2 m W (chi2(m W)).
 
     Raises:
         ValueError: fewer than 30 windows, or a non-finite sum.
@@ -212,4 +215,5 @@ def window_moments(sums: np.ndarray, window: int) -> tuple[float, float]:
     sums = np.asarray(sums, dtype=float)
     if sums.size < 30 or not np.all(np.isfinite(sums)):
         raise ValueError(f"{sums.size} training windows (all finite): at least 30 needed")
-    return float(sums.mean() / window), float(sums.var(ddof=1) / (2.0 * window))
+    k = dof * window
+    return float(sums.mean() / k), float(sums.var(ddof=1) / (2.0 * k))

@@ -8,7 +8,8 @@ on the device's ``health`` (diagnostic_msgs/DiagnosticStatus: level OK, WARN or 
 name the node's name, message the verdict, values the window's first stream sample index,
 samples, statistic, thresholds and the designed false alarms per hour) and keeps on
 /diagnostics the last verdict and statistic and the counts of windows, WARN and ERROR
-windows. A window continues over a gap (its first sample index is the stream's);
+windows. A window continues over a gap (its first sample index is the stream's), and over
+the samples without a measurement of a filter that has some (they carry no NIS);
 :meth:`HealthReporter.reset` (the filter re-initialised) drops the open window. The
 thresholds are chi-square quantiles, or, for a node with :func:`calibration_specs`, those
 of the scaled chi-square of the measured fault-free moments.
@@ -97,12 +98,15 @@ class HealthReporter:
     Args:
         node: the estimator node (an :class:`~mems_estimation.nodes.frame_input.EstimatorNode`
             with the parameters of :func:`health_specs`).
-        fs: sample rate of the estimates, Hz (the designed false alarms per hour).
+        fs: rate of the NIS samples fed, Hz (the designed false alarms per hour): the
+            sample rate of the estimates, or of the samples with a measurement.
         what: the filter's name in the ERROR warning (e.g. ``"hybrid EKF"``).
+        dof: measurements per sample m, -: a window's fault-free NIS sum is chi-square with
+            m W degrees of freedom (Bar-Shalom, Li & Kirubarajan 2001, Sec. 5.4.2).
     """
 
-    def __init__(self, node, fs: float, what: str) -> None:
-        self.node, self.fs, self.what = node, float(fs), what
+    def __init__(self, node, fs: float, what: str, dof: int = 1) -> None:
+        self.node, self.fs, self.what, self.dof = node, float(fs), what, dof
         self.pub = node.create_publisher(DiagnosticStatus, node.device_topic("health"), HEALTH_QOS)
         node.diag.counters.update(
             health_verdict="none",
@@ -122,14 +126,25 @@ class HealthReporter:
             p["health_false_alarm"],
             p.get("health_nis_mean", 1.0),
             p.get("health_nis_dispersion", 1.0),
+            dof=self.dof,
         )
         #: (monitor sample index, stream sample index) of the first sample of each frame
         #: fed to the monitor since the start of its current window
         self._frames: deque[tuple[int, int]] = deque()
 
-    def monitor_frame(self, first: int, nis: np.ndarray) -> None:
+    def monitor_frame(
+        self, first: int, nis: np.ndarray, measured: np.ndarray | None = None
+    ) -> None:
         """Feed the NIS (per sample, -) of the frame at stream index ``first`` to the
-        monitor; report the windows it completes."""
+        monitor; report the windows it completes. ``measured`` (bool per sample): only the
+        samples with a measurement update carry a NIS, the others are left out (a window
+        counts measured samples; its first sample index is still the stream's)."""
+        if measured is not None:
+            on = np.concatenate(([False], np.asarray(measured, bool), [False]))
+            edges = np.flatnonzero(on[1:] != on[:-1])
+            for a, b in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True):
+                self.monitor_frame(first + a, nis[a:b])
+            return
         self._frames.append((self.monitor.next_index, first))
         for v in self.monitor.update(nis):
             self.report_window(v)
