@@ -137,6 +137,7 @@ setup(
             "scanner_threshold = mems_scenarios.scanner_threshold",
             "accelerometer_snr = mems_scenarios.accelerometer_snr",
             "accelerometer_spread = mems_scenarios.accelerometer_spread",
+            "accelerometer_faults = mems_scenarios.accelerometer_faults",
             "gyro_calibration = mems_scenarios.gyro_calibration",
             "imu_calibration = mems_scenarios.imu_calibration",
             "imu_thermal_calibration = mems_scenarios.imu_thermal_calibration",

@@ -25,9 +25,10 @@ class HealthCalibration:
 
     Attributes:
         window: samples per window W, -.
+        dof: measurements per sample m, -.
         windows: windows measured, -.
-        nis_mean: mean NIS per sample (mean window sum over W), -.
-        dispersion: variance of a window sum over 2 W (that of chi2(W)), -.
+        nis_mean: mean NIS per sample and degree of freedom (mean window sum over m W), -.
+        dispersion: variance of a window sum over 2 m W (that of chi2(m W)), -.
         nis_mean_interval: 95 % interval of ``nis_mean`` (normal, the sums' standard
             error), -.
         dispersion_interval: 95 % interval of ``dispersion`` (chi-square of the sample
@@ -38,6 +39,7 @@ class HealthCalibration:
     """
 
     window: int
+    dof: int
     windows: int
     nis_mean: float
     dispersion: float
@@ -50,24 +52,27 @@ class HealthCalibration:
         return asdict(self)
 
 
-def calibrate(sums: np.ndarray, window: int, false_alarm: float = 1e-2) -> HealthCalibration:
-    """The calibration of fault-free window sums ``sums`` (each of ``window`` samples,
-    -): :func:`window_moments` with their 95 % intervals, and the alarms of the monitor
-    they calibrate at ``false_alarm`` on the same windows.
+def calibrate(
+    sums: np.ndarray, window: int, false_alarm: float = 1e-2, dof: int = 1
+) -> HealthCalibration:
+    """The calibration of fault-free window sums ``sums`` (each of ``window`` samples of
+    ``dof`` measurements, -): :func:`window_moments` with their 95 % intervals, and the
+    alarms of the monitor they calibrate at ``false_alarm`` on the same windows.
 
     Raises:
         ValueError: fewer than 30 windows, a non-finite sum, or ``false_alarm`` outside
             (0, 0.5).
     """
     sums = np.asarray(sums, dtype=float)
-    mean, disp = window_moments(sums, window)
+    mean, disp = window_moments(sums, window, dof)
     n = sums.size
     z = float(stats.norm.isf(0.025))
-    se = float(sums.std(ddof=1)) / math.sqrt(n) / window
+    se = float(sums.std(ddof=1)) / math.sqrt(n) / (window * dof)
     lo_chi, hi_chi = float(stats.chi2.isf(0.025, n - 1)), float(stats.chi2.ppf(0.025, n - 1))
-    monitor = NisMonitor.moment_matched(window, false_alarm, mean, disp)
+    monitor = NisMonitor.moment_matched(window, false_alarm, mean, disp, dof=dof)
     return HealthCalibration(
         window=int(window),
+        dof=int(dof),
         windows=int(n),
         nis_mean=mean,
         dispersion=disp,

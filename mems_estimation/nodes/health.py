@@ -165,6 +165,7 @@ class HealthReporter:
         values = {
             "first_sample_index": first,
             "samples": v.n,
+            "dof": m.dof,
             "statistic": repr(v.statistic),
             "threshold_warn": repr(m.thresholds[0]),
             "threshold_error": repr(m.thresholds[1]),

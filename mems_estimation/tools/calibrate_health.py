@@ -2,7 +2,8 @@
 from a fault-free recording of its ``health`` topic.
 
 Each ``health`` message (diagnostic_msgs/DiagnosticStatus) carries one window's NIS sum
-(``statistic``) over ``samples`` samples; the fault-free window sums give the moments of
+(``statistic``) over ``samples`` samples of ``dof`` measurements (1 when the message does
+not say); the fault-free window sums give the moments (per degree of freedom) of
 the scaled chi-square the node's thresholds use (``health_nis_mean``,
 ``health_nis_dispersion``; Satterthwaite 1946), measured on the device itself rather than
 taken from the filter's table, which was measured on the nominal device
@@ -65,12 +66,17 @@ def read_health(path: Path, topics: list[str]) -> dict[str, dict]:
     for topic, _, _, msg in read_messages(str(path), topics):
         n = int(_value(msg, "samples"))
         s = float(_value(msg, "statistic"))
-        rec = out.setdefault(topic, dict(node=msg.hardware_id or msg.name, window=n, sums=[]))
+        dof = int(dict((kv.key, kv.value) for kv in msg.values).get("dof", 1))
+        rec = out.setdefault(
+            topic, dict(node=msg.hardware_id or msg.name, window=n, dof=dof, sums=[])
+        )
         if n != rec["window"]:
             raise ValueError(
                 f"{topic}: windows of {rec['window']} and {n} samples: calibrate one "
                 "health_window at a time"
             )
+        if dof != rec["dof"]:
+            raise ValueError(f"{topic}: windows of {rec['dof']} and {dof} degrees of freedom")
         rec["sums"].append(s)
     return out
 
@@ -158,7 +164,9 @@ def main(argv: list[str] | None = None) -> int:
                 raise ValueError(f"{topic}: no health message in the recording")
             r = results[topic]
             try:
-                r["calibration"] = calibrate(r.pop("sums"), r["window"], args.false_alarm).as_dict()
+                r["calibration"] = calibrate(
+                    r.pop("sums"), r["window"], args.false_alarm, r["dof"]
+                ).as_dict()
             except ValueError as exc:
                 raise ValueError(f"{topic}: {exc}") from None
     except (BagReadError, ValueError) as exc:

@@ -29,7 +29,7 @@ TOPIC = "/acc/health"
 HEALTH = "diagnostic_msgs/msg/DiagnosticStatus"
 
 
-def health_bag(path, nis, window=WINDOW, faults=0, windows=None):
+def health_bag(path, nis, window=WINDOW, faults=0, windows=None, dof=None):
     """The ``health`` messages a node publishes for per-sample ``nis`` (the monitor's
     windows, values as the node writes them), in an MCAP file; ``faults`` FaultEvents on
     /acc/faults; ``windows``: per-window sample counts instead (mixed lengths)."""
@@ -43,9 +43,10 @@ def health_bag(path, nis, window=WINDOW, faults=0, windows=None):
             name="accelerometer_ekf",
             hardware_id=NODE,
             values=[
-                KeyValue(key="samples", value=str(n)),
+                KeyValue(key="samples", value=str(n // (dof or 1))),
                 KeyValue(key="statistic", value=repr(v.statistic)),
-            ],
+            ]
+            + ([] if dof is None else [KeyValue(key="dof", value=str(dof))]),
         )
         t = (k + 1) * window * 1000
         w.write(TOPIC, serialize_message(msg), t, t)
@@ -89,6 +90,19 @@ def test_moments_of_the_recorded_windows_equal_the_filters(tmp_path, nis_nominal
     params = yaml.safe_load(out.read_text())[NODE]["ros__parameters"]
     assert params == dict(health_window=WINDOW, health_nis_mean=mean, health_nis_dispersion=disp)
     assert "nis_mean [95 %]" in r.stderr and f"parameters: {out}" in r.stderr
+
+
+def test_moments_are_per_degree_of_freedom(tmp_path, nis_nominal, subprocess_env):
+    """Windows of 250 samples of 4 measurements (as the stage EKF's) holding the same sums
+    as windows of 1000 scalar samples: the same moments per degree of freedom."""
+    bag = health_bag(tmp_path / "d4.mcap", nis_nominal, dof=4)
+    r = run([bag, "--json"], subprocess_env)
+    assert r.returncode == 0, r.stderr
+    c = json.loads(r.stdout)[TOPIC]["calibration"]
+    assert (c["window"], c["dof"]) == (250, 4)
+    mean, disp = nis_moments(nis_nominal, WINDOW)
+    assert c["nis_mean"] == pytest.approx(mean, rel=1e-12)
+    assert c["dispersion"] == pytest.approx(disp, rel=1e-12)
 
 
 def test_a_drawn_device_calibrates_away_from_the_table(tmp_path, subprocess_env):
