@@ -20,7 +20,10 @@ def _run(args, env):
 
 def test_small_run_prints_the_results_and_writes_the_figure(tmp_path, subprocess_env):
     r = _run(
-        ["--seeds", "5", "--kinds", "bias_step,stuck_at", "--out", str(tmp_path), "--json"],
+        [
+            *("--seeds", "5", "--kinds", "bias_step,stuck_at", "--calibration", "table"),
+            *("--out", str(tmp_path), "--json"),
+        ],
         subprocess_env,
     )
     assert r.returncode == 0, r.stderr
@@ -36,12 +39,12 @@ def test_small_run_prints_the_results_and_writes_the_figure(tmp_path, subprocess
 
 def test_the_table_names_every_kind_and_the_false_alarms(tmp_path, subprocess_env):
     r = _run(
-        ["--seeds", "6", "--kinds", "sign_flip", "--calibration", "table", "--no-plots"],
+        ["--seeds", "6", "--kinds", "sign_flip", "--no-plots"],
         subprocess_env,
     )
     assert r.returncode == 0, r.stderr
     assert "sign_flip" in r.stdout and "alarm episodes outside faults" in r.stdout
-    assert "monitor calibration: table" in r.stdout
+    assert "monitor calibration: bench" in r.stdout
 
 
 @pytest.mark.parametrize(
