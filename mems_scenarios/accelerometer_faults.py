@@ -3,7 +3,8 @@ and the downstream hybrid EKF's innovation monitor finds it (fault detection on 
 
 Graph (one process): ``/acc/accelerometer`` (mems_sim.nodes.accelerometer_node, PI
 rebalance, Zhang 2010 ch. 5 noise, 10 Hz input) with the fault schedule of the package's
-``config/accelerometer_faults.yaml`` (31 readout faults of 10 ms, 25 ms apart: bias steps
+``config/accelerometer_faults.yaml`` (200 ms fault-free, then 31 readout faults of 10 ms,
+25 ms apart: bias steps
 of 5 innovation standard deviations, frozen readouts, lowered rails, noise bursts, spikes
 and a final sign flip; ``--faults FILE`` replaces it) publishes ``adc``, ``drive``,
 ``truth`` and the labelled truth ``faults``; ``/acc/accelerometer_ekf``
@@ -17,7 +18,10 @@ episodes outside the faults and their 10 ms settling guard against the designed 
 (at most its Poisson 3-sigma bound plus 2: the monitor's calibration is the nominal
 device's, so a drawn device, ``--device-seed``, can fail it),
 and the RMS acceleration error inside and outside the faults (scored by
-:mod:`mems_estimation.identification.detection_metrics`). The detection statistics over
+:mod:`mems_estimation.identification.detection_metrics`). The same detection and false-alarm
+figures again as ``bench.*``: the recorded window sums judged by a monitor calibrated on the
+run's own fault-free start (the windows before the first fault; the mean NIS and dispersion
+of their sums, as ``calibrate_health`` calibrates a node), which a drawn device passes. The detection statistics over
 seeds and drawn devices are the study ``python -m
 mems_scenarios.accelerometer_fault_detection``.
 """
@@ -30,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mems_estimation.filters.consistency_monitor import NisMonitor, window_moments
 from mems_estimation.identification.detection_metrics import (
     Fault,
     Verdicts,
@@ -45,7 +50,7 @@ DESCRIPTION = (
     "force-rebalance accelerometer with scheduled readout faults: detection by the "
     "downstream hybrid EKF's NIS monitor, from the recording"
 )
-DEFAULT_DURATION_S = 0.8
+DEFAULT_DURATION_S = 1.0
 FS = 1e6
 NS = "acc"
 EMULATOR = f"/{NS}/accelerometer"
@@ -150,10 +155,10 @@ def run_graph(
 
 
 def _check_duration(duration: float) -> None:
-    if duration < 0.05:
+    if duration < 0.25:
         raise base.ScenarioError(
-            f"--duration = {duration!r} is too short for {NAME}: at least 0.05 s (the first "
-            "fault begins at 20 ms and a detection needs 10 ms)"
+            f"--duration = {duration!r} is too short for {NAME}: at least 0.25 s (the "
+            "default schedule's first fault begins at 200 ms and a detection needs 10 ms)"
         )
 
 
@@ -169,13 +174,13 @@ def read_faults(bag) -> list[Fault]:
     return sorted(out, key=lambda f: f.first)
 
 
-def read_verdicts(bag) -> tuple[Verdicts, np.ndarray, float, float]:
+def read_verdicts(bag) -> tuple[Verdicts, np.ndarray, float, float, int]:
     """The health windows of the recording (``/acc/health``), each window's statistic (NIS
-    sum, -), the designed false-alarm probability per window and the WARN threshold (of
-    the last window)."""
+    sum, -), the designed false-alarm probability per window, the WARN threshold and the
+    degrees of freedom per sample (of the last window)."""
     from mems_sim.bag.player import read_messages
 
-    first, n, level, low, stat, alpha, warn = [], [], [], [], [], None, None
+    first, n, level, low, stat, alpha, warn, dof = [], [], [], [], [], None, None, 1
     for _, _, _, m in read_messages(str(bag), [f"/{NS}/health"]):
         v = {kv.key: kv.value for kv in m.values}
         first.append(int(v["first_sample_index"]))
@@ -184,9 +189,10 @@ def read_verdicts(bag) -> tuple[Verdicts, np.ndarray, float, float]:
         low.append(v["low"] == "true")
         stat.append(float(v["statistic"]))
         alpha, warn = float(v["false_alarm"]), float(v["threshold_warn"])
+        dof = int(v.get("dof", 1))
     if not first:
         raise contract.AnalysisError(f"{bag}: no health verdicts on /{NS}/health")
-    return Verdicts.of(first, n, level, low), np.asarray(stat), alpha, warn
+    return Verdicts.of(first, n, level, low), np.asarray(stat), alpha, warn, dof
 
 
 def _error_rms(bag, faults: list[Fault]) -> tuple[float, float, bool]:
@@ -246,56 +252,96 @@ def plot(
     plt.close(fig)
 
 
-def analyse(bag, pngs=None) -> contract.ScenarioResult:
-    """The scenario's figures from its recording ``bag`` alone (module doc). ``pngs``: the
-    PNG path of :func:`plot` (or a one-element sequence of it), None: no plot."""
-    bag = Path(bag)
-    faults = read_faults(bag)
-    verdicts, statistic, alpha, warn = read_verdicts(bag)
-    figures: list[Figure] = []
-    last = int(verdicts.end[-1])
-    scored = [f for f in faults if f.first + HORIZON <= last]
+def _scores(prefix: str, faults, scored, verdicts: Verdicts, alpha: float, bench_end: int):
+    """Detection and false-alarm figures of ``verdicts`` (names ``prefix`` + ...): per kind
+    of the ``scored`` faults the share detected and the median delay; the false-alarm
+    episodes outside the faults, their guard and the bench part (samples before
+    ``bench_end``) against the designed count."""
+    out: list[Figure] = []
     for kind in dict.fromkeys(f.kind for f in scored):
         mine = [f for f in scored if f.kind == kind]
         s = detections(mine, verdicts, HORIZON, two_sided=kind in LOW_KINDS)
         share = sum(d.detected for d in s) / len(s)
         delays = [d.delay for d in s if d.detected]
         target = TARGETS.get(kind)
-        figures += [
-            Figure(f"{kind}.faults", len(s), ""),
+        out += [
+            Figure(f"{prefix}{kind}.faults", len(s), ""),
             Figure(
-                f"{kind}.detected",
+                f"{prefix}{kind}.detected",
                 share,
                 "1",
                 None if target is None else f">= {target:g}",
                 None if target is None else share >= target,
             ),
             Figure(
-                f"{kind}.median_delay_ms",
+                f"{prefix}{kind}.median_delay_ms",
                 float(np.median(delays)) / FS * 1e3 if delays else None,
                 "ms",
             ),
         ]
-    fa = false_alarms(faults, verdicts, GUARD)
-    inside, outside, finite = _error_rms(bag, faults)
+    excluded = [*faults, Fault(0, bench_end, "bench")] if bench_end > 0 else list(faults)
+    fa = false_alarms(excluded, verdicts, GUARD)
     designed = alpha * fa.windows
     # a Poisson count's 3-sigma bound above the designed count, plus 2 for small counts
     limit = math.ceil(designed + 3.0 * math.sqrt(designed) + 2.0)
-    figures += [
+    return out + [
         Figure(
-            "false_alarm.episodes",
+            f"{prefix}false_alarm.episodes",
             fa.episodes,
             "",
             f"<= {limit} (designed {designed:.2g})",
             fa.episodes <= limit,
         ),
-        Figure("false_alarm.windows", fa.windows, ""),
-        Figure("false_alarm.designed", designed, ""),
+        Figure(f"{prefix}false_alarm.windows", fa.windows, ""),
+        Figure(f"{prefix}false_alarm.designed", designed, ""),
+    ]
+
+
+def bench_verdicts(
+    verdicts: Verdicts, statistic: np.ndarray, alpha: float, dof: int, bench_end: int
+) -> tuple[Verdicts, float, float, int]:
+    """The windows judged again with the monitor calibrated on the run's own fault-free
+    start (the windows ending by ``bench_end``): the scaled chi-square of their moments
+    (:func:`~mems_estimation.filters.consistency_monitor.window_moments`; Satterthwaite
+    1946), as ``calibrate_health`` calibrates a node. Returns the verdicts, the mean NIS
+    and dispersion, and the training windows; ValueError for fewer than 30."""
+    train = verdicts.end <= bench_end
+    window = int(verdicts.n[0])
+    mean, disp = window_moments(statistic[train], window, dof)
+    m = NisMonitor.moment_matched(window, alpha, mean, disp, dof=dof)
+    level = np.where(statistic > m.thresholds[1], 2, np.where(statistic > m.thresholds[0], 1, 0))
+    judged = Verdicts.of(verdicts.first, verdicts.n, level, statistic < m.lower)
+    return judged, mean, disp, int(np.count_nonzero(train))
+
+
+def analyse(bag, pngs=None) -> contract.ScenarioResult:
+    """The scenario's figures from its recording ``bag`` alone (module doc). ``pngs``: the
+    PNG path of :func:`plot` (or a one-element sequence of it), None: no plot."""
+    bag = Path(bag)
+    faults = read_faults(bag)
+    verdicts, statistic, alpha, warn, dof = read_verdicts(bag)
+    last = int(verdicts.end[-1])
+    scored = [f for f in faults if f.first + HORIZON <= last]
+    bench_end = faults[0].first if faults else 0
+    figures = _scores("", faults, scored, verdicts, alpha, bench_end)
+    unavailable = []
+    try:
+        judged, mean, disp, n_train = bench_verdicts(verdicts, statistic, alpha, dof, bench_end)
+    except ValueError as exc:
+        unavailable.append(("bench.*", f"{bag}: the fault-free start: {exc}"))
+    else:
+        figures += [
+            Figure("bench.windows", n_train, ""),
+            Figure("bench.nis_mean", mean, "1"),
+            Figure("bench.nis_dispersion", disp, "1"),
+            *_scores("bench.", faults, scored, judged, alpha, bench_end),
+        ]
+    inside, outside, finite = _error_rms(bag, faults)
+    figures += [
         Figure("error.rms_in_faults", inside, "m/s^2"),
         Figure("error.rms_outside_faults", outside, "m/s^2"),
         Figure("estimates.finite", finite, "", "true", finite),
     ]
-    unavailable = []
     if not faults:
         unavailable.append(("*.detected", f"{bag}: no labelled fault on /{NS}/faults"))
     table = figure_table(figures)

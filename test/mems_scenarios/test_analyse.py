@@ -26,7 +26,7 @@ SHORT = {
     "scanner_threshold": ["--duration", "0.38"],
     "accelerometer_snr": ["--duration", "0.12"],
     "accelerometer_spread": ["--duration", "0.12"],
-    "accelerometer_faults": ["--duration", "0.2"],
+    "accelerometer_faults": ["--duration", "0.3"],
     "gyro_calibration": ["--set", "stage.idealised=true"],  # drift-free stage (~30 s)
     "imu_calibration": [],
     "imu_thermal_calibration": [],
