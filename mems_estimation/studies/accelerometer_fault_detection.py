@@ -114,15 +114,20 @@ def device_params(device_seed: int | None) -> tuple[dict, dict]:
     return accelerometer.validate_params(drawn), nominal
 
 
+def _device_and_filter(noise_seed: int, device_seed: int | None):
+    """The device in PI rebalance (drawn for ``device_seed``, noise of ``noise_seed``) and
+    the hybrid EKF on its nominal model, as the node builds it."""
+    p, nominal = device_params(device_seed)
+    d = accelerometer.ForceRebalanceAccelerometer(p, seed=noise_seed, nominal=nominal)
+    return d, HybridEkf(accelerometer.ekf_config(nominal, accelerometer.bias_voltage(nominal)))
+
+
 def _stream(noise_seed, device_seed, n, schedule, cfg):
     """Run device, EKF and monitor for ``n`` samples; return NIS verdicts, the
     acceleration error per sample, the S per sample, finiteness and resets."""
-    p, nominal = device_params(device_seed)
-    d = accelerometer.ForceRebalanceAccelerometer(p, seed=noise_seed, nominal=nominal)
+    d, ekf = _device_and_filter(noise_seed, device_seed)
     if schedule:
         d.faults = SensorFaultInjector(schedule, d.fs, noise_seed, (d.v_noise_std,))
-    v_b = accelerometer.bias_voltage(nominal)
-    ekf = HybridEkf(accelerometer.ekf_config(nominal, v_b))
 
     def monitor():
         return NisMonitor.moment_matched(cfg.window, cfg.false_alarm, *cfg.moments)
@@ -353,9 +358,7 @@ def fault_free_nis(
 ) -> np.ndarray:
     """The NIS per sample of a fault-free run (the first ``skip`` samples, the filter's
     start, left out)."""
-    p, nominal = device_params(device_seed)
-    d = accelerometer.ForceRebalanceAccelerometer(p, seed=noise_seed, nominal=nominal)
-    ekf = HybridEkf(accelerometer.ekf_config(nominal, accelerometer.bias_voltage(nominal)))
+    d, ekf = _device_and_filter(noise_seed, device_seed)
     parts = []
     for k in range(0, n_samples, BLOCK):
         f = d.step(min(BLOCK, n_samples - k))

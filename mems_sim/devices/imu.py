@@ -88,6 +88,7 @@ from typing import Any, NamedTuple
 import numba
 import numpy as np
 
+from mems_sim.devices.imu_adc import axis_converters
 from mems_sim.devices.imu_specs import (
     ACCEL_SPECS,
     AXES,
@@ -108,7 +109,6 @@ from mems_sim.devices.imu_specs import (
     imu_specs,
     imu_values,
 )
-from mems_sim.hardware.converter import device_converters, part_seed
 from mems_sim.hardware.flicker import flicker_config
 from mems_sim.hardware.flicker_stream import FlickerChannels
 from mems_sim.params import ParameterError
@@ -620,19 +620,8 @@ class ImuNoiseModel:
             bits=bits,
             streams=streams,
             flicker=self._make_flicker(s, fs),
-            converters=self._make_converters(s, bits),
+            converters=axis_converters(p, s, bits, 3 * SENSORS.index(s)),
         )
-
-    def _make_converters(self, s: str, bits: int) -> tuple | None:
-        """Sensor ``s``'s converters, one per axis, with its ADC static errors
-        (``{s}_adc_*``; None when all are 0), their patterns drawn for ``adc_part_seed``
-        and the axis (:func:`~mems_sim.hardware.converter.part_seed`, tag "imu_adc",
-        channel 0..5 in the order gyro_x..z, accel_x..z)."""
-        p = self.params
-        first = 3 * SENSORS.index(s)
-        seeds = [part_seed(p["adc_part_seed"], "imu_adc", first + j) for j in range(3)]
-        full_scale = p[f"{s}_lsb"] * 2.0 ** (bits - 1)
-        return device_converters(p, f"{s}_adc_", bits, full_scale, seeds)
 
     def _make_flicker(self, s: str, fs: float) -> FlickerChannels | None:
         """The flicker term of sensor ``s`` (None when its coefficient is 0); its band's
