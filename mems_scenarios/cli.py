@@ -459,6 +459,8 @@ def _run(args, module, options: ScenarioOptions, staged) -> int:
             + (", ".join(f"{t} {g}" for t, g in gaps.items()) if gaps else "none")
         )
     )
+    for text in rec.get("device_gaps") or ():  # scheduled dropped samples: not loss
+        print(fit_lines(f"device gap: {text}"))
     if result.get("figure"):
         print(fit_lines(f"figure: {result['figure']}"))
     if rec.get("losses"):  # a loss the run did not stop for (e.g. of an estimator's topic)

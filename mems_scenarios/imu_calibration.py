@@ -368,7 +368,11 @@ def run_profile(options: base.ScenarioOptions, name: str, profile: str, thermal:
         progress.close()
         rec.close()
         summary = dict(
-            counts=rec.counts(), gaps=rec.gaps(), losses=rec.losses(), text=rec.summary()
+            counts=rec.counts(),
+            gaps=rec.gaps(),
+            losses=rec.losses(),
+            device_gaps=rec.device_gaps(),
+            text=rec.summary(),
         )
         graph.close()
     result = analyse_profile(out, name, thermal)

@@ -287,7 +287,11 @@ def run(options: base.ScenarioOptions) -> dict:
         progress.close()
         rec.close()
         summary = dict(
-            counts=rec.counts(), gaps=rec.gaps(), losses=rec.losses(), text=rec.summary()
+            counts=rec.counts(),
+            gaps=rec.gaps(),
+            losses=rec.losses(),
+            device_gaps=rec.device_gaps(),
+            text=rec.summary(),
         )
         graph.close()
     png = base.output_path(out, options.seed, "-allan.png") if options.plots else None

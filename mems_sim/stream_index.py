@@ -23,6 +23,9 @@ GAP = "gap"
 #: Samples missing before the frame, all declared missing by the device
 #: (:meth:`StreamIndex.declare_device_gap`, e.g. a scheduled fault).
 DEVICE_GAP = "device_gap"
+#: The fault kind by which a device declares a device gap: samples it never delivered
+#: (a schedule's ``dropped_samples``, labelled on the device's ``faults`` topic).
+DROPPED_SAMPLES = "dropped_samples"
 #: A frame whose first index was taken recently (a duplicate).
 REPEAT = "repeat"
 #: A frame behind the expected index that was not taken (a reordered frame).
@@ -126,7 +129,10 @@ class StreamIndex(StallTimer):
     A frame classed first, next, gap or reset is taken (:attr:`expected` moves on); a
     repeated or out-of-order frame is not (its caller drops it). :meth:`recording` gives the
     accounting of a recording, which keeps every frame: history 0 and one frame behind is a
-    restart. Bounded memory: the last ``history`` first indices and declared device gaps.
+    restart. A declaration may come after the jump it covers (it travels on another topic):
+    the samples of a recent transport gap it covers are counted again as a device gap.
+    Bounded memory: the last ``history`` first indices, declared device gaps and transport
+    gaps.
     """
 
     #: Consecutive frames behind the expected index, each following the previous one, that
@@ -136,6 +142,8 @@ class StreamIndex(StallTimer):
     HISTORY = 64
     #: Declared device gaps remembered ahead of the stream.
     MAX_DECLARED = 1024
+    #: Recent transport gaps remembered for a declaration that comes after its jump.
+    MAX_TRANSPORT_GAPS = 1024
 
     def __init__(
         self,
@@ -163,6 +171,8 @@ class StreamIndex(StallTimer):
         self._behind_next: int | None = None
         self._behind_run = 0
         self._declared: deque[tuple[int, int]] = deque(maxlen=self.MAX_DECLARED)
+        #: Recent jumps with undeclared samples: [undeclared ranges, counted a device gap].
+        self._transport: deque[list] = deque(maxlen=self.MAX_TRANSPORT_GAPS)
 
     @classmethod
     def recording(cls, start: int | None = None) -> StreamIndex:
@@ -184,9 +194,38 @@ class StreamIndex(StallTimer):
 
     def declare_device_gap(self, first: int, n: int) -> None:
         """The device declares that indices ``[first, first + n)`` will not come: a jump
-        over them is a device gap, counted apart from transport loss."""
-        if int(n) > 0:
-            self._declared.append((int(first), int(first) + int(n)))
+        over them is a device gap, counted apart from transport loss; a recent jump already
+        counted as transport loss over them is counted again (class doc)."""
+        first, n = int(first), int(n)
+        if n <= 0:
+            return
+        self._declared.append((first, first + n))
+        if self._transport:
+            self._reclass(first, first + n)
+
+    def _reclass(self, lo: int, hi: int) -> None:
+        """Move the samples of ``[lo, hi)`` in recent transport gaps to device gaps."""
+        for jump in self._transport:
+            kept, moved = [], 0
+            for a, b in jump[0]:
+                cut_a, cut_b = max(a, lo), min(b, hi)
+                if cut_b <= cut_a:
+                    kept.append((a, b))
+                    continue
+                moved += cut_b - cut_a
+                kept += [r for r in ((a, cut_a), (cut_b, b)) if r[1] > r[0]]
+            if not moved:
+                continue
+            jump[0] = kept
+            self.missing_samples -= moved
+            self.device_missing_samples += moved
+            if not jump[1]:
+                jump[1] = True
+                self.device_gaps += 1
+            if not kept:
+                self.gaps -= 1
+        while self._transport and not self._transport[0][0]:
+            self._transport.popleft()
 
     def _declared_in(self, lo: int, hi: int) -> int:
         """Indices of ``[lo, hi)`` that the device declared missing (ranges may overlap)."""
@@ -255,7 +294,21 @@ class StreamIndex(StallTimer):
         if transport:
             self.gaps += 1
             self.missing_samples += transport
+            self._transport.append([self._undeclared(expected, first), bool(declared)])
         return GAP if transport else DEVICE_GAP
+
+    def _undeclared(self, lo: int, hi: int) -> list[tuple[int, int]]:
+        """The ranges of ``[lo, hi)`` that no declared device gap covers."""
+        out, reach = [], lo
+        for a, b in sorted(
+            (max(a, lo), min(b, hi)) for a, b in self._declared if a < hi and b > lo
+        ):
+            if a > reach:
+                out.append((reach, a))
+            reach = max(reach, b)
+        if reach < hi:
+            out.append((reach, hi))
+        return out
 
 
 class SequenceIndex(StreamIndex):

@@ -18,7 +18,9 @@ sets to the publication sequence number). When the file holds an emulator's
 end-of-stream record (``.../end_of_stream``), every recorded topic it names is
 compared with it: fewer messages, or a last frame that ends before the announced end
 sample index, is a missing tail. Each loss is on the topic's line and in a warning
-line on stderr (exit status 0: the file itself is readable).
+line on stderr (exit status 0: the file itself is readable). Samples a device declared
+dropped on its ``faults`` topic (a scheduled ``dropped_samples`` fault,
+:mod:`mems_sim.ros.device_gaps`) are a device gap, shown on the topic's line and not loss.
 
 Duplicates: a message stored more than once (identical topic, log time, sequence number
 and bytes, e.g. every chunk written twice) is counted once in every figure and the copies
@@ -63,6 +65,7 @@ from mems_sim.bag.schema import (
     peek_frame_fields,
     peek_header_stamp_ns,
 )
+from mems_sim.ros.device_gaps import GapDeclarations
 from mems_sim.ros.end_of_stream import (
     describe_tail,
     is_end_of_stream_topic,
@@ -96,6 +99,7 @@ def _scan(files: list[str]) -> dict:
     file_duplicates: list[dict[str, int]] = []
     duplicates = DuplicateFilter()
     frames: dict[str, StreamIndex] = {}
+    declarations = GapDeclarations(lambda t, first, n: frames[t].declare_device_gap(first, n))
     rates: dict[str, set] = {}
     data_ends: dict[str, int] = {}
     sequences: dict[str, SequenceIndex] = {}
@@ -139,7 +143,8 @@ def _scan(files: list[str]) -> dict:
                     topic = channel.topic
                     counts[topic] = counts.get(topic, 0) + 1
                     type_name = types.get(topic, "")
-                    _account_frame(item, topic, type_name, frames, rates, data_ends)
+                    declarations.fault(topic, type_name, item.data)
+                    _account_frame(item, topic, type_name, frames, rates, data_ends, declarations)
                     _account_sequence(item, topic, type_name, sequences, end_records)
         if file_header is None:
             raise BagReadError(f"{path}: unreadable MCAP header")
@@ -183,7 +188,9 @@ def _add_channel(path: str, channel: Channel, type_name: str, channels, types, o
         )
 
 
-def _account_frame(message: Message, topic, type_name, frames, rates, data_ends) -> None:
+def _account_frame(
+    message: Message, topic, type_name, frames, rates, data_ends, declarations
+) -> None:
     layout = FRAME_LAYOUTS.get(type_name)
     if layout is None:
         return
@@ -192,7 +199,10 @@ def _account_frame(message: Message, topic, type_name, frames, rates, data_ends)
         return
     first, num, rate = fields
     rates.setdefault(topic, set()).add(rate)
-    counter = frames.setdefault(topic, StreamIndex.recording(start=0))
+    counter = frames.get(topic)
+    if counter is None:
+        counter = frames[topic] = StreamIndex.recording(start=0)
+        declarations.frame_topic(topic)  # the device's declared gaps apply to it
     if type_name in GAP_CHECKED_TYPES:
         counter.update(first, num)
         stamp = peek_header_stamp_ns(message.data)  # time of the frame's first sample
@@ -293,7 +303,9 @@ def bag_info(path: str) -> dict:
     is; such types are only listed, never imported), duplicates (messages stored more than once with identical topic,
     log time and bytes, each counted once in count and every other figure), and for frame
     topics sample_rate_hz [Hz] (None if it varies),
-    total_samples, frames, gaps, missing_samples, resets; for other topics sequence_gaps and
+    total_samples, frames, gaps, missing_samples (transport loss), device_gaps and
+    device_missing_samples (samples the device declared dropped on its faults topic,
+    :mod:`mems_sim.ros.device_gaps`; not loss), resets; for other topics sequence_gaps and
     missing_messages (None when the sequence numbers cannot be checked); for topics named
     in an end-of-stream record end_of_stream (the announced counts) and tail (what is
     missing at the end: messages, and for frames samples and from_index)}}``
@@ -361,6 +373,8 @@ def bag_info(path: str) -> dict:
                 frames=counter.frames,
                 gaps=counter.gaps,
                 missing_samples=counter.missing_samples,
+                device_gaps=counter.device_gaps,
+                device_missing_samples=counter.device_missing_samples,
                 missing_head=counter.missing_head,
                 resets=counter.resets,
             )
@@ -439,6 +453,11 @@ def format_info(info: dict) -> str:
                 f", {t['total_samples']} samples @ {rate}, {t['gaps']} gaps"
                 f" ({t['missing_samples']} samples missing)"
             )
+            if t.get("device_gaps"):
+                line += (
+                    f", {t['device_gaps']} device gaps ({t['device_missing_samples']} samples, "
+                    "declared by the device)"
+                )
             if t.get("missing_head"):
                 line += ", " + describe_missing_head(t["missing_head"])
         if t.get("duplicates"):

@@ -17,6 +17,9 @@ are not frames too. An emulator's end-of-stream record (``.../end_of_stream``,
 :mod:`mems_sim.ros.end_of_stream`) tells how many messages and samples it published
 per topic; :meth:`RecorderNode.tails` compares that with what was recorded, so a
 missing tail is seen as well as a gap (:meth:`RecorderNode.losses` lists both).
+Samples a device declares dropped on its ``faults`` topic (a scheduled
+``dropped_samples`` fault, :mod:`mems_sim.ros.device_gaps`) are a device gap of its
+frame topics, counted apart (:meth:`RecorderNode.device_gaps`), neither loss nor a stall.
 
 Stalls (with ``stall_timeout_s``): each publisher of a data topic is timed on its own
 clock, the middleware's source timestamps of its messages
@@ -62,6 +65,7 @@ from rosgraph_msgs.msg import Clock
 
 from mems_sim.bag.compression import storage_preset
 from mems_sim.bag.schema import (
+    GAP_CHECKED_TYPES,
     SchemaError,
     has_header,
     message_class,
@@ -76,6 +80,7 @@ from mems_sim.bag.writer import (
     McapBagWriter,
     gap_summary,
 )
+from mems_sim.ros.device_gaps import FAULT_EVENT_TYPE, FAULTS_TOPIC, GapDeclarations, namespace
 from mems_sim.ros.end_of_stream import (
     NOT_STREAMS,
     describe_tail,
@@ -236,6 +241,10 @@ class RecorderNode(Node):
         self._rx_counts: dict[str, int] = {}
         self._stamped: dict[str, bool] = {}
         self._eos_topics: set[str] = set()
+        #: Faults topics (their dropped samples declare device gaps).
+        self._fault_topics: set[str] = set()
+        self._taking_faults: str | None = None
+        self._declarations = GapDeclarations(self._bag.declare_device_gap)
         #: End-of-stream topics without a record whose publishers had all left when the
         #: subscriptions were destroyed (:meth:`stop_taking`); None before.
         self._silent_ends: set[str] | None = None
@@ -304,6 +313,10 @@ class RecorderNode(Node):
         self._rx_counts[topic] = 0
         if is_end_of_stream_topic(topic, type_name):
             self._eos_topics.add(topic)
+        if type_name in GAP_CHECKED_TYPES:
+            self._declarations.frame_topic(topic)
+        elif type_name == FAULT_EVENT_TYPE:
+            self._fault_topics.add(topic)
         # a Clock message starts with its time, laid out as a header's stamp
         self._stamped[topic] = stamped or type_name == "rosgraph_msgs/msg/Clock"
         qos = self._qos_overrides.get(topic) or adapt_qos(offered)
@@ -374,6 +387,15 @@ class RecorderNode(Node):
 
     def _record(self, topic: str, data: bytes, info) -> None:
         """Write one message taken from ``topic``'s subscription."""
+        if self._fault_topics and topic not in self._fault_topics:
+            self._take_device_faults(topic)
+        if topic in self._fault_topics:
+            gap = self._declarations.fault(topic, FAULT_EVENT_TYPE, data)
+            if gap is not None:
+                self.get_logger().info(
+                    f"{topic}: the device declares samples {gap[0]}..{gap[0] + gap[1] - 1} "
+                    f"dropped ({gap[1]} samples): a device gap, not loss"
+                )
         stamp = peek_header_stamp_ns(data) if self._stamped[topic] else None
         log_time = self.graph_time_ns() if stamp is None else stamp
         sent = info.get("source_timestamp") if info else None
@@ -389,6 +411,18 @@ class RecorderNode(Node):
                 self.progress_reporter.report(peek[0] + peek[1], follow=True)
         if topic in self._eos_topics:
             self._take_end_of_stream(topic, data)
+
+    def _take_device_faults(self, topic: str) -> None:
+        """Record first what the middleware already holds of the faults topic of
+        ``topic``'s device: a FaultEvent published before a frame declares its gap before
+        the frame is judged (another topic's callback may be scheduled later)."""
+        faults = f"{namespace(topic)}/{FAULTS_TOPIC}"
+        if faults in self._fault_topics and faults != self._taking_faults:
+            self._taking_faults = faults
+            try:
+                self._take_waiting(faults, None)
+            finally:
+                self._taking_faults = None
 
     def _time_publication(self, topic: str, publisher, sent_ns: int, declared: bool) -> None:
         """Stall accounting of ``topic``'s ``publisher`` with a message sent at ``sent_ns``
@@ -435,7 +469,8 @@ class RecorderNode(Node):
         return self._bag.gaps()
 
     def gap_details(self) -> dict[str, dict[str, int]]:
-        """Per frame topic: gaps, missing_samples, resets, frames, samples."""
+        """Per frame topic: gaps, missing_samples (transport loss), device_gaps,
+        device_missing_samples (declared by the device), resets, frames, samples."""
         return self._bag.gap_details()
 
     def sequence_details(self) -> dict[str, dict[str, int]]:
@@ -533,6 +568,16 @@ class RecorderNode(Node):
             out.append(f"stalled: {topic} ({times}{longest:.1f} s without data)")
         return out
 
+    def device_gaps(self) -> list[str]:
+        """One line per frame topic with samples its device declared dropped:
+        ``TOPIC: N device gaps (M samples, declared by the device)``."""
+        return [
+            f"{topic}: {d['device_gaps']} device gaps ({d['device_missing_samples']} samples, "
+            "declared by the device)"
+            for topic, d in sorted(self.gap_details().items())
+            if d["device_gaps"]
+        ]
+
     def declare_device_gap(self, topic: str, first: int, n: int) -> None:
         """Frame topic ``topic``'s device declares sample indices ``[first, first + n)``
         missing (a scheduled fault): a device gap, neither transport loss nor a stall."""
@@ -621,6 +666,7 @@ class RecorderNode(Node):
             lines.append(line)
         total_gaps, missing = gap_summary(details)
         lines.append(f"  frame-index gaps: {total_gaps} ({missing} samples missing)")
+        lines += [f"  device gap: {text}" for text in self.device_gaps()]
         lines += [f"  lost: {text}" for text in self.losses()]
         lines += [f"  {text}" for text in self.stalls()]
         dropped = self.dropped()

@@ -598,15 +598,19 @@ class McapBagWriter:
             return {t: c.gaps for t, c in self._gap_counters.items()}
 
     def gap_details(self) -> dict[str, dict[str, int]]:
-        """Per frame topic: gaps, missing_samples, resets, frames, samples, missing_head
-        (sample indices before the first frame written: a recording that started after its
-        stream, whose sample 0 it did not get)."""
+        """Per frame topic: gaps, missing_samples (transport loss), device_gaps,
+        device_missing_samples (samples its device declared dropped,
+        :meth:`declare_device_gap`), resets, frames, samples, missing_head (sample indices
+        before the first frame written: a recording that started after its stream, whose
+        sample 0 it did not get)."""
         with self._lock:
             return {
                 t: {
                     "gaps": c.gaps,
                     "missing_head": c.missing_head,
                     "missing_samples": c.missing_samples,
+                    "device_gaps": c.device_gaps,
+                    "device_missing_samples": c.device_missing_samples,
                     "resets": c.resets,
                     "frames": c.frames,
                     "samples": c.samples,

@@ -17,13 +17,20 @@ File format (one mapping with a list ``faults``)::
         magnitude: 0.5         # spike amplitude [channel unit]
         rate_hz: 5.0           # mean spike rate [Hz] (spikes only)
 
+A timing fault acts on the device's whole sample stream and names no channel::
+
+      - kind: dropped_samples  # samples the device never delivers: a declared device gap
+        start_s: 1.0
+        duration_samples: 250
+
 Times are in the device's own sample clock (``start_s * fs`` rounded to the nearest sample),
 so a schedule means the same samples at any frame size and on any replay. Faults on one
 channel may overlap; they act in the order of the file (:mod:`mems_sim.hardware.sensor_faults`).
 The fault kinds are those of fault-injection practice for inertial sensors (stuck-at, bias
 step and drift, scale-factor change, noise increase, spikes, saturation, sign inversion:
 Hwang, Kim, Kim & Seah, "A survey of fault detection, isolation, and reconfiguration
-methods", IEEE Trans. Control Syst. Technol. 18(3), 2010, Sec. II).
+methods", IEEE Trans. Control Syst. Technol. 18(3), 2010, Sec. II); dropped samples are
+the data-acquisition overrun of a real part (a FIFO that overflows, a bus transfer lost).
 """
 
 from __future__ import annotations
@@ -37,6 +44,7 @@ import yaml
 
 from mems_sim.bounded_yaml import load_file, problem
 from mems_sim.params import ParameterError
+from mems_sim.stream_index import DROPPED_SAMPLES
 
 #: Longest schedule accepted [entries]: each run may carry many faults, not millions.
 MAX_FAULTS = 10_000
@@ -127,8 +135,18 @@ SENSOR_KINDS: tuple[FaultKind, ...] = (
     ),
     FaultKind("sign_flip", "sensor", "", "output inverted"),
 )
-#: Every kind by name (timing and physical kinds join as the devices offer them).
-FAULT_KINDS: dict[str, FaultKind] = {k.name: k for k in SENSOR_KINDS}
+#: Timing faults: they act on the device's sample stream, not on one channel.
+TIMING_KINDS: tuple[FaultKind, ...] = (
+    FaultKind(
+        DROPPED_SAMPLES,
+        "timing",
+        "",
+        "the samples are never delivered: a gap in the device's streams (its truth stays "
+        "whole), declared on the faults topic as a device gap",
+    ),
+)
+#: Every kind by name (physical kinds join as the devices offer them).
+FAULT_KINDS: dict[str, FaultKind] = {k.name: k for k in SENSOR_KINDS + TIMING_KINDS}
 #: Kinds whose magnitude is ignored (it must be absent or 0).
 NO_MAGNITUDE = frozenset(k.name for k in FAULT_KINDS.values() if k.unit == "")
 #: Largest spike rate [Hz] relative to the sample rate (at most one spike per sample).
@@ -141,8 +159,8 @@ class FaultEntry:
 
     Attributes:
         kind: a name of :data:`FAULT_KINDS`.
-        channel: the channel's name.
-        channel_index: its position in the device's channel list, -.
+        channel: the channel's name ('' for a timing fault: the whole stream).
+        channel_index: its position in the device's channel list, -1 for none, -.
         first: first faulty sample index, -.
         count: number of faulty samples, -; None when permanent.
         magnitude: in the kind's unit on that channel (:meth:`FaultKind.unit_for`).
@@ -320,6 +338,8 @@ def parse_entry(
         )
     kind = kinds[name]
     where = f"fault {number} ({name})"
+    if kind.family == "timing":
+        return _timing_entry(entry, kind, number, fs, where)
     channel = entry.get("channel")
     if channel not in channels:
         raise FaultScheduleError(
@@ -338,6 +358,48 @@ def parse_entry(
         rate_hz=_rate(entry, kind, fs, where),
         number=number,
     )
+
+
+def _timing_entry(entry: Mapping, kind: FaultKind, number: int, fs: float, where: str):
+    """A timing fault: the whole stream (no channel), for a stated duration."""
+    if "channel" in entry:
+        raise FaultScheduleError(f"{where}: a timing fault acts on the whole stream: no 'channel'")
+    count = _count(entry, fs, where)
+    if count is None:
+        raise FaultScheduleError(
+            f"{where}: give 'duration_s' or 'duration_samples' (a device that never delivers "
+            "again is a shorter run: set its duration)"
+        )
+    return FaultEntry(
+        kind=kind.name,
+        channel="",
+        channel_index=-1,
+        first=_start(entry, fs, where),
+        count=count,
+        magnitude=_magnitude(entry, kind, "", where),
+        unit="",
+        number=number,
+    )
+
+
+def delivered_runs(
+    entries: Sequence[FaultEntry], first: int, n: int
+) -> list[tuple[int, int]] | None:
+    """The parts ``[lo, hi)`` (offsets into the block) of the samples ``[first, first + n)``
+    that the device delivers, in order, when ``dropped_samples`` entries of ``entries``
+    overlap the block; None when none does (the whole block is delivered)."""
+    cuts = sorted(e.overlap(first, n) for e in entries if e.kind == DROPPED_SAMPLES and e.count)
+    cuts = [c for c in cuts if c[1] > c[0]]
+    if not cuts:
+        return None
+    runs, reach = [], 0
+    for lo, hi in cuts:
+        if lo > reach:
+            runs.append((reach, lo))
+        reach = max(reach, hi)
+    if reach < n:
+        runs.append((reach, n))
+    return runs
 
 
 def parse_schedule(

@@ -28,7 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from mems_sim.hardware.fault_schedule import FaultEntry
+from mems_sim.hardware.fault_schedule import FAULT_KINDS, FaultEntry
 
 #: Samples per chunk of a fault's random draws, -.
 CHUNK = 4096
@@ -50,7 +50,8 @@ class SensorFaultInjector:
     """Applies the sensor faults of a schedule to blocks of a device's analog values.
 
     Args:
-        entries: the schedule's entries (sensor kinds only).
+        entries: the schedule's entries (those of other families, e.g. dropped samples,
+            are left to the device's stream and ignored here).
         fs: sample rate [Hz].
         seed: the device's noise seed, -.
         white_std: per channel, the standard deviation of the channel's white noise per
@@ -64,7 +65,7 @@ class SensorFaultInjector:
         seed: int,
         white_std: Sequence[float] | None = None,
     ) -> None:
-        self.entries = tuple(entries)
+        self.entries = tuple(e for e in entries if FAULT_KINDS[e.kind].family == "sensor")
         self.fs = float(fs)
         self.seed = int(seed)
         self.white_std = None if white_std is None else tuple(float(s) for s in white_std)

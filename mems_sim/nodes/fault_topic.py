@@ -5,6 +5,12 @@ Each scheduled fault is published once on ``<device>/faults`` as a ``mems_msgs/F
 (reliable, transient local, one slot per fault: a late subscriber and the recorder get
 every one), in the frame that holds its first sample, stamped in sensor time like the
 frames. With no schedule the node has no ``faults`` topic and its device is untouched.
+
+Dropped samples (``dropped_samples``) are samples the device makes but never delivers:
+every frame topic of the node except its truth (the ``truth*`` topics stay whole) is cut
+around them (:meth:`FaultTopic.attach`), so that the streams jump over exactly those
+indices; the fault's FaultEvent, published before the first frame after the gap,
+declares them to a recorder or ``mcap_info`` as a device gap, not transport loss.
 """
 
 from __future__ import annotations
@@ -14,7 +20,13 @@ from collections.abc import Sequence
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from mems_msgs.msg import FaultEvent
-from mems_sim.hardware.fault_schedule import FaultEntry, FaultScheduleError, load_schedule
+from mems_sim.hardware.fault_schedule import (
+    FAULT_KINDS,
+    FaultEntry,
+    FaultScheduleError,
+    delivered_runs,
+    load_schedule,
+)
 from mems_sim.hardware.sensor_faults import SensorFaultInjector
 from mems_sim.params import ParameterError, ParamSpec
 from mems_sim.ros.frames import index_to_ns, ns_to_time
@@ -68,16 +80,38 @@ class FaultTopic:
         self.node = node
         self.injector = None
         self.publisher = None
-        if self.entries:
+        #: The dropped-samples entries (the streams' gaps).
+        self.drops = tuple(e for e in self.entries if FAULT_KINDS[e.kind].family == "timing")
+        if any(FAULT_KINDS[e.kind].family == "sensor" for e in self.entries):
             try:
                 self.injector = SensorFaultInjector(self.entries, fs, node.p["seed"], white_std)
             except ValueError as exc:
                 raise ParameterError(
                     f"parameter 'fault_schedule' = {node.p['fault_schedule']!r} is invalid: {exc}"
                 ) from None
+        if self.entries:
             self.publisher = node.create_publisher(
                 FaultEvent, "faults", fault_qos(len(self.entries))
             )
+
+    def delivered(self, first: int, n: int) -> list[tuple[int, int]] | None:
+        """The parts ``[lo, hi)`` of the block ``[first, first + n)`` (offsets) the device
+        delivers; None: all of it (:func:`~mems_sim.hardware.fault_schedule.delivered_runs`)."""
+        return delivered_runs(self.drops, first, n) if self.drops else None
+
+    def attach(self, streams) -> None:
+        """Cut the frames of every stream account of ``streams`` (topic -> StreamAccount)
+        but the truth topics around the dropped samples
+        (:meth:`~mems_sim.ros.end_of_stream.StreamAccount.deliver_only`)."""
+        if not self.drops:
+            return
+
+        def t0() -> int:
+            return self.node.frame_kwargs["t0_ns"] or 0
+
+        for topic, account in streams.items():
+            if not topic.rsplit("/", 1)[-1].startswith("truth"):
+                account.deliver_only(self.delivered, t0)
 
     def event(self, entry: FaultEntry) -> FaultEvent:
         """The FaultEvent of ``entry``, times in the node's sensor time."""

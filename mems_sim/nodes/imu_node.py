@@ -361,9 +361,17 @@ class ImuNode(EmulatorNode):
             self._publish_imu(first, frame.gyro_si, frame.accel_si)
 
     def _publish_imu(self, first: int, gyro: np.ndarray, accel: np.ndarray) -> None:
-        """One sensor_msgs/Imu per sample: stamp epoch + k / fs (the frames' definition),
-        the values of the ADC codes (code * LSB), serialised for the frame at once."""
-        stamps = [index_to_ns(first + i, self.fs, self.t0_ns) for i in range(gyro.shape[0])]
+        """One sensor_msgs/Imu per sample delivered (dropped samples of the schedule are
+        not): stamp epoch + k / fs (the frames' definition), the values of the ADC codes
+        (code * LSB), serialised for the frame at once."""
+        runs = self.fault_topic.delivered(first, gyro.shape[0])
+        if runs is not None:  # dropped samples: only those delivered
+            keep = np.concatenate([np.arange(lo, hi) for lo, hi in runs] or [np.arange(0)])
+            first_of = [first + int(i) for i in keep]
+            gyro, accel = gyro[keep], accel[keep]
+        else:
+            first_of = range(first, first + gyro.shape[0])
+        stamps = [index_to_ns(i, self.fs, self.t0_ns) for i in first_of]
         publish = self.pub_imu.publish
         for raw in self._imu_cdr.serialize(stamps, gyro, accel):
             publish(raw)

@@ -18,6 +18,10 @@ frame) and ``samples``. A recorder or ``mcap_info`` compares it with what was re
 fewer messages or a smaller index at the end is a missing tail, which gap counting
 alone cannot see.
 
+Dropped samples of a fault schedule (:meth:`StreamAccount.deliver_only`): the frames are
+cut around samples the device never delivers before they are counted, so the record
+counts what the device delivered and a recorder sees the gap the device declared.
+
 Fault injection (tests of the loss reporting): :meth:`StreamAccount.cut` makes the
 publisher stop handing messages to the middleware after a number of them while the
 account (and so the end-of-stream record) still counts what the device produced, as a
@@ -90,6 +94,7 @@ class StreamAccount:
         keep_last = qos is not None and qos.history != HistoryPolicy.KEEP_ALL
         self.depth: int | None = int(qos.depth) if keep_last else None
         self._keep: int | None = None
+        self._delivered = None
         self._publish = publisher.publish
         #: Called with the topic at the first refused message (a warning of the node).
         self.on_refused = None
@@ -99,8 +104,28 @@ class StreamAccount:
         self.publisher.publish = self.publish
         return self
 
+    def deliver_only(self, delivered, t0_ns) -> None:
+        """Publish of each frame only the parts the device delivers: ``delivered(first, n)``
+        gives them as offsets ``[(lo, hi), ...]`` (None: the whole frame), each published as
+        a frame of its own (:func:`~mems_sim.ros.frames.frame_piece`, stamped from the epoch
+        ``t0_ns()`` [ns]); a frame with no part is not published."""
+        self._delivered = (delivered, t0_ns)
+
     def publish(self, msg) -> None:
-        """Count ``msg`` (and its samples) and publish it, unless cut."""
+        """Count ``msg`` (and its samples) and publish it, unless cut (the parts the device
+        delivers of a frame, with :meth:`deliver_only`)."""
+        if self._delivered is not None and hasattr(msg, "first_sample_index"):
+            delivered, t0_ns = self._delivered
+            runs = delivered(int(msg.first_sample_index), int(msg.num_samples))
+            if runs is not None:
+                from mems_sim.ros.frames import frame_piece
+
+                for lo, hi in runs:
+                    self._count_and_publish(frame_piece(msg, lo, hi, t0_ns()))
+                return
+        self._count_and_publish(msg)
+
+    def _count_and_publish(self, msg) -> None:
         self.messages += 1
         first = getattr(msg, "first_sample_index", None)
         num = getattr(msg, "num_samples", None)

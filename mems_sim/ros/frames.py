@@ -191,6 +191,36 @@ def make_signal_frame(
     return msg
 
 
+def frame_piece(msg, lo: int, hi: int, t0_ns: int = 0):
+    """The samples ``[lo, hi)`` (offsets) of an AdcFrame or SignalFrame as a frame of their
+    own: first index, stamp (:func:`index_to_ns` from ``t0_ns``, the run's epoch [ns]) and
+    values of those samples, the format unchanged. An AdcFrame piece's ``saturated_count``
+    is its samples with a code at either end of the code range (:func:`code_range`)."""
+    width = len(msg.channel_names)
+    kind = type(msg)
+    piece = kind()
+    for name in kind.get_fields_and_field_types():
+        if name not in ("header", "codes", "data"):
+            setattr(piece, name, getattr(msg, name))
+    _fill_frame(
+        piece,
+        int(msg.first_sample_index) + int(lo),
+        msg.sample_rate_hz,
+        int(hi) - int(lo),
+        msg.header.frame_id,
+        t0_ns,
+    )
+    if isinstance(msg, AdcFrame):
+        codes = np.frombuffer(msg.codes, dtype=np.int32).reshape(-1, width)[lo:hi]
+        piece.codes = _int32_array(codes)
+        low, high = code_range(int(msg.bits))
+        piece.saturated_count = int(np.count_nonzero(((codes <= low) | (codes >= high)).any(1)))
+    else:
+        data = np.frombuffer(msg.data, dtype=np.float64).reshape(-1, width)[lo:hi]
+        piece.data = _float64_array(data)
+    return piece
+
+
 def make_state_estimate(
     states: np.ndarray,
     variances: np.ndarray,

@@ -364,6 +364,9 @@ class EmulatorNode(PacedEmulator, MemsNode):
         )
         # loss accounting: every data topic counted, an end-of-stream record at the end
         self.streams = account_publishers(self)
+        fault_topic = getattr(self, "fault_topic", None)
+        if fault_topic is not None:  # dropped samples: the streams cut around them
+            fault_topic.attach(self.streams)
         self.pub_end_of_stream = self.create_publisher(
             DiagnosticArray, END_OF_STREAM, END_OF_STREAM_QOS
         )

@@ -108,9 +108,33 @@ def test_a_declared_device_gap_is_counted_apart_from_transport_loss():
     s.declare_device_gap(60, 10)
     assert s.update(100, 10) == (GAP, 40)
     assert (s.gaps, s.missing_samples, s.device_gaps, s.device_missing_samples) == (1, 30, 2, 50)
-    # a declaration the stream has passed no longer counts
+    # a declaration of samples the stream delivered changes nothing
     s.declare_device_gap(0, 5)
     assert s.update(130, 10) == (GAP, 20) and s.device_missing_samples == 50
+
+
+def test_a_declaration_after_its_jump_counts_the_transport_gap_again():
+    """The declaration travels on another topic and may come after the jump: the samples
+    of the transport gap it covers move to the device gap, each once."""
+    s = StreamIndex.recording(start=0)
+    s.update(0, 10)
+    assert s.update(50, 10) == (GAP, 40)
+    s.declare_device_gap(10, 40)
+    assert (s.gaps, s.missing_samples, s.device_gaps, s.device_missing_samples) == (0, 0, 1, 40)
+    s.declare_device_gap(10, 40)  # declared twice: counted once
+    assert (s.gaps, s.missing_samples, s.device_gaps, s.device_missing_samples) == (0, 0, 1, 40)
+    # a jump partly declared before it, the rest declared after it
+    s.declare_device_gap(60, 10)
+    assert s.update(100, 10) == (GAP, 40)
+    assert (s.gaps, s.missing_samples, s.device_gaps, s.device_missing_samples) == (1, 30, 2, 50)
+    s.declare_device_gap(80, 5)  # the middle of the rest: still one transport gap
+    assert (s.gaps, s.missing_samples, s.device_gaps, s.device_missing_samples) == (1, 25, 2, 55)
+    s.declare_device_gap(70, 30)
+    assert (s.gaps, s.missing_samples, s.device_gaps, s.device_missing_samples) == (0, 0, 2, 80)
+    # a late declaration beyond the stream also declares what is still to come
+    assert s.update(110, 10) == (NEXT, 0)
+    s.declare_device_gap(115, 30)
+    assert s.update(145, 5) == (DEVICE_GAP, 25) and (s.gaps, s.device_gaps) == (0, 3)
 
 
 def test_overlapping_declarations_count_each_sample_once():

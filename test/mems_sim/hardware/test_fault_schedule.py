@@ -6,6 +6,7 @@ import pytest
 from mems_sim.hardware.fault_schedule import (
     FAULT_KINDS,
     FaultScheduleError,
+    delivered_runs,
     load_schedule,
     parse_schedule,
 )
@@ -196,8 +197,33 @@ def test_file_errors_name_the_file(tmp_path):
         assert "\n" not in text
 
 
-def test_every_sensor_kind_is_listed_with_a_unit():
-    assert set(FAULT_KINDS) == {
+def test_dropped_samples_act_on_the_whole_stream():
+    a, b = parse(
+        {"kind": "dropped_samples", "start_s": 0.1, "duration_samples": 5},
+        {"kind": "dropped_samples", "start_sample": 22, "duration_s": 0.04},
+    )
+    assert (a.channel, a.channel_index, a.first, a.count, a.magnitude) == ("", -1, 20, 5, 0.0)
+    assert (b.first, b.count) == (22, 8)
+    # overlapping drops merge; blocks that hold none are delivered whole (None)
+    assert delivered_runs((a, b), 0, 40) == [(0, 20), (30, 40)]
+    assert delivered_runs((a, b), 24, 4) == []
+    assert delivered_runs((a, b), 28, 10) == [(2, 10)]
+    assert delivered_runs((a, b), 30, 10) is None
+    for entry, words in (
+        ({"channel": "gyro_x", "duration_samples": 5}, "no 'channel'"),
+        ({}, "give 'duration_s' or 'duration_samples'"),
+        ({"permanent": True}, "give 'duration_s' or 'duration_samples'"),
+        ({"duration_samples": 5, "magnitude": 2}, "takes no 'magnitude'"),
+    ):
+        with pytest.raises(FaultScheduleError) as err:
+            parse({"kind": "dropped_samples", "start_sample": 3, **entry})
+        text = str(err.value)
+        assert text.startswith("fault 0 (dropped_samples)") and words in text, text
+
+
+def test_every_kind_is_listed_with_a_unit():
+    assert FAULT_KINDS["dropped_samples"].family == "timing"
+    assert {k for k, v in FAULT_KINDS.items() if v.family == "sensor"} == {
         "stuck_at",
         "bias_step",
         "bias_ramp",
