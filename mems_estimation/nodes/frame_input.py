@@ -21,6 +21,13 @@ from diagnostic_msgs.msg import DiagnosticArray
 
 from mems_msgs.msg import AdcFrame, SignalFrame
 from mems_sim.params import ParameterError, ParamSpec
+from mems_sim.ros.device_gaps import (
+    FAULT_EVENT_TYPE,
+    FAULTS_SUBSCRIPTION_QOS,
+    FAULTS_TOPIC,
+    MAX_DECLARATIONS,
+    declared_gap,
+)
 from mems_sim.ros.end_of_stream import END_OF_STREAM, END_OF_STREAM_QOS, parse_end_of_stream
 from mems_sim.ros.flow import ProgressReporter
 from mems_sim.ros.frames import (
@@ -234,7 +241,8 @@ class EstimatorNode(MemsNode):
        dropped (``repeated_frames``), a frame behind the stream is dropped
        (``out_of_order_frames``), a forward jump up to ``max_gap_samples`` is a gap
        (``gaps``, ``missing_samples``, warning with :attr:`GAP_NOTE`, then :meth:`on_gap`;
-       samples the device declared missing are ``device_gaps``, ``device_missing_samples``),
+       samples the device declared dropped on its ``faults`` topic,
+       :meth:`follow_device_faults`, are ``device_gaps``, ``device_missing_samples``),
        a larger jump (either way) or a stream that started again is a stream reset
        (``stream_resets``, then :meth:`on_stream_reset`, told whether the jump was ahead:
        by default the estimator starts again from its prior, :meth:`reset_estimator`; a
@@ -291,6 +299,9 @@ class EstimatorNode(MemsNode):
         super().__init__(**node_kwargs)
         self._formats: dict[str, FormatPin] = {}
         self._indices: dict[str, StreamIndex] = {}
+        #: Samples the device declared dropped on its faults topic: (first, n).
+        self._device_gaps: list[tuple[int, int]] = []
+        self._faults_sub = None
         self.primary: str | None = None
         #: (AdcFrame, its validated codes) while :meth:`take_frame` decodes it
         self._adc_checked: tuple | None = None
@@ -464,8 +475,44 @@ class EstimatorNode(MemsNode):
     def index(self, kind: str) -> StreamIndex:
         """Sequence accounting of input stream (or pair) ``kind``."""
         if kind not in self._indices:
-            self._indices[kind] = StreamIndex(self._limit("max_gap_samples"))
+            index = self._indices[kind] = StreamIndex(self._limit("max_gap_samples"))
+            for first, n in self._device_gaps:
+                index.declare_device_gap(first, n)
         return self._indices[kind]
+
+    def follow_device_faults(self) -> None:
+        """Subscribe to the device's ``faults`` topic (once): samples it declares dropped
+        (a scheduled ``dropped_samples`` fault) are a device gap of every input stream,
+        counted as ``device_gaps`` and ``device_missing_samples``, not as loss; a
+        declaration that comes after the jump moves the counts of that gap."""
+        if self._faults_sub is not None:
+            return
+        from mems_msgs.msg import FaultEvent
+
+        self._faults_sub = self.create_subscription(
+            FaultEvent,
+            self.device_topic(FAULTS_TOPIC),
+            self._on_device_fault,
+            FAULTS_SUBSCRIPTION_QOS,
+            raw=True,
+        )
+
+    def _on_device_fault(self, data: bytes) -> None:
+        topic = self._faults_sub.topic_name
+        gap = declared_gap(topic, FAULT_EVENT_TYPE, data)
+        if gap is None:
+            return
+        if len(self._device_gaps) < MAX_DECLARATIONS:
+            self._device_gaps.append(gap)
+        for index in self._indices.values():
+            before = (index.gaps, index.missing_samples, index.device_gaps)
+            index.declare_device_gap(*gap)
+            moved = before[1] - index.missing_samples
+            if moved:  # a jump counted as loss before its declaration came
+                self.diag.count("gaps", index.gaps - before[0])
+                self.diag.count("missing_samples", -moved)
+                self.diag.count("device_gaps", index.device_gaps - before[2])
+                self.diag.count("device_missing_samples", moved)
 
     def sequence(self, kind: str, first: int, n: int, streams: int = 1, hooks: bool = True) -> bool:
         """Account a good frame (or pair of ``streams`` frames) of n samples at ``first``
@@ -538,6 +585,7 @@ class EstimatorNode(MemsNode):
         callback = partial(self._on_single, decode, check_rate)
         topic = self.device_topic(name) if topic is None else topic
         self._end_with_input(topic)
+        self.follow_device_faults()
         return self.create_subscription(msg_type, topic, callback, FRAME_QOS)
 
     def _on_single(self, decode, check_rate: bool, msg) -> None:
@@ -569,6 +617,7 @@ class EstimatorNode(MemsNode):
         )
         self.primary = first[0]
         self._end_with_input(self.device_topic(first[0]))
+        self.follow_device_faults()
         for name, msg_type, decode in (first, second):
             callback = partial(self._on_frame, name, decode, check_rate)
             self.create_subscription(msg_type, self.device_topic(name), callback, FRAME_QOS)

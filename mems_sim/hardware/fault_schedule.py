@@ -145,6 +145,9 @@ TIMING_KINDS: tuple[FaultKind, ...] = (
         "whole), declared on the faults topic as a device gap",
     ),
 )
+#: The timing kinds by name: the schedule of a device whose converter sits inside a loop
+#: that has no sensor-fault injection yet (the sigma-delta resonator, the AMDM scanner).
+TIMING_ONLY: dict[str, FaultKind] = {k.name: k for k in TIMING_KINDS}
 #: Every kind by name (physical kinds join as the devices offer them).
 FAULT_KINDS: dict[str, FaultKind] = {k.name: k for k in SENSOR_KINDS + TIMING_KINDS}
 #: Kinds whose magnitude is ignored (it must be absent or 0).

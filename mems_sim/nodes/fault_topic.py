@@ -15,7 +15,7 @@ declares them to a recorder or ``mcap_info`` as a device gap, not transport loss
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -23,6 +23,7 @@ from mems_msgs.msg import FaultEvent
 from mems_sim.hardware.fault_schedule import (
     FAULT_KINDS,
     FaultEntry,
+    FaultKind,
     FaultScheduleError,
     delivered_runs,
     load_schedule,
@@ -42,14 +43,18 @@ FAULT_SCHEDULE_SPEC = ParamSpec(
 
 
 def load_entries(
-    path: str, channels: Sequence[str], units: Sequence[str], fs: float
+    path: str,
+    channels: Sequence[str],
+    units: Sequence[str],
+    fs: float,
+    kinds: Mapping[str, FaultKind] = FAULT_KINDS,
 ) -> tuple[FaultEntry, ...]:
-    """The schedule of the ``fault_schedule`` parameter (empty for ''); a bad file is a
-    ParameterError naming the parameter."""
+    """The schedule of the ``fault_schedule`` parameter (empty for ''), of the ``kinds``
+    the device offers; a bad file is a ParameterError naming the parameter."""
     if not path:
         return ()
     try:
-        return load_schedule(path, channels, units, fs)
+        return load_schedule(path, channels, units, fs, kinds)
     except FaultScheduleError as exc:
         raise ParameterError(f"parameter 'fault_schedule' = {path!r} is invalid: {exc}") from None
 
@@ -73,10 +78,11 @@ class FaultTopic:
         fs: sample rate [Hz].
         white_std: per channel, the white-noise standard deviation per sample
             [channel unit] (for ``noise_burst``).
+        kinds: the fault kinds the device offers (default: all).
     """
 
-    def __init__(self, node, channels, units, fs: float, white_std=None) -> None:
-        self.entries = load_entries(node.p["fault_schedule"], channels, units, fs)
+    def __init__(self, node, channels, units, fs: float, white_std=None, kinds=FAULT_KINDS) -> None:
+        self.entries = load_entries(node.p["fault_schedule"], channels, units, fs, kinds)
         self.node = node
         self.injector = None
         self.publisher = None

@@ -12,6 +12,8 @@ Topics (relative to the namespace, default ``/resonator``):
                       at the firing instant of the interval's pulse [V] and at the centre of
                       a pulse centred in the interval [V] (0 where none)
     ``loop_estimate`` mems_msgs/StateEstimate the in-loop Kalman observer's position (observer mode)
+    ``faults``        mems_msgs/FaultEvent   each fault of ``fault_schedule`` when it begins
+                      (timing kinds only: ``dropped_samples``)
     ``/diagnostics``
 Input: ``temperature`` sensor_msgs/Temperature: the device's temperature (``temperature_c``).
 Parameters: ``mems_sim.devices.resonator.RESONATOR_SPECS``, ``device_seed`` and
@@ -24,6 +26,8 @@ from __future__ import annotations
 import numpy as np
 
 from mems_sim.devices import resonator as sd_resonator
+from mems_sim.hardware.fault_schedule import TIMING_ONLY
+from mems_sim.nodes.fault_topic import FAULT_SCHEDULE_SPEC, FaultTopic
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import make_adc_frame, make_state_estimate
 from mems_sim.ros.node_base import EmulatorNode, emulator_specs, variation_specs
@@ -57,7 +61,7 @@ class ResonatorNode(EmulatorNode):
 
     NODE_NAME = "resonator"
     DEFAULT_NAMESPACE = "resonator"
-    SPECS = sd_resonator.RESONATOR_SPECS + variation_specs() + NODE_SPECS
+    SPECS = sd_resonator.RESONATOR_SPECS + variation_specs() + NODE_SPECS + (FAULT_SCHEDULE_SPEC,)
     DEVICE_SPECS = sd_resonator.RESONATOR_SPECS
     DIAGNOSTICS_TITLE = "sigma-delta resonator"
 
@@ -68,6 +72,9 @@ class ResonatorNode(EmulatorNode):
             self.device_values(), seed=self.p["seed"], nominal=nominal
         )
         self.observer_mode = self.p["mode"] == "observer"
+        self.fault_topic = FaultTopic(
+            self, ("sd_bit",), ("V",), self.p["sample_rate_hz"], kinds=TIMING_ONLY
+        )
         self.pub_adc, self.pub_drive, self.pub_truth = self.create_frame_publishers(
             "adc", "drive", "truth"
         )
@@ -77,6 +84,7 @@ class ResonatorNode(EmulatorNode):
         return self.p["sample_rate_hz"]
 
     def publish_frame(self, first: int, n: int) -> None:
+        self.fault_topic.publish_starting(first, n)
         f = self.device.step(n)
         common = self.frame_kwargs
         if self.p["quantizer"] == "gaussian":

@@ -6,6 +6,8 @@ Topics (relative to the namespace, default ``/scanner_amdm``):
     ``drive``  mems_msgs/SignalFrame  v_drive [V] (the unipolar drive V_dr at the output instants),
                                       f_drive [Hz]
     ``truth``  mems_msgs/SignalFrame  theta [rad], omega [rad/s] at the output instants
+    ``faults`` mems_msgs/FaultEvent   each fault of ``fault_schedule`` when it begins (timing
+                                      kinds only: ``dropped_samples``)
     ``/diagnostics``
 Input: ``temperature`` sensor_msgs/Temperature: the device's temperature (``temperature_c``).
 Parameters: ``mems_sim.devices.scanner_amdm.AMDM_SPECS``, ``device_seed`` and ``temperature_c``
@@ -19,6 +21,8 @@ from __future__ import annotations
 import numpy as np
 
 from mems_sim.devices import scanner_amdm
+from mems_sim.hardware.fault_schedule import TIMING_ONLY
+from mems_sim.nodes.fault_topic import FAULT_SCHEDULE_SPEC, FaultTopic
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import make_adc_frame
 from mems_sim.ros.node_base import EmulatorNode, emulator_specs, variation_specs
@@ -41,7 +45,7 @@ class ScannerAmdmNode(EmulatorNode):
 
     NODE_NAME = "scanner_amdm"
     DEFAULT_NAMESPACE = "scanner_amdm"
-    SPECS = scanner_amdm.AMDM_SPECS + variation_specs() + NODE_SPECS
+    SPECS = scanner_amdm.AMDM_SPECS + variation_specs() + NODE_SPECS + (FAULT_SCHEDULE_SPEC,)
     DEVICE_SPECS = scanner_amdm.AMDM_SPECS
     DIAGNOSTICS_TITLE = "shared-electrode scanner (AMDM)"
 
@@ -49,6 +53,9 @@ class ScannerAmdmNode(EmulatorNode):
         self.device = scanner_amdm.AmdmScannerDevice(self.device_values(), seed=self.p["seed"])
         self.pub_adc, self.pub_drive, self.pub_truth = self.create_frame_publishers(
             "adc", "drive", "truth"
+        )
+        self.fault_topic = FaultTopic(
+            self, (ADC_CHANNEL,), ("V",), self.device.fs, kinds=TIMING_ONLY
         )
         self.diag.counters["chain_delay_s"] = f"{self.device.delay:.6e}"
         self.get_logger().info(
@@ -58,6 +65,7 @@ class ScannerAmdmNode(EmulatorNode):
         return self.device.fs
 
     def publish_frame(self, first: int, n: int) -> None:
+        self.fault_topic.publish_starting(first, n)
         f = self.device.step(n)
         fs_ = self.p["adc_full_scale"]
         common = self.frame_kwargs

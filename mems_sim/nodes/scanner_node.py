@@ -32,8 +32,9 @@ from __future__ import annotations
 import numpy as np
 
 from mems_sim.devices import scanner as micro_scanner
+from mems_sim.hardware.fault_schedule import FAULT_KINDS, TIMING_ONLY
 from mems_sim.nodes.fault_topic import FAULT_SCHEDULE_SPEC, FaultTopic
-from mems_sim.params import ParameterError, ParamSpec
+from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import make_adc_frame
 from mems_sim.ros.node_base import EmulatorNode, emulator_specs, variation_specs
 from mems_sim.ros.node_main import run_node
@@ -112,13 +113,10 @@ class ScannerNode(EmulatorNode):
             from mems_sim.devices import scanner_amdm
 
             self.device = scanner_amdm.AmdmScannerDevice(seed=p["seed"])
-            if p["fault_schedule"]:
-                raise ParameterError(
-                    f"parameter 'fault_schedule' = {p['fault_schedule']!r} is invalid: front_end "
-                    "'shared_amdm' has no fault schedule yet (front_end 'dc_transimpedance' has)"
-                )
+        # the shared_amdm front end has the timing kinds only (no sensor-fault injection yet)
+        kinds = FAULT_KINDS if self.front_end == "dc_transimpedance" else TIMING_ONLY
         self.fault_topic = FaultTopic(
-            self, (ADC_CHANNEL,), ("V",), self.device.fs, white_std=(self._noise_std(),)
+            self, (ADC_CHANNEL,), ("V",), self.device.fs, (self._noise_std(),), kinds
         )
         self.pub_adc, self.pub_drive, self.pub_truth = self.create_frame_publishers(
             "adc", "drive", "truth"

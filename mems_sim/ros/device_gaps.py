@@ -14,6 +14,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
 from mems_sim.stream_index import DROPPED_SAMPLES
 
 #: Type of the faults topic's messages.
@@ -22,6 +24,16 @@ FAULT_EVENT_TYPE = "mems_msgs/msg/FaultEvent"
 FAULTS_TOPIC = "faults"
 #: Declarations remembered per device (the longest schedule an emulator takes).
 MAX_DECLARATIONS = 10_000
+
+
+#: A subscriber's QoS for a faults topic: reliable, transient local (the schedule's events
+#: published before it joined reach it too), the last 1000 events.
+FAULTS_SUBSCRIPTION_QOS = QoSProfile(
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1000,
+)
 
 
 def namespace(topic: str) -> str:

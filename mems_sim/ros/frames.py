@@ -192,15 +192,15 @@ def make_signal_frame(
 
 
 def frame_piece(msg, lo: int, hi: int, t0_ns: int = 0):
-    """The samples ``[lo, hi)`` (offsets) of an AdcFrame or SignalFrame as a frame of their
-    own: first index, stamp (:func:`index_to_ns` from ``t0_ns``, the run's epoch [ns]) and
-    values of those samples, the format unchanged. An AdcFrame piece's ``saturated_count``
-    is its samples with a code at either end of the code range (:func:`code_range`)."""
-    width = len(msg.channel_names)
+    """The samples ``[lo, hi)`` (offsets) of an AdcFrame, SignalFrame or StateEstimate as a
+    frame of its own: first index, stamp (:func:`index_to_ns` from ``t0_ns``, the run's
+    epoch [ns]) and values of those samples, the format unchanged. An AdcFrame piece's
+    ``saturated_count`` is its samples with a code at either end of the code range
+    (:func:`code_range`)."""
     kind = type(msg)
     piece = kind()
     for name in kind.get_fields_and_field_types():
-        if name not in ("header", "codes", "data"):
+        if name not in ("header", "codes", "data", "states", "variances"):
             setattr(piece, name, getattr(msg, name))
     _fill_frame(
         piece,
@@ -210,6 +210,13 @@ def frame_piece(msg, lo: int, hi: int, t0_ns: int = 0):
         msg.header.frame_id,
         t0_ns,
     )
+    if isinstance(msg, StateEstimate):
+        width = len(msg.state_names)
+        for name in ("states", "variances"):
+            values = np.frombuffer(getattr(msg, name), dtype=np.float64).reshape(-1, width)
+            setattr(piece, name, _float64_array(values[lo:hi]))
+        return piece
+    width = len(msg.channel_names)
     if isinstance(msg, AdcFrame):
         codes = np.frombuffer(msg.codes, dtype=np.int32).reshape(-1, width)[lo:hi]
         piece.codes = _int32_array(codes)

@@ -242,7 +242,7 @@ def test_threshold_node_publishes_its_last_estimates_at_the_end_of_the_stream(gr
 def test_fault_schedule_on_the_readout_voltage(graph, tmp_path):
     """dc_transimpedance: a sign flip of y_cap over samples 1500..3499 and a stuck readout
     from 4200: the codes are the fault-free run's outside, mirrored and frozen inside, and
-    the faults topic labels both; shared_amdm refuses a schedule."""
+    the faults topic labels both; shared_amdm offers the timing kinds only."""
     from mems_msgs.msg import FaultEvent
     from mems_sim.nodes.fault_topic import fault_qos
 
@@ -277,5 +277,9 @@ def test_fault_schedule_on_the_readout_voltage(graph, tmp_path):
         ("stuck_at", 4200, True),
     ]
     emulator_refuses(
-        ScannerNode, ctx, "shared_amdm", front_end="shared_amdm", fault_schedule=str(schedule)
+        ScannerNode,
+        ctx,
+        r"'sign_flip' is not a fault of this device \(one of: dropped_samples\)",
+        front_end="shared_amdm",
+        fault_schedule=str(schedule),
     )
