@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from mems_scenarios.base import ScenarioError
+from mems_scenarios.base import IncompleteStream, ScenarioError
 
 
 def topics_frames(path, topics, missing_ok: bool = False) -> dict[str, dict]:
@@ -15,7 +15,8 @@ def topics_frames(path, topics, missing_ok: bool = False) -> dict[str, dict]:
         ``units``, ``data`` (n, channels) — SignalFrame data, StateEstimate states or
         AdcFrame physical values — and, for StateEstimate, ``variances`` (n, channels).
         A topic without frames raises :class:`ScenarioError` (``missing_ok``: it is
-        left out of the dict).
+        left out of the dict); a topic whose frames jump ahead (a gap) raises
+        :class:`IncompleteStream`.
     """
     import numpy as np
 
@@ -23,11 +24,21 @@ def topics_frames(path, topics, missing_ok: bool = False) -> dict[str, dict]:
     from mems_sim.ros.frames import adc_physical, signal_data
 
     topics = list(dict.fromkeys(topics))
-    acc = {t: dict(chunks=[], variances=[], first=None, names=(), units=()) for t in topics}
+    acc = {
+        t: dict(chunks=[], variances=[], first=None, next=None, names=(), units=()) for t in topics
+    }
     for topic, type_name, _, msg in read_messages(str(path), topics):
         a = acc[topic]
+        first = int(msg.first_sample_index)
         if a["first"] is None:
-            a["first"] = int(msg.first_sample_index)
+            a["first"] = first
+        elif first > a["next"]:
+            raise IncompleteStream(
+                f"{path}: {topic} jumps from sample {a['next']} to {first} (a gap of "
+                f"{first - a['next']} samples: dropped samples or loss); the analysis aligns "
+                "whole streams sample by sample"
+            )
+        a["next"] = first + int(msg.num_samples)
         if type_name.endswith("/StateEstimate"):
             k = len(msg.state_names)
             a["names"], a["units"] = tuple(msg.state_names), tuple(msg.state_units)

@@ -58,6 +58,11 @@ class ScenarioError(RuntimeError):
     """A scenario could not run (bad option, lost frames, missing result)."""
 
 
+class IncompleteStream(ScenarioError):
+    """A frame topic whose frames jump over sample indices (samples its device declared
+    dropped, or loss): an analysis that aligns streams sample by sample cannot use it."""
+
+
 #: Topics every node has, not data of a scenario (the graph check leaves them out).
 IGNORED_TOPICS = frozenset({"/rosout", "/parameter_events"})
 
@@ -668,7 +673,12 @@ def run_recorded(
     pngs = None
     if options.plots:
         pngs = tuple(output_path(out, options.seed, s + ".png") for s in png_suffixes)
-    result = analyse_quietly(analyse, out, pngs)
+    try:
+        result = analyse_quietly(analyse, out, pngs)
+    except IncompleteStream as exc:  # e.g. scheduled dropped samples: the recording stays
+        result = ScenarioResult(
+            name, [], f"figures not computed: {exc}", unavailable=[("*", str(exc))]
+        )
     return dict(
         table=result.table,
         figures=result.figures,

@@ -80,7 +80,7 @@ from mems_sim.bag.writer import (
     McapBagWriter,
     gap_summary,
 )
-from mems_sim.ros.device_gaps import FAULT_EVENT_TYPE, FAULTS_TOPIC, GapDeclarations, namespace
+from mems_sim.ros.device_gaps import FAULT_EVENT_TYPE, GapDeclarations, namespace, under
 from mems_sim.ros.end_of_stream import (
     NOT_STREAMS,
     describe_tail,
@@ -243,7 +243,7 @@ class RecorderNode(Node):
         self._eos_topics: set[str] = set()
         #: Faults topics (their dropped samples declare device gaps).
         self._fault_topics: set[str] = set()
-        self._taking_faults: str | None = None
+        self._taking_faults = False
         self._declarations = GapDeclarations(self._bag.declare_device_gap)
         #: End-of-stream topics without a record whose publishers had all left when the
         #: subscriptions were destroyed (:meth:`stop_taking`); None before.
@@ -413,16 +413,18 @@ class RecorderNode(Node):
             self._take_end_of_stream(topic, data)
 
     def _take_device_faults(self, topic: str) -> None:
-        """Record first what the middleware already holds of the faults topic of
-        ``topic``'s device: a FaultEvent published before a frame declares its gap before
-        the frame is judged (another topic's callback may be scheduled later)."""
-        faults = f"{namespace(topic)}/{FAULTS_TOPIC}"
-        if faults in self._fault_topics and faults != self._taking_faults:
-            self._taking_faults = faults
-            try:
-                self._take_waiting(faults, None)
-            finally:
-                self._taking_faults = None
+        """Record first what the middleware already holds of the faults topics of the
+        devices ``topic`` is under: a FaultEvent published before a frame declares its gap
+        before the frame is judged (another topic's callback may be scheduled later)."""
+        if self._taking_faults:
+            return
+        self._taking_faults = True
+        try:
+            for faults in self._fault_topics:
+                if under(topic, namespace(faults)):
+                    self._take_waiting(faults, None)
+        finally:
+            self._taking_faults = False
 
     def _time_publication(self, topic: str, publisher, sent_ns: int, declared: bool) -> None:
         """Stall accounting of ``topic``'s ``publisher`` with a message sent at ``sent_ns``

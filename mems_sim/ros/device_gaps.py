@@ -4,9 +4,11 @@ An emulator that drops samples of its schedule (``dropped_samples``) publishes t
 ``mems_msgs/FaultEvent`` on ``<device>/faults`` before the first frame after the gap. A
 reader of the graph or of a recording hands every message of such a topic to
 :meth:`GapDeclarations.fault`: the dropped indices are declared to the sequence accounting
-(:meth:`~mems_sim.stream_index.StreamIndex.declare_device_gap`) of every frame topic of the
-same device (the same namespace, ``<device>/...``), including frame topics met later, so
-that the jump over them is a device gap, not transport loss. The declaration may arrive
+(:meth:`~mems_sim.stream_index.StreamIndex.declare_device_gap`) of every frame topic in
+the device's namespace and below it (``<device>/...``: its own streams, and the estimates
+of the estimators that run under it, which carry the same gap), including frame topics met
+later, so that the jump over them is a device gap, not transport loss. An estimator in
+another namespace is not covered: its gap stays loss. The declaration may arrive
 before or after the jump (another topic): the accounting takes either.
 """
 
@@ -41,6 +43,11 @@ def namespace(topic: str) -> str:
     return topic.rsplit("/", 1)[0]
 
 
+def under(topic: str, device: str) -> bool:
+    """True if ``topic`` is in namespace ``device`` or below it."""
+    return topic.startswith(device.rstrip("/") + "/")
+
+
 def declared_gap(topic: str, type_name: str, data: bytes) -> tuple[int, int] | None:
     """``(first, n)`` of the samples a serialised FaultEvent on a faults topic declares
     dropped; None for any other message, fault kind, or bytes that do not deserialise (a
@@ -62,8 +69,8 @@ def declared_gap(topic: str, type_name: str, data: bytes) -> tuple[int, int] | N
 
 class GapDeclarations:
     """The device gaps declared on the faults topics met so far, handed to ``declare(topic,
-    first, n)`` for every frame topic of the same device (:meth:`frame_topic` registers
-    one; it gets the declarations made before it too).
+    first, n)`` for every frame topic in the device's namespace or below (:func:`under`;
+    :meth:`frame_topic` registers one; it gets the declarations made before it too).
 
     :attr:`declared` counts the declarations per device namespace. Bounded memory:
     :data:`MAX_DECLARATIONS` per device.
@@ -71,19 +78,20 @@ class GapDeclarations:
 
     def __init__(self, declare: Callable[[str, int, int], None]) -> None:
         self._declare = declare
-        self._frames: dict[str, list[str]] = {}
+        self._frames: list[str] = []
         self._gaps: dict[str, list[tuple[int, int]]] = {}
         #: Declarations taken per device namespace.
         self.declared: dict[str, int] = {}
 
     def frame_topic(self, topic: str) -> None:
         """Register frame topic ``topic``; the declarations of its device apply to it."""
-        topics = self._frames.setdefault(namespace(topic), [])
-        if topic in topics:
+        if topic in self._frames:
             return
-        topics.append(topic)
-        for first, n in self._gaps.get(namespace(topic), ()):
-            self._declare(topic, first, n)
+        self._frames.append(topic)
+        for device, gaps in self._gaps.items():
+            if under(topic, device):
+                for first, n in gaps:
+                    self._declare(topic, first, n)
 
     def fault(self, topic: str, type_name: str, data: bytes) -> tuple[int, int] | None:
         """Take one message of ``topic``: a dropped-samples FaultEvent declares its samples
@@ -96,6 +104,7 @@ class GapDeclarations:
         if len(kept) < MAX_DECLARATIONS:
             kept.append(gap)
         self.declared[ns] = self.declared.get(ns, 0) + 1
-        for frame in self._frames.get(ns, ()):
-            self._declare(frame, *gap)
+        for frame in self._frames:
+            if under(frame, ns):
+                self._declare(frame, *gap)
         return gap

@@ -64,12 +64,42 @@ def test_a_bad_faults_option_is_one_line(tmp_path, schedule, capsys, faults, exp
     assert err.count("\n") == 1 and not (tmp_path / "g.yaml").exists()
 
 
-def test_a_scenario_without_faulty_emulators_refuses_faults(tmp_path, schedule, capsys):
+def test_a_kind_the_scenarios_emulators_lack_is_refused_in_one_line(tmp_path, schedule, capsys):
+    """The sigma-delta resonators take the timing kinds only: a bias step is refused before
+    anything is recorded."""
     argv = ["sd_resonator", "--faults", str(schedule), "--out", str(tmp_path / "r.mcap")]
     assert run_scenario(argv) == 2
     err = capsys.readouterr().err
-    assert "emulators with a fault schedule: none" in err and err.count("\n") == 1, err
-    assert not (tmp_path / "r.mcap").exists()
+    assert "'bias_step' is not a fault of this device (one of: dropped_samples)" in err, err
+    assert err.count("\n") == 1 and not (tmp_path / "r.mcap").exists()
+
+
+def test_dropped_samples_are_device_gaps_and_the_analysis_says_why_it_stops(
+    tmp_path, domain_id, capsys
+):
+    """Dropped samples on every resonator of sd_resonator: the run succeeds, the recording
+    is complete (device gaps, no loss, also on the estimates under each device), and the
+    figures are refused in one line because the analysis aligns whole streams; --analyse of
+    that recording exits 2 with the same line."""
+    from mems_sim.bag import info as info_mod
+
+    drop = tmp_path / "drop.yaml"
+    drop.write_text(
+        "faults:\n  - {kind: dropped_samples, start_sample: 20000, duration_samples: 5000}\n"
+    )
+    out = tmp_path / "run.mcap"
+    argv = ["sd_resonator", "--duration", "0.2", "--faults", str(drop), "--out", str(out)]
+    assert run_scenario(argv + ["--domain-id", str(domain_id), "--no-plots"]) == 0
+    text = capsys.readouterr().out
+    assert "device gap: /sd_step/tracking/estimate: 1 device gaps (5000 samples" in text
+    assert "figures not computed:" in text and "frame-index gaps: none" in text
+    info = info_mod.bag_info(str(out))
+    assert info_mod.losses(info) == []
+    assert info["topics"]["/sd_noisy/exact/estimate"]["device_missing_samples"] == 5000
+    assert info["topics"]["/sd_noisy/truth"]["total_samples"] == 200000
+    assert run_scenario(["sd_resonator", "--analyse", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "jumps from sample 20000 to 25000" in err and err.count("\n") == 1, err
 
 
 def test_a_run_with_faults_records_their_labels(tmp_path, schedule, domain_id):
