@@ -17,11 +17,14 @@ File format (one mapping with a list ``faults``)::
         magnitude: 0.5         # spike amplitude [channel unit]
         rate_hz: 5.0           # mean spike rate [Hz] (spikes only)
 
-A timing fault acts on the device's whole sample stream and names no channel::
+A timing or physical fault acts on the whole device and names no channel::
 
       - kind: dropped_samples  # samples the device never delivers: a declared device gap
         start_s: 1.0
         duration_samples: 250
+      - kind: temperature_step # a thermal shock: the device temperature steps [K]
+        start_s: 5.0
+        magnitude: 10.0        # permanent unless a duration is given
 
 Times are in the device's own sample clock (``start_s * fs`` rounded to the nearest sample),
 so a schedule means the same samples at any frame size and on any replay. Faults on one
@@ -40,6 +43,7 @@ import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
+import numpy as np
 import yaml
 
 from mems_sim.bounded_yaml import load_file, problem
@@ -145,13 +149,28 @@ TIMING_KINDS: tuple[FaultKind, ...] = (
         "whole), declared on the faults topic as a device gap",
     ),
 )
+#: Physical faults: they act on the device's physics (offered by the devices that model
+#: them: the temperature step by the IMU, whose model takes the temperature per sample).
+PHYSICAL_KINDS: dict[str, FaultKind] = {
+    "temperature_step": FaultKind(
+        "temperature_step",
+        "physical",
+        "K",
+        "the device temperature steps by this many kelvin (a thermal shock); its temperature "
+        "sensor follows with its own lag",
+        min=-100.0,
+        max=100.0,
+    ),
+}
 #: The timing kinds by name: the schedule of a device whose converter sits inside a loop
 #: that has no sensor-fault injection yet (the sigma-delta resonator, the AMDM scanner).
 TIMING_ONLY: dict[str, FaultKind] = {k.name: k for k in TIMING_KINDS}
 #: Every kind by name (physical kinds join as the devices offer them).
 FAULT_KINDS: dict[str, FaultKind] = {k.name: k for k in SENSOR_KINDS + TIMING_KINDS}
+#: Every kind of every family by name (what a schedule entry's kind is looked up in).
+ALL_KINDS: dict[str, FaultKind] = {**FAULT_KINDS, **PHYSICAL_KINDS}
 #: Kinds whose magnitude is ignored (it must be absent or 0).
-NO_MAGNITUDE = frozenset(k.name for k in FAULT_KINDS.values() if k.unit == "")
+NO_MAGNITUDE = frozenset(k.name for k in ALL_KINDS.values() if k.unit == "")
 #: Largest spike rate [Hz] relative to the sample rate (at most one spike per sample).
 MAX_SPIKE_RATE_FRACTION = 1.0
 
@@ -341,8 +360,8 @@ def parse_entry(
         )
     kind = kinds[name]
     where = f"fault {number} ({name})"
-    if kind.family == "timing":
-        return _timing_entry(entry, kind, number, fs, where)
+    if kind.family in ("timing", "physical"):
+        return _device_entry(entry, kind, number, fs, where)
     channel = entry.get("channel")
     if channel not in channels:
         raise FaultScheduleError(
@@ -363,12 +382,15 @@ def parse_entry(
     )
 
 
-def _timing_entry(entry: Mapping, kind: FaultKind, number: int, fs: float, where: str):
-    """A timing fault: the whole stream (no channel), for a stated duration."""
+def _device_entry(entry: Mapping, kind: FaultKind, number: int, fs: float, where: str):
+    """A timing or physical fault: the whole device (no channel); a timing fault for a
+    stated duration."""
     if "channel" in entry:
-        raise FaultScheduleError(f"{where}: a timing fault acts on the whole stream: no 'channel'")
+        raise FaultScheduleError(
+            f"{where}: a {kind.family} fault acts on the whole device: no 'channel'"
+        )
     count = _count(entry, fs, where)
-    if count is None:
+    if count is None and kind.family == "timing":
         raise FaultScheduleError(
             f"{where}: give 'duration_s' or 'duration_samples' (a device that never delivers "
             "again is a shorter run: set its duration)"
@@ -380,9 +402,25 @@ def _timing_entry(entry: Mapping, kind: FaultKind, number: int, fs: float, where
         first=_start(entry, fs, where),
         count=count,
         magnitude=_magnitude(entry, kind, "", where),
-        unit="",
+        unit=kind.unit_for(""),
         number=number,
     )
+
+
+def physical_offset(entries: Sequence[FaultEntry], kind: str, first: int, n: int):
+    """The sum of the magnitudes of the ``kind`` entries of ``entries`` on each sample of
+    ``[first, first + n)`` (e.g. the temperature step [K]), shape (n,); None when none
+    overlaps the block."""
+    out = None
+    for e in entries:
+        if e.kind != kind:
+            continue
+        lo, hi = e.overlap(first, n)
+        if hi > lo:
+            if out is None:
+                out = np.zeros(n)
+            out[lo:hi] += e.magnitude
+    return out
 
 
 def delivered_runs(

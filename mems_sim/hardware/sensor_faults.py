@@ -28,7 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from mems_sim.hardware.fault_schedule import FAULT_KINDS, FaultEntry
+from mems_sim.hardware.fault_schedule import ALL_KINDS, FaultEntry
 
 #: Samples per chunk of a fault's random draws, -.
 CHUNK = 4096
@@ -65,7 +65,7 @@ class SensorFaultInjector:
         seed: int,
         white_std: Sequence[float] | None = None,
     ) -> None:
-        self.entries = tuple(e for e in entries if FAULT_KINDS[e.kind].family == "sensor")
+        self.entries = tuple(e for e in entries if ALL_KINDS[e.kind].family == "sensor")
         self.fs = float(fs)
         self.seed = int(seed)
         self.white_std = None if white_std is None else tuple(float(s) for s in white_std)

@@ -21,6 +21,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from mems_msgs.msg import FaultEvent
 from mems_sim.hardware.fault_schedule import (
+    ALL_KINDS,
     FAULT_KINDS,
     FaultEntry,
     FaultKind,
@@ -87,8 +88,8 @@ class FaultTopic:
         self.injector = None
         self.publisher = None
         #: The dropped-samples entries (the streams' gaps).
-        self.drops = tuple(e for e in self.entries if FAULT_KINDS[e.kind].family == "timing")
-        if any(FAULT_KINDS[e.kind].family == "sensor" for e in self.entries):
+        self.drops = tuple(e for e in self.entries if ALL_KINDS[e.kind].family == "timing")
+        if any(ALL_KINDS[e.kind].family == "sensor" for e in self.entries):
             try:
                 self.injector = SensorFaultInjector(self.entries, fs, node.p["seed"], white_std)
             except ValueError as exc:

@@ -22,7 +22,9 @@ Topics (relative to the node namespace, default ``/imu``):
                                    with ``calibration_topics``
     ``faults`` mems_msgs/FaultEvent (reliable, transient local): each fault of
                                    ``fault_schedule`` when it begins (labelled truth; sensor
-                                   faults act on the low-passed analog values before the ADC)
+                                   faults act on the low-passed analog values before the ADC;
+                                   ``temperature_step`` on the device temperature the model
+                                   and the temperature sensor see)
     ``/diagnostics``               frames, saturated samples
 Input: ``temperature`` sensor_msgs/Temperature: the device's temperature (``temperature_c``).
 Parameters: the table ``mems_sim.devices.imu.IMU_SPECS`` (units, ranges, sources; ``preset``
@@ -52,6 +54,7 @@ from sensor_msgs.msg import Imu
 
 from mems_msgs.msg import CalibrationResult
 from mems_sim.devices import imu, imu_motion, imu_profiles
+from mems_sim.hardware.fault_schedule import FAULT_KINDS, PHYSICAL_KINDS, physical_offset
 from mems_sim.hardware.sensor_lag import TEMPERATURE_SENSOR_SPECS, LaggedTemperatureSensor
 from mems_sim.nodes.fault_topic import FAULT_SCHEDULE_SPEC, FaultTopic
 from mems_sim.params import ParameterError, ParamSpec
@@ -142,6 +145,10 @@ CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 UNITS = ("rad/s",) * 3 + ("m/s^2",) * 3
 
 
+#: The IMU's fault kinds: every sensor and timing kind, and the thermal shock.
+IMU_FAULT_KINDS = {**FAULT_KINDS, "temperature_step": PHYSICAL_KINDS["temperature_step"]}
+
+
 class ImuNode(EmulatorNode):
     """Emulated 3-axis gyro + 3-axis accelerometer publishing ADC frames and truth.
 
@@ -183,7 +190,7 @@ class ImuNode(EmulatorNode):
             self.device_values(), seed=self.p["seed"], temperature_c=self.p["temperature_c"]
         )
         self.fault_topic = FaultTopic(
-            self, CHANNELS, UNITS, fs, white_std=self.model.white_sample_stds()
+            self, CHANNELS, UNITS, fs, self.model.white_sample_stds(), IMU_FAULT_KINDS
         )
         self.model.faults = self.fault_topic.injector
         gyro_var, accel_var = imu.imu_covariances(self.nominal)
@@ -326,6 +333,9 @@ class ImuNode(EmulatorNode):
         if self.pub_truth_calibration is not None and first == 0:
             self.publish_truth_calibration()
         truth = self._truth(first, n)
+        shock = physical_offset(self.fault_topic.entries, "temperature_step", first, n)
+        if shock is not None:  # a thermal shock: the device temperature steps
+            truth = truth._replace(temperature_c=truth.temperature_c + shock)
         truth_gyro, truth_accel, temperature = truth
         # the sensor measures the motion of t - latency_s (truth itself without one)
         seen = self.motion.measured(first, n, self.model.fs, truth)

@@ -233,3 +233,28 @@ def test_every_kind_is_listed_with_a_unit():
         "saturation",
         "sign_flip",
     }
+
+
+def test_temperature_step_is_offered_only_where_the_device_models_it():
+    from mems_sim.hardware.fault_schedule import PHYSICAL_KINDS, physical_offset
+
+    entry = {"kind": "temperature_step", "start_sample": 10, "magnitude": 5.0}
+    with pytest.raises(FaultScheduleError, match="not a fault of this device"):
+        parse(entry)
+    kinds = {**FAULT_KINDS, **PHYSICAL_KINDS}
+    a, b = parse_schedule(
+        {"faults": [entry, {**entry, "start_sample": 12, "duration_samples": 2, "magnitude": -1}]},
+        CHANNELS,
+        UNITS,
+        FS,
+        kinds,
+    )
+    assert (a.channel, a.permanent, a.magnitude, a.unit) == ("", True, 5.0, "K")
+    assert list(physical_offset((a, b), "temperature_step", 8, 8)) == [0, 0, 5, 5, 4, 4, 5, 5]
+    assert physical_offset((a, b), "temperature_step", 0, 10) is None
+    for bad, words in (
+        ({"magnitude": 150.0}, "out of range"),
+        ({"channel": "gyro_x"}, "no 'channel'"),
+    ):
+        with pytest.raises(FaultScheduleError, match=words):
+            parse_schedule({"faults": [{**entry, **bad}]}, CHANNELS, UNITS, FS, kinds)

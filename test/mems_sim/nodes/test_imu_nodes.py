@@ -364,3 +364,75 @@ def test_temperature_reading_with_lag_offset_and_resolution(graph):
     )
     assert ideal.temperature_reading is None
     ideal.destroy_node()
+
+
+def test_temperature_step_moves_the_device_temperature_and_its_bias(graph, tmp_path):
+    """A thermal shock of +10 K over samples 40..139 with an accel_z bias tempco of
+    0.02 m/s^2/K: the device temperature (the ideal sensor's reading) is 10 K higher exactly
+    there, accel_z moves by 0.2 m/s^2 (within 1 LSB once settled) and the codes before the
+    onset equal the fault-free run's; the faults topic labels it in kelvin."""
+    from mems_msgs.msg import FaultEvent
+    from mems_sim.nodes.fault_topic import fault_qos
+
+    schedule = tmp_path / "shock.yaml"
+    schedule.write_text(
+        "faults:\n"
+        "  - {kind: temperature_step, start_sample: 40, duration_samples: 100, magnitude: 10}\n"
+    )
+    ctx, ex, probe = graph
+    runs = {}
+    for name, extra in (("clean", {}), ("shock", {"fault_schedule": str(schedule)})):
+        emu = ImuNode(
+            context=ctx,
+            drive_externally=True,
+            parameter_overrides=params(
+                seed=3,
+                frame_size=50,
+                publish_imu=False,
+                calibration_topics="on",
+                accel_bias_tempco_z=0.02,
+                **extra,
+            ),
+        )
+        ex.add_node(emu)
+        adc, temp, events = [], [], []
+        subs = [
+            probe.create_subscription(AdcFrame, "/imu/adc", adc.append, FRAME_QOS),
+            probe.create_subscription(
+                SignalFrame, "/imu/temperature_sensor", temp.append, FRAME_QOS
+            ),
+            probe.create_subscription(FaultEvent, "/imu/faults", events.append, fault_qos(1)),
+        ]
+        try:
+            assert spin_until(ex, lambda: emu.pub_adc.get_subscription_count() == 1)
+            assert spin_until(ex, lambda: emu.pub_temperature.get_subscription_count() == 1)
+            for _ in range(4):
+                emu.step()
+            assert spin_until(ex, lambda: len(adc) == 4 and len(temp) == 4)
+            assert spin_until(ex, lambda: len(events) == (1 if extra else 0), timeout=1.0)
+            lsb = adc[0].lsb[5]
+            runs[name] = (
+                np.concatenate([np.asarray(m.codes).reshape(-1, 6) for m in adc]),
+                np.concatenate([np.asarray(m.data) for m in temp]),
+                list(events),
+            )
+        finally:
+            for s in subs:
+                probe.destroy_subscription(s)
+            ex.remove_node(emu)
+            emu.destroy_node()
+    (c0, t0, _), (c1, t1, ev) = runs["clean"], runs["shock"]
+    dt = t1 - t0
+    assert np.all(dt[40:140] == 10.0) and np.all(dt[:40] == 0) and np.all(dt[140:] == 0)
+    np.testing.assert_array_equal(c1[:40], c0[:40])
+    moved = c1[60:140, 5] - c0[60:140, 5]
+    assert np.all(np.abs(moved - 0.2 / lsb) <= 1), moved
+    np.testing.assert_array_equal(c1[:, :5], c0[:, :5])  # no tempco on the other axes
+    (e,) = ev
+    assert (e.kind, e.channel, e.first_faulty_sample, e.faulty_samples) == (
+        "temperature_step",
+        "",
+        40,
+        100,
+    )
+    assert (e.magnitude, e.magnitude_unit) == (10.0, "K")
