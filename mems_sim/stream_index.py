@@ -299,16 +299,20 @@ class StreamIndex(StallTimer):
 
     def _undeclared(self, lo: int, hi: int) -> list[tuple[int, int]]:
         """The ranges of ``[lo, hi)`` that no declared device gap covers."""
-        out, reach = [], lo
-        for a, b in sorted(
-            (max(a, lo), min(b, hi)) for a, b in self._declared if a < hi and b > lo
-        ):
-            if a > reach:
-                out.append((reach, a))
-            reach = max(reach, b)
-        if reach < hi:
-            out.append((reach, hi))
-        return out
+        return uncovered(self._declared, lo, hi)
+
+
+def uncovered(ranges, lo: int, hi: int) -> list[tuple[int, int]]:
+    """The parts of ``[lo, hi)`` that none of the index ranges ``[a, b)`` of ``ranges``
+    covers (they may overlap), in order."""
+    out, reach = [], lo
+    for a, b in sorted((max(a, lo), min(b, hi)) for a, b in ranges if a < hi and b > lo):
+        if a > reach:
+            out.append((reach, a))
+        reach = max(reach, b)
+    if reach < hi:
+        out.append((reach, hi))
+    return out
 
 
 class SequenceIndex(StreamIndex):

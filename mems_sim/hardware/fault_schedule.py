@@ -48,7 +48,7 @@ import yaml
 
 from mems_sim.bounded_yaml import load_file, problem
 from mems_sim.params import ParameterError
-from mems_sim.stream_index import DROPPED_SAMPLES
+from mems_sim.stream_index import DROPPED_SAMPLES, uncovered
 
 #: Longest schedule accepted [entries]: each run may carry many faults, not millions.
 MAX_FAULTS = 10_000
@@ -429,18 +429,9 @@ def delivered_runs(
     """The parts ``[lo, hi)`` (offsets into the block) of the samples ``[first, first + n)``
     that the device delivers, in order, when ``dropped_samples`` entries of ``entries``
     overlap the block; None when none does (the whole block is delivered)."""
-    cuts = sorted(e.overlap(first, n) for e in entries if e.kind == DROPPED_SAMPLES and e.count)
+    cuts = [e.overlap(first, n) for e in entries if e.kind == DROPPED_SAMPLES and e.count]
     cuts = [c for c in cuts if c[1] > c[0]]
-    if not cuts:
-        return None
-    runs, reach = [], 0
-    for lo, hi in cuts:
-        if lo > reach:
-            runs.append((reach, lo))
-        reach = max(reach, hi)
-    if reach < n:
-        runs.append((reach, n))
-    return runs
+    return uncovered(cuts, 0, n) if cuts else None
 
 
 def parse_schedule(
