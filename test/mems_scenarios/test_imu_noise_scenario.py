@@ -87,6 +87,20 @@ def test_results_table_and_figure(two_runs):
     # 600 s is enough for the white noise: the per-axis N within 3 %
     for axis in ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"):
         assert abs(rows[(axis, "N")]["rel_error"]) < 0.03
+    # N is the headline, judged against the density the codes carry; B, K, T are not judged
+    figures = {f.name: f for f in r["figures"]}
+    judged = sorted(n for n, f in figures.items() if f.target is not None)
+    assert judged == sorted(
+        f"{a}.N.rel_error" for a in ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
+    )
+    assert all(figures[n].met for n in judged), [(n, figures[n].value) for n in judged]
+    for a in ("gyro_x", "accel_x"):  # the codes' density is above the parameter by LSB^2/12
+        q, c = (
+            figures[f"{a}.N.configured_with_quantisation"].value,
+            figures[f"{a}.N.configured"].value,
+        )
+        assert q > c and (q - c) / c < 0.01
+    assert " met" in r["table"].splitlines()[0]
 
 
 def test_offline_identification_equals_live(two_runs):
