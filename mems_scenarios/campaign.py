@@ -530,7 +530,7 @@ def plot_report(out: Path, results: list[RunResult], per_page: int = 24) -> list
         rows = math.ceil(len(chunk) / cols)
         fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.6 * rows), squeeze=False)
         for ax, name in zip(axes.flat, chunk):
-            ax.boxplot(values[name], vert=True, widths=0.5)
+            ax.boxplot(values[name], orientation="vertical", widths=0.5)
             ax.plot(np.ones(len(values[name])), values[name], ".", alpha=0.5)
             ax.set_title(name, fontsize=8)
             ax.set_ylabel(units[name], fontsize=7)

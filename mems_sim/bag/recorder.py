@@ -451,9 +451,11 @@ class RecorderNode(Node):
         self._end_of_stream.update(entries)
 
     def _log_gap(self, topic: str, expected: int, first: int) -> None:
+        declarable = any(under(topic, namespace(f)) for f in self._fault_topics)
         self.get_logger().warning(
             f"{topic}: frame-index gap, expected first_sample_index {expected}, got {first} "
-            f"({first - expected} samples missing)"
+            f"({first - expected} samples missing"
+            + ("; a device gap instead if its device declares them dropped)" if declarable else ")")
         )
 
     # ---------------------------------------------------------------- queries
