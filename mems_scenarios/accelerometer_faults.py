@@ -149,9 +149,7 @@ def run_graph(
     finally:
         rec.close()
         counts = {t: n for t, n in rec.counts().items() if t != "/diagnostics"}
-        summary = dict(
-            counts=counts, gaps=rec.gaps(), losses=rec.losses(), device_gaps=rec.device_gaps()
-        )
+        summary = rec.report(counts)
         g.close()
     return dict(published=published, recorder=summary)
 

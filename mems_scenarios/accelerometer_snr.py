@@ -221,9 +221,7 @@ def run_graph(
         # /diagnostics goes out once per wall-clock second: its count is the host's, not
         # the run's (the printed counts are of the data topics)
         counts = {t: n for t, n in rec.counts().items() if t != "/diagnostics"}
-        summary = dict(
-            counts=counts, gaps=rec.gaps(), losses=rec.losses(), device_gaps=rec.device_gaps()
-        )
+        summary = rec.report(counts)
         graph_.close()
     return dict(published=published, recorder=summary)
 

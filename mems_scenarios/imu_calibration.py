@@ -367,13 +367,7 @@ def run_profile(options: base.ScenarioOptions, name: str, profile: str, thermal:
     finally:
         progress.close()
         rec.close()
-        summary = dict(
-            counts=rec.counts(),
-            gaps=rec.gaps(),
-            losses=rec.losses(),
-            device_gaps=rec.device_gaps(),
-            text=rec.summary(),
-        )
+        summary = rec.report(text=True)
         graph.close()
     result = analyse_profile(out, name, thermal)
     yaml_path = base.output_path(out, options.seed, "-calibration.yaml")

@@ -348,13 +348,7 @@ def run(options: base.ScenarioOptions) -> dict:
     finally:
         progress.close()
         rec.close()
-        summary = dict(
-            counts=rec.counts(),
-            gaps=rec.gaps(),
-            losses=rec.losses(),
-            device_gaps=rec.device_gaps(),
-            text=rec.summary(),
-        )
+        summary = rec.report(text=True)
         graph.close()
     png = base.output_path(out, options.seed, "-allan.png") if options.plots else None
     result = analyse(out, png)

@@ -241,9 +241,7 @@ def run_graph(
         # the data topics' counts (the printed "recorded" line, as before /diagnostics was
         # recorded: its count follows a wall-clock timer, the host's, not the emulation's)
         counts = {t: n for t, n in rec.counts().items() if t != "/diagnostics"}
-        summary = dict(
-            counts=counts, gaps=rec.gaps(), losses=rec.losses(), device_gaps=rec.device_gaps()
-        )
+        summary = rec.report(counts)
         graph.close()
     return dict(published=published, recorder=summary)
 

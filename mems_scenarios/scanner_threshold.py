@@ -317,12 +317,7 @@ def run_graph(
         summary = None
         if rec is not None:
             rec.close()
-            summary = dict(
-                counts=rec.counts(),
-                gaps=rec.gaps(),
-                losses=rec.losses(),
-                device_gaps=rec.device_gaps(),
-            )
+            summary = rec.report()
         graph_.close()
     return dict(published=published, recorder=summary, detector_counts=counts, wall_s=t_run)
 

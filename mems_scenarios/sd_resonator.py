@@ -227,9 +227,7 @@ def run_graph(
         published = {ns: d.frames_published for ns, d in devices.items()}
     finally:
         rec.close()
-        summary = dict(
-            counts=rec.counts(), gaps=rec.gaps(), losses=rec.losses(), device_gaps=rec.device_gaps()
-        )
+        summary = rec.report()
         graph.close()
     return dict(published=published, recorder=summary)
 

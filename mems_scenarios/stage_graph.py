@@ -195,12 +195,7 @@ def run_stage_graph(
         summary = None
         if rec is not None:  # None when building the graph failed
             rec.close()
-            summary = dict(
-                counts=rec.counts(),
-                gaps=rec.gaps(),
-                losses=rec.losses(),
-                device_gaps=rec.device_gaps(),
-            )
+            summary = rec.report()
         g.close()
     return dict(
         k_true=k_true,

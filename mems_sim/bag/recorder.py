@@ -572,6 +572,20 @@ class RecorderNode(Node):
             out.append(f"stalled: {topic} ({times}{longest:.1f} s without data)")
         return out
 
+    def report(self, counts: dict[str, int] | None = None, text: bool = False) -> dict:
+        """What a run reports of its recording: ``counts`` (messages per topic; the
+        caller's selection if given), ``gaps`` (:meth:`gaps`), ``losses``, ``device_gaps``
+        and, with ``text``, the :meth:`summary`."""
+        out = dict(
+            counts=self.counts() if counts is None else counts,
+            gaps=self.gaps(),
+            losses=self.losses(),
+            device_gaps=self.device_gaps(),
+        )
+        if text:
+            out["text"] = self.summary()
+        return out
+
     def device_gaps(self) -> list[str]:
         """One line per frame topic with samples its device declared dropped:
         ``TOPIC: N device gaps (M samples, declared by the device)``."""
