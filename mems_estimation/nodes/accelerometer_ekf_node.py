@@ -8,7 +8,10 @@ and publishes the device's ``estimate`` (mems_msgs/StateEstimate:
 displacement [m], velocity [m/s], acceleration [m/s^2] with variances) for every
 sample. The filter's model is built from the same parameter table as the device
 (:data:`mems_sim.devices.accelerometer.ACCEL_SPECS`: the designer's model, Table I/II), so
-one parameter file configures both. Frames with non-finite values, another sample
+one parameter file configures both; ``params_yaml`` names an identified model's YAML
+(:mod:`mems_estimation.identification.accelerometer_identification`) whose mass,
+stiffness, damping, gap and electronic noise replace the parameters' values (the
+filter then runs with the model the bench found). Frames with non-finite values, another sample
 rate or mismatched lengths are rejected and counted on /diagnostics; the filter keeps
 running on the next good frames (input path: :class:`EstimatorNode`). A filter that
 diverges (non-finite state, covariance not positive definite, displacement outside the
@@ -65,6 +68,15 @@ from mems_sim.ros.qos import FRAME_QOS
 NODE_SPECS: tuple[ParamSpec, ...] = (
     DEVICE_NAMESPACE,
     ParamSpec("output_topic", "", "-", "StateEstimate topic; empty: the device's 'estimate'", ""),
+    ParamSpec(
+        "params_yaml",
+        "",
+        "-",
+        "identified model YAML (accelerometer_identification): its "
+        + ", ".join(accelerometer.LOOP_MODEL_KEYS)
+        + " replace the parameters'; empty: the parameters' values",
+        "the device identified on the bench from its own records, not its parameter table",
+    ),
     *health_specs(
         HEALTH_WINDOW,
         "chosen: 1 ms at 1 MHz (1000 verdicts/s), short against the loop's "
@@ -87,7 +99,10 @@ class AccelerometerEkfNode(EstimatorNode):
     def __init__(self, **node_kwargs) -> None:
         super().__init__(**node_kwargs)
         p = self.p
-        model = accelerometer.validate_params(self.values_of(accelerometer.ACCEL_SPECS))
+        values = self.values_of(accelerometer.ACCEL_SPECS)
+        if p["params_yaml"]:
+            values.update(self.parameter_file("params_yaml", accelerometer.load_loop_model))
+        model = accelerometer.validate_params(values)
         v_b = accelerometer.bias_voltage(model) if model["mode"] != "open_loop" else 0.0
         self.filter = HybridEkf(accelerometer.ekf_config(model, v_b))
         self.fs = model["sample_rate_hz"]

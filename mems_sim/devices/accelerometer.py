@@ -79,6 +79,8 @@ __all__ = [
     "AccelFrame",
     "ForceRebalanceAccelerometer",
     "ekf_config",
+    "LOOP_MODEL_KEYS",
+    "load_loop_model",
 ]
 
 #: The Table III reading (Zhang 2010 Table III): a carrier amplitude of 0.675 V instead of
@@ -451,6 +453,10 @@ class ForceRebalanceAccelerometer:
         nominal: the designer's values (default: ``params``): the rebalance bias V_B
             (2-18) and the in-loop EKF's model and noise levels are designed from them,
             not from the device as built.
+        loop_model: values replacing ``nominal``'s in the in-loop EKF's model and noise
+            levels only (an identified model, such as ``mass``, ``stiffness``,
+            ``damping``, ``gap``, ``electronic_accel_std``: the controller's firmware is
+            given the bench's model); V_B stays the designer's. None: ``nominal``.
     """
 
     def __init__(
@@ -458,6 +464,7 @@ class ForceRebalanceAccelerometer:
         params: Mapping[str, Any] | None = None,
         seed: int = 0,
         nominal: Mapping[str, Any] | None = None,
+        loop_model: Mapping[str, Any] | None = None,
     ) -> None:
         self.p = validate_params(params or {})
         p = self.p
@@ -476,7 +483,8 @@ class ForceRebalanceAccelerometer:
         self.rng = np.random.default_rng(seed)
         self.state = np.zeros(3)
         self.next_index = 0
-        self.ekf_config = ekf_config(self.nominal, self.v_b)
+        loop = self.nominal if not loop_model else validate_params(dict(self.nominal, **loop_model))
+        self.ekf_config = ekf_config(loop, self.v_b)
         self.ekf_x, self.ekf_p = ekf_init(self.ekf_config.p0_diag)
         #: Scheduled sensor faults on the readout voltage before the ADC, inside the loop
         #: (mems_sim.hardware.sensor_faults; channel ``readout``); None: no faults.
@@ -559,6 +567,21 @@ class ForceRebalanceAccelerometer:
             out.variance = np.zeros((n, 0))
         self.next_index += n
         return out
+
+
+#: The parameters a bench identification gives the hybrid EKF's model (ACCEL_SPECS names):
+#: what an identified model YAML holds, for the in-loop and the downstream filter alike.
+LOOP_MODEL_KEYS = ("mass", "stiffness", "damping", "gap", "electronic_accel_std")
+
+
+def load_loop_model(path: str, what: str = "accelerometer model YAML") -> dict[str, float]:
+    """The :data:`LOOP_MODEL_KEYS` of an identified model's YAML ``path`` (read bounded),
+    each checked against its :data:`ACCEL_SPECS` entry (unit, range): FileNotFoundError,
+    or ValueError for a key missing or a value out of range
+    (:func:`mems_sim.model_file.load_model`)."""
+    from mems_sim.model_file import load_model
+
+    return load_model(path, LOOP_MODEL_KEYS, what, specs=ACCEL_SPECS)
 
 
 def ekf_config(p: Mapping[str, Any], v_b: float) -> HybridEkfConfig:
