@@ -16,7 +16,18 @@ and a 10 Hz sinusoidal input:
 ``/acc_pi_1g/hybrid_ekf``  a downstream hybrid EKF node on the PI loop's raw frames.
 
 Every device is the same device (one draw of the batch with ``--device-seed``); the
-rebalance bias and the in-loop EKF are designed from the nominal values.
+rebalance bias is designed from the nominal values.
+
+Identification on the bench first (:func:`bench_identification`): the same device on a
+shaker, ROS-free, with the carrier only and with the bias on and the loop open, gives its
+mass, spring, damping, gap and readout noise
+(:mod:`mems_estimation.identification.accelerometer_identification`), written as
+``<out>-seed<N>-accelerometer_params.yaml``: the model of every in-loop EKF
+(``loop_params_yaml``) and of the downstream EKF (``params_yaml``). The oracle rows run on
+the same recording with the device's own table (what only the simulation knows): a
+downstream EKF ``/acc_pi_1g/oracle/accelerometer_ekf`` on the same PI loop and the EKF
+loops ``/acc_oracle_ekf_0g1`` and ``/acc_oracle_ekf_1g`` with the noise of ``/acc_ekf_0g1``
+and ``/acc_ekf_1g``.
 
 Output SNR (same definition for every mode, :mod:`mems_estimation.identification.signal_metrics`): the
 device's output — the readout voltage in open loop, the feedback voltage v_F in the
@@ -35,13 +46,19 @@ from pathlib import Path
 
 import numpy as np
 
+from mems_estimation.identification.accelerometer_identification import (
+    MODEL_KEYS,
+    save_identification,
+)
 from mems_estimation.identification.signal_metrics import coherent_snr_db, consistency
+from mems_estimation.studies import accelerometer_bench
 from mems_scenarios import bag_frames, base, contract, delivery
 from mems_scenarios.accelerometer_snr_report import (
     AMPS,
     FS,
     MODES,
     NAME_SPREAD,
+    ORACLE_LOOPS,
     PULL_IN_AMPS,
     QR_CASES,
     SKIP_S,
@@ -88,29 +105,39 @@ def device_cases() -> dict[str, dict]:
         cases[f"acc_t3_{m}_{a}"] = dict(
             accelerometer.TABLE_III_VARIANT, mode=MODES[m], accel_amplitude=amp * G
         )
+    for oracle_loop, ns in ORACLE_LOOPS.items():
+        cases[oracle_loop] = dict(cases[ns])
     return cases
 
 
+#: Noise seed of the bench's first record (the run seed x 100 plus this; the second: + 1),
+#: apart from every device's (:func:`_seed`).
+BENCH_SEED_OFFSET = 90
+
+
 def spread_cases() -> dict[str, dict]:
-    """The PI and EKF loops at 0.1 g and 1 g only (scenario ``accelerometer_spread``)."""
-    return {
-        ns: p
-        for ns, p in device_cases().items()
-        if ns in {f"acc_{m}_{a}" for m in ("pi", "ekf") for a in SPREAD_AMPS}
-    }
+    """The PI and EKF loops at 0.1 g and 1 g only, and the oracle EKF loops (scenario
+    ``accelerometer_spread``)."""
+    names = {f"acc_{m}_{a}" for m in ("pi", "ekf") for a in SPREAD_AMPS} | set(ORACLE_LOOPS)
+    return {ns: p for ns, p in device_cases().items() if ns in names}
 
 
 def _seed(options: base.ScenarioOptions, ns: str) -> int:
     """Run seed of one device (its place among :func:`device_cases`, so a device has the
     same noise in both scenarios); the Q/R sweep shares the seed of its exact case."""
     names = list(device_cases())
-    k = names.index("acc_ekf_0g1" if ns.startswith("acc_qr_") else ns)
+    same = ORACLE_LOOPS.get(ns, ns)
+    k = names.index("acc_ekf_0g1" if ns.startswith("acc_qr_") else same)
     return int(options.seed) * 100 + k
 
 
 #: Fully qualified name of the downstream hybrid EKF and its output topic.
 DOWNSTREAM = "/acc_pi_1g/accelerometer_ekf"
 DOWNSTREAM_TOPIC = "/acc_pi_1g/hybrid_ekf/estimate"
+#: The same with the device's own table as its model (the oracle row).
+DOWNSTREAM_ORACLE = "/acc_pi_1g/oracle/accelerometer_ekf"
+DOWNSTREAM_ORACLE_TOPIC = "/acc_pi_1g/hybrid_ekf_oracle/estimate"
+ESTIMATORS = (DOWNSTREAM, DOWNSTREAM_ORACLE)
 
 
 def _full(cases: dict) -> bool:
@@ -123,37 +150,98 @@ def emulator(ns: str) -> str:
     return f"/{ns}/accelerometer"
 
 
+def _entry(options: base.ScenarioOptions, ns: str, params: dict, duration_s: float):
+    return contract.NodeEntry(
+        "accelerometer_node",
+        "accelerometer",
+        ns,
+        dict(params, seed=_seed(options, ns), duration_s=float(duration_s), frame_size=10000),
+    )
+
+
+def bench_device(options: base.ScenarioOptions) -> dict:
+    """The device as the emulator nodes draw it (:func:`device_as_built` of the PI loop at
+    1 g with the user's ``--set``, ``--device-seed`` and ``--temperature``): ``p`` as built,
+    ``nominal`` as designed."""
+    from mems_sim.ros.params_file import node_matches
+
+    entry = _entry(options, "acc_pi_1g", device_cases()["acc_pi_1g"], DEFAULT_DURATION_S)
+    variation = dict(device_seed=options.device_seed, temperature_c=options.temperature_c)
+    values = contract.full_parameters(entry, options.overrides, variation)
+    fixed = {o.name for o in options.overrides if node_matches(o.node, entry.fqn)}
+    return device_as_built(values, fixed)
+
+
+def bench_identification(options: base.ScenarioOptions, out=None) -> dict:
+    """The bench (module doc): :func:`bench_device` identified
+    (:func:`~mems_estimation.studies.accelerometer_bench.bench_identification`, noise seeds
+    from :data:`BENCH_SEED_OFFSET`), its model written as the filters' parameter YAML
+    beside the MCAP file ``out`` (None: the options' ``out``, else ``runs/``) as
+    ``<stem>-seed<N>-accelerometer_params.yaml``, and the device's own table's model (the
+    oracle's) as ``...-accelerometer_oracle_params.yaml``. Returns ``model``, ``fit``,
+    ``path`` and ``oracle_path``. ScenarioError when the fit fails."""
+    built = bench_device(options)
+    try:
+        bench = accelerometer_bench.bench_identification(
+            built["p"], built["nominal"], int(options.seed) * 100 + BENCH_SEED_OFFSET
+        )
+    except ValueError as exc:
+        raise base.ScenarioError(f"{NAME}: bench identification failed: {exc}") from None
+    out = Path(out or options.out or Path("runs") / f"{NAME}-{options.seed}.mcap")
+    path = base.output_path(out, options.seed, "-accelerometer_params.yaml")
+    oracle_path = base.output_path(out, options.seed, "-accelerometer_oracle_params.yaml")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_identification(dict(bench["model"], fit=bench["fit"]), str(path))
+    save_identification({k: built["p"][k] for k in MODEL_KEYS}, str(oracle_path))
+    return dict(bench, path=path.resolve(), oracle_path=oracle_path.resolve())
+
+
 def graph(
-    options: base.ScenarioOptions, duration_s: float, *, spread: bool = False
+    options: base.ScenarioOptions,
+    duration_s: float,
+    *,
+    spread: bool = False,
+    bench: dict | None = None,
 ) -> contract.GraphSpec:
     """The scenario's graph: one device per case (:func:`device_cases`, ``spread``:
-    :func:`spread_cases`), each in its namespace, the downstream hybrid EKF on the PI loop
-    at 1 g (full scenario only), recorded with /diagnostics (the covariance counters)."""
+    :func:`spread_cases`), each in its namespace, the EKF loops with the identified model
+    (the oracle loop with the device's table), the downstream hybrid EKFs (identified and
+    oracle) on the PI loop at 1 g (full scenario only), recorded with /diagnostics (the
+    covariance counters). ``bench``: :func:`bench_identification`'s result (None:
+    identified here)."""
+    if bench is None:
+        bench = bench_identification(options)
     cases = spread_cases() if spread else device_cases()
-    nodes = [
-        contract.NodeEntry(
-            "accelerometer_node",
-            "accelerometer",
-            ns,
-            dict(params, seed=_seed(options, ns), duration_s=float(duration_s), frame_size=10000),
-        )
-        for ns, params in cases.items()
-    ]
+    nodes = []
+    for ns, params in cases.items():
+        if params["mode"] == "ekf_rebalance":
+            model = bench["oracle_path"] if ns in ORACLE_LOOPS else bench["path"]
+            params = dict(params, loop_params_yaml=str(model))
+        nodes.append(_entry(options, ns, params, duration_s))
     topics = [t for ns, p in cases.items() for t in _device_topics(ns, p["mode"], every=True)]
     if _full(cases):
-        nodes.append(
-            contract.NodeEntry(
-                "accelerometer_ekf_node",
-                "accelerometer_ekf",
-                "acc_pi_1g",
-                dict(
-                    cases["acc_pi_1g"],
-                    device_namespace="/acc_pi_1g",
-                    output_topic=DOWNSTREAM_TOPIC,
-                ),
+        # the identified values also as the entry's parameters: a run record written
+        # without making the node (--write-launch) holds the model it loads from the YAML
+        identified = {k: bench["model"][k] for k in MODEL_KEYS}
+        for fqn, topic, model, path in (
+            (DOWNSTREAM, DOWNSTREAM_TOPIC, identified, bench["path"]),
+            (DOWNSTREAM_ORACLE, DOWNSTREAM_ORACLE_TOPIC, {}, bench["oracle_path"]),
+        ):
+            nodes.append(
+                contract.NodeEntry(
+                    "accelerometer_ekf_node",
+                    "accelerometer_ekf",
+                    fqn.rsplit("/", 1)[0].lstrip("/"),
+                    dict(
+                        cases["acc_pi_1g"],
+                        **model,
+                        params_yaml=str(path),
+                        device_namespace="/acc_pi_1g",
+                        output_topic=topic,
+                    ),
+                )
             )
-        )
-        topics.append(DOWNSTREAM_TOPIC)
+            topics.append(topic)
     name = NAME_SPREAD if spread else NAME
     return contract.GraphSpec(
         name, tuple(nodes), (*topics, "/diagnostics", contract.RUN_INFO_TOPIC)
@@ -166,21 +254,30 @@ def run_graph(
     """Run :func:`graph` until every device published ``duration``; record it with the
     run record (and each device's ``fixed_parameters``, for :func:`oracle`) and, at the
     end, every device's final diagnostics; return counts."""
-    spec = graph(options, duration, spread=spread)
+    bench = bench_identification(options, out)
+    spec = graph(options, duration, spread=spread, bench=bench)
     graph_ = base.graph_for(options)
     nodes = graph_.build(spec, realtime=options.realtime)
-    ekf = nodes.get(DOWNSTREAM)
-    devices = {n.namespace: nodes[n.fqn] for n in spec.nodes if n.fqn != DOWNSTREAM}
+    ekfs = [nodes[fqn] for fqn in ESTIMATORS if fqn in nodes]
+    devices = {n.namespace: nodes[n.fqn] for n in spec.nodes if n.fqn not in ESTIMATORS}
     regex = rf"^/acc_|^/diagnostics$|^{re.escape(contract.RUN_INFO_TOPIC)}$"
     rec = graph_.recorder(str(out), regex=regex, exclude=base.NOT_RECORDED)
     fixed = {emulator(ns): sorted(d.fixed_parameters) for ns, d in devices.items()}
-    graph_.publish_run_info(spec, options, nodes, duration_s=duration, fixed_parameters=fixed)
-    n_topics = sum(len(_topics(d)) for d in devices.values()) + (ekf is not None)
+    graph_.publish_run_info(
+        spec,
+        options,
+        nodes,
+        duration_s=duration,
+        fixed_parameters=fixed,
+        bench=dict(model=bench["model"], fit=bench["fit"]),
+    )
+    n_topics = sum(len(_topics(d)) for d in devices.values()) + len(ekfs)
 
     def delivered(device) -> int | None:
-        """Progress [samples] of the downstream EKF (the recorder counts in the skeleton)."""
-        if ekf is not None and device.get_namespace() == "/acc_pi_1g":
-            return progress_of(ekf) or 0
+        """Progress [samples] of the slower downstream EKF (the recorder counts in the
+        skeleton)."""
+        if ekfs and device.get_namespace() == "/acc_pi_1g":
+            return min(progress_of(e) or 0 for e in ekfs)
         return None
 
     try:
@@ -188,15 +285,15 @@ def run_graph(
             lambda: (
                 len(rec.recorded_topics()) >= n_topics
                 and (
-                    ekf is None
+                    not ekfs
                     or (
-                        ekf.pub.get_subscription_count() >= 1
-                        and devices["acc_pi_1g"].pub_adc.get_subscription_count() >= 2
+                        all(e.pub.get_subscription_count() >= 1 for e in ekfs)
+                        and devices["acc_pi_1g"].pub_adc.get_subscription_count() >= 1 + len(ekfs)
                     )
                 )
             ),
             30.0,
-            "the recorder and the hybrid EKF node to subscribe",
+            "the recorder and the hybrid EKF nodes to subscribe",
         )
         delivery.publish_all(
             graph_,
@@ -207,9 +304,12 @@ def run_graph(
             realtime_timeout_s=duration * 200 + 60,
             window=20,
         )
-        if ekf is not None:
+        if ekfs:
             graph_.spin_until(
-                lambda: rec.received(DOWNSTREAM_TOPIC) >= ekf.frames_done,
+                lambda: all(
+                    rec.received(t) >= e.frames_done
+                    for t, e in zip((DOWNSTREAM_TOPIC, DOWNSTREAM_ORACLE_TOPIC), ekfs)
+                ),
                 60.0,
                 "the last estimates",
             )
@@ -311,15 +411,21 @@ def device_as_built(params: dict, fixed=()) -> dict:
 def oracle(record: dict, cases: dict) -> dict:
     """What only the simulation knows: the first device as built (every device is the
     same draw) from its parameters in the run record (:func:`device_as_built`), its
-    mismatch against the designer's values (:func:`mismatch`) and its analytic static
-    pull-in accelerations [g] (Table I, and the Table III reading)."""
+    mismatch against the designer's values (:func:`mismatch`), the relative error of the
+    identified model (the bench's result in the record) and
+    its analytic static pull-in accelerations [g] (Table I, and the Table III reading)."""
     fqn = emulator(next(iter(cases)))
     params = contract.node_parameters(record, fqn, "the device as built")
     values = device_as_built(params, record.get("fixed_parameters", {}).get(fqn, ()))
     p = accelerometer.validate_params(values["p"] | {"mode": "open_loop"})
     p3 = dict(p, **accelerometer.TABLE_III_VARIANT)
+    identification = None
+    if "bench" in record:  # the bench's identification, recorded with the run
+        model = record["bench"]["model"]
+        identification = {k: model[k] / values["p"][k] - 1.0 for k in MODEL_KEYS}
     return dict(
         mismatch=mismatch(values),
+        identification_error=identification,
         pull_in_g=accelerometer.pull_in_acceleration(p)[0] / G,
         pull_in_t3_g=accelerometer.pull_in_acceleration(p3)[0] / G,
     )
@@ -369,6 +475,16 @@ ORACLE_GROUPS = (
 )
 
 
+def _drawn(record: dict | None, cases: dict) -> bool:
+    """Whether the run's devices were drawn from the batch (``device_seed`` >= 0 in the run
+    record; no record: judged as nominal)."""
+    try:
+        params = contract.node_parameters(record, emulator(next(iter(cases))), "")
+    except contract.AnalysisError:
+        return False
+    return int(params.get("device_seed", -1)) >= 0
+
+
 def figures(path: Path, record: dict | None, cases: dict) -> tuple[dict, list]:
     """Every figure of the scenario from the recorded MCAP: the devices' topics, the
     covariance counters on /diagnostics and the :func:`oracle` step on the run record.
@@ -390,20 +506,27 @@ def figures(path: Path, record: dict | None, cases: dict) -> tuple[dict, list]:
     f["full"] = _full(cases)
     if f["full"] and len(counters) < len(cases):  # Table IV's column
         unavailable.append(("*.not_pd_samples", f"{path}: no device status on /diagnostics"))
+    f["drawn"] = _drawn(record, cases)
     try:
         f.update(oracle(record, cases))
     except contract.AnalysisError as exc:
-        f.update(mismatch=None, pull_in_g=None, pull_in_t3_g=None)
+        f.update(mismatch=None, identification_error=None, pull_in_g=None, pull_in_t3_g=None)
         groups = ORACLE_GROUPS if f["full"] else ORACLE_GROUPS[:1]
         unavailable.append((", ".join(groups), str(exc)))
     if f["full"]:
         k0 = int(SKIP_S * FS)
-        fr = bag_frames.topics_frames(path, ["/acc_pi_1g/truth", DOWNSTREAM_TOPIC])
+        fr = bag_frames.topics_frames(
+            path, ["/acc_pi_1g/truth", DOWNSTREAM_TOPIC, DOWNSTREAM_ORACLE_TOPIC]
+        )
         truth = fr["/acc_pi_1g/truth"]["data"]
-        est = fr[DOWNSTREAM_TOPIC]
-        f["downstream"] = consistency(est["data"][k0:, 0] - truth[k0:, 1], est["variances"][k0:, 0])
         t = np.arange(truth.shape[0]) / FS
-        f["downstream"]["accel_snr"] = coherent_snr_db(est["data"][k0:, 2], t[k0:], F_IN)
+        for key, topic in (
+            ("downstream", DOWNSTREAM_TOPIC),
+            ("downstream_oracle", DOWNSTREAM_ORACLE_TOPIC),
+        ):
+            est = fr[topic]
+            f[key] = consistency(est["data"][k0:, 0] - truth[k0:, 1], est["variances"][k0:, 0])
+            f[key]["accel_snr"] = coherent_snr_db(est["data"][k0:, 2], t[k0:], F_IN)
         f["checks"] = checks(f)
     else:
         f["checks"] = spread_checks(f)
@@ -435,7 +558,9 @@ def analyse(bag, pngs=None, *, spread: bool = False) -> contract.ScenarioResult:
             ns: {k: v for k, v in d.items() if k != "series"} for ns, d in f["devices"].items()
         },
         downstream=f.get("downstream"),
+        downstream_oracle=f.get("downstream_oracle"),
         mismatch=f["mismatch"],
+        identification_error=f["identification_error"],
         pull_in_g=f["pull_in_g"],
         pull_in_t3_g=f["pull_in_t3_g"],
         checks=f["checks"],
