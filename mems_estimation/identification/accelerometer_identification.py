@@ -49,7 +49,8 @@ from scipy.optimize import least_squares
 from scipy.signal import cont2discrete, lfilter, ss2tf
 
 from mems_estimation.identification.model_yaml import save_model
-from mems_sim.devices.accelerometer import LOOP_MODEL_KEYS, load_loop_model
+from mems_sim.devices.accelerometer import ACCEL_SPECS, LOOP_MODEL_KEYS
+from mems_sim.model_file import load_model
 
 __all__ = [
     "MODEL_KEYS",
@@ -251,5 +252,6 @@ def save_identification(model: Mapping[str, Any], path: str) -> None:
 
 def load_identification(path: str) -> dict[str, float]:
     """The model parameters (:data:`MODEL_KEYS`, SI units) of a parameter YAML written by
-    :func:`save_identification`; FileNotFoundError / ValueError with a clear message."""
-    return load_loop_model(path, "accelerometer parameter YAML")
+    :func:`save_identification`, each checked against its ``ACCEL_SPECS`` entry;
+    FileNotFoundError / ValueError with a clear message."""
+    return load_model(path, MODEL_KEYS, "accelerometer parameter YAML", specs=ACCEL_SPECS)

@@ -37,6 +37,7 @@ from scipy.optimize import least_squares
 from scipy.signal import butter, lfilter
 
 from mems_estimation.identification.model_yaml import load_model, save_model
+from mems_sim.devices.resonator import LOOP_MODEL_KEYS
 
 __all__ = [
     "MODEL_KEYS",
@@ -49,7 +50,7 @@ __all__ = [
 ]
 
 #: The observer parameters the identification gives (``resonator_observer`` node names).
-MODEL_KEYS = ("f0_hz", "quality_factor")
+MODEL_KEYS = LOOP_MODEL_KEYS
 #: Cut-off of the low-pass applied to the bits, fraction of the Nyquist rate.
 LOWPASS = 0.15
 #: Samples dropped at the start of each ring-down (modulator and low-pass transients).

@@ -48,6 +48,7 @@ from mems_estimation.filters.accelerometer_ekf import (
     HEALTH_WINDOW,
     HybridEkf,
 )
+from mems_estimation.identification.accelerometer_identification import load_identification
 from mems_estimation.nodes.frame_input import (
     DEVICE_NAMESPACE,
     Diverged,
@@ -99,10 +100,10 @@ class AccelerometerEkfNode(EstimatorNode):
     def __init__(self, **node_kwargs) -> None:
         super().__init__(**node_kwargs)
         p = self.p
-        values = self.values_of(accelerometer.ACCEL_SPECS)
         if p["params_yaml"]:
-            values.update(self.parameter_file("params_yaml", accelerometer.load_loop_model))
-        model = accelerometer.validate_params(values)
+            # the node runs with (and reports) the identified model
+            p.update(self.parameter_file("params_yaml", load_identification))
+        model = accelerometer.validate_params(self.values_of(accelerometer.ACCEL_SPECS))
         v_b = accelerometer.bias_voltage(model) if model["mode"] != "open_loop" else 0.0
         self.filter = HybridEkf(accelerometer.ekf_config(model, v_b))
         self.fs = model["sample_rate_hz"]

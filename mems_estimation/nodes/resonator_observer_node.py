@@ -19,7 +19,8 @@ published), starts it again from its prior.
 Model: ``params_yaml`` names the identified model's YAML
 (:mod:`mems_estimation.identification.resonator_identification`): its ``f0_hz`` and
 ``quality_factor`` replace the parameters' values (the node then runs with and reports
-the identified model); empty: the parameters' values.
+the identified model); empty: the parameters' values. ``f0_error`` then puts a relative
+error on that f0 (a deliberately wrong model).
 
 Health (Kalman observer; the adaptive observer keeps no innovations, so it has none): an
 innovation consistency monitor (:class:`~mems_estimation.nodes.health.HealthReporter`,
@@ -112,6 +113,16 @@ OBSERVER_SPECS: tuple[ParamSpec, ...] = (
         min=0.0,
         max=1.0e9,
         min_exclusive=True,
+    ),
+    ParamSpec(
+        "f0_error",
+        0.0,
+        "-",
+        "relative error put on the model's f0 (of the parameters or of params_yaml): a "
+        "deliberately wrong model",
+        "Colinet et al. Sec. 6: the observer with a 5 % f0 error",
+        min=-0.5,
+        max=0.5,
     ),
     ParamSpec(
         "output_noise_std",
@@ -236,15 +247,16 @@ class ResonatorObserverNode(EstimatorNode):
         if p["params_yaml"]:
             # the node runs with (and reports) the identified model
             p.update(self.parameter_file("params_yaml", load_identification))
+        f0 = p["f0_hz"] * (1.0 + p["f0_error"])  # the model's f0 [Hz]
         self.fs = p["sample_rate_hz"]
-        if p["f0_hz"] >= p["sample_rate_hz"] / 2:
+        if f0 >= p["sample_rate_hz"] / 2:
             raise ParameterError(
-                f"parameter 'f0_hz' = {p['f0_hz']!r} is out of range: allowed "
-                f"(0, {p['sample_rate_hz'] / 2!r}) Hz (below fs/2)"
+                f"parameter 'f0_hz' = {p['f0_hz']!r} (with f0_error {p['f0_error']!r}) is out "
+                f"of range: allowed (0, {p['sample_rate_hz'] / 2!r}) Hz (below fs/2)"
             )
         if p["adaptive"]:
             self.observer = AdaptiveObserver(
-                p["f0_hz"],
+                f0,
                 p["quality_factor"],
                 p["sample_rate_hz"],
                 p["output_noise_std"],
@@ -258,7 +270,7 @@ class ResonatorObserverNode(EstimatorNode):
             )
         else:
             self.observer = KalmanObserver(
-                p["f0_hz"],
+                f0,
                 p["quality_factor"],
                 p["sample_rate_hz"],
                 p["output_noise_std"],

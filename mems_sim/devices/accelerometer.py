@@ -80,7 +80,6 @@ __all__ = [
     "ForceRebalanceAccelerometer",
     "ekf_config",
     "LOOP_MODEL_KEYS",
-    "load_loop_model",
 ]
 
 #: The Table III reading (Zhang 2010 Table III): a carrier amplitude of 0.675 V instead of
@@ -572,16 +571,6 @@ class ForceRebalanceAccelerometer:
 #: The parameters a bench identification gives the hybrid EKF's model (ACCEL_SPECS names):
 #: what an identified model YAML holds, for the in-loop and the downstream filter alike.
 LOOP_MODEL_KEYS = ("mass", "stiffness", "damping", "gap", "electronic_accel_std")
-
-
-def load_loop_model(path: str, what: str = "accelerometer model YAML") -> dict[str, float]:
-    """The :data:`LOOP_MODEL_KEYS` of an identified model's YAML ``path`` (read bounded),
-    each checked against its :data:`ACCEL_SPECS` entry (unit, range): FileNotFoundError,
-    or ValueError for a key missing or a value out of range
-    (:func:`mems_sim.model_file.load_model`)."""
-    from mems_sim.model_file import load_model
-
-    return load_model(path, LOOP_MODEL_KEYS, what, specs=ACCEL_SPECS)
 
 
 def ekf_config(p: Mapping[str, Any], v_b: float) -> HybridEkfConfig:

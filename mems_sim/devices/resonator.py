@@ -119,12 +119,17 @@ from mems_sim.params import (
 )
 
 __all__ = [
+    "LOOP_MODEL_KEYS",
     "RESONATOR_SPECS",
     "validate_params",
     "SdFrame",
     "SdResonatorDevice",
     "default_pulse_amplitude",
 ]
+
+#: The parameters a bench identification gives the in-loop observer's model
+#: (RESONATOR_SPECS names): what an identified model's YAML holds.
+LOOP_MODEL_KEYS = ("f0_hz", "quality_factor")
 
 
 def validate_params(p: Mapping[str, Any]) -> None:

@@ -28,22 +28,14 @@ import numpy as np
 from mems_sim.devices import accelerometer
 from mems_sim.kernels.accelerometer_ekf import STATE_NAMES, STATE_UNITS
 from mems_sim.nodes.fault_topic import FAULT_SCHEDULE_SPEC, FaultTopic
-from mems_sim.params import ParameterError, ParamSpec
+from mems_sim.nodes.loop_model import loop_model, loop_params_spec
+from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import make_adc_frame, make_state_estimate
 from mems_sim.ros.node_base import EmulatorNode, emulator_specs, variation_specs
 from mems_sim.ros.node_main import run_node
 
 NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=10000, frame_id="accelerometer") + (
-    ParamSpec(
-        "loop_params_yaml",
-        "",
-        "-",
-        "identified model YAML of the in-loop hybrid EKF (ekf_rebalance): its "
-        + ", ".join(accelerometer.LOOP_MODEL_KEYS)
-        + " replace the designer's values in the filter's model; empty: the designer's",
-        "the device identified on the bench (accelerometer_identification), as the "
-        "controller's firmware would be given it",
-    ),
+    loop_params_spec(accelerometer.LOOP_MODEL_KEYS, "hybrid EKF (ekf_rebalance)"),
 )
 #: Reference temperature of the table [degC]: the 300 K of Zhang 2010 eq. (3-1).
 REFERENCE_TEMPERATURE_C = 26.85
@@ -74,7 +66,12 @@ class AccelerometerNode(EmulatorNode):
             self.device_values(),
             seed=self.p["seed"],
             nominal=self.values_of(accelerometer.ACCEL_SPECS),
-            loop_model=self._loop_model(),
+            loop_model=loop_model(
+                self,
+                accelerometer.LOOP_MODEL_KEYS,
+                accelerometer.ACCEL_SPECS,
+                "accelerometer model YAML",
+            ),
         )
         self.fault_topic = FaultTopic(
             self, ("readout",), ("V",), self.device.fs, white_std=(self.device.v_noise_std,)
@@ -88,19 +85,6 @@ class AccelerometerNode(EmulatorNode):
             self.create_frame_publishers("loop_estimate")[0] if self.ekf_mode else None
         )
         return self.device.fs
-
-    def _loop_model(self) -> dict | None:
-        """The in-loop EKF's model of ``loop_params_yaml`` (None: the designer's); a
-        missing or broken file is the parameter's invalid value (ParameterError)."""
-        path = self.p["loop_params_yaml"]
-        if not path:
-            return None
-        try:
-            return accelerometer.load_loop_model(path)
-        except (FileNotFoundError, ValueError) as exc:
-            raise ParameterError(
-                f"parameter 'loop_params_yaml' = {path!r} is invalid: {exc}"
-            ) from None
 
     def _report(self, f: accelerometer.AccelFrame, first: int) -> None:
         """Count and warn about contact, saturation, over-range input, lost definiteness."""

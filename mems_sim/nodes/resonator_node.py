@@ -18,7 +18,8 @@ Topics (relative to the namespace, default ``/resonator``):
 Input: ``temperature`` sensor_msgs/Temperature: the device's temperature (``temperature_c``).
 Parameters: ``mems_sim.devices.resonator.RESONATOR_SPECS``, ``device_seed`` and
 ``temperature_c`` (the resonator drawn from the table's spreads at a temperature, reference
-25 C; the in-loop observer keeps the nominal model) and ``EMULATOR_SPECS``.
+25 C; the in-loop observer keeps the nominal model, or with ``loop_params_yaml`` the f0
+and Q of an identified model's YAML) and ``EMULATOR_SPECS``.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ import numpy as np
 from mems_sim.devices import resonator as sd_resonator
 from mems_sim.hardware.fault_schedule import TIMING_ONLY
 from mems_sim.nodes.fault_topic import FAULT_SCHEDULE_SPEC, FaultTopic
+from mems_sim.nodes.loop_model import loop_model, loop_params_spec
 from mems_sim.params import ParamSpec
 from mems_sim.ros.frames import make_adc_frame, make_state_estimate
 from mems_sim.ros.node_base import EmulatorNode, emulator_specs, variation_specs
@@ -36,7 +38,9 @@ from mems_sim.ros.node_main import run_node
 #: 10,000 samples (10 ms at 1 MHz) per frame: with 1000-sample frames the graph's per-frame
 #: cost (callbacks, messages, recorder) kept a device and three observers below real time,
 #: and readers more than the frame QoS depth behind lost frames.
-NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=10000, frame_id="resonator")
+NODE_SPECS: tuple[ParamSpec, ...] = emulator_specs(frame_size=10000, frame_id="resonator") + (
+    loop_params_spec(sd_resonator.LOOP_MODEL_KEYS, "Kalman observer (observer mode)"),
+)
 
 TRUTH_CHANNELS = (
     "position",
@@ -68,6 +72,13 @@ class ResonatorNode(EmulatorNode):
     def make_device(self) -> float:
         nominal = self.values_of(sd_resonator.RESONATOR_SPECS)
         sd_resonator.validate_params(nominal)
+        identified = loop_model(
+            self,
+            sd_resonator.LOOP_MODEL_KEYS,
+            sd_resonator.RESONATOR_SPECS,
+            "resonator model YAML",
+        )
+        nominal.update(identified or {})  # the observer's model only (the device's own)
         self.device = sd_resonator.SdResonatorDevice(
             self.device_values(), seed=self.p["seed"], nominal=nominal
         )

@@ -45,3 +45,16 @@ def test_node_refuses_a_bad_yaml(ros_context, tmp_path):
         ResonatorObserverNode(
             context=ros_context, parameter_overrides=params(params_yaml=str(tmp_path / "x.yaml"))
         )
+
+
+def test_f0_error_is_put_on_the_yaml_model(ros_context, tmp_path):
+    path = tmp_path / "resonator_params.yaml"
+    save_identification(dict(f0_hz=50_100.0, quality_factor=95.0), str(path))
+    node = ResonatorObserverNode(
+        context=ros_context, parameter_overrides=params(params_yaml=str(path), f0_error=0.05)
+    )
+    try:
+        assert node.p["f0_hz"] == 50_100.0  # reported as loaded; the error is its own value
+        assert node.observer.model.f0 == pytest.approx(50_100.0 * 1.05, rel=1e-15)
+    finally:
+        node.destroy_node()
