@@ -22,7 +22,7 @@ Identification on the bench first (:func:`bench_identification`): the same devic
 shaker, ROS-free, with the carrier only and with the bias on and the loop open, gives its
 mass, spring, damping, gap and readout noise
 (:mod:`mems_estimation.identification.accelerometer_identification`), written as
-``<out>-seed<N>-accelerometer_params.yaml``: the model of every in-loop EKF
+``<out>-seed<N>-accelerometer_params.yaml`` (:func:`bench_paths`): the model of every in-loop EKF
 (``loop_params_yaml``) and of the downstream EKF (``params_yaml``). The oracle rows run on
 the same recording with the device's own table (what only the simulation knows): a
 downstream EKF ``/acc_pi_1g/oracle/accelerometer_ekf`` on the same PI loop and the EKF
@@ -172,14 +172,24 @@ def bench_device(options: base.ScenarioOptions) -> dict:
     return device_as_built(values, fixed)
 
 
-def bench_identification(options: base.ScenarioOptions, out=None) -> dict:
+def bench_paths(options: base.ScenarioOptions, out=None, spread: bool = False) -> dict:
+    """Where the bench's results go, beside the MCAP file ``out`` (None: the options'
+    ``out``, else ``runs/``): ``path`` ``<stem>-seed<N>-accelerometer_params.yaml`` (the
+    identified model) and ``oracle_path`` ``...-accelerometer_oracle_params.yaml`` (the
+    device's own table's model)."""
+    name = NAME_SPREAD if spread else NAME
+    out = Path(out or options.out or Path("runs") / f"{name}-{options.seed}.mcap")
+    return dict(
+        path=base.output_path(out, options.seed, "-accelerometer_params.yaml"),
+        oracle_path=base.output_path(out, options.seed, "-accelerometer_oracle_params.yaml"),
+    )
+
+
+def bench_identification(options: base.ScenarioOptions, out=None, spread: bool = False) -> dict:
     """The bench (module doc): :func:`bench_device` identified
     (:func:`~mems_estimation.studies.accelerometer_bench.bench_identification`, noise seeds
-    from :data:`BENCH_SEED_OFFSET`), its model written as the filters' parameter YAML
-    beside the MCAP file ``out`` (None: the options' ``out``, else ``runs/``) as
-    ``<stem>-seed<N>-accelerometer_params.yaml``, and the device's own table's model (the
-    oracle's) as ``...-accelerometer_oracle_params.yaml``. Returns ``model``, ``fit``,
-    ``path`` and ``oracle_path``. ScenarioError when the fit fails."""
+    from :data:`BENCH_SEED_OFFSET`), written to :func:`bench_paths`. Returns ``model``,
+    ``fit``, ``path`` and ``oracle_path``. ScenarioError when the fit fails."""
     built = bench_device(options)
     try:
         bench = accelerometer_bench.bench_identification(
@@ -187,13 +197,19 @@ def bench_identification(options: base.ScenarioOptions, out=None) -> dict:
         )
     except ValueError as exc:
         raise base.ScenarioError(f"{NAME}: bench identification failed: {exc}") from None
-    out = Path(out or options.out or Path("runs") / f"{NAME}-{options.seed}.mcap")
-    path = base.output_path(out, options.seed, "-accelerometer_params.yaml")
-    oracle_path = base.output_path(out, options.seed, "-accelerometer_oracle_params.yaml")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    save_identification(dict(bench["model"], fit=bench["fit"]), str(path))
-    save_identification({k: built["p"][k] for k in MODEL_KEYS}, str(oracle_path))
-    return dict(bench, path=path.resolve(), oracle_path=oracle_path.resolve())
+    paths = bench_paths(options, out, spread)
+    paths["path"].parent.mkdir(parents=True, exist_ok=True)
+    save_identification(dict(bench["model"], fit=bench["fit"]), str(paths["path"]))
+    save_identification({k: built["p"][k] for k in MODEL_KEYS}, str(paths["oracle_path"]))
+    return dict(bench, **paths)
+
+
+def prepare(options: base.ScenarioOptions, spread: bool = False) -> dict:
+    """Make the files :func:`graph` names (the bench's model YAMLs) before a runner of
+    processes starts the graph (``run_scenario --write-launch``); returns what the run
+    record adds (the bench's result, ``bench``)."""
+    bench = bench_identification(options, spread=spread)
+    return dict(bench=dict(model=bench["model"], fit=bench["fit"]))
 
 
 def graph(
@@ -207,10 +223,10 @@ def graph(
     :func:`spread_cases`), each in its namespace, the EKF loops with the identified model
     (the oracle loop with the device's table), the downstream hybrid EKFs (identified and
     oracle) on the PI loop at 1 g (full scenario only), recorded with /diagnostics (the
-    covariance counters). ``bench``: :func:`bench_identification`'s result (None:
-    identified here)."""
+    covariance counters). ``bench``: the model YAMLs' paths (:func:`bench_paths`, the
+    default; the files are made by :func:`bench_identification`, or :func:`prepare`)."""
     if bench is None:
-        bench = bench_identification(options)
+        bench = bench_paths(options, spread=spread)
     cases = spread_cases() if spread else device_cases()
     nodes = []
     for ns, params in cases.items():
@@ -220,12 +236,9 @@ def graph(
         nodes.append(_entry(options, ns, params, duration_s))
     topics = [t for ns, p in cases.items() for t in _device_topics(ns, p["mode"], every=True)]
     if _full(cases):
-        # the identified values also as the entry's parameters: a run record written
-        # without making the node (--write-launch) holds the model it loads from the YAML
-        identified = {k: bench["model"][k] for k in MODEL_KEYS}
-        for fqn, topic, model, path in (
-            (DOWNSTREAM, DOWNSTREAM_TOPIC, identified, bench["path"]),
-            (DOWNSTREAM_ORACLE, DOWNSTREAM_ORACLE_TOPIC, {}, bench["oracle_path"]),
+        for fqn, topic, path in (
+            (DOWNSTREAM, DOWNSTREAM_TOPIC, bench["path"]),
+            (DOWNSTREAM_ORACLE, DOWNSTREAM_ORACLE_TOPIC, bench["oracle_path"]),
         ):
             nodes.append(
                 contract.NodeEntry(
@@ -234,7 +247,6 @@ def graph(
                     fqn.rsplit("/", 1)[0].lstrip("/"),
                     dict(
                         cases["acc_pi_1g"],
-                        **model,
                         params_yaml=str(path),
                         device_namespace="/acc_pi_1g",
                         output_topic=topic,
@@ -254,7 +266,7 @@ def run_graph(
     """Run :func:`graph` until every device published ``duration``; record it with the
     run record (and each device's ``fixed_parameters``, for :func:`oracle`) and, at the
     end, every device's final diagnostics; return counts."""
-    bench = bench_identification(options, out)
+    bench = bench_identification(options, out, spread)
     spec = graph(options, duration, spread=spread, bench=bench)
     graph_ = base.graph_for(options)
     nodes = graph_.build(spec, realtime=options.realtime)

@@ -268,11 +268,13 @@ def faults_of(args) -> list[Override]:
     return fault_overrides(graph_of(module, args)[0], args.faults)
 
 
-def graph_of(module, args):
+def graph_of(module, args, out: Path | None = None):
     """``(GraphSpec, ScenarioOptions, duration [s])`` of the run ``args`` ask for, without
-    running it (the scenario's ``graph``)."""
+    running it (the scenario's ``graph``); ``out``: the MCAP file the files a graph names
+    are placed beside (None: the scenario's default)."""
     duration = module.DEFAULT_DURATION_S if args.duration is None else args.duration
     options = ScenarioOptions(
+        out=out,
         duration_s=duration,
         seed=args.seed,
         overrides=args.overrides,
@@ -536,7 +538,17 @@ def write_launch_main(args) -> int:
         problem = output_problem(str(path), overwrite=args.overwrite)
         if problem is not None:
             return _fail(f"--write-launch: {problem}")
-    spec, options, duration = graph_of(module, args)
+    # the files the graph names (an identified model) go beside the launch file
+    beside = args.write_launch.with_name(
+        args.write_launch.name.removesuffix(".yaml").removesuffix(".launch") + ".mcap"
+    )
+    spec, options, duration = graph_of(module, args, beside)
+    extra = {}
+    if hasattr(module, "prepare"):  # made before the graph runs; their record kept
+        try:
+            extra = module.prepare(options) or {}
+        except ScenarioError as exc:
+            return _fail(str(exc))
     variation = dict(
         device_seed=args.device_seed, temperature_c=args.temperature, hardware=args.hardware
     )
@@ -550,7 +562,7 @@ def write_launch_main(args) -> int:
         }
     except ParameterError as exc:
         return _fail(str(exc))
-    record = run_info(spec.scenario, options_record(options), nodes, duration_s=duration)
+    record = run_info(spec.scenario, options_record(options), nodes, duration_s=duration, **extra)
     given = tuple(
         replace(e, parameters=given_parameters(e, args.overrides, variation)) for e in spec.nodes
     )

@@ -112,6 +112,7 @@ from mems_scenarios.launch_file import (
     parse_cli_args,
     resolve_executable,
 )
+from mems_sim.cli_values import quiet_on_broken_pipe
 from mems_sim.ros.stop import StopRequest
 
 PROG = "run_graph"
@@ -541,6 +542,7 @@ def _error(message: str) -> int:
     return BAD_INPUT
 
 
+@quiet_on_broken_pipe
 def main(argv: list[str] | None = None) -> int:
     """Entry point ``run_graph``; returns the exit status (module doc)."""
     from mems_sim.ros.env import apply_defaults, domain_id_problem

@@ -17,6 +17,19 @@ Four device instances run side by side in one graph (Colinet et al., Sec. 6):
 ``/sd_overload``    observer loop at 0.5 V with output noise 0.5 V and state noise: the
                     modulator overloads (reported, not judged).
 
+Identification on the bench first (:func:`bench_identification`): the same device (one
+draw of the batch with ``--device-seed``) in its comparator loop, ROS-free, rings down
+again and again with the pulse driver off; f0 and Q from the ring-downs
+(:mod:`mems_estimation.identification.resonator_identification`), written as
+``<out>-seed<N>-resonator_params.yaml``, are the model of every in-loop observer
+(``loop_params_yaml``) and downstream observer (``params_yaml``; the 5 % f0 error is 5 %
+off the identified f0; the run record holds the bench's result, ``bench``). The
+consistency re-runs of the analysis test Kalman theory, which holds for the true model
+only: they run with the device's own f0 and Q (the oracle's, from the run record). The
+oracle observer ``/sd_noisy/oracle`` runs beside them with the device's own
+table (``...-resonator_oracle_params.yaml``), and so does the in-loop observer of
+``/sd_observer``: Colinet's exact-model case is the oracle by its definition.
+
 Every figure is computed from the recorded MCAP alone (:func:`analyse`, also
 ``run_scenario sd_resonator --analyse BAG``); the consistency figures run the exact-model
 steady-state observer again on the recorded streams (Anderson & Moore 1979: white
@@ -39,9 +52,14 @@ from mems_estimation.filters.resonator_consistency import (
     pooled_acf,
     replay_comparator_input,
 )
+from mems_estimation.identification.resonator_identification import (
+    MODEL_KEYS,
+    save_identification,
+)
+from mems_estimation.studies import resonator_bench
 from mems_scenarios import bag_frames, base, contract, delivery
 from mems_scenarios.sd_resonator_report import ACF_LAGS, FS, plot, records, table
-from mems_sim.devices.resonator import default_pulse_amplitude
+from mems_sim.devices.resonator import RESONATOR_SPECS, default_pulse_amplitude
 from mems_sim.kernels.resonator_observer import observer_model, predicted_error_acf
 from mems_sim.ros.flow import progress_of
 
@@ -96,18 +114,92 @@ def device_seed(seed: int, k: int) -> int:
     return int(seed) * 10 + k
 
 
+#: The bench's noise seed: :func:`device_seed` of this place (after every device's).
+BENCH_K = 9
+#: The observer loop of Colinet's exact-model case: its in-loop observer is given the
+#: device's own table (the oracle: the paper's stated condition), every other loop the
+#: identified model.
+EXACT_LOOP = "sd_observer"
+
+
 def observer_cases() -> dict[str, tuple[str, dict]]:
-    """Downstream observer nodes: name -> (device namespace, parameters)."""
+    """Downstream observer nodes: name -> (device namespace, parameters). Their model is
+    the identified one (its YAML, set by :func:`graph`; ``f0_error`` and ``adaptive`` start
+    5 % above its f0), the ``oracle`` observer's the device's own table."""
     noisy = dict(output_noise_std=NOISE_NOISY, state_noise_std=STATE_NOISE)
     return {
-        "exact": ("sd_noisy", dict(noisy, f0_hz=F0)),
-        "f0_error": ("sd_noisy", dict(noisy, f0_hz=F0 * 1.05)),
-        "adaptive": ("sd_noisy", dict(noisy, f0_hz=F0 * 1.05, adaptive=True)),
+        "identified": ("sd_noisy", dict(noisy)),
+        "f0_error": ("sd_noisy", dict(noisy, f0_error=0.05)),
+        "adaptive": ("sd_noisy", dict(noisy, f0_error=0.05, adaptive=True)),
         "tracking": (
             "sd_step",
-            dict(output_noise_std=NOISE_STEP, state_noise_std=STATE_NOISE, f0_hz=F0, adaptive=True),
+            dict(output_noise_std=NOISE_STEP, state_noise_std=STATE_NOISE, adaptive=True),
         ),
+        "oracle": ("sd_noisy", dict(noisy)),
     }
+
+
+#: Observers whose model is the device's table (the oracle's YAML), not the bench's.
+ORACLE_OBSERVERS = ("oracle",)
+
+
+def bench_device(options: base.ScenarioOptions) -> dict:
+    """The part as the emulator nodes draw it (the table's values with the user's ``--set``
+    of ``/sd_noisy``, ``--device-seed`` and ``--temperature``; not a case's noise or pulse
+    settings, which are the scenario's conditions): its RESONATOR_SPECS values as built
+    (:func:`~mems_sim.params.draw_device`, as the node does)."""
+    from mems_sim.params import draw_device, spec_table
+    from mems_sim.ros.params_file import node_matches
+
+    entry = contract.NodeEntry("resonator_node", DEVICE_NODE, "sd_noisy", {})
+    variation = dict(device_seed=options.device_seed, temperature_c=options.temperature_c)
+    values = contract.full_parameters(entry, options.overrides, variation)
+    fixed = {o.name for o in options.overrides if node_matches(o.node, entry.fqn)}
+    ref = float(spec_table(contract.node_class("resonator_node").SPECS)["temperature_c"].default)
+    return draw_device(
+        RESONATOR_SPECS,
+        {s.name: values[s.name] for s in RESONATOR_SPECS},
+        values["device_seed"],
+        values["temperature_c"] - ref,
+        fixed=fixed,
+    )
+
+
+def bench_paths(options: base.ScenarioOptions, out=None) -> dict:
+    """Where the bench's results go, beside the MCAP file ``out`` (None: the options'
+    ``out``, else ``runs/``): ``path`` ``<stem>-seed<N>-resonator_params.yaml`` (the
+    identified model) and ``oracle_path`` ``...-resonator_oracle_params.yaml`` (the
+    device's own f0 and Q)."""
+    out = Path(out or options.out or Path("runs") / f"{NAME}-{options.seed}.mcap")
+    return dict(
+        path=base.output_path(out, options.seed, "-resonator_params.yaml"),
+        oracle_path=base.output_path(out, options.seed, "-resonator_oracle_params.yaml"),
+    )
+
+
+def bench_identification(options: base.ScenarioOptions, out=None) -> dict:
+    """The bench (module doc): :func:`bench_device`'s ring-downs identified
+    (:func:`~mems_estimation.studies.resonator_bench.bench_identification`, noise seed
+    ``device_seed(seed, BENCH_K)``), written to :func:`bench_paths`. Returns ``model``,
+    ``fit``, ``path``, ``oracle_path``; ScenarioError when the fit fails."""
+    dev = bench_device(options)
+    try:
+        bench = resonator_bench.bench_identification(dev, F0, Q, device_seed(options.seed, BENCH_K))
+    except ValueError as exc:
+        raise base.ScenarioError(f"{NAME}: bench identification failed: {exc}") from None
+    paths = bench_paths(options, out)
+    paths["path"].parent.mkdir(parents=True, exist_ok=True)
+    save_identification(dict(bench["model"], fit=bench["fit"]), str(paths["path"]))
+    save_identification({k: dev[k] for k in MODEL_KEYS}, str(paths["oracle_path"]))
+    return dict(bench, **paths)
+
+
+def prepare(options: base.ScenarioOptions) -> dict:
+    """Make the files :func:`graph` names (the bench's model YAMLs) before a runner of
+    processes starts the graph (``run_scenario --write-launch``); returns what the run
+    record adds (the bench's result, ``bench``)."""
+    bench = bench_identification(options)
+    return dict(bench=dict(model=bench["model"], fit=bench["fit"]))
 
 
 #: Node names of the device and observer executables (their classes' NODE_NAME).
@@ -126,11 +218,18 @@ def device_topics(ns: str, params: dict) -> list[str]:
     return [f"/{ns}/{t}" for t in names]
 
 
-def graph(options: base.ScenarioOptions, duration_s: float) -> contract.GraphSpec:
-    """The scenario's graph: the six devices (:func:`device_cases`), then the four observer
-    nodes (:func:`observer_cases`), each in its own namespace; recorded: every device topic,
-    every estimate and the run record."""
-    readers = Counter(ns for ns, _ in observer_cases().values())
+def graph(
+    options: base.ScenarioOptions, duration_s: float, bench: dict | None = None
+) -> contract.GraphSpec:
+    """The scenario's graph: the six devices (:func:`device_cases`; the observer loops with
+    the identified model), then the observer nodes (:func:`observer_cases`), each in its
+    own namespace; recorded: every device topic, every estimate and the run record.
+    ``bench``: the model YAMLs' paths (:func:`bench_paths`, the default; the files are made
+    by :func:`bench_identification`, or :func:`prepare`)."""
+    if bench is None:
+        bench = bench_paths(options)
+    cases = observer_cases()
+    readers = Counter(ns for ns, _ in cases.values())
     devices, recorded = [], []
     for k, (ns, params) in enumerate(device_cases(duration_s).items()):
         p = dict(
@@ -139,6 +238,8 @@ def graph(options: base.ScenarioOptions, duration_s: float) -> contract.GraphSpe
             duration_s=float(duration_s),
             frame_size=10000,
         )
+        if p.get("mode") == "observer":  # the paper's exact-model loop: the oracle
+            p["loop_params_yaml"] = str(bench["oracle_path" if ns == EXACT_LOOP else "path"])
         # a process graph's device starts once its observers and the recorder subscribed
         consumers = f"adc:{readers[ns] + 1}"
         devices.append(
@@ -146,9 +247,10 @@ def graph(options: base.ScenarioOptions, duration_s: float) -> contract.GraphSpe
         )
         recorded += device_topics(ns, p)
     observers = []
-    for name, (ns, params) in observer_cases().items():
+    for name, (ns, params) in cases.items():
         topic = f"/{ns}/{name}/estimate"
-        p = dict(params, device_namespace=f"/{ns}", output_topic=topic)
+        model = bench["oracle_path" if name in ORACLE_OBSERVERS else "path"]
+        p = dict(params, device_namespace=f"/{ns}", output_topic=topic, params_yaml=str(model))
         observers.append(
             contract.NodeEntry("resonator_observer_node", OBSERVER_NODE, f"{ns}/{name}", p)
         )
@@ -157,9 +259,10 @@ def graph(options: base.ScenarioOptions, duration_s: float) -> contract.GraphSpe
 
 
 def build_graph(options: base.ScenarioOptions, out: Path, duration: float):
-    """Devices, observer nodes (:func:`graph`) and the recorder in one context; the run
-    record published."""
-    spec = graph(options, duration)
+    """The bench, then devices, observer nodes (:func:`graph`) and the recorder in one
+    context; the run record (with the bench's result) published."""
+    bench = bench_identification(options, out)
+    spec = graph(options, duration, bench)
     g = base.graph_for(options)
     nodes = g.build(spec, realtime=options.realtime)
     devices = {ns: nodes[device_fqn(ns)] for ns in device_cases(duration)}
@@ -167,7 +270,13 @@ def build_graph(options: base.ScenarioOptions, out: Path, duration: float):
         name: nodes[f"/{ns}/{name}/{OBSERVER_NODE}"] for name, (ns, _) in observer_cases().items()
     }
     rec = g.recorder(str(out), topics=spec.recorded)
-    g.publish_run_info(spec, options, nodes, duration_s=duration)
+    g.publish_run_info(
+        spec,
+        options,
+        nodes,
+        duration_s=duration,
+        bench=dict(model=bench["model"], fit=bench["fit"]),
+    )
     return g, devices, observers, rec
 
 
@@ -280,15 +389,24 @@ GROUPS = {
             "pulse.estimate_error_rel_max",
         ),
     ),
-    "observer nodes on sd_noisy (exact_noisy.error_*, f0_error.*, adaptive.*)": (
-        ["/sd_noisy/truth", ESTIMATES["exact"], ESTIMATES["f0_error"], ESTIMATES["adaptive"]],
+    "observer nodes on sd_noisy (exact_noisy.error_*, identified_noisy.*, f0_error.*, "
+    "adaptive.*, identified_vs_oracle.*)": (
+        [
+            "/sd_noisy/truth",
+            ESTIMATES["identified"],
+            ESTIMATES["f0_error"],
+            ESTIMATES["adaptive"],
+            ESTIMATES["oracle"],
+        ],
         (
             "exact_noisy.error_variance_ratio",
             "exact_noisy.error_corr_x",
+            "identified_noisy.error_variance_ratio",
             "f0_error.error_corr_x",
             "f0_error.error_ratio",
             "adaptive.error_ratio",
             "adaptive.f0_error",
+            "identified_vs_oracle.error_ratio",
         ),
     ),
     "stand-in re-run (standin.*)": (
@@ -313,11 +431,16 @@ GROUPS = {
     ),
 }
 #: The oracle's figure group: the comparator input replayed from the devices' seeds.
-ORACLE = "comparator input replayed (exact_noisy.quantizer_overload, overload.quantizer_*)"
+ORACLE = (
+    "comparator input replayed and the device as built (exact_noisy.quantizer_overload, "
+    "overload.quantizer_*, device.identified_*)"
+)
 ORACLE_FIGURES = (
     "exact_noisy.quantizer_overload",
     "overload.quantizer_overload",
     "overload.comparator_input_std",
+    "device.identified_f0_error",
+    "device.identified_q_error",
 )
 #: Every number :func:`analyse` reports (``values``), NaN until its group is computed.
 KEYS = (
@@ -327,11 +450,12 @@ KEYS = (
     "one_bit_nees one_bit_nis error_acf1 error_acf1_pred error_acf_max_dev corr_err_est "
     "innov_acf1 one_bit_q_overload overload_q overload_q_std overload_nees error_corr_x "
     "f0_error_corr_x f0_error_ratio adaptive_ratio adaptive_f0_ppm settle_periods "
-    "tracking_tail_ppm"
+    "tracking_tail_ppm identified_oracle_ratio identified_f0_error identified_q_error "
+    "identified_consistency"
 ).split()
 
 
-def _stream(frames: dict, ns: str, noise: float, state: float, **kw):
+def _stream(frames: dict, ns: str, noise: float, state: float, model: dict, **kw):
     """Consistency statistics of one recorded device stream (exact-model observer re-run,
     Anderson & Moore 1979); ``frames``: topic -> frames of the recording
     (:func:`topics_frames`)."""
@@ -348,6 +472,8 @@ def _stream(frames: dict, ns: str, noise: float, state: float, **kw):
         noise,
         state,
         skip=int(SKIP_S * FS),
+        f0=model["f0_hz"],
+        q=model["quality_factor"],
         **kw,
     )
 
@@ -394,40 +520,50 @@ def loop_figures(frames: dict) -> tuple[dict, dict]:
 
 
 def noisy_figures(frames: dict) -> dict:
-    """The observer nodes on ``/sd_noisy``: exact model (measured / predicted error
-    variance), 5 % f0 error and the adaptive observer against the exact model."""
+    """The observer nodes on ``/sd_noisy``: the exact model (the oracle node, the device's
+    table: measured / predicted error variance, Kalman theory's check), the identified
+    model (the same ratio; its error against the oracle's), the 5 % f0 error and the
+    adaptive observer against the identified model (its f0 against the device's, the
+    recorded truth)."""
     skip = int(SKIP_S * FS)
     x_noisy = frames["/sd_noisy/truth"]["data"][:, 0]
-    est = {n: frames[ESTIMATES[n]] for n in ("exact", "f0_error", "adaptive")}
+    f0_true = float(frames["/sd_noisy/truth"]["data"][-1, 2])
+    est = {n: frames[ESTIMATES[n]] for n in ("identified", "f0_error", "adaptive", "oracle")}
     a_noisy = _amp(x_noisy[skip:])
     half = x_noisy.size // 2
     err = {n: est[n]["data"][:, 0] - x_noisy for n in est}
+
+    def variance_ratio(name):
+        return float(np.var(err[name][skip:]) / np.mean(est[name]["variances"][skip:, 0]))
+
+    ident = np.std(err["identified"][half:])
     f: dict = {}
-    f["consistency"] = float(
-        np.var(err["exact"][skip:]) / np.mean(est["exact"]["variances"][skip:, 0])
-    )
-    f["exact_noisy_rel"] = float(np.std(err["exact"][half:]) / a_noisy)
-    f["error_corr_x"] = float(np.corrcoef(err["exact"][skip:], x_noisy[skip:])[0, 1])
+    f["consistency"] = variance_ratio("oracle")
+    f["identified_consistency"] = variance_ratio("identified")
+    f["exact_noisy_rel"] = float(np.std(err["oracle"][half:]) / a_noisy)
+    f["error_corr_x"] = float(np.corrcoef(err["oracle"][skip:], x_noisy[skip:])[0, 1])
     f["f0_error_corr_x"] = float(np.corrcoef(err["f0_error"][skip:], x_noisy[skip:])[0, 1])
-    f["f0_error_ratio"] = float(np.std(err["f0_error"][half:]) / np.std(err["exact"][half:]))
-    f["adaptive_ratio"] = float(np.std(err["adaptive"][half:]) / np.std(err["exact"][half:]))
-    f["adaptive_f0_ppm"] = float((est["adaptive"]["data"][-1, 1] / F0 - 1) * 1e6)
+    f["f0_error_ratio"] = float(np.std(err["f0_error"][half:]) / ident)
+    f["adaptive_ratio"] = float(np.std(err["adaptive"][half:]) / ident)
+    f["adaptive_f0_ppm"] = float((est["adaptive"]["data"][-1, 1] / f0_true - 1) * 1e6)
+    f["identified_oracle_ratio"] = float(ident / np.std(err["oracle"][half:]))
     return f
 
 
-def standin_figures(frames: dict) -> dict:
-    """Stand-in quantiser: white innovations (Ljung & Box 1978, lags 1-50), NIS, NEES."""
-    st = _stream(frames, "sd_standin", NOISE_NOISY, STATE_NOISE, linear_output=True)
+def standin_figures(frames: dict, model: dict) -> dict:
+    """Stand-in quantiser: white innovations (Ljung & Box 1978, lags 1-50), NIS, NEES;
+    ``model``: the re-run observer's f0_hz, quality_factor (:func:`exact_model`)."""
+    st = _stream(frames, "sd_standin", NOISE_NOISY, STATE_NOISE, model, linear_output=True)
     q, p_lb, _ = ljung_box_pooled([st.innov], 50)
     return dict(standin_lb_q=q, standin_lb_p=p_lb, standin_nis=st.nis, standin_nees=st.nees)
 
 
-def one_bit_figures(frames: dict) -> dict:
+def one_bit_figures(frames: dict, model: dict) -> dict:
     """One-bit in range: NEES, the error autocorrelation against the filter's prediction,
-    corr(error, estimate), innovation autocorrelation and NIS."""
-    ob = _stream(frames, "sd_noisy", NOISE_NOISY, STATE_NOISE)
+    corr(error, estimate), innovation autocorrelation and NIS (``model`` as above)."""
+    ob = _stream(frames, "sd_noisy", NOISE_NOISY, STATE_NOISE, model)
     r_err, _ = pooled_acf([ob.err], ACF_LAGS)
-    pred = predicted_error_acf(observer_model(F0, Q, FS, NOISE_NOISY, STATE_NOISE), ACF_LAGS)
+    pred = predicted_error_acf(_observer_model(model), ACF_LAGS)
     r_inn, _ = pooled_acf([ob.innov], 3)
     return dict(
         one_bit_nees=ob.nees,
@@ -439,9 +575,45 @@ def one_bit_figures(frames: dict) -> dict:
     )
 
 
-def overload_figures(frames: dict) -> dict:
+def _observer_model(model: dict):
+    """The steady-state observer model of ``/sd_noisy`` with ``model``'s f0 and Q."""
+    return observer_model(model["f0_hz"], model["quality_factor"], FS, NOISE_NOISY, STATE_NOISE)
+
+
+def device_as_built(record: dict | None) -> dict | None:
+    """``/sd_noisy``'s RESONATOR_SPECS values as built, from its parameters in the run
+    record, drawn as the node does (every device is the same draw); None without one."""
+    from mems_sim.params import draw_device, spec_table
+
+    try:
+        params = contract.node_parameters(record, device_fqn("sd_noisy"), "")
+    except contract.AnalysisError:
+        return None
+    ref = float(spec_table(contract.node_class("resonator_node").SPECS)["temperature_c"].default)
+    fixed = record.get("fixed_parameters", {}).get(device_fqn("sd_noisy"), ())
+    return draw_device(
+        RESONATOR_SPECS,
+        {s.name: params[s.name] for s in RESONATOR_SPECS},
+        params["device_seed"],
+        params["temperature_c"] - ref,
+        fixed=fixed,
+    )
+
+
+def exact_model(record: dict | None) -> dict:
+    """The exact model the consistency re-runs test Kalman theory with (Anderson & Moore
+    1979 hold for the true model only): the device's own f0 and Q as built
+    (:func:`device_as_built`, the oracle's), or the design values F0, Q for a recording
+    without a run record."""
+    dev = device_as_built(record)
+    if dev is None:
+        return dict(f0_hz=F0, quality_factor=Q)
+    return {k: float(dev[k]) for k in MODEL_KEYS}
+
+
+def overload_figures(frames: dict, model: dict) -> dict:
     """The overloaded case (0.5 V + 0.5 V): the exact-model observer's NEES there."""
-    ov = _stream(frames, "sd_overload", NOISE_OVER, STATE_NOISE_OVER)
+    ov = _stream(frames, "sd_overload", NOISE_OVER, STATE_NOISE_OVER, model)
     return dict(overload_nees=ov.nees)
 
 
@@ -480,7 +652,21 @@ def oracle(record: dict | None, frames: dict) -> dict:
         out[keys[0]] = overload
         if keys[1] is not None:
             out[keys[1]] = math.nan if q is None else float(q[skip:].std())
+    out.update(identification_error(record))
     return out
+
+
+def identification_error(record: dict) -> dict:
+    """The bench's f0 and Q against the device as built (:func:`device_as_built`): relative
+    errors; NaN without the bench's result."""
+    dev = device_as_built(record)
+    if dev is None or "bench" not in record:
+        return dict(identified_f0_error=math.nan, identified_q_error=math.nan)
+    model = record["bench"]["model"]
+    return dict(
+        identified_f0_error=float(model["f0_hz"] / dev["f0_hz"] - 1.0),
+        identified_q_error=float(model["quality_factor"] / dev["quality_factor"] - 1.0),
+    )
 
 
 def _needed_topics() -> list[str]:
@@ -492,18 +678,18 @@ def figures(bag: Path) -> tuple[dict, dict, list[tuple[str, str]]]:
     """Every acceptance figure of the scenario that the recording ``bag`` allows: (numbers
     by :data:`KEYS`, plot series, (group, reason) of each group it does not allow)."""
     frames = bag_frames.topics_frames(bag, _needed_topics(), missing_ok=True)
+    record = contract.read_run_info(bag)
+    model = exact_model(record)
     f: dict = dict.fromkeys(KEYS, math.nan)
-    f["error_acf1_pred"] = float(
-        predicted_error_acf(observer_model(F0, Q, FS, NOISE_NOISY, STATE_NOISE), ACF_LAGS)[0]
-    )
+    f["error_acf1_pred"] = float(predicted_error_acf(_observer_model(model), ACF_LAGS)[0])
     series: dict = {}
     unavailable = []
     compute = (
         loop_figures,
         noisy_figures,
-        standin_figures,
-        one_bit_figures,
-        overload_figures,
+        lambda fr: standin_figures(fr, model),
+        lambda fr: one_bit_figures(fr, model),
+        lambda fr: overload_figures(fr, model),
         tracking_figures,
     )
     for (group, (needs, _)), fn in zip(GROUPS.items(), compute, strict=True):
@@ -520,7 +706,7 @@ def figures(bag: Path) -> tuple[dict, dict, list[tuple[str, str]]]:
     try:
         if absent:
             raise contract.AnalysisError(f"{ORACLE}: no frames on {', '.join(absent)}")
-        f.update(oracle(contract.read_run_info(bag), frames))
+        f.update(oracle(record, frames))
     except contract.AnalysisError as exc:
         unavailable.append((ORACLE, str(exc)))
     return f, series, unavailable

@@ -95,7 +95,7 @@ def test_dropped_samples_are_device_gaps_and_the_analysis_says_why_it_stops(
     assert "figures not computed:" in text and "frame-index gaps: none" in text
     info = info_mod.bag_info(str(out))
     assert info_mod.losses(info) == []
-    assert info["topics"]["/sd_noisy/exact/estimate"]["device_missing_samples"] == 5000
+    assert info["topics"]["/sd_noisy/identified/estimate"]["device_missing_samples"] == 5000
     assert info["topics"]["/sd_noisy/truth"]["total_samples"] == 200000
     assert run_scenario(["sd_resonator", "--analyse", str(out)]) == 2
     err = capsys.readouterr().err
