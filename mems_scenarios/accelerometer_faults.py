@@ -8,15 +8,18 @@ rebalance, Zhang 2010 ch. 5 noise, 10 Hz input) with the fault schedule of the p
 of 5 innovation standard deviations, frozen readouts, lowered rails, noise bursts, spikes
 and a final sign flip; ``--faults FILE`` replaces it) publishes ``adc``, ``drive``,
 ``truth`` and the labelled truth ``faults``; ``/acc/accelerometer_ekf``
-(mems_estimation.nodes.accelerometer_ekf_node, the nominal model) publishes ``estimate``
-and its windowed NIS verdicts on ``health``; the recorder writes them all.
+(mems_estimation.nodes.accelerometer_ekf_node) publishes ``estimate`` and its windowed NIS
+verdicts on ``health``; the recorder writes them all. The filter's model is the device's,
+identified on the bench before the graph runs (:mod:`mems_scenarios.accelerometer_bench`:
+``<out>-seed<N>-accelerometer_params.yaml``, its ``params_yaml``; the run record holds the
+bench's result).
 
 Figures, from the recording alone (:func:`analyse`): per fault kind the share of faults
 detected within 10 ms of their onset by an alarming window (upper test; two-sided for the
 kinds that freeze or clip the readout, whose NIS falls), the median delay, the alarm
 episodes outside the faults and their 10 ms settling guard against the designed count
 (at most its Poisson 3-sigma bound plus 2: the monitor's calibration is the nominal
-device's, so a drawn device, ``--device-seed``, can fail it),
+device's, which a drawn device, ``--device-seed``, keeps with the bench's model),
 and the RMS acceleration error inside and outside the faults (scored by
 :mod:`mems_estimation.identification.detection_metrics`). The same detection and false-alarm
 figures again as ``bench.*``: the recorded window sums judged by a monitor calibrated on the
@@ -41,6 +44,7 @@ from mems_estimation.identification.detection_metrics import (
     detections,
     false_alarms,
 )
+from mems_scenarios import accelerometer_bench as accel_bench
 from mems_scenarios import bag_frames, base, contract, delivery
 from mems_scenarios.figures import Figure, figure_table
 from mems_sim.ros.flow import progress_of
@@ -82,9 +86,8 @@ def schedule_path() -> Path:
     return Path(get_package_share_directory(contract.PACKAGE)) / "config" / SCHEDULE_FILE
 
 
-def graph(options: base.ScenarioOptions, duration_s: float) -> contract.GraphSpec:
-    """The device (its default schedule) and the downstream EKF in ``/acc``, recorded."""
-    device = contract.NodeEntry(
+def _device(options: base.ScenarioOptions, duration_s: float) -> contract.NodeEntry:
+    return contract.NodeEntry(
         "accelerometer_node",
         "accelerometer",
         NS,
@@ -95,7 +98,33 @@ def graph(options: base.ScenarioOptions, duration_s: float) -> contract.GraphSpe
             fault_schedule=str(schedule_path()),
         ),
     )
-    ekf = contract.NodeEntry("accelerometer_ekf_node", "accelerometer_ekf", NS, {})
+
+
+def bench_identification(options: base.ScenarioOptions, out=None) -> dict:
+    """The device identified on the bench, its model YAML written beside ``out``
+    (:func:`mems_scenarios.accelerometer_bench.bench_identification`)."""
+    device = _device(options, DEFAULT_DURATION_S)
+    return accel_bench.bench_identification(options, device, NAME, out)
+
+
+def prepare(options: base.ScenarioOptions) -> dict:
+    """Make the model YAML :func:`graph` names before a runner of processes starts it
+    (``run_scenario --write-launch``); returns what the run record adds."""
+    return accel_bench.run_record(bench_identification(options))
+
+
+def graph(
+    options: base.ScenarioOptions, duration_s: float, bench: dict | None = None
+) -> contract.GraphSpec:
+    """The device (its default schedule) and the downstream EKF in ``/acc`` with the bench's
+    model (``bench``: the YAML's path, :func:`~mems_scenarios.accelerometer_bench.bench_paths`
+    by default), recorded."""
+    if bench is None:
+        bench = accel_bench.bench_paths(options, NAME)
+    device = _device(options, duration_s)
+    ekf = contract.NodeEntry(
+        "accelerometer_ekf_node", "accelerometer_ekf", NS, dict(params_yaml=str(bench["path"]))
+    )
     return contract.GraphSpec(
         NAME, (device, ekf), (*TOPICS, "/diagnostics", contract.RUN_INFO_TOPIC)
     )
@@ -106,13 +135,14 @@ def run_graph(
 ) -> dict:
     """Run :func:`graph` until the device published ``duration`` and the EKF took it all;
     record it with the run record; return counts."""
-    spec = graph(options, duration)
+    bench = bench_identification(options, out)
+    spec = graph(options, duration, bench)
     g = base.graph_for(options)
     nodes = g.build(spec, realtime=options.realtime)
     device, ekf = nodes[EMULATOR], nodes[ESTIMATOR]
     regex = rf"^/{NS}/|^/diagnostics$|^{re.escape(contract.RUN_INFO_TOPIC)}$"
     rec = g.recorder(str(out), regex=regex, exclude=base.NOT_RECORDED)
-    g.publish_run_info(spec, options, nodes, duration_s=duration)
+    g.publish_run_info(spec, options, nodes, duration_s=duration, **accel_bench.run_record(bench))
     try:
         g.spin_until(
             lambda: (

@@ -48,11 +48,11 @@ import numpy as np
 
 from mems_estimation.identification.accelerometer_identification import (
     MODEL_KEYS,
-    save_identification,
 )
 from mems_estimation.identification.signal_metrics import coherent_snr_db, consistency
-from mems_estimation.studies import accelerometer_bench
+from mems_scenarios import accelerometer_bench as accel_bench
 from mems_scenarios import bag_frames, base, contract, delivery
+from mems_scenarios.accelerometer_bench import device_as_built
 from mems_scenarios.accelerometer_snr_report import (
     AMPS,
     FS,
@@ -71,8 +71,6 @@ from mems_scenarios.accelerometer_snr_report import (
     table,
 )
 from mems_sim.devices import accelerometer
-from mems_sim.nodes.accelerometer_node import REFERENCE_TEMPERATURE_C
-from mems_sim.params import draw_device
 from mems_sim.ros.flow import progress_of
 
 NAME = "accelerometer_snr"
@@ -108,11 +106,6 @@ def device_cases() -> dict[str, dict]:
     for oracle_loop, ns in ORACLE_LOOPS.items():
         cases[oracle_loop] = dict(cases[ns])
     return cases
-
-
-#: Noise seed of the bench's first record (the run seed x 100 plus this; the second: + 1),
-#: apart from every device's (:func:`_seed`).
-BENCH_SEED_OFFSET = 90
 
 
 def spread_cases() -> dict[str, dict]:
@@ -159,57 +152,23 @@ def _entry(options: base.ScenarioOptions, ns: str, params: dict, duration_s: flo
     )
 
 
-def bench_device(options: base.ScenarioOptions) -> dict:
-    """The device as the emulator nodes draw it (:func:`device_as_built` of the PI loop at
-    1 g with the user's ``--set``, ``--device-seed`` and ``--temperature``): ``p`` as built,
-    ``nominal`` as designed."""
-    from mems_sim.ros.params_file import node_matches
-
-    entry = _entry(options, "acc_pi_1g", device_cases()["acc_pi_1g"], DEFAULT_DURATION_S)
-    variation = dict(device_seed=options.device_seed, temperature_c=options.temperature_c)
-    values = contract.full_parameters(entry, options.overrides, variation)
-    fixed = {o.name for o in options.overrides if node_matches(o.node, entry.fqn)}
-    return device_as_built(values, fixed)
-
-
-def bench_paths(options: base.ScenarioOptions, out=None, spread: bool = False) -> dict:
-    """Where the bench's results go, beside the MCAP file ``out`` (None: the options'
-    ``out``, else ``runs/``): ``path`` ``<stem>-seed<N>-accelerometer_params.yaml`` (the
-    identified model) and ``oracle_path`` ``...-accelerometer_oracle_params.yaml`` (the
-    device's own table's model)."""
-    name = NAME_SPREAD if spread else NAME
-    out = Path(out or options.out or Path("runs") / f"{name}-{options.seed}.mcap")
-    return dict(
-        path=base.output_path(out, options.seed, "-accelerometer_params.yaml"),
-        oracle_path=base.output_path(out, options.seed, "-accelerometer_oracle_params.yaml"),
-    )
+def _bench_entry(options: base.ScenarioOptions) -> contract.NodeEntry:
+    """The device the bench measures: the PI loop at 1 g (every device is the same draw)."""
+    return _entry(options, "acc_pi_1g", device_cases()["acc_pi_1g"], DEFAULT_DURATION_S)
 
 
 def bench_identification(options: base.ScenarioOptions, out=None, spread: bool = False) -> dict:
-    """The bench (module doc): :func:`bench_device` identified
-    (:func:`~mems_estimation.studies.accelerometer_bench.bench_identification`, noise seeds
-    from :data:`BENCH_SEED_OFFSET`), written to :func:`bench_paths`. Returns ``model``,
-    ``fit``, ``path`` and ``oracle_path``. ScenarioError when the fit fails."""
-    built = bench_device(options)
-    try:
-        bench = accelerometer_bench.bench_identification(
-            built["p"], built["nominal"], int(options.seed) * 100 + BENCH_SEED_OFFSET
-        )
-    except ValueError as exc:
-        raise base.ScenarioError(f"{NAME}: bench identification failed: {exc}") from None
-    paths = bench_paths(options, out, spread)
-    paths["path"].parent.mkdir(parents=True, exist_ok=True)
-    save_identification(dict(bench["model"], fit=bench["fit"]), str(paths["path"]))
-    save_identification({k: built["p"][k] for k in MODEL_KEYS}, str(paths["oracle_path"]))
-    return dict(bench, **paths)
+    """The bench (module doc) of :func:`_bench_entry`'s device
+    (:func:`mems_scenarios.accelerometer_bench.bench_identification`)."""
+    name = NAME_SPREAD if spread else NAME
+    return accel_bench.bench_identification(options, _bench_entry(options), name, out)
 
 
 def prepare(options: base.ScenarioOptions, spread: bool = False) -> dict:
     """Make the files :func:`graph` names (the bench's model YAMLs) before a runner of
     processes starts the graph (``run_scenario --write-launch``); returns what the run
-    record adds (the bench's result, ``bench``)."""
-    bench = bench_identification(options, spread=spread)
-    return dict(bench=dict(model=bench["model"], fit=bench["fit"]))
+    record adds (the bench's result)."""
+    return accel_bench.run_record(bench_identification(options, spread=spread))
 
 
 def graph(
@@ -226,7 +185,7 @@ def graph(
     covariance counters). ``bench``: the model YAMLs' paths (:func:`bench_paths`, the
     default; the files are made by :func:`bench_identification`, or :func:`prepare`)."""
     if bench is None:
-        bench = bench_paths(options, spread=spread)
+        bench = accel_bench.bench_paths(options, NAME_SPREAD if spread else NAME)
     cases = spread_cases() if spread else device_cases()
     nodes = []
     for ns, params in cases.items():
@@ -281,7 +240,7 @@ def run_graph(
         nodes,
         duration_s=duration,
         fixed_parameters=fixed,
-        bench=dict(model=bench["model"], fit=bench["fit"]),
+        **accel_bench.run_record(bench),
     )
     n_topics = sum(len(_topics(d)) for d in devices.values()) + len(ekfs)
 
@@ -402,22 +361,6 @@ def _device_figures(frames: dict, ns: str, mode: str) -> dict:
             consistency=consistency(err, est["variances"][k0:, 0]),
         )
     return f
-
-
-def device_as_built(params: dict, fixed=()) -> dict:
-    """The device an accelerometer node builds from its parameter values ``params``: its
-    :data:`~mems_sim.devices.accelerometer.ACCEL_SPECS` values drawn for ``device_seed``
-    and moved to ``temperature_c`` (:func:`~mems_sim.params.draw_device`, as
-    :meth:`~mems_sim.ros.node_base.EmulatorNode.device_values` does; ``fixed``: the values
-    the user set, left as given) as ``p``, and as designed (``nominal``), validated."""
-    nominal = {s.name: params[s.name] for s in accelerometer.ACCEL_SPECS}
-    delta_k = params["temperature_c"] - REFERENCE_TEMPERATURE_C
-    drawn = draw_device(
-        accelerometer.ACCEL_SPECS, nominal, params["device_seed"], delta_k, fixed=fixed
-    )
-    return dict(
-        p=accelerometer.validate_params(drawn), nominal=accelerometer.validate_params(nominal)
-    )
 
 
 def oracle(record: dict, cases: dict) -> dict:
