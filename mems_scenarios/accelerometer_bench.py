@@ -26,7 +26,6 @@ __all__ = [
     "bench_device",
     "bench_paths",
     "bench_identification",
-    "run_record",
 ]
 
 #: Noise seed of the bench's first record (the run seed x 100 plus this; the second: + 1),
@@ -92,8 +91,3 @@ def bench_identification(
     save_identification(dict(bench["model"], fit=bench["fit"]), str(paths["path"]))
     save_identification({k: built["p"][k] for k in MODEL_KEYS}, str(paths["oracle_path"]))
     return dict(bench, **paths)
-
-
-def run_record(bench: dict) -> dict:
-    """What the run record adds for the bench: its result (``bench``: model and fit)."""
-    return dict(bench=dict(model=bench["model"], fit=bench["fit"]))

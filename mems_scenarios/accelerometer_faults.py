@@ -110,7 +110,7 @@ def bench_identification(options: base.ScenarioOptions, out=None) -> dict:
 def prepare(options: base.ScenarioOptions) -> dict:
     """Make the model YAML :func:`graph` names before a runner of processes starts it
     (``run_scenario --write-launch``); returns what the run record adds."""
-    return accel_bench.run_record(bench_identification(options))
+    return contract.bench_record(bench_identification(options))
 
 
 def graph(
@@ -142,7 +142,7 @@ def run_graph(
     device, ekf = nodes[EMULATOR], nodes[ESTIMATOR]
     regex = rf"^/{NS}/|^/diagnostics$|^{re.escape(contract.RUN_INFO_TOPIC)}$"
     rec = g.recorder(str(out), regex=regex, exclude=base.NOT_RECORDED)
-    g.publish_run_info(spec, options, nodes, duration_s=duration, **accel_bench.run_record(bench))
+    g.publish_run_info(spec, options, nodes, duration_s=duration, **contract.bench_record(bench))
     try:
         g.spin_until(
             lambda: (

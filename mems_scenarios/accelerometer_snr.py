@@ -168,7 +168,7 @@ def prepare(options: base.ScenarioOptions, spread: bool = False) -> dict:
     """Make the files :func:`graph` names (the bench's model YAMLs) before a runner of
     processes starts the graph (``run_scenario --write-launch``); returns what the run
     record adds (the bench's result)."""
-    return accel_bench.run_record(bench_identification(options, spread=spread))
+    return contract.bench_record(bench_identification(options, spread=spread))
 
 
 def graph(
@@ -240,7 +240,7 @@ def run_graph(
         nodes,
         duration_s=duration,
         fixed_parameters=fixed,
-        **accel_bench.run_record(bench),
+        **contract.bench_record(bench),
     )
     n_topics = sum(len(_topics(d)) for d in devices.values()) + len(ekfs)
 

@@ -261,6 +261,13 @@ def run_info(scenario: str, options: dict, nodes: dict[str, dict], **extra) -> s
     return json.dumps(_jsonable(record), sort_keys=True)
 
 
+def bench_record(bench: dict) -> dict:
+    """What the run record adds for a bench identification run before the graph: its
+    result (``bench``: the identified ``model`` and its ``fit``), which the analysis reads
+    from the recording."""
+    return dict(bench=dict(model=bench["model"], fit=bench["fit"]))
+
+
 def read_run_info(path) -> dict | None:
     """The run record of the recording ``path`` (its message on :data:`RUN_INFO_TOPIC`), or
     None when the recording has none (a user's own recording); :class:`AnalysisError` when

@@ -148,19 +148,27 @@ def bench_device(options: base.ScenarioOptions) -> dict:
     of ``/sd_noisy``, ``--device-seed`` and ``--temperature``; not a case's noise or pulse
     settings, which are the scenario's conditions): its RESONATOR_SPECS values as built
     (:func:`~mems_sim.params.draw_device`, as the node does)."""
-    from mems_sim.params import draw_device, spec_table
     from mems_sim.ros.params_file import node_matches
 
     entry = contract.NodeEntry("resonator_node", DEVICE_NODE, "sd_noisy", {})
     variation = dict(device_seed=options.device_seed, temperature_c=options.temperature_c)
     values = contract.full_parameters(entry, options.overrides, variation)
     fixed = {o.name for o in options.overrides if node_matches(o.node, entry.fqn)}
+    return _as_built(values, fixed)
+
+
+def _as_built(params: dict, fixed=()) -> dict:
+    """The RESONATOR_SPECS values the node builds from its parameter values ``params``
+    (drawn for ``device_seed``, moved to ``temperature_c``; ``fixed``: the values the user
+    set, left as given)."""
+    from mems_sim.params import draw_device, spec_table
+
     ref = float(spec_table(contract.node_class("resonator_node").SPECS)["temperature_c"].default)
     return draw_device(
         RESONATOR_SPECS,
-        {s.name: values[s.name] for s in RESONATOR_SPECS},
-        values["device_seed"],
-        values["temperature_c"] - ref,
+        {s.name: params[s.name] for s in RESONATOR_SPECS},
+        params["device_seed"],
+        params["temperature_c"] - ref,
         fixed=fixed,
     )
 
@@ -199,7 +207,7 @@ def prepare(options: base.ScenarioOptions) -> dict:
     processes starts the graph (``run_scenario --write-launch``); returns what the run
     record adds (the bench's result, ``bench``)."""
     bench = bench_identification(options)
-    return dict(bench=dict(model=bench["model"], fit=bench["fit"]))
+    return contract.bench_record(bench)
 
 
 #: Node names of the device and observer executables (their classes' NODE_NAME).
@@ -270,12 +278,14 @@ def build_graph(options: base.ScenarioOptions, out: Path, duration: float):
         name: nodes[f"/{ns}/{name}/{OBSERVER_NODE}"] for name, (ns, _) in observer_cases().items()
     }
     rec = g.recorder(str(out), topics=spec.recorded)
+    fixed = {device_fqn(ns): sorted(d.fixed_parameters) for ns, d in devices.items()}
     g.publish_run_info(
         spec,
         options,
         nodes,
         duration_s=duration,
-        bench=dict(model=bench["model"], fit=bench["fit"]),
+        fixed_parameters=fixed,
+        **contract.bench_record(bench),
     )
     return g, devices, observers, rec
 
@@ -583,21 +593,11 @@ def _observer_model(model: dict):
 def device_as_built(record: dict | None) -> dict | None:
     """``/sd_noisy``'s RESONATOR_SPECS values as built, from its parameters in the run
     record, drawn as the node does (every device is the same draw); None without one."""
-    from mems_sim.params import draw_device, spec_table
-
     try:
         params = contract.node_parameters(record, device_fqn("sd_noisy"), "")
     except contract.AnalysisError:
         return None
-    ref = float(spec_table(contract.node_class("resonator_node").SPECS)["temperature_c"].default)
-    fixed = record.get("fixed_parameters", {}).get(device_fqn("sd_noisy"), ())
-    return draw_device(
-        RESONATOR_SPECS,
-        {s.name: params[s.name] for s in RESONATOR_SPECS},
-        params["device_seed"],
-        params["temperature_c"] - ref,
-        fixed=fixed,
-    )
+    return _as_built(params, record.get("fixed_parameters", {}).get(device_fqn("sd_noisy"), ()))
 
 
 def exact_model(record: dict | None) -> dict:
