@@ -8,7 +8,6 @@ import pytest
 from conftest import params
 
 from mems_estimation.identification.accelerometer_identification import (
-    MODEL_KEYS,
     load_identification,
     save_identification,
 )
