@@ -22,7 +22,8 @@ Identification on the bench first (:func:`bench_identification`): the same devic
 shaker, ROS-free, with the carrier only and with the bias on and the loop open, gives its
 mass, spring, damping, gap and readout noise
 (:mod:`mems_estimation.identification.accelerometer_identification`), written as
-``<out>-seed<N>-accelerometer_params.yaml`` (:func:`bench_paths`): the model of every in-loop EKF
+``<out>-seed<N>-accelerometer_params.yaml``
+(:func:`mems_scenarios.accelerometer_bench.bench_paths`): the model of every in-loop EKF
 (``loop_params_yaml``) and of the downstream EKF (``params_yaml``). The oracle rows run on
 the same recording with the device's own table (what only the simulation knows): a
 downstream EKF ``/acc_pi_1g/oracle/accelerometer_ekf`` on the same PI loop and the EKF
@@ -182,8 +183,9 @@ def graph(
     :func:`spread_cases`), each in its namespace, the EKF loops with the identified model
     (the oracle loop with the device's table), the downstream hybrid EKFs (identified and
     oracle) on the PI loop at 1 g (full scenario only), recorded with /diagnostics (the
-    covariance counters). ``bench``: the model YAMLs' paths (:func:`bench_paths`, the
-    default; the files are made by :func:`bench_identification`, or :func:`prepare`)."""
+    covariance counters). ``bench``: the model YAMLs' paths
+    (:func:`~mems_scenarios.accelerometer_bench.bench_paths`, the default; the files are
+    made by :func:`bench_identification`, or :func:`prepare`)."""
     if bench is None:
         bench = accel_bench.bench_paths(options, NAME_SPREAD if spread else NAME)
     cases = spread_cases() if spread else device_cases()
