@@ -376,7 +376,8 @@ def _streams(ns: str) -> list[str]:
 
 
 #: Figure groups: label -> (topics they need, the figures' names). The oracle's group
-#: (:data:`ORACLE`) needs the run record too.
+#: (:data:`ORACLE`) needs the run record too; the re-runs take the oracle's model from it
+#: (the device's own f0 and Q, :func:`exact_model`; the design values without a record).
 GROUPS = {
     "observer loop (exact.*, observer.*, comparator.*, pulse.*)": (
         [
@@ -419,11 +420,12 @@ GROUPS = {
             "identified_vs_oracle.error_ratio",
         ),
     ),
-    "stand-in re-run (standin.*)": (
+    "stand-in re-run, the oracle's model (standin.*)": (
         _streams("sd_standin"),
         ("standin.innovations_ljung_box_p", "standin.nis", "standin.nees"),
     ),
-    "one-bit re-run (exact_noisy.nees, .nis, .error_acf*, .*corr_estimate, .innovation_acf1)": (
+    "one-bit re-run, the oracle's model (exact_noisy.nees, .nis, .error_acf*, "
+    ".*corr_estimate, .innovation_acf1)": (
         _streams("sd_noisy"),
         (
             "exact_noisy.nees",
@@ -434,7 +436,10 @@ GROUPS = {
             "exact_noisy.nis",
         ),
     ),
-    "overload re-run (overload.nees)": (_streams("sd_overload"), ("overload.nees",)),
+    "overload re-run, the oracle's model (overload.nees)": (
+        _streams("sd_overload"),
+        ("overload.nees",),
+    ),
     "f0 tracking (tracking.*)": (
         ["/sd_step/truth", ESTIMATES["tracking"]],
         ("tracking.settle_periods", "tracking.tail_mean_error"),
