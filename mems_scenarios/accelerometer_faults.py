@@ -46,7 +46,7 @@ from mems_estimation.identification.detection_metrics import (
 )
 from mems_scenarios import accelerometer_bench as accel_bench
 from mems_scenarios import bag_frames, base, contract, delivery
-from mems_scenarios.figures import Figure, figure_table
+from mems_scenarios.figures import Figure, figure_table, project_criterion
 from mems_sim.ros.flow import progress_of
 
 NAME = "accelerometer_faults"
@@ -76,6 +76,14 @@ TARGETS = {
     "spikes": 0.95,
     "sign_flip": 0.95,
 }
+#: Where the targets come from (the figures' ``source``).
+DETECTION_SOURCE = project_criterion(
+    "a fault of the default schedule's magnitude is seen within 10 ms in 95 % of its episodes"
+)
+FALSE_ALARM_SOURCE = project_criterion(
+    "the monitor's designed false-alarm count, with a Poisson 3-sigma bound plus 2"
+)
+FINITE_SOURCE = project_criterion("a fault never drives the estimator to NaN or infinity")
 TOPICS = [f"/{NS}/{t}" for t in ("adc", "drive", "truth", "faults", "estimate", "health")]
 
 
@@ -302,6 +310,7 @@ def _scores(prefix: str, faults, scored, verdicts: Verdicts, alpha: float, bench
                 "1",
                 None if target is None else f">= {target:g}",
                 None if target is None else share >= target,
+                None if target is None else DETECTION_SOURCE,
             ),
             Figure(
                 f"{prefix}{kind}.median_delay_ms",
@@ -321,6 +330,7 @@ def _scores(prefix: str, faults, scored, verdicts: Verdicts, alpha: float, bench
             "",
             f"<= {limit} (designed {designed:.2g})",
             fa.episodes <= limit,
+            FALSE_ALARM_SOURCE,
         ),
         Figure(f"{prefix}false_alarm.windows", fa.windows, ""),
         Figure(f"{prefix}false_alarm.designed", designed, ""),
@@ -370,7 +380,7 @@ def analyse(bag, pngs=None) -> contract.ScenarioResult:
     figures += [
         Figure("error.rms_in_faults", inside, "m/s^2"),
         Figure("error.rms_outside_faults", outside, "m/s^2"),
-        Figure("estimates.finite", finite, "", "true", finite),
+        Figure("estimates.finite", finite, "", "true", finite, FINITE_SOURCE),
     ]
     if not faults:
         unavailable.append(("*.detected", f"{bag}: no labelled fault on /{NS}/faults"))

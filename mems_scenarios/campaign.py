@@ -59,7 +59,7 @@ from mems_sim.bag.output_paths import write_output
 from mems_sim.cli_values import OneLineParser, number, positive
 
 #: Figure columns of a result row, in the order ``run_scenario --json`` gives them.
-FIGURE_KEYS = ("name", "value", "unit", "target", "pass")
+FIGURE_KEYS = ("name", "value", "unit", "target", "pass", "source", "role")
 #: Bootstrap resamples of the report's confidence intervals.
 BOOTSTRAP = 2000
 
@@ -400,6 +400,8 @@ def write_table(out: Path, results: list[RunResult]) -> Path:
             ("unit", pa.string()),
             ("target", pa.string()),
             ("pass", pa.bool_()),
+            ("source", pa.string()),
+            ("role", pa.string()),
         ]
     )
     path = out / "results.parquet"

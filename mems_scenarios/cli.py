@@ -173,7 +173,8 @@ def _parser() -> argparse.ArgumentParser:
         "--json",
         action="store_true",
         help="print the scenario's figures as one JSON object on stdout: {schema_version, "
-        "scenario, figures: [{name, value, unit, target, pass}], unavailable, oracle_only} "
+        "scenario, figures: [{name, value, unit, target, pass, source, role}], unavailable, "
+        "oracle_only} "
         "(the table and the other lines go to stderr); a missed target does not change the "
         "exit status",
     )

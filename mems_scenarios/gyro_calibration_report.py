@@ -11,14 +11,22 @@ import numpy as np
 
 from mems_estimation.identification.stage_gyro_calibration import T1, T2
 from mems_estimation.identification.stage_identification import fold_period
-from mems_scenarios.figures import Figure, cell, is_finite, met_cell
+from mems_scenarios.figures import Figure, cell, is_finite, met_cell, project_criterion
 from mems_scenarios.gyro_calibration_drifting import (
+    ALPHA_SOURCE,
     INSTANCES,
+    OFF_AXIS_SOURCE,
     OFF_AXIS_WORST_TARGETS,
+    OMEGA_RMSE_SOURCE,
     off_axis_target_text,
 )
 from mems_sim.bag.output_paths import write_output
 from mems_sim.table import format_table
+
+#: Where the drift-free stage's scale-factor target comes from.
+SF_SOURCE = project_criterion(
+    "a stage without drift, well below the thesis' 286 ppm RMS (Chen 2018 Table 3.6)"
+)
 
 
 def write_plots(out: Path, runs: dict, seed: int, paths: tuple | None = None) -> list[Path]:
@@ -94,9 +102,21 @@ def instance_figures(ns: str, T: float, ev: dict, cal: dict) -> list[Figure]:
     standard error (``cal``)."""
     return [
         Figure(f"{ns}.temperature", T, "C"),
-        Figure(f"{ns}.omega_rmse", ev["rmse"], "rad/s", "<= 0.114 rad/s", ev["rmse"] <= 0.114),
         Figure(
-            f"{ns}.alpha", ev["alpha"], "1", "|alpha - 1| <= 8e-4", abs(ev["alpha"] - 1) <= 8e-4
+            f"{ns}.omega_rmse",
+            ev["rmse"],
+            "rad/s",
+            "<= 0.114 rad/s",
+            ev["rmse"] <= 0.114,
+            OMEGA_RMSE_SOURCE,
+        ),
+        Figure(
+            f"{ns}.alpha",
+            ev["alpha"],
+            "1",
+            "|alpha - 1| <= 8e-4",
+            abs(ev["alpha"] - 1) <= 8e-4,
+            ALPHA_SOURCE,
         ),
         Figure(f"{ns}.beta", ev["beta"], "rad/s"),
         Figure(f"{ns}.scale_factor", cal["scale_factor"], "1"),
@@ -116,6 +136,7 @@ def figure_records(off_axis: list, figs: dict, rms: float, g: dict) -> list[Figu
             "1",
             f">= {OFF_AXIS_WORST_TARGETS[r]:g}",
             v >= OFF_AXIS_WORST_TARGETS[r],
+            OFF_AXIS_SOURCE,
         )
         for r, v in off_axis
     ]
@@ -126,7 +147,7 @@ def figure_records(off_axis: list, figs: dict, rms: float, g: dict) -> list[Figu
             Figure(f"{ns}.scale_factor_error", f["ppm"], "ppm"),
         ]
     out += [
-        Figure("scale_factor_error_rms", rms, "ppm", "<= 100 ppm", rms <= 100),
+        Figure("scale_factor_error_rms", rms, "ppm", "<= 100 ppm", rms <= 100, SF_SOURCE),
         Figure("graph.simulated_time", g["simulated_s"], "s"),
         Figure("graph.wall_time", g["wall_s"], "s"),
     ]

@@ -17,7 +17,7 @@ from pathlib import Path
 from mems_estimation.identification.imu_noise_fit import crb_relative_se
 from mems_estimation.identification.imu_noise_plots import plot_allan
 from mems_scenarios import base, contract, delivery
-from mems_scenarios.figures import Figure, cell, is_finite
+from mems_scenarios.figures import Figure, cell, is_finite, project_criterion
 from mems_sim.ros.frames import index_to_ns
 from mems_sim.table import yes_no
 
@@ -167,9 +167,9 @@ def quantised_density(n: float, lsb: float, fs: float) -> float:
 #: The headline N is judged: its error within this many standard errors of the identifier's
 #: own 95 % interval (a calibrated interval: 93-95 % coverage over seeds 2-21).
 N_TOLERANCE_SE = 4.0
-N_TARGET = (
-    "|rel_error| <= 4 s.e. of the 95 % interval (this project's criterion: beyond, the "
-    "estimate is biased, not unlucky)"
+N_TARGET = "|rel_error| <= 4 s.e. of the 95 % interval"
+N_SOURCE = project_criterion(
+    "beyond 4 standard errors of the identifier's own interval the estimate is biased, not unlucky"
 )
 
 
@@ -272,7 +272,8 @@ def figure_records(model, configured: dict | None) -> list[Figure]:
                     out.append(Figure(f"{key}.configured_with_quantisation", ref, unit))
                 verdict = n_verdict(term, ref) if sym == "N" else None
                 target = None if verdict is None else N_TARGET
-                out.append(Figure(f"{key}.rel_error", rel, "1", target, verdict))
+                source = None if verdict is None else N_SOURCE
+                out.append(Figure(f"{key}.rel_error", rel, "1", target, verdict, source))
     return out
 
 

@@ -13,7 +13,7 @@ import numpy as np
 from scipy import stats
 
 from mems_scenarios import base
-from mems_scenarios.figures import Figure, cell, is_finite
+from mems_scenarios.figures import Figure, cell, is_finite, project_criterion
 from mems_sim.bag.output_paths import write_output
 
 #: Chen 2018, Table 4.3: theta RMSE [rad] of the EKF and the hybrid per SNR segment and
@@ -129,11 +129,14 @@ def records(f: dict) -> list[Figure]:
 
 
 #: Target of the Table 4.3 overall reduction (hybrid vs Table 4.1's EKF).
-TABLE_4_3_TARGET = ">= 0.10 (Chen 2018 Table 4.3: 15.1 %; this project's acceptance >= 10 %)"
+TABLE_4_3_TARGET = ">= 0.10"
+TABLE_4_3_SOURCE = "Chen 2018 Table 4.3: overall 15.1 %, asked >= 10 %"
 #: Targets of the restated criterion (docs/scanner.md, "Restated criterion"): hybrid vs the
 #: full-Jacobian EKF, on a drifted comb and on the nominal comb.
-DRIFT_TARGET = ">= 0.10 (this project's criterion: >= 10 % over the drift grid)"
-NOMINAL_TARGET = "<= 0.05 (this project's criterion: <= 5 % worse on the nominal comb)"
+DRIFT_TARGET = ">= 0.10"
+DRIFT_SOURCE = project_criterion("the hybrid >= 10 % better than the EKF over the drift grid")
+NOMINAL_TARGET = "<= 0.05"
+NOMINAL_SOURCE = project_criterion("the hybrid <= 5 % worse than the EKF on the nominal comb")
 #: Units of the identified model's parameters.
 EKF_UNITS = {
     "model_natural_freq_hz": "Hz",
@@ -155,7 +158,12 @@ def _table_4_3(f: dict) -> Figure:
     """The Table 4.3 overall reduction with its target."""
     x = f["reduction"][-1]
     return Figure(
-        "overall.theta_rmse_reduction", x, "1", target=TABLE_4_3_TARGET, passed=bool(x >= 0.10)
+        "overall.theta_rmse_reduction",
+        x,
+        "1",
+        target=TABLE_4_3_TARGET,
+        passed=bool(x >= 0.10),
+        source=TABLE_4_3_SOURCE,
     )
 
 
@@ -182,6 +190,7 @@ def criteria(dr: dict, drift_setting) -> list[Figure]:
                 "1",
                 target=NOMINAL_TARGET,
                 passed=bool(deg <= 0.05),
+                source=NOMINAL_SOURCE,
             )
         )
         return out
@@ -193,6 +202,7 @@ def criteria(dr: dict, drift_setting) -> list[Figure]:
                 "1",
                 target=DRIFT_TARGET,
                 passed=bool(x >= 0.10),
+                source=DRIFT_SOURCE,
             )
         )
     return out
@@ -272,9 +282,9 @@ def table(f: dict) -> str:
     out += "\n(the oracle rows: the same filters with the emulator's nominal table)\n\n"
     out += base.format_table(hdr, r)
     out += "\n\n" + base.format_table(
-        ["criterion", "value", "target", "met"],
+        ["criterion", "value", "target", "source", "met"],
         [
-            [x.name, _pct(x.value), x.target, "yes" if x.passed else "NO"]
+            [x.name, _pct(x.value), x.target, x.source, "yes" if x.passed else "NO"]
             for x in [*criteria(f["drift"], f["drift_setting"]), _table_4_3(f)]
             if x.target is not None
         ],

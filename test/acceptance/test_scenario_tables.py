@@ -26,7 +26,7 @@ import pytest
 from reference_rule import figures_difference
 
 from mems_scenarios import SCENARIOS
-from mems_scenarios.figures import figures_of
+from mems_scenarios.figures import JSON_SCHEMA_VERSION, figures_of
 from mems_sim.table import MAX_WIDTH
 
 HERE = Path(__file__).resolve().parent
@@ -106,7 +106,7 @@ def test_scenario_table_matches_reference(name, tmp_path, domain_id):
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=1800, cwd=tmp_path)
     assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-3000:]
     document = json.loads(run.stdout)
-    assert document["schema_version"] == 1 and document["scenario"] == name
+    assert document["schema_version"] == JSON_SCHEMA_VERSION and document["scenario"] == name
     figures = figures_of(document)
     summary = [line for line in run.stderr.splitlines() if not VOLATILE[0].search(line)]
     assert max(map(len, summary)) <= MAX_WIDTH, max(summary, key=len)  # a terminal's width

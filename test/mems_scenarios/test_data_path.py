@@ -133,7 +133,8 @@ def test_second_graph_on_a_domain_is_refused_and_the_first_is_unchanged(
     assert proc.returncode == 0, err
     figures = figures_of(json.loads(out))  # nothing but the JSON on stdout
     assert isinstance(figures, list) and figures
-    assert all(set(f) == {"name", "value", "unit", "target", "pass"} for f in figures)
+    keys = {"name", "value", "unit", "target", "pass", "source", "role"}
+    assert all(set(f) == keys for f in figures)
     assert len({f["name"] for f in figures}) == len(figures)
     assert all(f["pass"] in (True, False, None) for f in figures)
     assert all((f["target"] is None) == (f["pass"] is None) for f in figures)

@@ -92,8 +92,9 @@ def test_figures_as_data(result):
     figs = assert_figures(result)
     assert {n for n, r in figs.items() if r["pass"] is not None} == JUDGED
     assert all(figs[n]["pass"] for n in JUDGED), [figs[n] for n in JUDGED]
-    assert "Table 4.3" in figs["overall.theta_rmse_reduction"]["target"]
-    assert "this project's criterion" in figs["overall.hybrid_vs_baseline_reduction"]["target"]
+    assert figs["overall.theta_rmse_reduction"]["source"].startswith("Chen 2018 Table 4.3")
+    ours = figs["overall.hybrid_vs_baseline_reduction"]["source"]
+    assert ours.startswith("this project's criterion: ")
     # the oracle rows: the nominal table as model, never judged
     oracle = [r for n, r in figs.items() if n.startswith("oracle.")]
     assert oracle and all(r["pass"] is None for r in oracle)
