@@ -1,9 +1,18 @@
 """Scenario ``scanner_shared_electrodes``: shared drive/sense electrodes, AMDM read-out, EKF vs UKF.
 
-Chen 2018 chapter 5 (Table 5.3).  Two device instances in one graph:
+Chen 2018 chapter 5 (Table 5.3).  The device ``/scanner_amdm`` builds is identified on the
+bench first (:mod:`mems_scenarios.scanner_amdm_bench`, Sec. 5.5.1): ring-downs against an
+optical reference give w_n, zeta and the comb's C_0 and theta_0, and a resonance search finds
+its parametric onset, which places the drive's sweep window; the model is written as
+``<out>-seed<N>-scanner_amdm_params.yaml``, the estimators' ``params_yaml``.  The oracle
+filters (the device's own table, ``...-scanner_amdm_oracle_params.yaml``) run beside them in
+``/scanner_amdm/oracle`` on the same recording.  Two device instances in one graph:
 
 ``/scanner_amdm``      Table 5.2 device, unipolar drive 0..150 V (above the parametric
-                       threshold, see :mod:`mems_sim.devices.scanner_amdm`) swept 31.32 -> 31.26 kHz,
+                       threshold, see :mod:`mems_sim.devices.scanner_amdm`; raised 20 % by
+                       the bench for a part that does not start) swept 60 Hz down
+                       from 20 Hz above the bench's onset (31.32 -> 31.26 kHz on the nominal
+                       device),
                        500 kHz carrier on the same electrodes, R = 1.92e-4 V^2 at the AMDM
                        output, Table 5.2's process noise Q_a as torque noise (the noise the
                        filters assume); the estimator node runs the EKF and the UKF.
@@ -19,7 +28,8 @@ per-extremum amplitude and phase shift, eqs. (109)-(110), after ``T_EVAL``), con
 (NEES of theta against the sign-aligned truth, covariance positive definite over the whole
 run), and the off-resonance check.  PNGs in the form of Figs. 5.8 and 5.9.
 
-Criteria (restated from a campaign): phase RMSE <= 0.18 deg (eq. (79)) and amplitude RMSE
+Criteria (restated from a campaign): phase RMSE <= 0.18 deg (eqs. (78)-(79) as printed; the
+equations give 1.12 deg, the stricter is kept) and amplitude RMSE
 <= 0.63 deg for both filters; NEES of theta within 0.5-2 for both (Bar-Shalom, Li &
 Kirubarajan 2001, Sec. 5.4) on the full AMDM chain, which the filters reach by modelling the
 chain's square-law curve (the detector of eq. (100)) in their measurement function, identified
@@ -42,9 +52,25 @@ from scipy.interpolate import CubicSpline
 
 from mems_estimation.filters import scanner_amdm_model as sam
 from mems_estimation.filters import scanner_amdm_tracking as su
+from mems_estimation.identification.scanner_amdm_identification import (
+    MODEL_KEYS,
+    load_identification,
+)
 from mems_scenarios import bag_frames, base, contract, delivery
-from mems_scenarios.figures import Figure, cell, met_cell, project_criterion
-from mems_sim.bag.output_paths import write_output
+from mems_scenarios import scanner_amdm_bench as amdm_bench
+from mems_scenarios import scanner_shared_electrodes_report as report
+from mems_scenarios.scanner_shared_electrodes_report import (
+    FS,
+    KINDS,
+    RATIO_TOL,
+    STRESS_CASES,
+    STRESS_N,
+    STRESS_SPACING,
+    STRESS_START_S,
+    STRESS_STARTS,
+    STRESS_TOL,
+    T_EVAL,
+)
 from mems_sim.devices import scanner_amdm as sa
 from mems_sim.ros.flow import progress_of
 
@@ -54,8 +80,6 @@ DESCRIPTION = (
     "EKF vs UKF amplitude and phase (Table 5.3), off-resonance low signal"
 )
 DEFAULT_DURATION_S = 0.06
-T_EVAL = 0.02  # motion grown and both filters acquired [s]
-FS = 1.0e6
 
 
 def process_torque_std() -> float:
@@ -70,42 +94,30 @@ def process_torque_std() -> float:
 
 DEVICE = dict(sa.SWEEP_STUDY, torque_noise_std=process_torque_std())
 OFF = dict(DEVICE, sweep_start_hz=25.0e3, sweep_end_hz=25.0e3)
-PAPER = {"ekf": (5.04, 1.82), "ukf": (0.63, 0.39)}  # Table 5.3: amplitude, phase [deg]
-TARGET_PHASE_DEG = 0.18  # eqs. (78)-(79) as printed (see PHASE_SOURCE)
-TARGET_AMP_DEG = 0.63  # Table 5.3, the thesis's UKF (see AMP_SOURCE)
-RATIO_TOL = 0.01  # EKF and UKF within +-1 % of each other (module doc)
-#: Where the targets come from (the figures' ``source``).
-AMP_SOURCE = (
-    "Chen 2018 Table 5.3: the UKF's 0.63 deg, asked of both filters (equally accurate at "
-    "the paper's R)"
-)
-PHASE_SOURCE = (
-    "Chen 2018 eqs. 78-79: 0.18 deg as printed (the equation gives 1.12 deg; the stricter kept)"
-)
-RATIO_SOURCE = project_criterion("at R = 1.92e-4 V^2 the EKF and UKF are equally accurate")
-NEES_SOURCE = project_criterion("NEES per state within 0.5-2: the filter's variance is honest")
-PD_SOURCE = project_criterion("the covariance stays positive definite")
-OFF_SOURCE = project_criterion(
-    "off resonance nothing moves; the filter warns of low signal and claims no tracking"
-)
-ACQUIRE_SOURCE = project_criterion("every start from a wrong state is acquired within 3 ms")
-# acquisition study (module doc): starts a quarter motion period apart after the growth
-STRESS_START_S = 0.03
-STRESS_STARTS = 4
-STRESS_SPACING = 16  # samples, ~1/4 of the 64 us motion period
-STRESS_N = 3000  # samples per started run (3 ms, ~47 motion periods)
-STRESS_TOL = 1.0e-3  # rad: acquired once the error stays below (~20x the tracking RMSE)
-STRESS_CASES = {"stress": 0.25 * 0.2, "acquire_0p1rad": 0.1}  # initial error [rad]
 
 
 def cases() -> dict[str, dict]:
-    """Device namespace -> device parameter overrides."""
+    """Device namespace -> device parameter overrides (the bench's sweep window goes to
+    ``scanner_amdm``: :func:`graph`)."""
     return {"scanner_amdm": DEVICE, "scanner_amdm_off": OFF}
 
 
+#: Process-noise inflation of the filters on the bench's model (the oracle filters keep the
+#: exact model's 1.5): the cover for its errors (the design inertia, +-1 % on a drawn
+#: device), chosen for NEES ~1 on drawn devices 5, 12 and 101 at seed 1 (Bar-Shalom, Li &
+#: Kirubarajan 2001, Sec. 5.4); evaluated over draws 1-10 in the acceptance campaign.
+IDENTIFIED_INFLATION = 20.0
 #: Node names of the device and estimator executables (their classes' NODE_NAME).
 DEVICE_NODE, ESTIMATOR_NODE = "scanner_amdm", "scanner_amdm_estimator"
-KINDS = ("ekf", "ukf")
+#: Namespace of the oracle filters (the device's own table as their model) of
+#: ``/scanner_amdm``: their node and their topics ``/scanner_amdm/oracle/<kind>/...``.
+ORACLE_NS = "scanner_amdm/oracle"
+#: The estimator nodes: the topics' namespace -> (node namespace, device namespace).
+ESTIMATORS = {
+    "scanner_amdm": ("scanner_amdm/estimator", "scanner_amdm"),
+    "scanner_amdm_off": ("scanner_amdm_off/estimator", "scanner_amdm_off"),
+    ORACLE_NS: (ORACLE_NS, "scanner_amdm"),
+}
 
 
 def device_fqn(ns: str) -> str:
@@ -114,8 +126,9 @@ def device_fqn(ns: str) -> str:
 
 
 def estimator_fqn(ns: str) -> str:
-    """Fully qualified name of the estimator node of the device in ``ns``."""
-    return f"/{ns}/estimator/{ESTIMATOR_NODE}"
+    """Fully qualified name of the estimator node whose topics are in ``ns``
+    (:data:`ESTIMATORS`)."""
+    return f"/{ESTIMATORS[ns][0]}/{ESTIMATOR_NODE}"
 
 
 def nominal_delay(params: dict) -> float:
@@ -132,39 +145,76 @@ def recorded_topics(ns: str) -> list[str]:
     return [f"/{ns}/{t}" for t in names]
 
 
-def graph(options: base.ScenarioOptions, duration_s: float) -> contract.GraphSpec:
-    """The scenario's graph: both devices (:func:`cases`), then their estimators (the
-    chain delay of the nominal device, :func:`nominal_delay`); recorded: every topic of
-    both, /diagnostics (the estimators' end state) and the run record."""
-    devices, estimators, recorded = [], [], []
+def _consumers(ns: str) -> int:
+    """Subscribers of device ``ns``'s frames: the recorder and its estimators."""
+    return 1 + sum(dev_ns == ns for _, dev_ns in ESTIMATORS.values())
+
+
+def _device_entry(options: base.ScenarioOptions, k: int, ns: str, dev: dict, duration_s):
+    p = dict(dev, seed=int(options.seed) * 10 + k, duration_s=float(duration_s), frame_size=10000)
+    # a process graph's device starts once its estimators and the recorder subscribed
+    return contract.NodeEntry(
+        "scanner_amdm_node", DEVICE_NODE, ns, p, consumers=f"adc:{_consumers(ns)}"
+    )
+
+
+def bench_identification(options: base.ScenarioOptions, duration_s: float, out=None) -> dict:
+    """The bench (:func:`mems_scenarios.scanner_amdm_bench.bench_identification`) of the
+    device ``/scanner_amdm`` builds, its model and the device's own table written beside
+    the recording ``out``."""
+    entry = _device_entry(options, 0, "scanner_amdm", DEVICE, duration_s)
+    return amdm_bench.bench_identification(options, entry, NAME, out)
+
+
+def graph(
+    options: base.ScenarioOptions, duration_s: float, bench: dict | None = None
+) -> contract.GraphSpec:
+    """The scenario's graph: both devices (:func:`cases`; ``/scanner_amdm`` swept over the
+    window the bench's resonance search found), their estimators with the bench's model
+    (``params_yaml``) and the oracle filters of ``/scanner_amdm`` with the device's own
+    table (:data:`ORACLE_NS`), each told the chain delay of the nominal device
+    (:func:`nominal_delay`); recorded: every topic of them, /diagnostics (the estimators'
+    end state) and the run record. ``bench``: :func:`bench_identification`'s result (None:
+    the bench runs here: the window it finds is a parameter of the device node)."""
+    if bench is None:
+        bench = bench_identification(options, duration_s)
+    window = {k: bench["fit"][k] for k in ("sweep_start_hz", "sweep_end_hz", "drive_voltage_max")}
+    devices, recorded = [], []
     for k, (ns, dev) in enumerate(cases().items()):
-        p = dict(
-            dev, seed=int(options.seed) * 10 + k, duration_s=float(duration_s), frame_size=10000
-        )
-        # a process graph's device starts once its estimator and the recorder subscribed
-        devices.append(
-            contract.NodeEntry("scanner_amdm_node", DEVICE_NODE, ns, p, consumers="adc:2")
-        )
-        estimators.append(
-            contract.NodeEntry(
-                "scanner_amdm_estimator_node",
-                ESTIMATOR_NODE,
-                f"{ns}/estimator",
-                dict(device_namespace=f"/{ns}", chain_delay_s=nominal_delay(p)),
-            )
-        )
+        dev = dict(dev, **window) if ns == "scanner_amdm" else dev
+        devices.append(_device_entry(options, k, ns, dev, duration_s))
         recorded += recorded_topics(ns)
+    delay = {e.namespace: nominal_delay(e.parameters) for e in devices}
+    estimators = []
+    for out_ns, (node_ns, dev_ns) in ESTIMATORS.items():
+        oracle_filter = out_ns == ORACLE_NS
+        model = bench["oracle_path" if oracle_filter else "path"]
+        # the model's values also as the entry's parameters: a run record written without
+        # making the node (--write-launch) holds the model the node loads from the YAML
+        values = load_identification(str(model)) if oracle_filter else bench["model"]
+        p = dict(values, device_namespace=f"/{dev_ns}", chain_delay_s=delay[dev_ns])
+        p["params_yaml"] = str(model)
+        if not oracle_filter:  # the bench's model: its error covered by process noise
+            p["process_noise_inflation"] = IDENTIFIED_INFLATION
+        if oracle_filter:
+            p["output_namespace"] = f"/{ORACLE_NS}"
+            recorded += [
+                f"/{ORACLE_NS}/{k}/{t}" for k in KINDS for t in ("estimate", "phase_amplitude")
+            ]
+        estimators.append(
+            contract.NodeEntry("scanner_amdm_estimator_node", ESTIMATOR_NODE, node_ns, p)
+        )
     return contract.GraphSpec(
         NAME, (*devices, *estimators), (*recorded, "/diagnostics", contract.RUN_INFO_TOPIC)
     )
 
 
 def build_graph(options: base.ScenarioOptions, out: Path, duration: float):
-    """Devices, then estimator nodes told the delay of their device's chain as built (its
-    ``device_seed``, ``temperature_c`` and the user's values), and the recorder in one
-    context; the run record published (with the parameters the user set on each device,
-    for :func:`oracle`)."""
-    spec = graph(options, duration)
+    """The bench, then the devices, then the estimator nodes told the delay of their
+    device's chain as built (its ``device_seed``, ``temperature_c`` and the user's values),
+    and the recorder in one context; the run record published (with the parameters the
+    user set on each device, for :func:`oracle`)."""
+    spec = graph(options, duration, bench_identification(options, duration, out))
     g = base.graph_for(options)
     emulators = tuple(n for n in spec.nodes if n.executable == "scanner_amdm_node")
     nodes = g.build(replace(spec, nodes=emulators), realtime=options.realtime)
@@ -173,7 +223,8 @@ def build_graph(options: base.ScenarioOptions, out: Path, duration: float):
         replace(
             n,
             parameters=dict(
-                n.parameters, chain_delay_s=devices[n.namespace.split("/")[0]].device.delay
+                n.parameters,
+                chain_delay_s=devices[n.parameters["device_namespace"].lstrip("/")].device.delay,
             ),
         )
         for n in spec.nodes
@@ -181,7 +232,7 @@ def build_graph(options: base.ScenarioOptions, out: Path, duration: float):
     )
     spec = replace(spec, nodes=emulators + consumers)
     nodes.update(g.build(replace(spec, nodes=consumers), realtime=options.realtime))
-    estimators = {ns: nodes[estimator_fqn(ns)] for ns in devices}
+    estimators = {ns: nodes[estimator_fqn(ns)] for ns in ESTIMATORS}
     rec = g.recorder(str(out), topics=spec.recorded)
     fixed = {device_fqn(ns): sorted(d.fixed_parameters) for ns, d in devices.items()}
     g.publish_run_info(spec, options, nodes, duration_s=duration, fixed_parameters=fixed)
@@ -196,18 +247,20 @@ def run_graph(
     graph, devices, estimators, rec = build_graph(options, out, duration)
 
     def delivered(device) -> int:
-        """Progress [samples] of the device's estimator (the recorder counts in the
-        skeleton)."""
-        return progress_of(estimators[device.get_namespace().lstrip("/")]) or 0
+        """Progress [samples] of the slowest estimator of the device (the recorder counts in
+        the skeleton)."""
+        ns = device.get_namespace().lstrip("/")
+        mine = [e for o, e in estimators.items() if ESTIMATORS[o][1] == ns]
+        return min(progress_of(e) or 0 for e in mine)
 
     try:
 
         def matched() -> bool:
             return all(
-                d.pub_adc.get_subscription_count() >= 2
-                and d.pub_drive.get_subscription_count() >= 2
+                d.pub_adc.get_subscription_count() >= _consumers(ns)
+                and d.pub_drive.get_subscription_count() >= _consumers(ns)
                 and d.pub_truth.get_subscription_count() >= 1
-                for d in devices.values()
+                for ns, d in devices.items()
             ) and all(
                 e.pub_est[k].get_subscription_count() >= 1
                 for e in estimators.values()
@@ -309,25 +362,42 @@ def oracle(record: dict | None) -> dict[str, float]:
     calibrated phase shift of Chen 2018 Sec. 5.3.3, :func:`~mems_sim.devices.scanner_amdm.
     design_chain`), from the device's parameters in the run record drawn for its
     ``device_seed`` and moved to its ``temperature_c`` as the emulator node draws them
-    (:func:`~mems_sim.params.draw_device`; the parameters the user set left as given)."""
-    from mems_scenarios.contract import node_class
-    from mems_sim.params import draw_device, spec_table
+    (:func:`~mems_scenarios.scanner_amdm_bench.device_as_built`)."""
+    return {ns: sa.design_chain(as_built(record, ns)).delay for ns in cases()}
 
-    specs = sa.AMDM_SPECS
-    t_ref = float(spec_table(node_class("scanner_amdm_node").SPECS)["temperature_c"].default)
-    out = {}
-    for ns in cases():
-        fqn = device_fqn(ns)
-        p = contract.node_parameters(record, fqn, "the AMDM chain's delay")
-        drawn = draw_device(
-            specs,
-            {s.name: p[s.name] for s in specs},
-            p["device_seed"],
-            p["temperature_c"] - t_ref,
-            fixed=record.get("fixed_parameters", {}).get(fqn, ()),
-        )
-        out[ns] = sa.design_chain(sa.resolve_amdm(drawn)).delay
+
+def as_built(record: dict | None, ns: str) -> dict:
+    """The device of namespace ``ns`` as built, from the run record (the oracle's)."""
+    fqn = device_fqn(ns)
+    p = contract.node_parameters(record, fqn, "the device as built")
+    return amdm_bench.device_as_built(p, record.get("fixed_parameters", {}).get(fqn, ()))
+
+
+def identification_error(record: dict | None) -> dict[str, float]:
+    """The oracle's check of the bench: the identified model (the parameters the estimator
+    of ``/scanner_amdm`` ran with, from the run record) against the device as built,
+    relative errors of w_n = sqrt(k/J), zeta = b / (2 sqrt(J k)), C_0 and theta_0."""
+    dev = as_built(record, "scanner_amdm")
+    est = contract.node_parameters(record, estimator_fqn("scanner_amdm"), "the bench's model")
+
+    def wn(p):
+        return math.sqrt(p["spring_constant"] / p["inertia"])
+
+    def zeta(p):
+        return p["damping"] / (2.0 * math.sqrt(p["inertia"] * p["spring_constant"]))
+
+    out = {"omega_n": wn(est) / wn(dev) - 1.0, "zeta": zeta(est) / zeta(dev) - 1.0}
+    out.update({k: est[k] / dev[k] - 1.0 for k in ("cap_c0", "cap_theta0")})
     return out
+
+
+def _drawn(record: dict | None) -> bool:
+    """Whether ``/scanner_amdm`` was drawn from the batch (``device_seed`` >= 0 in the run
+    record): the paper's targets are then context (they are the nominal device's)."""
+    if record is None:
+        return False
+    p = record.get("nodes", {}).get(device_fqn("scanner_amdm"), {}).get("parameters", {})
+    return int(p.get("device_seed", -1)) >= 0
 
 
 #: Figure groups that need more than the estimates and the truth: the oracle's (the
@@ -337,10 +407,22 @@ ORACLE = "theta RMSE, NEES, acquisition study (*.theta_rmse, *.nees, stress.*, a
 DIAGNOSTICS = "estimators' end state (*.pd_failures, off.tracking, off.low_signal_warned)"
 
 
+#: The group of the oracle filters' figures and the identified-vs-oracle ratios.
+IDENTIFIED = "identified vs oracle filters (oracle.*, identified_vs_oracle.*)"
+
+
 def _group_of(name: str) -> str | None:
-    """The figure group (:data:`ORACLE`, :data:`DIAGNOSTICS`) of figure ``name``, if any."""
-    if name.endswith((".theta_rmse", ".nees", ".theta_rmse_ratio")) or (
-        name.startswith(tuple(f"{c}." for c in STRESS_CASES)) and name != "stress.truth_amplitude"
+    """The figure group (:data:`ORACLE`, :data:`DIAGNOSTICS`, :data:`IDENTIFIED`) of figure
+    ``name``, if any."""
+    if name.startswith(("oracle.", "identified_vs_oracle.")):
+        return IDENTIFIED
+    if (
+        name.endswith((".theta_rmse", ".nees", ".theta_rmse_ratio"))
+        or name.startswith("device.")
+        or (
+            name.startswith(tuple(f"{c}." for c in STRESS_CASES))
+            and name != "stress.truth_amplitude"
+        )
     ):
         return ORACLE
     if name.endswith(".pd_failures") or name in ("off.tracking", "off.low_signal_warned"):
@@ -355,16 +437,20 @@ def figures(path: Path) -> tuple[dict, list[tuple[str, str]]]:
     :func:`oracle`, the estimators' end state from /diagnostics."""
     f: dict = {}
     unavailable = []
-    events = [f"/{ns}/{k}/phase_amplitude" for ns in cases() for k in KINDS]
+    events = [f"/{ns}/{k}/phase_amplitude" for ns in (*cases(), ORACLE_NS) for k in KINDS]
+    events += [f"/{ORACLE_NS}/{k}/estimate" for k in KINDS]
     fr = bag_frames.topics_frames(path, _required_topics() + events, missing_ok=True)
     absent = [t for t in _required_topics() if t not in fr]
     if absent:
         raise contract.AnalysisError(f"{path}: no frames on {', '.join(absent)}")
+    record = contract.read_run_info(path)
     try:
-        delay = oracle(contract.read_run_info(path))["scanner_amdm"]
+        delay = oracle(record)["scanner_amdm"]
+        f["identification_error"] = identification_error(record)
     except contract.AnalysisError as exc:
         delay = None
         unavailable.append((ORACLE, str(exc)))
+    f["drawn"] = _drawn(record)
     diag = node_diagnostics(path)
     state = {ns: diag.get(estimator_fqn(ns)) for ns in cases()}
     if None in state.values():
@@ -410,11 +496,25 @@ def figures(path: Path) -> tuple[dict, list[tuple[str, str]]]:
         f[f"{k}_phase_bias_deg"] = (
             math.degrees(float(np.mean(dph[t_e >= T_EVAL]))) if np.any(t_e >= T_EVAL) else nan
         )
+    f["oracle"] = None
+    if all(f"/{ORACLE_NS}/{k}/estimate" in fr for k in KINDS):
+        f["oracle"] = {}
+        for k in KINDS:
+            ev_o = _events(fr, f"/{ORACLE_NS}/{k}/phase_amplitude")
+            rp, ra, n = su.event_rmse(ev_o, ref, 0.25 / 31.3e3, T_EVAL)
+            f["oracle"].update(
+                {f"{k}_phase_deg": math.degrees(rp), f"{k}_amp_deg": math.degrees(ra)}
+            )
+    else:
+        unavailable.append((IDENTIFIED, f"{path}: no estimates of the oracle filters"))
     f["ukf_ekf_within_1pct"] = all(
-        abs(_ratio(f[f"ukf_{q}_deg"], f[f"ekf_{q}_deg"]) - 1.0) <= RATIO_TOL
+        abs(report.ratio(f[f"ukf_{q}_deg"], f[f"ekf_{q}_deg"]) - 1.0) <= RATIO_TOL
         for q in ("amp", "phase")
     )
-    f["stress"] = _stress(y, drive, tr, t, delay) if delay is not None else None
+    f["stress"] = None
+    if delay is not None:  # with the model the estimator of /scanner_amdm ran with
+        ran = contract.node_parameters(record, estimator_fqn("scanner_amdm"), "the model")
+        f["stress"] = _stress(y, drive, tr, t, delay, {k: ran[k] for k in MODEL_KEYS})
     k0 = int(STRESS_START_S * FS)
     f["stress_motion_rad"] = float(np.max(np.abs(tr[k0 : k0 + STRESS_N + STRESS_SPACING * 4, 0])))
     late = ref.t >= T_EVAL  # empty if the drive missed the parametric resonance
@@ -462,13 +562,13 @@ def analyse(bag, pngs=None) -> contract.ScenarioResult:
     missing = {group for group, _ in unavailable}
     paths = []
     if pngs and ORACLE not in missing:
-        plot(f, *pngs)
+        report.plot(f, *pngs)
         paths = [Path(p) for p in pngs]
     values = {k: v for k, v in f.items() if k != "series"}
     return contract.ScenarioResult(
         NAME,
-        [r for r in records(f) if _group_of(r.name) not in missing],
-        table(f),
+        [r for r in report.records(f) if _group_of(r.name) not in missing],
+        report.table(f),
         paths,
         unavailable,
         oracle_only=[ORACLE],
@@ -476,13 +576,10 @@ def analyse(bag, pngs=None) -> contract.ScenarioResult:
     )
 
 
-def _ratio(a: float, b: float) -> float:
-    return a / b if b else math.nan
-
-
-def _stress(y, drive, tr, t, delay) -> dict:
-    """Acquisition study on the recorded AMDM samples (module doc): case -> kind -> study."""
-    params = dict(chain_delay_s=delay)
+def _stress(y, drive, tr, t, delay, model: dict) -> dict:
+    """Acquisition study on the recorded AMDM samples (module doc) with the filters' model
+    ``model`` (:data:`MODEL_KEYS` of the estimator's run): case -> kind -> study."""
+    params = dict(model, chain_delay_s=delay)
     vc2 = 0.5 * sam.resolve_estimator(params)["carrier_amplitude"] ** 2  # carrier's <V^2>
     v2 = su.DriveAligner(delay * FS, vc2).push(0, drive)
     tq = np.maximum(t - delay, 0.0)
@@ -499,307 +596,6 @@ def _stress(y, drive, tr, t, delay) -> dict:
         }
         for case, dth in STRESS_CASES.items()
     }
-
-
-def _pooled(rmse: np.ndarray) -> float:
-    """RMSE pooled over runs of equal length [same unit]."""
-    return float(np.sqrt(np.mean(np.asarray(rmse) ** 2))) if np.size(rmse) else math.nan
-
-
-#: The acquisition study of a recording without the oracle's delay: no starts.
-_NO_STUDY = su.AcquisitionStudy(*(np.zeros(0) for _ in su.AcquisitionStudy._fields))
-
-
-def _stress_records(f: dict) -> list[Figure]:
-    # without motion (the drive missed the parametric resonance) there is nothing to acquire
-    moving = f["stress_motion_rad"] >= 0.03
-    out = [
-        Figure(
-            "stress.truth_amplitude",
-            f["stress_motion_rad"],
-            "rad",
-            ">= 0.03 rad",
-            moving,
-            project_criterion("the acquisition study needs the scanner in motion"),
-        )
-    ]
-    for case, dth in STRESS_CASES.items():
-        st = f["stress"][case] if f["stress"] is not None else dict.fromkeys(KINDS, _NO_STUDY)
-        for k in ("ekf", "ukf"):
-            a = st[k]
-            ok = np.isfinite(a.time)
-            frac = float(np.mean(ok)) if ok.size and moving else math.nan
-            tmax = float(np.max(a.time)) * 1e6 if ok.size and ok.all() else math.nan
-            out += [
-                Figure(f"{case}.{k}.initial_error", dth, "rad"),
-                Figure(f"{case}.{k}.acquired", frac, "1", "== 1", frac == 1.0, ACQUIRE_SOURCE),
-                Figure(
-                    f"{case}.{k}.acquire_time_median",
-                    float(np.median(a.time)) * 1e6 if ok.size and ok.all() else math.nan,
-                    "us",
-                ),
-                Figure(f"{case}.{k}.acquire_time_max", tmax, "us"),
-                Figure(f"{case}.{k}.theta_rmse", math.degrees(_pooled(a.rmse)), "deg"),
-            ]
-        out.append(
-            Figure(
-                f"{case}.ukf_ekf.theta_rmse_ratio",
-                _ratio(_pooled(st["ukf"].rmse), _pooled(st["ekf"].rmse)),
-                "1",
-            )
-        )
-    return out
-
-
-def records(f: dict) -> list[Figure]:
-    """The scenario's figures as data (angles in deg, as the table prints them)."""
-    out = []
-    for k in ("ekf", "ukf"):
-        out += [
-            Figure(
-                f"{k}.amplitude_rmse",
-                f[f"{k}_amp_deg"],
-                "deg",
-                f"<= {TARGET_AMP_DEG:g} deg",
-                f[f"{k}_amp_deg"] <= TARGET_AMP_DEG,
-                AMP_SOURCE,
-            ),
-            Figure(
-                f"{k}.phase_rmse",
-                f[f"{k}_phase_deg"],
-                "deg",
-                f"<= {TARGET_PHASE_DEG:g} deg",
-                f[f"{k}_phase_deg"] <= TARGET_PHASE_DEG,
-                PHASE_SOURCE,
-            ),
-        ]
-        out += [
-            Figure(f"{k}.phase_bias", f[f"{k}_phase_bias_deg"], "deg"),
-            Figure(f"{k}.extrema_pairs", f[f"{k}_pairs"], ""),
-        ]
-    for q, name in (("amp", "amplitude"), ("phase", "phase")):
-        r = _ratio(f[f"ukf_{q}_deg"], f[f"ekf_{q}_deg"])
-        out.append(
-            Figure(
-                f"ukf_ekf.{name}_rmse_ratio",
-                r,
-                "1",
-                f"{1 - RATIO_TOL:g}-{1 + RATIO_TOL:g}",
-                abs(r - 1.0) <= RATIO_TOL,
-                RATIO_SOURCE,
-            )
-        )
-    for k in ("ekf", "ukf"):
-        nees = f[f"{k}_nees"]
-        out += [
-            Figure(f"{k}.theta_rmse", f[f"{k}_theta_rmse_deg"], "deg"),
-            Figure(f"{k}.nees", nees, "1", "0.5-2", 0.5 <= nees <= 2.0, NEES_SOURCE),
-            Figure(
-                f"{k}.pd_failures",
-                f[f"{k}_pd_failures"],
-                "",
-                "== 0",
-                f[f"{k}_pd_failures"] == 0,
-                PD_SOURCE,
-            ),
-            Figure(
-                f"{k}.min_variance",
-                f[f"{k}_min_var"],
-                "state unit^2",
-                "> 0",
-                f[f"{k}_min_var"] > 0,
-                PD_SOURCE,
-            ),
-        ]
-    out += [
-        Figure(
-            "off.final_theta_true",
-            f["off_final_amplitude"],
-            "rad",
-            "< 1e-3 rad",
-            f["off_final_amplitude"] < 1e-3,
-            OFF_SOURCE,
-        ),
-        Figure("off.final_theta_estimate", f["off_final_theta_est"], "rad"),
-        Figure(
-            "off.low_signal_warned",
-            f["off_low_signal_warned"],
-            "",
-            "true",
-            bool(f["off_low_signal_warned"]),
-            OFF_SOURCE,
-        ),
-        Figure("off.tracking", f["off_tracking"], "", "false", not f["off_tracking"], OFF_SOURCE),
-        Figure("off.extrema", f["off_events"], ""),
-        Figure("off.finite", f["off_finite"], "", "true", bool(f["off_finite"]), OFF_SOURCE),
-    ]
-    return out + _stress_records(f)
-
-
-def table(f: dict) -> str:
-    """Table 5.3 form next to the paper, plus consistency and the off-resonance check."""
-    F = {r.name: r for r in records(f)}
-
-    def c(name: str, spec: str) -> str:
-        return cell(F[name].value, spec)
-
-    rows = []
-    for k in ("ekf", "ukf"):
-        rows.append(
-            [
-                f"{k.upper()} RMSE amplitude [deg]",
-                f"{PAPER[k][0]:.2f}",
-                f"<= {TARGET_AMP_DEG:g}",
-                c(f"{k}.amplitude_rmse", ".3f"),
-                met_cell(F[f"{k}.amplitude_rmse"]),
-            ]
-        )
-        rows.append(
-            [
-                f"{k.upper()} RMSE phase shift [deg]",
-                f"{PAPER[k][1]:.2f}",
-                f"<= {TARGET_PHASE_DEG:g} (eq. 79)",
-                f"{c(f'{k}.phase_rmse', '.3f')} (bias {c(f'{k}.phase_bias', '+.3f')}, "
-                f"{f[f'{k}_pairs']} extrema)",
-                met_cell(F[f"{k}.phase_rmse"]),
-            ]
-        )
-    rows.append(
-        [
-            "UKF/EKF RMSE ratio, amplitude and phase",
-            "0.13, 0.21",
-            f"{1 - RATIO_TOL:g}-{1 + RATIO_TOL:g}",
-            f"{c('ukf_ekf.amplitude_rmse_ratio', '.4f')}, {c('ukf_ekf.phase_rmse_ratio', '.4f')}",
-            met_cell(F["ukf_ekf.amplitude_rmse_ratio"], F["ukf_ekf.phase_rmse_ratio"]),
-        ]
-    )
-    for k in ("ekf", "ukf"):
-        rows.append(
-            [
-                f"{k.upper()} theta RMSE (sign-aligned) [deg] / NEES",
-                "-",
-                "consistent: NEES 0.5-2",
-                f"{c(f'{k}.theta_rmse', '.3f')} / {c(f'{k}.nees', '.2f')}",
-                met_cell(F[f"{k}.nees"]),
-            ]
-        )
-        rows.append(
-            [
-                f"{k.upper()} covariance PD over the run (failures, min var)",
-                "-",
-                "0",
-                f"{f[f'{k}_pd_failures']}, {c(f'{k}.min_variance', '.1e')}",
-                met_cell(F[f"{k}.pd_failures"], F[f"{k}.min_variance"]),
-            ]
-        )
-    rows.append(
-        [
-            "off resonance (25 kHz): final |theta| true / est [rad]",
-            "-",
-            "no motion",
-            f"{c('off.final_theta_true', '.1e')} / {c('off.final_theta_estimate', '.1e')}",
-            met_cell(F["off.final_theta_true"]),
-        ]
-    )
-    rows.append(
-        [
-            "off resonance: low-signal diagnostics, no extrema, finite",
-            "-",
-            "yes",
-            f"warned={f['off_low_signal_warned']}, tracking={f['off_tracking']}, "
-            f"extrema={f['off_events']}, finite={f['off_finite']}",
-            met_cell(F["off.low_signal_warned"], F["off.tracking"], F["off.finite"]),
-        ]
-    )
-    for case, dth in STRESS_CASES.items():
-        for k in ("ekf", "ukf"):
-            rows.append(
-                [
-                    f"{k.upper()} started {dth:g} rad off ({dth / 0.2:g} theta_0): "
-                    "time to acquire median / max [us], theta RMSE [deg]",
-                    "-",
-                    f"acquired ({STRESS_STARTS * 2} starts)",
-                    f"{c(f'{case}.{k}.acquire_time_median', '.0f')} / "
-                    f"{c(f'{case}.{k}.acquire_time_max', '.0f')}, "
-                    f"{c(f'{case}.{k}.theta_rmse', '.3f')}",
-                    met_cell(F[f"{case}.{k}.acquired"]),
-                ]
-            )
-    return base.format_table(["figure", "paper", "target", "measured", "met"], rows)
-
-
-def plot(f: dict, path58: Path, path59: Path) -> None:
-    """Fig. 5.8 form (drive, angle, AMDM output) and Fig. 5.9 form (per-extremum amplitude,
-    phase and their errors)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    s = f["series"]
-    t, d = s["t"], s["delay"]
-    k = slice(int(0.04 * FS), int(0.04 * FS) + 300)
-    sign = {}
-    for name, th in s["est"].items():
-        sign[name] = np.sign(np.sum(th[k] * np.interp(t[k] - d, t, s["truth"]))) or 1.0
-    fig, ax = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
-    ax[0].plot(t[k] * 1e3, s["drive"][k], "k")
-    ax[0].set(ylabel="V_dr [V]", title="Fig. 5.8 form: drive, tilt angle, AMDM output")
-    ax[1].plot(t[k] * 1e3, np.degrees(s["truth"][k]), "k", lw=2, label="truth")
-    for name, c in (("ekf", "C0--"), ("ukf", "C1:")):
-        ax[1].plot(
-            (t[k] - d) * 1e3, np.degrees(sign[name] * s["est"][name][k]), c, label=name.upper()
-        )
-    ax[1].set(ylabel="theta [deg]")
-    ax[1].legend(fontsize=8)
-    p = sam.resolve_estimator(dict(chain_delay_s=d))
-    ax[2].plot(t[k] * 1e3, s["y"][k], "k.", ms=2, label="measured y_cap")
-    for name, c in (("ekf", "C0-"), ("ukf", "C1--")):
-        ax[2].plot(
-            t[k] * 1e3, sam.filter_measurement(s["est"][name][k], p), c, label=f"h({name.upper()})"
-        )
-    ax[2].set(xlabel="time [ms]", ylabel="y_cap [V]")
-    ax[2].legend(fontsize=8)
-    fig.tight_layout()
-    write_output(path58, lambda tmp: fig.savefig(tmp, dpi=110), overwrite=True)
-    plt.close(fig)
-
-    ref = s["ref"]
-    fig, ax = plt.subplots(2, 2, figsize=(12, 8))
-    ax[0, 0].plot(ref.t * 1e3, np.degrees(ref.amplitude), "k", lw=2, label="truth")
-    ax[0, 1].plot(ref.t * 1e3, np.degrees(ref.phase), "k", lw=2, label="truth")
-    for name, c in (("ekf", "C0"), ("ukf", "C1")):
-        ev = s["ev"][name]
-        te, dph, dam = su.match_events(ev, ref, 0.25 / 31.3e3)
-        ax[0, 0].plot(ev.t * 1e3, np.degrees(ev.amplitude), c, lw=0.8, label=name.upper())
-        ax[0, 1].plot(ev.t * 1e3, np.degrees(ev.phase), c, lw=0.8, label=name.upper())
-        ax[1, 0].plot(
-            te * 1e3,
-            np.degrees(dam),
-            c,
-            lw=0.8,
-            label=f"{name.upper()} RMSE {f[name + '_amp_deg']:.3f} deg",
-        )
-        ax[1, 1].plot(
-            te * 1e3,
-            np.degrees(dph),
-            c,
-            lw=0.8,
-            label=f"{name.upper()} RMSE {f[name + '_phase_deg']:.3f} deg",
-        )
-    for a in ax.ravel():
-        a.axvline(T_EVAL * 1e3, color="g", ls=":")
-        a.legend(fontsize=8)
-        a.set_xlabel("time [ms]")
-    ax[0, 0].set(
-        ylabel="amplitude |theta| at extrema [deg]", title="Fig. 5.9 form: per-extremum amplitude"
-    )
-    ax[0, 1].set(ylabel="phase shift [deg of motion period]", title="phase shift")
-    ax[1, 0].set(ylabel="amplitude error [deg]", ylim=(-0.5, 0.5))
-    ax[1, 1].set(ylabel="phase error [deg]", ylim=(-1.5, 1.5))
-    fig.tight_layout()
-    write_output(path59, lambda tmp: fig.savefig(tmp, dpi=110), overwrite=True)
-    plt.close(fig)
 
 
 def _check_duration(duration: float) -> None:

@@ -9,9 +9,14 @@ theta = A exp(-zeta w_n t) cos(w_d t) carries a damped sinusoid at 2 w_d decayin
 the filter's spring constant and damping with the design inertia (only w_n = sqrt(k/J) and
 zeta = b/(2 sqrt(J k)) enter the normalised dynamics of eqs. (82)-(84) the filter runs).
 
-Identified: ``spring_constant``, ``damping`` (through w_n, zeta).  Kept from the design
-values the caller passes (the Table 5.2 design, never a drawn device's): ``inertia``, the
-comb (``cap_c0``, ``cap_theta0``, ``cap_cb``) and the chain's output gain.
+The comb is mapped as the thesis maps it (Sec. 5.5.1): the AMDM output of a large-swing
+ring-down against a reference angle (its optical sensing, Fig. 5.5) gives C_0 and theta_0 of
+the Gaussian model (eq. (105)) by :func:`comb_fit`, the chain (circuit gain and bias, the
+calibrated square-law curve) being the electronics' known design.
+
+Identified: ``spring_constant``, ``damping`` (through w_n, zeta), ``cap_c0``, ``cap_theta0``.
+Kept from the design values the caller passes (the Table 5.2 design, never a drawn
+device's): ``inertia``, ``cap_cb`` and the chain.
 """
 
 from __future__ import annotations
@@ -23,10 +28,58 @@ from typing import Any
 import numpy as np
 import scipy.optimize
 
+from mems_estimation.filters.scanner_amdm_model import filter_measurement
 from mems_estimation.identification.model_yaml import load_model, save_model
 
-#: The parameters the identification YAML holds (the estimator's ESTIMATOR_SPECS names).
-MODEL_KEYS = ("inertia", "spring_constant", "damping")
+#: The parameters the identification YAML holds (the estimator's ESTIMATOR_SPECS names):
+#: the dynamics from the ring-downs, the comb from the capacitance map.
+MODEL_KEYS = ("inertia", "spring_constant", "damping", "cap_c0", "cap_theta0")
+
+
+def comb_fit(theta_ref, y, p: Mapping[str, Any]) -> dict[str, float]:
+    """The capacitance map (Chen 2018 Sec. 5.5.1 with the Gaussian model of eq. (105)):
+    C_0 and theta_0 of C_s = C_0 exp(-(theta/theta_0)^2) + C_b by least squares of the
+    AMDM output against the filters' measurement function h(theta_ref) (eq. (106) with the
+    chain's square-law curve), the chain and C_b held at ``p``.
+
+    Args:
+        theta_ref: (n,) reference angle at the instants ``y`` describes (t_k - chain delay)
+            [rad]; it must sweep a good part of theta_0 (a large-swing ring-down).
+        y: (n,) AMDM output [V].
+        p: estimator parameters: the start values ``cap_c0`` [F] and ``cap_theta0`` [rad],
+            ``cap_cb`` [F] and the chain (``circuit_gain``, ``circuit_bias``,
+            ``chain_square_gain``, ``chain_tangent_capacitance``, ``chain_offset``).
+
+    Returns:
+        ``cap_c0`` [F], ``cap_theta0`` [rad] and ``rms_residual`` [V].
+
+    Raises:
+        ValueError: sizes differ, too few samples, or the fit does not converge.
+    """
+    th = np.asarray(theta_ref, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if th.shape != y.shape or th.ndim != 1 or th.size < 100:
+        raise ValueError(
+            f"theta_ref and y must be equal 1-d arrays of >= 100 samples: {th.shape}, {y.shape}"
+        )
+    c0, t0 = float(p["cap_c0"]), float(p["cap_theta0"])
+    if np.max(np.abs(th)) < 0.5 * t0:
+        raise ValueError(
+            f"the reference swing {np.max(np.abs(th)):.3g} rad is too small to map a comb of "
+            f"theta_0 {t0:.3g} rad (>= theta_0 / 2)"
+        )
+
+    def residual(x):
+        return filter_measurement(th, dict(p, cap_c0=x[0] * c0, cap_theta0=x[1] * t0)) - y
+
+    fit = scipy.optimize.least_squares(residual, np.ones(2), x_scale="jac")
+    if not fit.success or min(fit.x) <= 0:
+        raise ValueError(f"capacitance map failed: {fit.message}")
+    return dict(
+        cap_c0=float(fit.x[0] * c0),
+        cap_theta0=float(fit.x[1] * t0),
+        rms_residual=float(np.sqrt(np.mean(fit.fun**2))),
+    )
 
 
 def ringdown_fit(y: np.ndarray, fs: float, f_guess: float) -> dict[str, float]:
@@ -191,6 +244,50 @@ def identify(
     )
 
 
+def identify_with_reference(
+    y: np.ndarray,
+    theta_ref: np.ndarray,
+    fs: float,
+    design: Mapping[str, Any],
+    band: tuple[float, float],
+) -> dict[str, Any]:
+    """The filter model from one large-swing ring-down (drive off) recorded with a
+    reference angle, as the thesis fits the decay of its optically measured ring-down
+    (Sec. 5.5.1, Fig. 5.6): zeta w_n from the reference's damped sinusoid (linear in theta:
+    none of the comb's harmonics that bias a fit of the AMDM output), w_n from the AMDM
+    output's 2 w_d line with the carrier's stiffness along the swing (:func:`frequency_fit`).
+
+    Args:
+        y: AMDM output [V] after the release, 1-D.
+        theta_ref: reference angle [rad] at the instants ``y`` describes, same length.
+        fs: their sample rate [Hz].
+        design: design ``inertia`` J [kg m^2] and the comb/carrier of
+            :func:`carrier_stiffness` (the mapped comb, :func:`comb_fit`).
+        band: search band [Hz] of the 2 w_d line.
+
+    Returns:
+        dict with :data:`MODEL_KEYS`' dynamics (J [kg m^2], k [N m/rad], b [N m s/rad]),
+        ``omega_n`` [rad/s], ``zeta`` [-] and ``rms_residual`` [rad] (the reference's fit).
+    """
+    th = np.asarray(theta_ref, dtype=float)
+    line = spectral_peak(y, fs, band)
+    ref = ringdown_fit(th, fs, 0.5 * line)  # its "2 w_d" line is w_d: halves stay halved
+    sigma = 2.0 * ref["zeta"] * ref["omega_n"]  # the fit's decay s is sigma itself
+    n = max(int(fs / (0.5 * line)), 1)
+    a0 = float(np.max(np.abs(th[:n])))
+    wn = frequency_fit(y, fs, line, design, a0, sigma)
+    J = float(design["inertia"])
+    z = sigma / wn
+    return dict(
+        inertia=J,
+        spring_constant=J * wn * wn,
+        damping=2.0 * z * J * wn,
+        omega_n=wn,
+        zeta=z,
+        rms_residual=ref["rms_residual"],
+    )
+
+
 def average(models: list[Mapping[str, Any]]) -> dict[str, Any]:
     """The mean of :func:`identify` results of repeated releases: w_n [rad/s] and zeta [-]
     averaged, k [N m/rad] and b [N m s/rad] recomputed from them with the design J."""
@@ -217,6 +314,7 @@ def save_identification(model: Mapping[str, Any], path: str) -> None:
 
 
 def load_identification(path: str) -> dict[str, float]:
-    """The model parameters (:data:`MODEL_KEYS`: J [kg m^2], k [N m/rad], b [N m s/rad]) of
-    a YAML written by :func:`save_identification`; FileNotFoundError / ValueError."""
+    """The model parameters (:data:`MODEL_KEYS`: J [kg m^2], k [N m/rad], b [N m s/rad],
+    C_0 [F], theta_0 [rad]) of a YAML written by :func:`save_identification`;
+    FileNotFoundError / ValueError."""
     return load_model(path, MODEL_KEYS, "scanner AMDM parameter YAML", positive=True)

@@ -17,6 +17,8 @@ namespace, default ``/scanner_amdm``):
         extrema, sample_rate_hz = twice the model's natural frequency (nominal rate).
     ``/diagnostics``  frames, rejected frames, gaps, AC SNR, tracking state, PD failures;
         WARN "low signal" while no motion is observable (drive far from parametric resonance).
+With ``output_namespace`` the four topics go to that namespace instead (an oracle filter
+beside the device's own, e.g. ``/scanner_amdm/oracle/ekf/estimate``).
 A frame at another sample rate, without the expected channel, with non-finite values or of
 another length than its partner is rejected and counted (input path:
 :class:`EstimatorNode`); a gap or a stream reset starts both filters again (re-acquire),
@@ -65,6 +67,14 @@ NODE_SPECS: tuple[ParamSpec, ...] = (
         "the nominal device's: the oracle model)",
         "Chen 2018 Sec. 5.5.1 (bench identification)",
     ),
+    ParamSpec(
+        "output_namespace",
+        "",
+        "-",
+        "namespace of the published <kind>/estimate and <kind>/phase_amplitude topics (e.g. "
+        "an oracle filter's beside the device's); empty: the device's",
+        "",
+    ),
 )
 
 STATE_NAMES, STATE_UNITS = ("theta", "omega"), ("rad", "rad/s")
@@ -109,13 +119,11 @@ class ScannerAmdmEstimatorNode(EstimatorNode):
         self.fs = p["sample_rate_hz"]
         self._make_filters()
         self.pub_est = {
-            k: self.create_publisher(StateEstimate, self.device_topic(f"{k}/estimate"), FRAME_QOS)
+            k: self.create_publisher(StateEstimate, self._output(f"{k}/estimate"), FRAME_QOS)
             for k in KINDS
         }
         self.pub_evt = {
-            k: self.create_publisher(
-                StateEstimate, self.device_topic(f"{k}/phase_amplitude"), FRAME_QOS
-            )
+            k: self.create_publisher(StateEstimate, self._output(f"{k}/phase_amplitude"), FRAME_QOS)
             for k in KINDS
         }
         self.event_rate = 2.0 * math.sqrt(p["spring_constant"] / p["inertia"]) / (2 * math.pi)
@@ -126,6 +134,11 @@ class ScannerAmdmEstimatorNode(EstimatorNode):
             ("adc", AdcFrame, self._decode_adc),
             ("drive", SignalFrame, lambda msg: _channel(msg, signal_data(msg), "v_drive")),
         )
+
+    def _output(self, name: str) -> str:
+        """Output topic ``name``: in ``output_namespace``, else the device's."""
+        ns = self.p["output_namespace"]
+        return f"{ns.rstrip('/')}/{name}" if ns else self.device_topic(name)
 
     def _make_filters(self) -> None:
         est, fs = self.est_params, self.fs

@@ -115,8 +115,36 @@ def test_oracle_delay_is_the_one_the_estimators_ran_with(result):
         for fqn, n in record["nodes"].items()
         if n["executable"] == "scanner_amdm_estimator_node"
     }
-    assert len(estimators) == len(delays) > 0
-    for ns, delay in delays.items():
-        (ran,) = [p["chain_delay_s"] for fqn, p in estimators.items() if fqn.startswith(f"/{ns}/")]
-        assert delay == ran > 0
+    assert set(delays) == {p["device_namespace"].lstrip("/") for p in estimators.values()}
+    assert len(estimators) == 3  # the device's, the off device's and the oracle filters
+    for p in estimators.values():
+        assert p["chain_delay_s"] == delays[p["device_namespace"].lstrip("/")] > 0
     assert result["result"].oracle_only == [sse.ORACLE] and not result["result"].unavailable
+
+
+def test_filters_run_the_bench_model_and_the_oracle_the_device_table(result):
+    """The estimators load the bench's YAML (the ring-downs' w_n and zeta, the comb's map),
+    the oracle filters the device's own table; the bench's errors against the device as
+    built are small, and the identified filters' NEES holds with their inflation."""
+    import yaml
+
+    from mems_scenarios.contract import read_run_info
+
+    record = read_run_info(result["mcap"])
+    est = record["nodes"]["/scanner_amdm/estimator/scanner_amdm_estimator"]["parameters"]
+    orc = record["nodes"]["/scanner_amdm/oracle/scanner_amdm_estimator"]["parameters"]
+    bench = yaml.safe_load(open(est["params_yaml"]))
+    table = yaml.safe_load(open(orc["params_yaml"]))
+    for k in ("spring_constant", "damping", "cap_c0", "cap_theta0"):
+        assert est[k] == bench[k] and orc[k] == table[k]
+    assert est["process_noise_inflation"] > orc["process_noise_inflation"]
+    figs = {r.name: r for r in result["figures"]}
+    assert abs(figs["device.identified_omega_n_error"].value) < 1e-5
+    assert abs(figs["device.identified_zeta_error"].value) < 2e-3
+    for k in ("cap_c0", "cap_theta0"):
+        assert abs(figs[f"device.identified_{k}_error"].value) < 5e-3
+    for k in ("ekf", "ukf"):
+        assert figs[f"{k}.nees"].met
+        assert figs[f"oracle.{k}.phase_rmse"].value > 0
+        ratio = figs[f"identified_vs_oracle.{k}.phase_rmse_ratio"]
+        assert ratio.target is None and ratio.value > 0  # context (docs/scanner.md)

@@ -23,7 +23,7 @@ def _acquired(device_seed: int) -> bool:
     p = _device(device_seed)
     r = b.run_bench(p, 8000 + device_seed)
     assert r["sweep_start_hz"] - r["sweep_end_hz"] in (pytest.approx(60.0), pytest.approx(15.0))
-    run = dict(p, sweep_start_hz=r["sweep_start_hz"], sweep_end_hz=r["sweep_end_hz"])
+    run = dict(p, **{k: r[k] for k in ("sweep_start_hz", "sweep_end_hz", "drive_voltage_max")})
     th = sa.AmdmScannerDevice(run, seed=10 + device_seed).step(60000).theta
     return bool(np.abs(th[20000:]).max() > 0.05)
 
@@ -40,12 +40,12 @@ def test_bench_window_acquires_motion(device_seed):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="16 of 20 drawn devices (seeds 101-120) acquire: device 115's parametric threshold "
-    "is 164 V, above the 150 V drive, so no sweep window can excite it; 102, 116 and 120 "
-    "(thresholds 142-145 V) grow too slowly within the 60 ms run. 19 of 20 needs a higher "
-    "drive or a longer run. strict: a pass would flag a change to revisit",
-)
 def test_bench_window_acquires_motion_on_19_of_20_drawn_devices():
-    assert sum(_acquired(s) for s in range(101, 121)) >= 19
+    """Draws 101-120: with the drive raised 20 % for a part that does not start (device
+    115's parametric threshold is 164 V, above the 150 V drive; 102, 116 and 120, at
+    142-145 V, grew too slowly within the 60 ms run at 150 V)."""
+    acquired = [s for s in range(101, 121) if _acquired(s)]
+    print(
+        f"acquired: {len(acquired)} of 20, missing {sorted(set(range(101, 121)) - set(acquired))}"
+    )
+    assert len(acquired) >= 19
