@@ -8,8 +8,6 @@ written beside the recording for the filters to load (``params_yaml``,
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from mems_estimation.identification.accelerometer_identification import (
     MODEL_KEYS,
     save_identification,
@@ -65,11 +63,7 @@ def bench_paths(options: base.ScenarioOptions, name: str, out=None) -> dict:
     (None: the options' ``out``, else ``runs/``): ``path``
     ``<stem>-seed<N>-accelerometer_params.yaml`` (the identified model) and
     ``oracle_path`` ``...-accelerometer_oracle_params.yaml`` (the device's own table's)."""
-    out = Path(out or options.out or Path("runs") / f"{name}-{options.seed}.mcap")
-    return dict(
-        path=base.output_path(out, options.seed, "-accelerometer_params.yaml"),
-        oracle_path=base.output_path(out, options.seed, "-accelerometer_oracle_params.yaml"),
-    )
+    return base.bench_paths(options, name, "accelerometer", out)
 
 
 def bench_identification(

@@ -560,6 +560,18 @@ def output_path(out: Path | str, seed: int, suffix: str) -> Path:
     return out.with_name(f"{stem}-seed{seed}{suffix}")
 
 
+def bench_paths(options: ScenarioOptions, scenario: str, device: str, out=None) -> dict:
+    """Where a bench's results go, beside the MCAP file ``out`` (None: the options' ``out``,
+    else ``runs/<scenario>-<seed>.mcap``): ``path`` ``<stem>-seed<N>-<device>_params.yaml``
+    (the identified model) and ``oracle_path`` ``...-<device>_oracle_params.yaml`` (the
+    device's own table's)."""
+    out = Path(out or options.out or Path("runs") / f"{scenario}-{options.seed}.mcap")
+    return dict(
+        path=output_path(out, options.seed, f"-{device}_params.yaml"),
+        oracle_path=output_path(out, options.seed, f"-{device}_oracle_params.yaml"),
+    )
+
+
 def outputs_beside(out: Path | str, seed: int) -> list[Path]:
     """The existing entries beside the MCAP file ``out`` that a run of ``seed`` would write
     (:func:`output_path`'s names: ``<stem>-seed<N>`` followed by ``-``, ``.`` or ``_``)."""

@@ -9,8 +9,6 @@ node, so the graph is made from the bench's result.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from mems_estimation.identification.scanner_amdm_identification import (
     MODEL_KEYS,
     save_identification,
@@ -53,11 +51,7 @@ def bench_paths(options: base.ScenarioOptions, name: str, out=None) -> dict:
     else ``runs/``): ``path`` ``<stem>-seed<N>-scanner_amdm_params.yaml`` (the identified
     model) and ``oracle_path`` ``...-scanner_amdm_oracle_params.yaml`` (the device's own
     table's)."""
-    out = Path(out or options.out or Path("runs") / f"{name}-{options.seed}.mcap")
-    return dict(
-        path=base.output_path(out, options.seed, "-scanner_amdm_params.yaml"),
-        oracle_path=base.output_path(out, options.seed, "-scanner_amdm_oracle_params.yaml"),
-    )
+    return base.bench_paths(options, name, "scanner_amdm", out)
 
 
 def bench_identification(

@@ -178,11 +178,7 @@ def bench_paths(options: base.ScenarioOptions, out=None) -> dict:
     ``out``, else ``runs/``): ``path`` ``<stem>-seed<N>-resonator_params.yaml`` (the
     identified model) and ``oracle_path`` ``...-resonator_oracle_params.yaml`` (the
     device's own f0 and Q)."""
-    out = Path(out or options.out or Path("runs") / f"{NAME}-{options.seed}.mcap")
-    return dict(
-        path=base.output_path(out, options.seed, "-resonator_params.yaml"),
-        oracle_path=base.output_path(out, options.seed, "-resonator_oracle_params.yaml"),
-    )
+    return base.bench_paths(options, NAME, "resonator", out)
 
 
 def bench_identification(options: base.ScenarioOptions, out=None) -> dict:

@@ -232,16 +232,7 @@ def identify(
     small = ringdown_fit(y_small, fs, spectral_peak(y_small, fs, band))
     sigma = small["zeta"] * small["omega_n"]
     wn = frequency_fit(y_large, fs, spectral_peak(y_large, fs, band), design, a_large, sigma)
-    J = float(design["inertia"])
-    z = sigma / wn
-    return dict(
-        inertia=J,
-        spring_constant=J * wn * wn,
-        damping=2.0 * z * J * wn,
-        omega_n=wn,
-        zeta=z,
-        rms_residual=small["rms_residual"],
-    )
+    return dynamics(float(design["inertia"]), wn, sigma / wn, small["rms_residual"])
 
 
 def identify_with_reference(
@@ -276,15 +267,19 @@ def identify_with_reference(
     n = max(int(fs / (0.5 * line)), 1)
     a0 = float(np.max(np.abs(th[:n])))
     wn = frequency_fit(y, fs, line, design, a0, sigma)
-    J = float(design["inertia"])
-    z = sigma / wn
+    return dynamics(float(design["inertia"]), wn, sigma / wn, ref["rms_residual"])
+
+
+def dynamics(J: float, wn: float, zeta: float, rms_residual: float) -> dict[str, float]:
+    """The filter's dynamics (eqs. (82)-(84)) from J [kg m^2], w_n [rad/s] and zeta [-]:
+    k = J w_n^2 [N m/rad], b = 2 zeta J w_n [N m s/rad], with the fit's ``rms_residual``."""
     return dict(
         inertia=J,
         spring_constant=J * wn * wn,
-        damping=2.0 * z * J * wn,
+        damping=2.0 * zeta * J * wn,
         omega_n=wn,
-        zeta=z,
-        rms_residual=ref["rms_residual"],
+        zeta=zeta,
+        rms_residual=rms_residual,
     )
 
 
@@ -293,16 +288,11 @@ def average(models: list[Mapping[str, Any]]) -> dict[str, Any]:
     averaged, k [N m/rad] and b [N m s/rad] recomputed from them with the design J."""
     if not models:
         raise ValueError("no identification to average")
-    J = float(models[0]["inertia"])
-    wn = float(np.mean([m["omega_n"] for m in models]))
-    z = float(np.mean([m["zeta"] for m in models]))
-    return dict(
-        inertia=J,
-        spring_constant=J * wn * wn,
-        damping=2.0 * z * J * wn,
-        omega_n=wn,
-        zeta=z,
-        rms_residual=float(np.mean([m["rms_residual"] for m in models])),
+    return dynamics(
+        float(models[0]["inertia"]),
+        float(np.mean([m["omega_n"] for m in models])),
+        float(np.mean([m["zeta"] for m in models])),
+        float(np.mean([m["rms_residual"] for m in models])),
     )
 
 

@@ -165,10 +165,10 @@ def test_bench_model_nees_on_18_of_20_runs(drawn):
 
 @pytest.mark.slow
 def test_identified_within_the_oracle_spread(drawn):
-    """The issue's criterion: per headline figure, the identified filters' RMSE within
-    max(10 %, the oracle's 5-95 % spread over the campaign) of the oracle's of the same run,
-    on >= 18 of the 20 runs (a failed run counts as a miss). Per run the ratio is context:
-    within 10 % needs the inertia to 0.1 % and w_n to 5 ppm (docs/scanner.md)."""
+    """Per headline figure, the identified filters' RMSE within max(10 %, the oracle's 5-95 %
+    spread over the campaign) of the oracle's of the same run, on >= 18 of the 20 runs (a
+    failed run counts as a miss). Per run the ratio is context: within 10 % needs the
+    inertia to 0.1 % and w_n to 5 ppm (docs/scanner.md)."""
     wide = _wide(drawn)
     for k in ("ekf", "ukf"):
         for q in ("amplitude", "phase"):
