@@ -24,7 +24,7 @@ KINDS = ("ekf", "ukf")
 PAPER = {"ekf": (5.04, 1.82), "ukf": (0.63, 0.39)}  # Table 5.3: amplitude, phase [deg]
 TARGET_PHASE_DEG = 0.18  # eqs. (78)-(79) as printed (see PHASE_SOURCE)
 TARGET_AMP_DEG = 0.63  # Table 5.3, the thesis's UKF (see AMP_SOURCE)
-RATIO_TOL = 0.01  # EKF and UKF within +-1 % of each other (module doc)
+RATIO_TOL = 0.01  # EKF and UKF within +-1 % of each other (the scenario's module doc)
 #: Where the targets come from (the figures' ``source``).
 AMP_SOURCE = (
     "Chen 2018 Table 5.3: the UKF's 0.63 deg, asked of both filters (equally accurate at "
@@ -46,8 +46,8 @@ DRAWN_SOURCE = project_criterion(
     "the bench's model of a drawn device meets the accuracy of Chen 2018 Table 5.3 and eqs. 78-79"
 )
 ACQUIRE_SOURCE = project_criterion("every start from a wrong state is acquired within 3 ms")
-# acquisition study (module doc): starts a quarter motion period apart after the growth
-
+# acquisition study (the scenario's module doc): starts a quarter motion period apart after
+# the growth
 STRESS_START_S = 0.03
 STRESS_STARTS = 4
 STRESS_SPACING = 16  # samples, ~1/4 of the 64 us motion period
